@@ -1,0 +1,127 @@
+"""Finding estimators by name: built-ins, ``module:Class`` paths and entry points.
+
+Built-ins are listed explicitly (as cvxpy's solver map) and imported lazily, so that listing
+them never imports an optional back-end. Third-party packages register classes under the
+entry-point group ``emitterbench.estimators``::
+
+    [project.entry-points."emitterbench.estimators"]
+    my-method = "my_package.module:MyEstimator"
+
+and anywhere an estimator name is accepted, ``package.module:Class`` works too.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+from dataclasses import dataclass
+from importlib.metadata import entry_points
+from typing import Any
+
+from estimators.base import Estimator
+
+ENTRY_POINT_GROUP = "emitterbench.estimators"
+
+
+@dataclass(frozen=True)
+class RegistryEntry:
+    name: str
+    target: str  # "module:attribute"
+    summary: str
+    required_modules: tuple[str, ...] = ()
+
+    def is_available(self) -> bool:
+        return all(importlib.util.find_spec(m) is not None for m in self.required_modules)
+
+
+BUILTIN: dict[str, RegistryEntry] = {
+    entry.name: entry
+    for entry in (
+        RegistryEntry(
+            "cls",
+            "estimators.cls:Cls",
+            "corrected closed-form Doppler-ToA CLS, weighted (MATH §3-§6)",
+        ),
+        RegistryEntry(
+            "cls-paper", "estimators.cls:ClsPaper", "paper's unweighted CLS with errata fixed"
+        ),
+        RegistryEntry(
+            "cls-as-printed",
+            "estimators.cls:ClsAsPrinted",
+            "paper's CLS as printed (wrong: no height term)",
+        ),
+        RegistryEntry(
+            "lls-toa", "estimators.lls:LlsToa", "conventional linear LS on squared ranges (MATH §9)"
+        ),
+        RegistryEntry(
+            "lls-rss", "estimators.lls:LlsRss", "So & Lin linear LS on RSS distances (MATH §9)"
+        ),
+        RegistryEntry(
+            "ml",
+            "estimators.ml:MaximumLikelihood",
+            "maximum likelihood, Gauss-Newton from the CLS candidates (MATH §10)",
+        ),
+    )
+}
+
+
+def _load(target: str) -> Any:
+    module_name, _, attribute = target.partition(":")
+    if not module_name or not attribute:
+        raise ValueError(f"estimator: {target!r} is not of the form 'package.module:Class'")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as error:
+        raise ValueError(f"estimator: cannot import {module_name!r} ({error})") from None
+    try:
+        return getattr(module, attribute)
+    except AttributeError:
+        raise ValueError(f"estimator: module {module_name!r} has no {attribute!r}") from None
+
+
+def plugin_entries() -> dict[str, RegistryEntry]:
+    """Estimators registered by installed packages under ``emitterbench.estimators``."""
+    found = {}
+    for point in entry_points(group=ENTRY_POINT_GROUP):
+        found[point.name] = RegistryEntry(point.name, point.value, f"plug-in from {point.value}")
+    return found
+
+
+def all_entries() -> dict[str, RegistryEntry]:
+    """Built-ins first, then plug-ins (a plug-in cannot shadow a built-in)."""
+    entries = dict(plugin_entries())
+    entries.update(BUILTIN)
+    return dict(sorted(entries.items(), key=lambda item: (item[0] not in BUILTIN, item[0])))
+
+
+def estimator_class(name: str) -> type:
+    """The class registered as ``name``, or the class at ``module:Class``."""
+    if ":" in name:
+        return _load(name)
+    entries = all_entries()
+    if name not in entries:
+        known = ", ".join(entries)
+        raise ValueError(
+            f"estimator: unknown name {name!r}; known estimators: {known} "
+            "(or give 'package.module:Class')"
+        )
+    entry = entries[name]
+    if not entry.is_available():
+        missing = [m for m in entry.required_modules if importlib.util.find_spec(m) is None]
+        raise ValueError(f"estimator: {name!r} needs {', '.join(missing)}, which is not installed")
+    return _load(entry.target)
+
+
+def make_estimator(name: str, **options: Any) -> Estimator:
+    """Construct the estimator ``name`` with keyword ``options``; errors name the option."""
+    cls = estimator_class(name)
+    try:
+        estimator = cls(**options)
+    except TypeError as error:
+        raise ValueError(f"estimator {name!r}: bad options {sorted(options)} ({error})") from None
+    if not isinstance(estimator, Estimator):
+        raise ValueError(
+            f"estimator {name!r}: {cls.__name__} lacks the Estimator interface "
+            "(needs name, requires and estimate(data, *, rng=None))"
+        )
+    return estimator

@@ -1,0 +1,132 @@
+"""Named scenarios (MATH §14): the paper's numbers, the meaningful reproductions, a turn, an orbit.
+
+The paper's scenario as printed has ``σ_τ² = 1e−6 s²``, i.e. ``c σ_τ = 300 km`` for an emitter
+62 m away: ToA is useless there. ``paper-1m`` and ``paper-10m`` keep the geometry with
+``c σ_τ = 1 m`` and ``10 m``. One straight frame can never tell the side of the track (MATH §7):
+``turn`` (two headings) and ``orbit`` resolve it, and give the LLS baselines full rank (MATH §9).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from scenarios.types import FlightPlan, NoiseSigmas, RssModel, Scenario
+
+PAPER_SPEED_OF_LIGHT_MPS = 3.0e8
+"""The paper rounds c to 3e8 m/s (MATH §14)."""
+
+
+def paper_scenario(
+    *, range_sigma_m: float | None = None, n_frames: int = 1, name: str = "paper"
+) -> Scenario:
+    """The paper's Section 5 scenario (MATH §14).
+
+    UAV from (0, 0, 50) m at (10, 0, 0) m/s, emitter at (35, 15, 0) m, ``f0 = c = 3e8``
+    (γ = 1 /m), Δ = 0.05 s, K = 10, ``σ_f² = 0.01 Hz²`` and, unless ``range_sigma_m`` gives
+    ``c σ_τ``, the printed ``σ_τ² = 1e−6 s²``. The paper gives no RSS model: log-distance with
+    P0 = 0 dBm at 1 m, η = 2 and σ_P = 4 dB at 0 dB.
+    """
+    toa_sigma_s = 1e-3 if range_sigma_m is None else range_sigma_m / PAPER_SPEED_OF_LIGHT_MPS
+    return Scenario(
+        name=name,
+        emitter_m=[35.0, 15.0],
+        flight=FlightPlan(
+            start_position_m=[0.0, 0.0, 50.0],
+            frame_velocities_mps=np.tile([10.0, 0.0, 0.0], (n_frames, 1)),
+            samples_per_frame=10,
+            sample_interval_s=0.05,
+        ),
+        carrier_hz=3.0e8,
+        speed_of_light_mps=PAPER_SPEED_OF_LIGHT_MPS,
+        emitter_height_m=0.0,
+        noise=NoiseSigmas(doppler_hz=0.1, toa_s=toa_sigma_s, rss_db=4.0),
+        rss_model=RssModel(
+            reference_power_dbm=0.0, reference_distance_m=1.0, path_loss_exponent=2.0
+        ),
+        description=(
+            "paper geometry, c*sigma_tau = 300 km as printed"
+            if range_sigma_m is None
+            else f"paper geometry, c*sigma_tau = {range_sigma_m:g} m"
+        ),
+    )
+
+
+def heading_velocities_mps(speed_mps: float, headings_deg: list[float]) -> np.ndarray:
+    """Level-flight velocities (n, 3) for headings measured from east, counter-clockwise."""
+    angle = np.deg2rad(np.asarray(headings_deg, dtype=float))
+    return np.column_stack([speed_mps * np.cos(angle), speed_mps * np.sin(angle), 0 * angle])
+
+
+def turn_scenario() -> Scenario:
+    """The paper geometry at ``c σ_τ = 1 m``, flying east for one frame and then north."""
+    base = paper_scenario(range_sigma_m=1.0)
+    return base.replace(
+        name="turn",
+        flight=FlightPlan(
+            start_position_m=base.flight.start_position_m,
+            frame_velocities_mps=heading_velocities_mps(10.0, [0.0, 90.0]),
+            samples_per_frame=10,
+            sample_interval_s=0.05,
+        ),
+        description="paper geometry at c*sigma_tau = 1 m, two headings (east, then north)",
+    )
+
+
+def orbit_scenario() -> Scenario:
+    """A closed 12-gon of radius ≈ 38 m around the emitter: 12 frames, 30° turn per frame."""
+    base = paper_scenario(range_sigma_m=1.0)
+    return base.replace(
+        name="orbit",
+        flight=FlightPlan(
+            start_position_m=base.flight.start_position_m,
+            frame_velocities_mps=heading_velocities_mps(10.0, list(np.arange(12) * 30.0)),
+            samples_per_frame=10,
+            sample_interval_s=0.2,
+        ),
+        description="12 frames of 20 m, a 30 degree turn per frame, c*sigma_tau = 1 m",
+    )
+
+
+@dataclass(frozen=True)
+class CatalogEntry:
+    name: str
+    build: Callable[[], Scenario]
+    summary: str
+
+
+CATALOG: dict[str, CatalogEntry] = {
+    entry.name: entry
+    for entry in (
+        CatalogEntry(
+            "paper", paper_scenario, "the paper's numbers as printed (c*sigma_tau = 300 km)"
+        ),
+        CatalogEntry(
+            "paper-1m",
+            lambda: paper_scenario(range_sigma_m=1.0, name="paper-1m"),
+            "paper geometry, c*sigma_tau = 1 m",
+        ),
+        CatalogEntry(
+            "paper-10m",
+            lambda: paper_scenario(range_sigma_m=10.0, name="paper-10m"),
+            "paper geometry, c*sigma_tau = 10 m",
+        ),
+        CatalogEntry("turn", turn_scenario, "paper geometry, east then north (two headings)"),
+        CatalogEntry("orbit", orbit_scenario, "a 12-frame polygonal orbit around the emitter"),
+    )
+}
+
+
+def get_scenario(name: str, *, frames: int | None = None) -> Scenario:
+    """The named scenario, optionally with ``frames`` frames (extended at the last velocity)."""
+    try:
+        entry = CATALOG[name]
+    except KeyError:
+        known = ", ".join(CATALOG)
+        raise ValueError(f"scenario: unknown name {name!r}; known scenarios: {known}") from None
+    scenario = entry.build()
+    if frames is not None:
+        scenario = scenario.replace(flight=scenario.flight.with_n_frames(frames))
+    return scenario

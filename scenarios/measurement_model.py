@@ -1,0 +1,126 @@
+r"""The forward model of MATH §1 and its Jacobians in the emitter's ``(x_s, y_s)`` (MATH §8).
+
+.. math::
+
+    \rho_k = \lVert p_k - s \rVert,\qquad u_k = (p_k - s)/\rho_k
+
+    f_k = -\gamma\, v_k^\top u_k \quad\text{(Doppler, received minus carrier, Hz)}
+
+    \tau_k = \rho_k / c \quad\text{(one-way time of arrival, s)}
+
+    P_k = P_0 - 10\,\eta\,\log_{10}(\rho_k / d_0) \quad\text{(received power, dBm)}
+
+with ``s = (x_s, y_s, z_s)`` and ``z_s`` known. Pure functions, vectorised: ``position_m`` and
+``velocity_mps`` have shape ``(..., N, 3)``, ``emitter_m`` has shape ``(..., 2)``; leading axes
+broadcast, so one call evaluates many trials, many candidate emitters or many geometries.
+Noise-free values come out with shape ``(..., N)``, Jacobians with shape ``(..., N, 2)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from scenarios.types import RssModel
+
+FloatArray = NDArray[np.float64]
+
+_TEN_OVER_LN10 = 10.0 / np.log(10.0)
+
+
+def emitter_offsets_m(
+    position_m: ArrayLike, emitter_m: ArrayLike, emitter_height_m: float = 0.0
+) -> FloatArray:
+    """``p_k − s`` in 3-D, shape ``(..., N, 3)`` (MATH §0)."""
+    position = np.asarray(position_m, dtype=float)
+    emitter = np.asarray(emitter_m, dtype=float)
+    height = np.full((*emitter.shape[:-1], 1), float(emitter_height_m))
+    emitter_3d = np.concatenate([emitter, height], axis=-1)
+    return position - emitter_3d[..., None, :]
+
+
+def slant_range_m(
+    position_m: ArrayLike, emitter_m: ArrayLike, emitter_height_m: float = 0.0
+) -> FloatArray:
+    """``ρ_k = ‖p_k − s‖`` (MATH §0), shape ``(..., N)``."""
+    return np.linalg.norm(emitter_offsets_m(position_m, emitter_m, emitter_height_m), axis=-1)
+
+
+def doppler_hz(
+    position_m: ArrayLike,
+    velocity_mps: ArrayLike,
+    emitter_m: ArrayLike,
+    gamma_per_m: float,
+    emitter_height_m: float = 0.0,
+) -> FloatArray:
+    """Noise-free Doppler ``f_k = −γ v_kᵀ u_k`` with the physical sign (MATH §1).
+
+    The paper's eq ``fd`` has the opposite sign; convert at the boundary of paper-faithful code.
+    """
+    offset = emitter_offsets_m(position_m, emitter_m, emitter_height_m)
+    distance = np.linalg.norm(offset, axis=-1)
+    radial_speed = np.einsum("...i,...i->...", np.asarray(velocity_mps, dtype=float), offset)
+    return -gamma_per_m * radial_speed / distance
+
+
+def toa_s(
+    position_m: ArrayLike,
+    emitter_m: ArrayLike,
+    speed_of_light_mps: float,
+    emitter_height_m: float = 0.0,
+) -> FloatArray:
+    """Noise-free one-way time of arrival ``τ_k = ρ_k / c`` (MATH §1, paper eq ``TOA``)."""
+    return slant_range_m(position_m, emitter_m, emitter_height_m) / speed_of_light_mps
+
+
+def rss_dbm(
+    position_m: ArrayLike,
+    emitter_m: ArrayLike,
+    rss_model: RssModel,
+    emitter_height_m: float = 0.0,
+) -> FloatArray:
+    """Noise-free received power ``P_k = P0 − 10 η log10(ρ_k / d0)`` (MATH §1)."""
+    distance = slant_range_m(position_m, emitter_m, emitter_height_m)
+    return rss_model.reference_power_dbm - 10.0 * rss_model.path_loss_exponent * np.log10(
+        distance / rss_model.reference_distance_m
+    )
+
+
+def toa_jacobian(
+    position_m: ArrayLike,
+    emitter_m: ArrayLike,
+    speed_of_light_mps: float,
+    emitter_height_m: float = 0.0,
+) -> FloatArray:
+    """``∂τ_k/∂(x_s, y_s) = −u_k,xy / c`` (MATH §8), shape ``(..., N, 2)``."""
+    offset = emitter_offsets_m(position_m, emitter_m, emitter_height_m)
+    unit = offset / np.linalg.norm(offset, axis=-1, keepdims=True)
+    return -unit[..., :2] / speed_of_light_mps
+
+
+def doppler_jacobian(
+    position_m: ArrayLike,
+    velocity_mps: ArrayLike,
+    emitter_m: ArrayLike,
+    gamma_per_m: float,
+    emitter_height_m: float = 0.0,
+) -> FloatArray:
+    """``∂f_k/∂(x_s, y_s) = γ (v_k − (v_kᵀu_k) u_k)_xy / ρ_k`` (MATH §8), shape ``(..., N, 2)``."""
+    offset = emitter_offsets_m(position_m, emitter_m, emitter_height_m)
+    distance = np.linalg.norm(offset, axis=-1, keepdims=True)
+    unit = offset / distance
+    velocity = np.broadcast_to(np.asarray(velocity_mps, dtype=float), unit.shape)
+    radial = np.einsum("...i,...i->...", velocity, unit)[..., None]
+    return gamma_per_m * (velocity - radial * unit)[..., :2] / distance
+
+
+def rss_jacobian(
+    position_m: ArrayLike,
+    emitter_m: ArrayLike,
+    rss_model: RssModel,
+    emitter_height_m: float = 0.0,
+) -> FloatArray:
+    """``∂P_k/∂(x_s, y_s) = (10 η / ln 10) u_k,xy / ρ_k`` (MATH §8), shape ``(..., N, 2)``."""
+    offset = emitter_offsets_m(position_m, emitter_m, emitter_height_m)
+    distance_sq = np.einsum("...i,...i->...", offset, offset)[..., None]
+    return _TEN_OVER_LN10 * rss_model.path_loss_exponent * offset[..., :2] / distance_sq

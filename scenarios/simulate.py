@@ -1,0 +1,85 @@
+"""Seeded simulation of Doppler, ToA and RSS measurements (MATH §1, with the SNR axis of §2).
+
+Every random draw comes from a ``numpy.random.Generator`` built from one
+``numpy.random.SeedSequence`` per trial, and every trial draws its noise in the same fixed
+order (a standard-normal block of shape (3, N): Doppler, ToA, RSS) whatever the modalities
+simulated. So trial ``i`` of a run is the same wherever and in whichever order it runs, and every
+estimator and modality subset sees common random numbers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from scenarios import measurement_model as model
+from scenarios.types import MODALITIES, MeasurementBatch, MeasurementSet, Scenario
+
+SeedLike = int | np.random.SeedSequence
+
+
+def noise_free(scenario: Scenario, *, snr_db: float = 0.0) -> MeasurementSet:
+    """The scenario's exact measurements, labelled with the σ's of ``snr_db`` (MATH §2)."""
+    flight = scenario.flight
+    position = flight.sample_positions_m()
+    velocity = flight.sample_velocities_mps()
+    emitter, height = scenario.emitter_m, scenario.emitter_height_m
+    values = {
+        "doppler": lambda: model.doppler_hz(
+            position, velocity, emitter, scenario.gamma_per_m, height
+        ),
+        "toa": lambda: model.toa_s(position, emitter, scenario.speed_of_light_mps, height),
+        "rss": lambda: model.rss_dbm(position, emitter, scenario.rss_model, height),
+    }
+    present = {m: values[m]() if m in scenario.modalities else None for m in MODALITIES}
+    return MeasurementSet(
+        frame=flight.sample_frames(),
+        time_s=flight.sample_times_s(),
+        position_m=position,
+        velocity_mps=velocity,
+        doppler_hz=present["doppler"],
+        toa_s=present["toa"],
+        rss_dbm=present["rss"],
+        carrier_hz=scenario.carrier_hz,
+        speed_of_light_mps=scenario.speed_of_light_mps,
+        emitter_height_m=height,
+        noise=scenario.noise.at_snr(snr_db),
+        rss_model=scenario.rss_model if "rss" in scenario.modalities else None,
+        truth_emitter_m=emitter,
+    )
+
+
+def standard_noise(seed: SeedLike, n_samples: int) -> np.ndarray:
+    """One trial's standard-normal draws, shape (3, n_samples): Doppler, ToA, RSS rows."""
+    return np.random.default_rng(seed).standard_normal((len(MODALITIES), n_samples))
+
+
+def simulate_trials(
+    scenario: Scenario, *, snr_db: float, seeds: Sequence[SeedLike]
+) -> MeasurementBatch:
+    """Noisy measurements of ``len(seeds)`` trials, one seed (SeedSequence child) per trial."""
+    exact = noise_free(scenario, snr_db=snr_db)
+    if len(seeds) == 0:
+        raise ValueError("seeds: need at least one trial")
+    draws = np.stack([standard_noise(seed, exact.n_samples) for seed in seeds], axis=1)
+    noisy = {}
+    for row, (modality, name) in enumerate(
+        (("doppler", "doppler_hz"), ("toa", "toa_s"), ("rss", "rss_dbm"))
+    ):
+        value = getattr(exact, name)
+        if value is None:
+            noisy[name] = None
+        else:
+            noisy[name] = value + exact.noise.for_modality(modality) * draws[row]
+    return MeasurementBatch(geometry=exact, **noisy)
+
+
+def simulate(scenario: Scenario, *, snr_db: float = 0.0, seed: SeedLike = 0) -> MeasurementSet:
+    """One noisy trial (MATH §1-§2), reproducible from ``seed``."""
+    return simulate_trials(scenario, snr_db=snr_db, seeds=[seed]).trial(0)
+
+
+def trial_seeds(seed: int, n_trials: int) -> list[np.random.SeedSequence]:
+    """``SeedSequence(seed).spawn(n_trials)``: child ``i`` drives trial ``i``."""
+    return np.random.SeedSequence(seed).spawn(n_trials)
