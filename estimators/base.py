@@ -45,7 +45,9 @@ class Estimate:
         Every minimiser of equal cost, ``position_m`` among them (MATH §7). Two mirror
         images on one straight frame, one point once a turn resolves the side.
     ambiguous : bool
-        True when the data cannot tell the candidates apart; ``position_m`` is then a guess.
+        True when the data cannot tell the side of the track (MATH §7): every sample on one
+        straight line, or several candidates of equal cost. ``position_m`` is then a guess,
+        even when the single candidate lies on the track and is its own mirror image.
     covariance_m2 : (2, 2) or None
         The estimator's own error covariance, when it has one.
     success : bool

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import inspect
 from dataclasses import dataclass
 from importlib.metadata import entry_points
 from typing import Any
@@ -115,10 +116,19 @@ def estimator_class(name: str) -> type:
 def make_estimator(name: str, **options: Any) -> Estimator:
     """Construct the estimator ``name`` with keyword ``options``; errors name the option."""
     cls = estimator_class(name)
+    accepted = sorted(inspect.signature(cls).parameters)
+    unknown = sorted(set(options) - set(accepted))
+    if unknown:
+        raise ValueError(
+            f"{unknown[0]}: not an option of estimator {name!r}; "
+            f"its options: {', '.join(accepted) or 'none'}"
+        )
     try:
         estimator = cls(**options)
     except TypeError as error:
-        raise ValueError(f"estimator {name!r}: bad options {sorted(options)} ({error})") from None
+        raise ValueError(
+            f"options: estimator {name!r} rejected {sorted(options)} ({error})"
+        ) from None
     if not isinstance(estimator, Estimator):
         raise ValueError(
             f"estimator {name!r}: {cls.__name__} lacks the Estimator interface "

@@ -1,0 +1,555 @@
+"""The ``emitterbench`` command line: ``simulate``, ``estimate``, ``crlb`` and ``list``.
+
+Adding a command is one function registered with ``@command("name")``: its parameters are
+typed ``Annotated`` typer options, it imports the heavy modules it needs inside its body (so
+that ``emitterbench --help`` stays quick), and any ``ValueError`` it raises (the library's
+errors name the field and the fix) becomes the one line ``error: <message>`` on stderr with
+exit status 2, without a traceback. Measurement files are read with :func:`load_measurements`,
+which takes the CSV constants of the ``*Option`` aliases below.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn, TypeVar
+
+import typer
+
+if TYPE_CHECKING:
+    from estimators.base import Estimate
+    from scenarios.types import MeasurementSet
+
+USAGE_ERROR_STATUS = 2
+"""Exit status of a malformed file, an unknown name or a bad option."""
+
+app = typer.Typer(
+    name="emitterbench",
+    help=(
+        "Locate a radio emitter from one UAV's Doppler and time-of-arrival measurements, "
+        "and compare estimators against the Cramér-Rao bound."
+    ),
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_show_locals=False,
+)
+
+
+@app.callback()
+def emitterbench() -> None:
+    """Locate a radio emitter from one UAV's Doppler and ToA measurements (see MATH.md)."""
+
+
+# --------------------------------------------------------------------------------------------
+# shared helpers: clean errors, measurement files, output
+# --------------------------------------------------------------------------------------------
+
+Command = TypeVar("Command", bound=Callable[..., Any])
+
+
+def fail(message: str) -> NoReturn:
+    """Print ``error: <message>`` on one line to stderr and exit with status 2."""
+    typer.echo(f"error: {' '.join(message.split())}", err=True)
+    raise typer.Exit(USAGE_ERROR_STATUS)
+
+
+def exit_on_value_error(function: Command) -> Command:
+    """Turn a ``ValueError`` escaping ``function`` into :func:`fail` (no traceback)."""
+
+    @functools.wraps(function)
+    def run(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return function(*args, **kwargs)
+        except ValueError as error:
+            fail(str(error))
+
+    return run  # type: ignore[return-value]
+
+
+def command(name: str, **typer_options: Any) -> Callable[[Command], Command]:
+    """Register ``function`` as the sub-command ``name`` of :data:`app`, with clean errors."""
+
+    def register(function: Command) -> Command:
+        app.command(name, **typer_options)(exit_on_value_error(function))
+        return function
+
+    return register
+
+
+_CSV_PANEL = "CSV constants (a JSON file carries its own)"
+
+CarrierOption = Annotated[
+    float | None,
+    typer.Option("--carrier-hz", help="Carrier frequency f0, Hz.", rich_help_panel=_CSV_PANEL),
+]
+SpeedOfLightOption = Annotated[
+    float | None,
+    typer.Option(
+        "--speed-of-light-mps",
+        help="Propagation speed c, m/s (default 299792458).",
+        rich_help_panel=_CSV_PANEL,
+    ),
+]
+EmitterHeightOption = Annotated[
+    float | None,
+    typer.Option(
+        "--emitter-height-m",
+        help="Known emitter height z_s, m (default 0).",
+        rich_help_panel=_CSV_PANEL,
+    ),
+]
+SigmaDopplerOption = Annotated[
+    float | None,
+    typer.Option("--sigma-doppler-hz", help="Doppler noise σ, Hz.", rich_help_panel=_CSV_PANEL),
+]
+SigmaToaOption = Annotated[
+    float | None,
+    typer.Option("--sigma-toa-s", help="ToA noise σ, s.", rich_help_panel=_CSV_PANEL),
+]
+SigmaRssOption = Annotated[
+    float | None,
+    typer.Option("--sigma-rss-db", help="RSS noise σ, dB.", rich_help_panel=_CSV_PANEL),
+]
+RssPowerOption = Annotated[
+    float | None,
+    typer.Option(
+        "--rss-reference-power-dbm", help="RSS model P0, dBm.", rich_help_panel=_CSV_PANEL
+    ),
+]
+RssDistanceOption = Annotated[
+    float | None,
+    typer.Option("--rss-reference-distance-m", help="RSS model d0, m.", rich_help_panel=_CSV_PANEL),
+]
+RssExponentOption = Annotated[
+    float | None,
+    typer.Option("--rss-path-loss-exponent", help="RSS model η.", rich_help_panel=_CSV_PANEL),
+]
+JsonFlag = Annotated[
+    bool, typer.Option("--json", help="Print exactly one JSON object instead of a summary.")
+]
+MeasurementFile = Annotated[
+    Path, typer.Argument(help="Measurement file, .json or .csv (CSV needs the constants).")
+]
+
+_OPTION_OF_FIELD = {
+    "carrier_hz": "--carrier-hz",
+    "speed_of_light_mps": "--speed-of-light-mps",
+    "emitter_height_m": "--emitter-height-m",
+    "noise.doppler_hz": "--sigma-doppler-hz",
+    "noise.toa_s": "--sigma-toa-s",
+    "noise.rss_db": "--sigma-rss-db",
+    "rss_model.reference_power_dbm": "--rss-reference-power-dbm",
+    "rss_model.reference_distance_m": "--rss-reference-distance-m",
+    "rss_model.path_loss_exponent": "--rss-path-loss-exponent",
+    "rss_model": "--rss-reference-power-dbm/--rss-reference-distance-m/--rss-path-loss-exponent",
+}
+
+
+def load_measurements(
+    file: Path,
+    *,
+    carrier_hz: float | None = None,
+    speed_of_light_mps: float | None = None,
+    emitter_height_m: float | None = None,
+    sigma_doppler_hz: float | None = None,
+    sigma_toa_s: float | None = None,
+    sigma_rss_db: float | None = None,
+    rss_reference_power_dbm: float | None = None,
+    rss_reference_distance_m: float | None = None,
+    rss_path_loss_exponent: float | None = None,
+) -> MeasurementSet:
+    """Read a measurement file; for CSV, build the constants from the CLI options.
+
+    Errors about a CSV constant name the command-line option to fix (``--sigma-toa-s``).
+    """
+    from scenarios.files import read_measurements
+    from scenarios.types import NoiseSigmas, RssModel
+
+    options = {
+        "carrier_hz": carrier_hz,
+        "speed_of_light_mps": speed_of_light_mps,
+        "emitter_height_m": emitter_height_m,
+        "noise.doppler_hz": sigma_doppler_hz,
+        "noise.toa_s": sigma_toa_s,
+        "noise.rss_db": sigma_rss_db,
+        "rss_model.reference_power_dbm": rss_reference_power_dbm,
+        "rss_model.reference_distance_m": rss_reference_distance_m,
+        "rss_model.path_loss_exponent": rss_path_loss_exponent,
+    }
+    given = [field for field, value in options.items() if value is not None]
+    if file.suffix.lower() != ".csv":
+        if given:
+            raise ValueError(
+                f"{_OPTION_OF_FIELD[given[0]]}: only for CSV files; {file} carries its own "
+                "constants (drop the option or edit the file)"
+            )
+        return read_measurements(file)
+    if carrier_hz is None:
+        raise ValueError(f"--carrier-hz: required to read the CSV file {file}")
+    rss_fields = [field for field in options if field.startswith("rss_model.")]
+    rss_given = [field for field in rss_fields if options[field] is not None]
+    if rss_given and len(rss_given) < len(rss_fields):
+        missing = next(field for field in rss_fields if options[field] is None)
+        raise ValueError(f"{_OPTION_OF_FIELD[missing]}: give all three RSS-model options")
+    try:
+        return read_measurements(
+            file,
+            carrier_hz=carrier_hz,
+            speed_of_light_mps=speed_of_light_mps,
+            emitter_height_m=emitter_height_m,
+            noise=NoiseSigmas(doppler_hz=sigma_doppler_hz, toa_s=sigma_toa_s, rss_db=sigma_rss_db),
+            rss_model=None
+            if not rss_given
+            else RssModel(
+                reference_power_dbm=rss_reference_power_dbm,
+                reference_distance_m=rss_reference_distance_m,
+                path_loss_exponent=rss_path_loss_exponent,
+            ),
+        )
+    except ValueError as error:
+        field, separator, rest = str(error).partition(": ")
+        if separator and field in _OPTION_OF_FIELD:
+            raise ValueError(f"{_OPTION_OF_FIELD[field]}: {rest}") from None
+        raise
+
+
+def parse_estimator_options(pairs: list[str]) -> dict[str, Any]:
+    """``key=value`` strings to keyword arguments; values are JSON where they parse.
+
+    ``side_prior_m=[30,10]`` gives the tuple ``(30, 10)`` (JSON arrays become tuples, so the
+    frozen estimator stays hashable), ``frames=last`` the string ``"last"``.
+    """
+
+    def frozen(value: Any) -> Any:
+        return tuple(frozen(item) for item in value) if isinstance(value, list) else value
+
+    options: dict[str, Any] = {}
+    for pair in pairs:
+        key, separator, text = pair.partition("=")
+        key = key.strip()
+        if not separator or not key.isidentifier():
+            raise ValueError(f"--option: expected key=value, got {pair!r}")
+        if key in options:
+            raise ValueError(f"--option: {key!r} given twice; keep one")
+        try:
+            options[key] = frozen(json.loads(text))
+        except json.JSONDecodeError:
+            options[key] = text
+    return options
+
+
+def json_ready(value: Any) -> Any:
+    """Nested dicts, sequences and numpy values as plain JSON; non-finite floats as null."""
+    import numpy as np
+
+    if isinstance(value, dict):
+        return {str(key): json_ready(item) for key, item in value.items()}
+    if isinstance(value, list | tuple | np.ndarray):
+        return [json_ready(item) for item in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if value is None or isinstance(value, bool | int | str):
+        return value
+    return str(value)
+
+
+def print_json(obj: Any) -> None:
+    """Print one JSON object on stdout (strict: NaN was already turned into null)."""
+    typer.echo(json.dumps(json_ready(obj), allow_nan=False))
+
+
+def _console() -> Any:
+    from rich.console import Console
+
+    return Console(highlight=False, soft_wrap=True)
+
+
+def _point_text(point: Any) -> str:
+    return "(" + ", ".join("nan" if not math.isfinite(v) else f"{v:.4f}" for v in point) + ")"
+
+
+# --------------------------------------------------------------------------------------------
+# commands
+# --------------------------------------------------------------------------------------------
+
+
+@command("simulate")
+def simulate_command(
+    scenario: Annotated[str, typer.Argument(help="Scenario name (see `emitterbench list`).")],
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the noise draw.")],
+    output: Annotated[
+        Path, typer.Option("--output", "-o", help="Measurement file to write (.json).")
+    ],
+    snr_db: Annotated[
+        float, typer.Option("--snr-db", help="SNR: every σ times 10^(−snr_db/20) (MATH §2).")
+    ] = 0.0,
+    frames: Annotated[
+        int | None, typer.Option("--frames", help="Number of frames (extends the last).")
+    ] = None,
+) -> None:
+    """Simulate one noisy trial of a named scenario and write it, truth included."""
+    from scenarios.catalog import get_scenario
+    from scenarios.files import write_measurements
+    from scenarios.simulate import simulate
+
+    if output.suffix.lower() != ".json":
+        raise ValueError(f"--output: {output} must end in .json")
+    chosen = get_scenario(scenario, frames=frames)
+    data = simulate(chosen, snr_db=snr_db, seed=seed)
+    write_measurements(data, output)
+    typer.echo(
+        f"wrote {output}: {chosen.name}, {data.n_samples} samples in {len(data.frames)} "
+        f"frame(s), SNR {snr_db:g} dB, seed {seed}"
+    )
+
+
+def estimate_to_dict(estimate: Estimate, truth_emitter_m: Any | None) -> dict[str, Any]:
+    """``Estimate.to_dict()`` plus ``error_m`` and ``error_side_resolved_m`` given a truth.
+
+    ``error_side_resolved_m`` is the distance from the truth to the nearest candidate: the
+    error with the mirror side resolved (MATH §7).
+    """
+    import numpy as np
+
+    result = estimate.to_dict()
+    if truth_emitter_m is not None:
+        truth = np.asarray(truth_emitter_m, dtype=float)
+        error = float(np.linalg.norm(estimate.position_m - truth))
+        candidates = estimate.candidates_m
+        result["error_m"] = error if math.isfinite(error) else None
+        result["error_side_resolved_m"] = (
+            float(np.min(np.linalg.norm(candidates - truth, axis=1))) if len(candidates) else None
+        )
+    return result
+
+
+@command("estimate")
+def estimate_command(
+    file: MeasurementFile,
+    estimator: Annotated[
+        str,
+        typer.Option(
+            "--estimator", "-e", help="Estimator name (see `emitterbench list`) or module:Class."
+        ),
+    ] = "cls",
+    option: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--option",
+            help="Estimator option key=value, repeatable; JSON values, e.g. side_prior_m=[30,10].",
+        ),
+    ] = None,
+    as_json: JsonFlag = False,
+    carrier_hz: CarrierOption = None,
+    speed_of_light_mps: SpeedOfLightOption = None,
+    emitter_height_m: EmitterHeightOption = None,
+    sigma_doppler_hz: SigmaDopplerOption = None,
+    sigma_toa_s: SigmaToaOption = None,
+    sigma_rss_db: SigmaRssOption = None,
+    rss_reference_power_dbm: RssPowerOption = None,
+    rss_reference_distance_m: RssDistanceOption = None,
+    rss_path_loss_exponent: RssExponentOption = None,
+) -> None:
+    """Locate the emitter from a measurement file with one estimator (rng seeded with 0)."""
+    import numpy as np
+
+    from estimators.registry import make_estimator
+
+    options = parse_estimator_options(option or [])
+    chosen = make_estimator(estimator, **options)
+    data = load_measurements(
+        file,
+        carrier_hz=carrier_hz,
+        speed_of_light_mps=speed_of_light_mps,
+        emitter_height_m=emitter_height_m,
+        sigma_doppler_hz=sigma_doppler_hz,
+        sigma_toa_s=sigma_toa_s,
+        sigma_rss_db=sigma_rss_db,
+        rss_reference_power_dbm=rss_reference_power_dbm,
+        rss_reference_distance_m=rss_reference_distance_m,
+        rss_path_loss_exponent=rss_path_loss_exponent,
+    )
+    estimate = chosen.estimate(data.without_truth(), rng=np.random.default_rng(0))
+    result = estimate_to_dict(estimate, data.truth_emitter_m)
+    if as_json:
+        print_json(result)
+        return
+    _print_estimate(result, file, data)
+
+
+def _print_estimate(result: dict[str, Any], file: Path, data: MeasurementSet) -> None:
+    from rich.table import Table
+
+    def point(value: list[float | None] | None) -> str:
+        return "-" if value is None else _point_text([math.nan if v is None else v for v in value])
+
+    table = Table.grid(padding=(0, 2))
+    table.add_column(style="bold")
+    table.add_column()
+    table.add_row("estimator", result["estimator"])
+    table.add_row(
+        "data",
+        f"{file}: {data.n_samples} samples, {len(data.frames)} frame(s), "
+        f"{', '.join(sorted(data.modalities))}",
+    )
+    table.add_row("success", "yes" if result["success"] else "NO")
+    table.add_row("position_m", point(result["position_m"]))
+    table.add_row("candidates_m", "  ".join(point(c) for c in result["candidates_m"]) or "-")
+    if result["ambiguous"]:
+        table.add_row("ambiguous", "yes: the data cannot tell these candidates apart (MATH §7)")
+    if result["covariance_m2"] is not None:
+        table.add_row("covariance_m2", str(result["covariance_m2"]))
+    if "error_m" in result:
+        table.add_row(
+            "error_m",
+            f"{_number_text(result['error_m'])} (side resolved: "
+            f"{_number_text(result['error_side_resolved_m'])})",
+        )
+    if result["message"]:
+        table.add_row("message", result["message"])
+    for key, value in result["diagnostics"].items():
+        table.add_row(f"  {key}", str(value))
+    _console().print(table)
+
+
+def _number_text(value: float | None) -> str:
+    return "-" if value is None else f"{value:.4g}"
+
+
+def crlb_table(data: MeasurementSet, at_m: Any) -> dict[str, Any]:
+    """RMSE bound and CRLB matrix at ``at_m`` for each of ``MODALITY_SETS`` (MATH §8).
+
+    A set whose σ (or RSS model) is missing, or whose information is singular, is ``None``
+    with a note saying why.
+    """
+    import numpy as np
+
+    from comparison.crlb import MODALITY_SETS, crlb_m2, fisher_information, rmse_bound_m
+
+    table: dict[str, Any] = {
+        "at_m": [float(v) for v in at_m],
+        "n_samples": data.n_samples,
+        "rmse_bound_m": {},
+        "crlb_m2": {},
+        "notes": {},
+    }
+    for name, modalities in MODALITY_SETS.items():
+        try:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                information = fisher_information(data, at_m, modalities)
+        except ValueError as error:
+            table["rmse_bound_m"][name] = table["crlb_m2"][name] = None
+            table["notes"][name] = str(error)
+            continue
+        bound = float(rmse_bound_m(information))
+        if not math.isfinite(bound):
+            table["rmse_bound_m"][name] = table["crlb_m2"][name] = None
+            table["notes"][name] = "singular Fisher information: unobservable from these samples"
+            continue
+        table["rmse_bound_m"][name] = bound
+        table["crlb_m2"][name] = crlb_m2(information).tolist()
+    return table
+
+
+@command("crlb")
+def crlb_command(
+    file: MeasurementFile,
+    at: Annotated[
+        tuple[float, float] | None,
+        typer.Option("--at", help="Emitter position X Y, m (default: the truth in the file)."),
+    ] = None,
+    as_json: JsonFlag = False,
+    carrier_hz: CarrierOption = None,
+    speed_of_light_mps: SpeedOfLightOption = None,
+    emitter_height_m: EmitterHeightOption = None,
+    sigma_doppler_hz: SigmaDopplerOption = None,
+    sigma_toa_s: SigmaToaOption = None,
+    sigma_rss_db: SigmaRssOption = None,
+    rss_reference_power_dbm: RssPowerOption = None,
+    rss_reference_distance_m: RssDistanceOption = None,
+    rss_path_loss_exponent: RssExponentOption = None,
+) -> None:
+    """Cramér-Rao bound for (x_s, y_s) per modality set: toa, doppler, rss, toa+doppler.
+
+    Needs only the geometry and the σ's of the file, not the measured values (MATH §8).
+    """
+    data = load_measurements(
+        file,
+        carrier_hz=carrier_hz,
+        speed_of_light_mps=speed_of_light_mps,
+        emitter_height_m=emitter_height_m,
+        sigma_doppler_hz=sigma_doppler_hz,
+        sigma_toa_s=sigma_toa_s,
+        sigma_rss_db=sigma_rss_db,
+        rss_reference_power_dbm=rss_reference_power_dbm,
+        rss_reference_distance_m=rss_reference_distance_m,
+        rss_path_loss_exponent=rss_path_loss_exponent,
+    )
+    if at is not None:
+        if not all(math.isfinite(v) for v in at):
+            raise ValueError(f"--at: expected two finite numbers X Y, got {at}")
+        at_m: Any = at
+    elif data.truth_emitter_m is not None:
+        at_m = data.truth_emitter_m
+    else:
+        raise ValueError(f"--at: {file} has no truth; give the emitter position as --at X Y")
+    table = crlb_table(data, at_m)
+    if as_json:
+        print_json(table)
+        return
+    from rich.table import Table
+
+    view = Table(title=f"CRLB at {_point_text(table['at_m'])} m, {data.n_samples} samples")
+    for heading in ("modalities", "√trace CRLB (m)", "CRLB (m²)", "note"):
+        view.add_column(heading)
+    for name in table["rmse_bound_m"]:
+        bound, matrix = table["rmse_bound_m"][name], table["crlb_m2"][name]
+        view.add_row(
+            name,
+            _number_text(bound),
+            "-" if matrix is None else "; ".join(" ".join(f"{v:.3g}" for v in r) for r in matrix),
+            table["notes"].get(name, ""),
+        )
+    _console().print(view)
+
+
+@command("list")
+def list_command() -> None:
+    """The named scenarios and the estimators, one line each."""
+    import importlib.util
+
+    from estimators.registry import all_entries
+    from scenarios.catalog import CATALOG
+
+    def unavailable(entry: Any) -> str:
+        missing = [m for m in entry.required_modules if importlib.util.find_spec(m) is None]
+        module = entry.target.partition(":")[0]
+        try:
+            found = importlib.util.find_spec(module) is not None
+        except (ImportError, ValueError):
+            found = False
+        if not found:
+            missing.append(module)
+        return f"  [unavailable: needs {', '.join(missing)}]" if missing else ""
+
+    width = max(len(name) for name in (*CATALOG, *all_entries()))
+    typer.echo("scenarios:")
+    for name, entry in CATALOG.items():
+        typer.echo(f"  {name:<{width}}  {entry.summary}")
+    typer.echo("estimators:")
+    for name, entry in all_entries().items():
+        typer.echo(f"  {name:<{width}}  {entry.summary}{unavailable(entry)}")
+
+
+def main() -> None:
+    """Console-script entry point ``emitterbench``."""
+    app(prog_name="emitterbench")
+
+
+if __name__ == "__main__":
+    main()

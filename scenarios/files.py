@@ -1,0 +1,613 @@
+"""Measurement files: JSON (everything) and CSV (the sample table, constants given apart).
+
+JSON, schema ``emitterbench.measurements/1``::
+
+    {"schema": "emitterbench.measurements/1",
+     "carrier_hz": 3.0e8, "speed_of_light_mps": 3.0e8, "emitter_height_m": 0.0,
+     "noise": {"doppler_hz": 0.1, "toa_s": 3.3e-9, "rss_db": 4.0},
+     "rss_model": {"reference_power_dbm": 0.0, "reference_distance_m": 1.0,
+                   "path_loss_exponent": 2.0},
+     "truth": {"emitter_m": [35.0, 15.0]},
+     "samples": [{"frame": 0, "time_s": 0.0, "position_m": [0, 0, 50],
+                  "velocity_mps": [10, 0, 0], "doppler_hz": 5.57, "toa_s": 2.05e-7,
+                  "rss_dbm": -30.7}]}
+
+``doppler_hz`` is received minus carrier frequency, positive while closing (MATH §1);
+``toa_s`` the one-way time of arrival (MATH §1); ``rss_dbm`` the received power of the
+log-distance model of ``rss_model`` (MATH §1). ``speed_of_light_mps`` defaults to 299 792 458,
+``emitter_height_m`` to 0 (MATH §0); ``noise`` holds the σ's the data were drawn with (MATH §2),
+``truth`` the true emitter when known. A modality is present when every sample has it; a
+modality on some samples only, an unknown key (a typo), a non-finite number, a wrong length or
+type, an unknown schema, no samples, a negative σ or frames out of order are errors.
+
+CSV has the header ``frame,time_s,x_m,y_m,z_m,vx_mps,vy_mps,vz_mps`` plus any of
+``doppler_hz,toa_s,rss_dbm``; an empty column means the modality is absent. The constants, σ's,
+RSS model and truth are keyword arguments of :func:`read_measurements_csv`.
+
+Every error is a ``ValueError`` whose message starts with the field's path
+(``samples[2].position_m``, ``noise.toa_s``, ``schema``) or, for a CSV cell, its column and
+line, and says how to fix it. Value checks that :class:`~scenarios.types.MeasurementSet`
+already makes (σ > 0, RSS model, truth length) are left to it; this module adds the paths and
+the structural checks. Floats are written with ``repr`` precision, so a round trip is exact.
+"""
+
+from __future__ import annotations
+
+import csv
+import difflib
+import io
+import json
+import math
+import os
+import tempfile
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from scenarios.types import SPEED_OF_LIGHT_MPS, MeasurementSet, NoiseSigmas, RssModel
+
+SCHEMA = "emitterbench.measurements/1"
+"""The ``schema`` value of the JSON files this module reads and writes."""
+
+_TOP_REQUIRED = ("schema", "carrier_hz", "samples")
+_TOP_OPTIONAL = ("speed_of_light_mps", "emitter_height_m", "noise", "rss_model", "truth")
+_SAMPLE_REQUIRED = ("frame", "time_s", "position_m", "velocity_mps")
+_MEASUREMENT_FIELDS = ("doppler_hz", "toa_s", "rss_dbm")
+_NOISE_KEYS = ("doppler_hz", "toa_s", "rss_db")
+_RSS_MODEL_KEYS = ("reference_power_dbm", "reference_distance_m", "path_loss_exponent")
+_TRUTH_KEYS = ("emitter_m",)
+
+CSV_COLUMNS = ("frame", "time_s", "x_m", "y_m", "z_m", "vx_mps", "vy_mps", "vz_mps")
+"""The CSV columns every file must have."""
+CSV_MEASUREMENT_COLUMNS = _MEASUREMENT_FIELDS
+"""The optional CSV columns, one per modality."""
+
+
+# --------------------------------------------------------------------------------------------
+# public API
+# --------------------------------------------------------------------------------------------
+
+
+def read_measurements(
+    path: str | os.PathLike[str],
+    *,
+    carrier_hz: float | None = None,
+    speed_of_light_mps: float | None = None,
+    emitter_height_m: float | None = None,
+    noise: NoiseSigmas | None = None,
+    rss_model: RssModel | None = None,
+    truth_emitter_m: ArrayLike | None = None,
+) -> MeasurementSet:
+    """Read a ``.json`` or ``.csv`` measurement file.
+
+    The keyword constants are those of :func:`read_measurements_csv` and are only for CSV
+    files: a JSON file carries its own, and giving them for one is an error rather than being
+    silently ignored.
+    """
+    path = Path(path)
+    csv_options = {
+        "carrier_hz": carrier_hz,
+        "speed_of_light_mps": speed_of_light_mps,
+        "emitter_height_m": emitter_height_m,
+        "noise": noise,
+        "rss_model": rss_model,
+        "truth_emitter_m": truth_emitter_m,
+    }
+    suffix = path.suffix.lower()
+    if suffix == ".json":
+        given = [name for name, value in csv_options.items() if value is not None]
+        if given:
+            raise ValueError(
+                f"{given[0]}: only for CSV files; {path} is JSON and carries its own constants "
+                "(edit the file instead)"
+            )
+        return measurements_from_json(_read_text(path), source=str(path))
+    if suffix == ".csv":
+        if carrier_hz is None:
+            raise ValueError(
+                f"carrier_hz: required to read the CSV file {path}, which holds only samples"
+            )
+        return read_measurements_csv(
+            path,
+            carrier_hz=carrier_hz,
+            speed_of_light_mps=SPEED_OF_LIGHT_MPS
+            if speed_of_light_mps is None
+            else speed_of_light_mps,
+            emitter_height_m=0.0 if emitter_height_m is None else emitter_height_m,
+            noise=NoiseSigmas() if noise is None else noise,
+            rss_model=rss_model,
+            truth_emitter_m=truth_emitter_m,
+        )
+    raise ValueError(
+        f"{path}: unknown file type {path.suffix or '(no extension)'!r}; "
+        "name the file .json or .csv"
+    )
+
+
+def measurements_from_json(text: str, *, source: str = "json") -> MeasurementSet:
+    """Parse JSON text of schema :data:`SCHEMA`; ``source`` names the text in syntax errors."""
+    try:
+        obj = json.loads(text, object_pairs_hook=_object_without_duplicate_keys)
+    except json.JSONDecodeError as error:
+        raise ValueError(
+            f"{source}: invalid JSON at line {error.lineno}, column {error.colno} "
+            f"({error.msg}); fix the syntax"
+        ) from None
+    return measurements_from_dict(obj)
+
+
+def measurements_from_dict(obj: Any) -> MeasurementSet:
+    """Validate a parsed JSON object of schema :data:`SCHEMA` and build the measurements.
+
+    Raises
+    ------
+    ValueError
+        Naming the offending field by its path, e.g. ``samples[3].toa_s`` or ``noise.toa_s``.
+    """
+    if not isinstance(obj, dict):
+        raise ValueError(
+            f"measurements: expected a JSON object with keys {', '.join(_TOP_REQUIRED)}, "
+            f"got {_kind(obj)}"
+        )
+    if "schema" not in obj:
+        raise ValueError(f'schema: missing; add "schema": "{SCHEMA}"')
+    if obj["schema"] != SCHEMA:
+        raise ValueError(
+            f"schema: unknown {obj['schema']!r}; this version reads {SCHEMA!r} "
+            "(convert the file or upgrade emitterbench)"
+        )
+    _check_keys(obj, "", required=_TOP_REQUIRED, optional=_TOP_OPTIONAL)
+    columns = _sample_columns_from_json(obj["samples"])
+    return _measurement_set(
+        columns,
+        carrier_hz=_number(obj["carrier_hz"], "carrier_hz"),
+        speed_of_light_mps=_number(
+            obj.get("speed_of_light_mps", SPEED_OF_LIGHT_MPS), "speed_of_light_mps"
+        ),
+        emitter_height_m=_number(obj.get("emitter_height_m", 0.0), "emitter_height_m"),
+        noise=_noise_from_json(obj.get("noise")),
+        rss_model=_rss_model_from_json(obj.get("rss_model")),
+        truth_emitter_m=_truth_from_json(obj.get("truth")),
+    )
+
+
+def measurements_to_dict(data: MeasurementSet) -> dict[str, Any]:
+    """The JSON object of schema :data:`SCHEMA` for ``data`` (plain Python floats and ints).
+
+    Absent σ's, a missing RSS model and unknown truth are left out rather than written null.
+    """
+    if not isinstance(data, MeasurementSet):
+        raise ValueError(f"data: expected a MeasurementSet, got {type(data).__name__}")
+    obj: dict[str, Any] = {
+        "schema": SCHEMA,
+        "carrier_hz": data.carrier_hz,
+        "speed_of_light_mps": data.speed_of_light_mps,
+        "emitter_height_m": data.emitter_height_m,
+        "noise": {k: v for k, v in data.noise.as_dict().items() if v is not None},
+    }
+    if data.rss_model is not None:
+        obj["rss_model"] = data.rss_model.as_dict()
+    if data.truth_emitter_m is not None:
+        obj["truth"] = {"emitter_m": data.truth_emitter_m.tolist()}
+    columns: dict[str, list[Any]] = {
+        "frame": data.frame.tolist(),
+        "time_s": data.time_s.tolist(),
+        "position_m": data.position_m.tolist(),
+        "velocity_mps": data.velocity_mps.tolist(),
+    }
+    for name in _MEASUREMENT_FIELDS:
+        values = getattr(data, name)
+        if values is not None:
+            columns[name] = values.tolist()
+    obj["samples"] = [
+        {name: values[index] for name, values in columns.items()} for index in range(data.n_samples)
+    ]
+    return obj
+
+
+def measurements_to_json(data: MeasurementSet) -> str:
+    """The JSON text of ``data``: one line per constant and per sample, exact floats."""
+    obj = measurements_to_dict(data)
+    lines = [
+        f"  {json.dumps(key)}: {json.dumps(value, allow_nan=False)}"
+        for key, value in obj.items()
+        if key != "samples"
+    ]
+    samples = ",\n".join("    " + json.dumps(sample, allow_nan=False) for sample in obj["samples"])
+    lines.append(f'  "samples": [\n{samples}\n  ]')
+    return "{\n" + ",\n".join(lines) + "\n}\n"
+
+
+def write_measurements(data: MeasurementSet, path: str | os.PathLike[str]) -> Path:
+    """Write ``data`` as JSON to ``path`` atomically; returns the path written.
+
+    The text is built first, then written to a temporary file in the same folder and moved
+    over ``path`` with ``os.replace``: on any failure ``path`` is left as it was.
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".json":
+        raise ValueError(
+            f"output: {path} must end in .json (the CSV form holds samples only; "
+            "measurement files are written as JSON)"
+        )
+    text = measurements_to_json(data)
+    _write_text_atomically(text, path)
+    return path
+
+
+def read_measurements_csv(
+    path: str | os.PathLike[str],
+    *,
+    carrier_hz: float,
+    speed_of_light_mps: float = SPEED_OF_LIGHT_MPS,
+    emitter_height_m: float = 0.0,
+    noise: NoiseSigmas,
+    rss_model: RssModel | None = None,
+    truth_emitter_m: ArrayLike | None = None,
+) -> MeasurementSet:
+    """Read a CSV table of samples; the constants come as arguments.
+
+    Parameters
+    ----------
+    path
+        CSV with header ``frame,time_s,x_m,y_m,z_m,vx_mps,vy_mps,vz_mps`` plus any of
+        ``doppler_hz,toa_s,rss_dbm`` (MATH §1 conventions; Doppler received minus carrier).
+    carrier_hz, speed_of_light_mps, emitter_height_m
+        ``f0``, ``c`` and ``z_s`` of MATH §0.
+    noise
+        σ's of the modalities present (MATH §2).
+    rss_model
+        Required when the file has ``rss_dbm``.
+    truth_emitter_m : (2,) or None
+        The true emitter, when known.
+    """
+    text = _read_text(Path(path))
+    return _measurement_set(
+        _sample_columns_from_csv(text),
+        carrier_hz=carrier_hz,
+        speed_of_light_mps=speed_of_light_mps,
+        emitter_height_m=emitter_height_m,
+        noise=noise,
+        rss_model=rss_model,
+        truth_emitter_m=truth_emitter_m,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# JSON structure
+# --------------------------------------------------------------------------------------------
+
+
+def _object_without_duplicate_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    obj: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in obj:
+            raise ValueError(f"{key}: appears twice in one JSON object; keep only one")
+        obj[key] = value
+    return obj
+
+
+def _sample_columns_from_json(samples: Any) -> dict[str, Any]:
+    """Per-sample fields as columns; every value checked with its path ``samples[i].name``."""
+    if not isinstance(samples, list):
+        raise ValueError(f"samples: expected an array of sample objects, got {_kind(samples)}")
+    if not samples:
+        raise ValueError("samples: empty; give at least one sample")
+    columns: dict[str, list[Any]] = {name: [] for name in _SAMPLE_REQUIRED}
+    measured: dict[str, list[float]] = {name: [] for name in _MEASUREMENT_FIELDS}
+    lacking: dict[str, list[int]] = {name: [] for name in _MEASUREMENT_FIELDS}
+    for index, sample in enumerate(samples):
+        path = f"samples[{index}]"
+        if not isinstance(sample, dict):
+            raise ValueError(f"{path}: expected a sample object, got {_kind(sample)}")
+        _check_keys(sample, path, required=_SAMPLE_REQUIRED, optional=_MEASUREMENT_FIELDS)
+        columns["frame"].append(_whole_number(sample["frame"], f"{path}.frame"))
+        columns["time_s"].append(_number(sample["time_s"], f"{path}.time_s"))
+        columns["position_m"].append(_vector(sample["position_m"], f"{path}.position_m", 3))
+        columns["velocity_mps"].append(_vector(sample["velocity_mps"], f"{path}.velocity_mps", 3))
+        for name in _MEASUREMENT_FIELDS:
+            if name in sample:
+                measured[name].append(_number(sample[name], f"{path}.{name}"))
+            else:
+                lacking[name].append(index)
+    for name in _MEASUREMENT_FIELDS:
+        if measured[name] and lacking[name]:
+            first_lacking = lacking[name][0]
+            lacking_set = set(lacking[name])
+            first_having = next(i for i in range(len(samples)) if i not in lacking_set)
+            raise ValueError(
+                f"samples[{first_lacking}].{name}: missing, but samples[{first_having}] has it; "
+                "a modality must be on every sample or on none"
+            )
+    _check_frame_order(columns["frame"], lambda i: f"samples[{i}].frame")
+    result: dict[str, Any] = dict(columns)
+    for name in _MEASUREMENT_FIELDS:
+        result[name] = measured[name] or None
+    return result
+
+
+def _noise_from_json(value: Any) -> NoiseSigmas:
+    if value is None:
+        return NoiseSigmas()
+    if not isinstance(value, dict):
+        raise ValueError(f"noise: expected an object of standard deviations, got {_kind(value)}")
+    _check_keys(value, "noise", required=(), optional=_NOISE_KEYS)
+    return NoiseSigmas(
+        **{
+            key: None if value.get(key) is None else _number(value[key], f"noise.{key}")
+            for key in _NOISE_KEYS
+        }
+    )
+
+
+def _rss_model_from_json(value: Any) -> RssModel | None:
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise ValueError(f"rss_model: expected an object, got {_kind(value)}")
+    _check_keys(value, "rss_model", required=_RSS_MODEL_KEYS, optional=())
+    return RssModel(**{key: _number(value[key], f"rss_model.{key}") for key in _RSS_MODEL_KEYS})
+
+
+def _truth_from_json(value: Any) -> list[float] | None:
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise ValueError(f'truth: expected an object {{"emitter_m": [x, y]}}, got {_kind(value)}')
+    _check_keys(value, "truth", required=_TRUTH_KEYS, optional=())
+    return _vector(value["emitter_m"], "truth.emitter_m", 2)
+
+
+# --------------------------------------------------------------------------------------------
+# CSV structure
+# --------------------------------------------------------------------------------------------
+
+
+def _sample_columns_from_csv(text: str) -> dict[str, Any]:
+    """The CSV table as columns; errors name the column and the file line."""
+    reader = csv.reader(io.StringIO(text))
+    header: list[str] | None = None
+    header_line = 0
+    rows: list[tuple[int, list[str]]] = []
+    for row in reader:
+        cells = [cell.strip() for cell in row]
+        if not any(cells):
+            continue
+        if header is None:
+            header, header_line = cells, reader.line_num
+        else:
+            rows.append((reader.line_num, cells))
+    if header is None:
+        raise ValueError(
+            f"header: the CSV file is empty; give the header {','.join(CSV_COLUMNS)} "
+            "(plus doppler_hz, toa_s or rss_dbm) and one row per sample"
+        )
+    allowed = CSV_COLUMNS + CSV_MEASUREMENT_COLUMNS
+    for position, name in enumerate(header):
+        if name not in allowed:
+            raise ValueError(
+                f"{name or f'column {position + 1}'}: unknown CSV column (line {header_line})"
+                f"{_suggestion(name, allowed)}; allowed columns: {', '.join(allowed)}"
+            )
+        if header.index(name) != position:
+            raise ValueError(f"{name}: column appears twice in the CSV header; keep one")
+    for name in CSV_COLUMNS:
+        if name not in header:
+            raise ValueError(
+                f"{name}: missing CSV column (header on line {header_line}); "
+                f"every file needs {','.join(CSV_COLUMNS)}"
+            )
+    if not rows:
+        raise ValueError("samples: the CSV file has a header but no rows; give one per sample")
+    values: dict[str, list[float | None]] = {name: [] for name in header}
+    for line, cells in rows:
+        if len(cells) != len(header):
+            raise ValueError(
+                f"samples (CSV line {line}): expected {len(header)} cells as in the header, "
+                f"got {len(cells)}"
+            )
+        for name, cell in zip(header, cells, strict=True):
+            values[name].append(
+                _csv_number(cell, name, line, optional=name in CSV_MEASUREMENT_COLUMNS)
+            )
+    lines = [line for line, _ in rows]
+    columns: dict[str, Any] = {
+        "frame": [
+            _whole_number(value, f"frame (CSV line {line})")
+            for value, line in zip(values["frame"], lines, strict=True)
+        ],
+        "time_s": values["time_s"],
+        "position_m": np.column_stack([values["x_m"], values["y_m"], values["z_m"]]),
+        "velocity_mps": np.column_stack([values["vx_mps"], values["vy_mps"], values["vz_mps"]]),
+    }
+    _check_frame_order(columns["frame"], lambda i: f"frame (CSV line {lines[i]})")
+    for name in CSV_MEASUREMENT_COLUMNS:
+        column = values.get(name)
+        if column is None or all(value is None for value in column):
+            columns[name] = None
+            continue
+        if any(value is None for value in column):
+            lacking = lines[column.index(None)]
+            having = lines[next(i for i, v in enumerate(column) if v is not None)]
+            raise ValueError(
+                f"{name} (CSV line {lacking}): empty, but line {having} has a value; "
+                "a modality must be on every sample or on none"
+            )
+        columns[name] = column
+    return columns
+
+
+def _csv_number(cell: str, column: str, line: int, *, optional: bool) -> float | None:
+    path = f"{column} (CSV line {line})"
+    if not cell:
+        if optional:
+            return None
+        raise ValueError(f"{path}: empty; every sample needs {column}")
+    try:
+        number = float(cell)
+    except ValueError:
+        raise ValueError(f"{path}: {cell!r} is not a number") from None
+    if not math.isfinite(number):
+        raise ValueError(
+            f"{path}: must be finite, got {cell!r}; drop the sample or the whole column"
+        )
+    return number
+
+
+# --------------------------------------------------------------------------------------------
+# shared checks
+# --------------------------------------------------------------------------------------------
+
+
+def _measurement_set(
+    columns: Mapping[str, Any],
+    *,
+    carrier_hz: float,
+    speed_of_light_mps: float,
+    emitter_height_m: float,
+    noise: NoiseSigmas,
+    rss_model: RssModel | None,
+    truth_emitter_m: ArrayLike | None,
+) -> MeasurementSet:
+    """Build the :class:`MeasurementSet`; it checks the values (σ's, RSS model, truth)."""
+    if not isinstance(noise, NoiseSigmas):
+        raise ValueError(f"noise: expected NoiseSigmas, got {type(noise).__name__}")
+    if rss_model is not None and not isinstance(rss_model, RssModel):
+        raise ValueError(f"rss_model: expected RssModel or None, got {type(rss_model).__name__}")
+    return MeasurementSet(
+        frame=np.asarray(columns["frame"], dtype=np.int64),
+        time_s=np.asarray(columns["time_s"], dtype=float),
+        position_m=np.asarray(columns["position_m"], dtype=float).reshape(-1, 3),
+        velocity_mps=np.asarray(columns["velocity_mps"], dtype=float).reshape(-1, 3),
+        doppler_hz=columns["doppler_hz"],
+        toa_s=columns["toa_s"],
+        rss_dbm=columns["rss_dbm"],
+        carrier_hz=carrier_hz,
+        speed_of_light_mps=speed_of_light_mps,
+        emitter_height_m=emitter_height_m,
+        noise=noise,
+        rss_model=rss_model,
+        truth_emitter_m=truth_emitter_m,
+    )
+
+
+def _check_keys(
+    obj: Mapping[str, Any], path: str, *, required: Sequence[str], optional: Sequence[str]
+) -> None:
+    """Unknown keys (typos) and missing required keys are errors naming the key's path."""
+    allowed = (*required, *optional)
+    prefix = f"{path}." if path else ""
+    for key in obj:
+        if key not in allowed:
+            raise ValueError(
+                f"{prefix}{key}: unknown key{_suggestion(key, allowed)}; fix the name or "
+                f"remove it (allowed here: {', '.join(allowed)})"
+            )
+    for key in required:
+        if key not in obj:
+            raise ValueError(f"{prefix}{key}: missing; this field is required, add it")
+
+
+def _check_frame_order(frames: Sequence[int], name_of: Any) -> None:
+    """Frames must be non-decreasing; the error names the first sample out of order."""
+    for index in range(1, len(frames)):
+        if frames[index] < frames[index - 1]:
+            raise ValueError(
+                f"{name_of(index)}: frame {frames[index]} comes after frame "
+                f"{frames[index - 1]}; order the samples by frame (non-decreasing)"
+            )
+
+
+def _number(value: Any, path: str) -> float:
+    """A finite JSON number (not a bool, not a string) as a float."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"{path}: expected a number, got {_kind(value)}")
+    try:
+        number = float(value)
+    except OverflowError:
+        raise ValueError(f"{path}: too large for a float (above 1.8e308)") from None
+    if not math.isfinite(number):
+        raise ValueError(f"{path}: must be finite, got {number}; replace it with a number")
+    return number
+
+
+def _whole_number(value: Any, path: str) -> int:
+    """A frame index: a whole number >= 0 (an integral float is accepted)."""
+    number = _number(value, path)
+    if number != int(number) or number < 0:
+        raise ValueError(f"{path}: expected a whole number >= 0, got {value!r}")
+    return int(number)
+
+
+def _vector(value: Any, path: str, length: int) -> list[float]:
+    if not isinstance(value, list):
+        raise ValueError(f"{path}: expected an array of {length} numbers, got {_kind(value)}")
+    if len(value) != length:
+        raise ValueError(f"{path}: expected {length} numbers, got {len(value)}")
+    return [_number(item, f"{path}[{index}]") for index, item in enumerate(value)]
+
+
+def _kind(value: Any) -> str:
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return f"{str(value).lower()} (a boolean)"
+    if isinstance(value, str):
+        return f"the string {value!r}"
+    if isinstance(value, dict):
+        return "an object"
+    if isinstance(value, list):
+        return "an array"
+    if isinstance(value, int | float):
+        return f"the number {value!r}"
+    return type(value).__name__
+
+
+def _suggestion(key: str, allowed: Iterable[str]) -> str:
+    close = difflib.get_close_matches(key, list(allowed), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+# --------------------------------------------------------------------------------------------
+# file access
+# --------------------------------------------------------------------------------------------
+
+
+def _read_text(path: Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ValueError(f"{path}: no such file; check the path") from None
+    except UnicodeDecodeError as error:
+        raise ValueError(
+            f"{path}: not UTF-8 text ({error.reason} at byte {error.start}); save it as UTF-8"
+        ) from None
+    except OSError as error:
+        raise ValueError(f"{path}: cannot read ({error.strerror or error})") from None
+
+
+def _write_text_atomically(text: str, path: Path) -> None:
+    """Write to a temporary file beside ``path``, then ``os.replace`` it over ``path``."""
+    folder = path.parent
+    if not folder.is_dir():
+        raise ValueError(f"output: folder {folder} does not exist; create it first")
+    mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
+    try:
+        descriptor, temporary = tempfile.mkstemp(dir=folder, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as error:
+        raise ValueError(f"output: cannot write in {folder} ({error.strerror or error})") from None
+    try:
+        with os.fdopen(descriptor, "w", encoding="utf-8", newline="\n") as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.chmod(temporary, mode)
+        os.replace(temporary, path)
+    except BaseException as error:
+        Path(temporary).unlink(missing_ok=True)
+        if isinstance(error, OSError):
+            raise ValueError(f"output: cannot write {path} ({error.strerror or error})") from None
+        raise

@@ -1,0 +1,345 @@
+"""The command line: simulate, estimate, crlb, list, and clean errors with exit status 2."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from comparison.cli import app
+from comparison.crlb import MODALITY_SETS, crlb_m2, fisher_information, rmse_bound_m
+from estimators.registry import all_entries, make_estimator
+from scenarios.catalog import CATALOG, get_scenario
+from scenarios.files import measurements_to_dict, read_measurements, write_measurements
+from scenarios.simulate import simulate
+from scenarios.types import MeasurementSet, NoiseSigmas
+
+runner = CliRunner()
+
+ESTIMATE_KEYS = {
+    "estimator",
+    "position_m",
+    "candidates_m",
+    "ambiguous",
+    "covariance_m2",
+    "success",
+    "message",
+    "diagnostics",
+}
+
+
+def invoke(*args: str | Path) -> Any:
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def simulated(folder: Path, scenario: str = "paper-1m", *, seed: int = 1, snr_db: float = 20.0):
+    path = folder / f"{scenario}.json"
+    result = invoke("simulate", scenario, "--seed", seed, "--snr-db", snr_db, "-o", path)
+    assert result.exit_code == 0, result.output
+    return path
+
+
+def assert_clean_error(result: Any, field: str) -> None:
+    """Exit 2, nothing on stdout, one line ``error: <field>: ...`` on stderr."""
+    assert result.exit_code == 2, result.output
+    assert result.stdout == ""
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith(f"error: {field}: "), lines[0]
+
+
+def test_simulate_writes_the_library_simulation_with_truth(tmp_path: Path) -> None:
+    path = tmp_path / "m.json"
+    result = invoke("simulate", "turn", "--seed", 7, "--snr-db", 5, "--frames", 3, "-o", path)
+    assert result.exit_code == 0, result.output
+    expected = simulate(get_scenario("turn", frames=3), snr_db=5.0, seed=7)
+    read = read_measurements(path)
+    assert measurements_to_dict(read) == measurements_to_dict(expected)
+    np.testing.assert_array_equal(read.truth_emitter_m, [35.0, 15.0])
+    assert len(read.frames) == 3
+
+
+def test_estimate_json_contains_the_truth_within_the_crlb(tmp_path: Path) -> None:
+    path = simulated(tmp_path, "paper-1m", seed=1, snr_db=20.0)
+    result = invoke("estimate", path, "--json")
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.stdout)
+    assert set(out) == ESTIMATE_KEYS | {"error_m", "error_side_resolved_m"}
+    data = read_measurements(path)
+    truth = data.truth_emitter_m
+    bound_m = float(rmse_bound_m(fisher_information(data, truth, "toa+doppler")))
+    candidates = np.array(out["candidates_m"])
+    distances = np.linalg.norm(candidates - truth, axis=1)
+    assert out["success"] is True
+    assert out["ambiguous"] is True  # one straight frame: the mirror pair (MATH §7)
+    assert candidates.shape == (2, 2)
+    assert distances.min() <= 6.0 * bound_m
+    assert out["error_side_resolved_m"] == pytest.approx(distances.min(), rel=1e-12)
+    assert out["error_m"] == pytest.approx(
+        np.linalg.norm(np.array(out["position_m"]) - truth), rel=1e-12
+    )
+    # the two candidates mirror each other across the track y = 0
+    np.testing.assert_allclose(candidates[0] * [1, -1], candidates[1], rtol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["cls", "cls-paper", "cls-as-printed"])
+def test_estimate_json_is_the_library_estimate(tmp_path: Path, name: str) -> None:
+    path = simulated(tmp_path, "paper-10m", seed=3, snr_db=10.0)
+    result = invoke("estimate", path, "--estimator", name, "--json")
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.stdout)
+    data = read_measurements(path)
+    direct = make_estimator(name).estimate(data.without_truth(), rng=np.random.default_rng(0))
+    expected = json.loads(json.dumps(direct.to_dict()))
+    assert {key: out[key] for key in ESTIMATE_KEYS} == expected
+    assert out["estimator"] == name
+
+
+def test_estimate_options_are_parsed_as_json(tmp_path: Path) -> None:
+    path = simulated(tmp_path, "paper-1m", seed=2, snr_db=20.0)
+    for prior_y, sign in (("10", 1.0), ("-10", -1.0)):
+        result = invoke(
+            "estimate", path, "--option", f"side_prior_m=[30,{prior_y}]", "--option",
+            "frames=last", "--json",
+        )  # fmt: skip
+        assert result.exit_code == 0, result.output
+        out = json.loads(result.stdout)
+        assert np.sign(out["position_m"][1]) == sign
+        if sign > 0:  # the truth's side: the error is the side-resolved one
+            assert out["error_m"] == out["error_side_resolved_m"]
+        else:  # the mirror image, about 2 * 15 m from the truth
+            assert out["error_m"] == pytest.approx(30.0, abs=0.5)
+
+
+def test_estimate_summary_is_readable(tmp_path: Path) -> None:
+    path = simulated(tmp_path, "turn", seed=3, snr_db=0.0)
+    result = invoke("estimate", path)
+    assert result.exit_code == 0, result.output
+    out = json.loads(invoke("estimate", path, "--json").stdout)
+    x, y = out["position_m"]
+    assert f"({x:.4f}, {y:.4f})" in result.stdout
+    assert "error_m" in result.stdout
+    assert not out["ambiguous"]  # two headings resolve the side
+
+
+def write_csv(data: MeasurementSet, path: Path) -> Path:
+    columns = {
+        "frame": data.frame,
+        "time_s": data.time_s,
+        **{axis: data.position_m[:, i] for i, axis in enumerate(("x_m", "y_m", "z_m"))},
+        **{axis: data.velocity_mps[:, i] for i, axis in enumerate(("vx_mps", "vy_mps", "vz_mps"))},
+        "doppler_hz": data.doppler_hz,
+        "toa_s": data.toa_s,
+    }
+    lines = [",".join(columns)]
+    lines += [",".join(repr(c[i].item()) for c in columns.values()) for i in range(data.n_samples)]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def csv_options(data: MeasurementSet) -> list[str]:
+    return [
+        "--carrier-hz", repr(data.carrier_hz),
+        "--speed-of-light-mps", repr(data.speed_of_light_mps),
+        "--sigma-doppler-hz", repr(data.noise.doppler_hz),
+        "--sigma-toa-s", repr(data.noise.toa_s),
+    ]  # fmt: skip
+
+
+def test_estimate_and_crlb_from_csv_match_json(tmp_path: Path) -> None:
+    json_path = simulated(tmp_path, "turn", seed=4, snr_db=3.0)
+    data = read_measurements(json_path)
+    csv_path = write_csv(data, tmp_path / "m.csv")
+    from_json = json.loads(invoke("estimate", json_path, "--json").stdout)
+    result = invoke("estimate", csv_path, "--json", *csv_options(data))
+    assert result.exit_code == 0, result.output
+    from_csv = json.loads(result.stdout)
+    assert from_csv == {key: from_json[key] for key in ESTIMATE_KEYS}  # CSV has no truth
+    at = ["--at", "35", "15"]
+    crlb_csv = json.loads(invoke("crlb", csv_path, "--json", *at, *csv_options(data)).stdout)
+    crlb_json = json.loads(invoke("crlb", json_path, "--json", *at).stdout)
+    for name in ("toa", "doppler", "toa+doppler"):
+        assert crlb_csv["rmse_bound_m"][name] == crlb_json["rmse_bound_m"][name]
+
+
+def test_crlb_json_equals_the_library(tmp_path: Path) -> None:
+    path = simulated(tmp_path, "turn", seed=5, snr_db=10.0)
+    data = read_measurements(path)
+    for args, at in (((), data.truth_emitter_m), (("--at", "30", "-10"), np.array([30.0, -10.0]))):
+        result = invoke("crlb", path, "--json", *args)
+        assert result.exit_code == 0, result.output
+        out = json.loads(result.stdout)
+        assert out["at_m"] == at.tolist()
+        assert set(out["rmse_bound_m"]) == set(out["crlb_m2"]) == set(MODALITY_SETS)
+        for name, modalities in MODALITY_SETS.items():
+            information = fisher_information(data, at, modalities)
+            assert out["rmse_bound_m"][name] == float(rmse_bound_m(information))
+            assert out["crlb_m2"][name] == crlb_m2(information).tolist()
+        # information adds: the joint bound is below either modality alone
+        joint = out["rmse_bound_m"]["toa+doppler"]
+        assert joint < min(out["rmse_bound_m"]["toa"], out["rmse_bound_m"]["doppler"])
+
+
+def test_crlb_reports_a_modality_without_sigma_as_null(tmp_path: Path) -> None:
+    full = simulate(get_scenario("paper-1m"), seed=1)
+    data = dataclasses.replace(
+        full.without("rss"),
+        noise=NoiseSigmas(doppler_hz=full.noise.doppler_hz, toa_s=full.noise.toa_s),
+        rss_model=None,
+    )
+    path = write_measurements(data, tmp_path / "m.json")
+    out = json.loads(invoke("crlb", path, "--json").stdout)
+    assert out["rmse_bound_m"]["rss"] is None
+    assert out["crlb_m2"]["rss"] is None
+    assert out["notes"]["rss"].startswith("noise.rss_db: ")
+    assert out["rmse_bound_m"]["toa"] == float(
+        rmse_bound_m(fisher_information(data, data.truth_emitter_m, "toa"))
+    )
+    table = invoke("crlb", path)
+    assert table.exit_code == 0, table.output
+    assert "noise.rss_db" in table.stdout
+
+
+def test_crlb_needs_a_position(tmp_path: Path) -> None:
+    data = simulate(get_scenario("paper-1m"), seed=1).without_truth()
+    path = write_measurements(data, tmp_path / "m.json")
+    assert_clean_error(invoke("crlb", path, "--json"), "--at")
+
+
+def test_list_names_every_scenario_and_estimator() -> None:
+    result = invoke("list")
+    assert result.exit_code == 0, result.output
+    lines = result.stdout.splitlines()
+    for name, entry in CATALOG.items():
+        assert any(line.split()[:1] == [name] and entry.summary in line for line in lines), name
+    for name, entry in all_entries().items():
+        assert any(line.split()[:1] == [name] and entry.summary in line for line in lines), name
+    assert lines.index("scenarios:") < lines.index("estimators:")
+
+
+def test_list_marks_unavailable_estimators(monkeypatch) -> None:
+    from estimators import registry
+
+    ghost = registry.RegistryEntry(
+        "ghost", "no_such_package.module:Ghost", "a ghost", required_modules=("no_such_backend",)
+    )
+    monkeypatch.setitem(registry.BUILTIN, "ghost", ghost)
+    lines = invoke("list").stdout.splitlines()
+    (line,) = [line for line in lines if line.split()[:1] == ["ghost"]]
+    assert line.endswith("[unavailable: needs no_such_backend, no_such_package.module]")
+    (cls_line,) = [line for line in lines if line.split()[:1] == ["cls"]]
+    assert "unavailable" not in cls_line
+
+
+MALFORMED = [
+    ("unknown-schema", '{"schema": "other/2"}', "schema"),
+    ("unknown-key", None, "carrier_freq"),
+    ("nan", None, "samples[0].toa_s"),
+    ("invalid-json", '{"schema": ', "{path}"),
+    ("non-object", "[]", "measurements"),
+]
+
+
+def malformed_text(case: str, text: str | None, valid: dict[str, Any]) -> str:
+    if text is not None:
+        return text
+    obj = json.loads(json.dumps(valid))
+    if case == "unknown-key":
+        obj["carrier_freq"] = 1.0
+    else:
+        obj["samples"][0]["toa_s"] = float("nan")
+    return json.dumps(obj)
+
+
+@pytest.mark.parametrize("command", ["estimate", "crlb"])
+@pytest.mark.parametrize(("case", "text", "field"), MALFORMED, ids=[c[0] for c in MALFORMED])
+def test_malformed_file_exits_2_naming_the_field(tmp_path, command, case, text, field) -> None:
+    valid = measurements_to_dict(simulate(get_scenario("paper-1m"), seed=1))
+    path = tmp_path / "bad.json"
+    path.write_text(malformed_text(case, text, valid))
+    assert_clean_error(invoke(command, path, "--json"), field.format(path=path))
+
+
+def test_bad_names_and_options_exit_2(tmp_path: Path) -> None:
+    path = simulated(tmp_path)
+    assert_clean_error(invoke("estimate", path, "-e", "no-such"), "estimator")
+    assert_clean_error(invoke("estimate", path, "--option", "bogus=1"), "bogus")
+    assert_clean_error(invoke("estimate", path, "--option", "frames=first"), "frames")
+    assert_clean_error(invoke("estimate", path, "--option", "frames"), "--option")
+    assert_clean_error(invoke("estimate", path, "--carrier-hz", "1e9"), "--carrier-hz")
+    assert_clean_error(invoke("estimate", tmp_path / "absent.json"), str(tmp_path / "absent.json"))
+    csv_path = write_csv(read_measurements(path), tmp_path / "m.csv")
+    assert_clean_error(invoke("estimate", csv_path), "--carrier-hz")
+    assert_clean_error(
+        invoke("estimate", csv_path, "--carrier-hz", "3e8", "--sigma-doppler-hz", "0.1"),
+        "--sigma-toa-s",
+    )
+    assert_clean_error(
+        invoke("estimate", csv_path, *csv_options(read_measurements(path))[:-1], "-1"),
+        "--sigma-toa-s",
+    )
+
+
+@pytest.mark.parametrize(
+    ("args", "field"),
+    [
+        (("no-such-scenario", "--seed", "1"), "scenario"),
+        (("paper", "--seed", "1", "--frames", "0"), "frames"),
+        (("paper", "--seed", "1", "--snr-db", "nan"), "snr_db"),
+    ],
+)
+def test_simulate_failure_writes_nothing(tmp_path: Path, args: tuple[str, ...], field: str) -> None:
+    output = tmp_path / "out.json"
+    assert_clean_error(invoke("simulate", *args, "-o", output), field)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_simulate_refuses_a_non_json_output(tmp_path: Path) -> None:
+    assert_clean_error(
+        invoke("simulate", "paper", "--seed", "1", "-o", tmp_path / "m.csv"), "--output"
+    )
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_importing_the_cli_does_not_import_the_numerics() -> None:
+    code = (
+        "import sys, comparison.cli; "
+        "print(sorted(m for m in ('numpy', 'scenarios', 'estimators') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def console_script() -> str | None:
+    beside = Path(sys.executable).with_name("emitterbench")
+    return str(beside) if beside.exists() else shutil.which("emitterbench")
+
+
+def test_console_script_end_to_end(tmp_path: Path) -> None:
+    script = console_script()
+    if script is None:
+        pytest.skip("the emitterbench console script is not installed (pip install -e .)")
+    path = write_measurements(simulate(get_scenario("orbit"), seed=3), tmp_path / "orbit.json")
+    done = subprocess.run(
+        [script, "estimate", str(path), "--json"], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    assert not out["ambiguous"]
+    data = read_measurements(path)
+    bound_m = float(rmse_bound_m(fisher_information(data, data.truth_emitter_m, "toa+doppler")))
+    assert out["error_m"] <= 6.0 * bound_m
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"schema": "emitterbench.measurements/1", "carrier_hz": 1e9, "samples": []}')
+    failed = subprocess.run([script, "crlb", str(bad)], capture_output=True, text=True, timeout=120)
+    assert failed.returncode == 2
+    assert failed.stdout == ""
+    assert failed.stderr == "error: samples: empty; give at least one sample\n"
