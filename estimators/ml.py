@@ -1,0 +1,506 @@
+r"""The maximum-likelihood reference estimator (MATH §10).
+
+With independent Gaussian noise (MATH §1) the negative log-likelihood of the raw measurements
+is, up to a constant, half the squared norm of the whitened residuals
+
+.. math::
+
+    e(s) = \Big[\frac{f_k - f_k(s)}{\sigma_f},\ \frac{\tau_k - \tau_k(s)}{\sigma_\tau},\
+    \Big(\frac{P_k - P_k(s)}{\sigma_P}\Big)\Big]_k,\qquad
+    \hat s = \arg\min_{(x_s, y_s)} \lVert e(s)\rVert^2
+
+(Doppler with the physical sign, the RSS block optional). It is minimised by
+``scipy.optimize.least_squares`` (Levenberg-Marquardt, analytic Jacobian from
+:mod:`scenarios.measurement_model`) in the centred, scaled local frame of the CLS, started from
+every candidate of the corrected CLS (:mod:`estimators.cls`, MATH §5-§6). Every local minimum
+within a relative cost gap ``cost_rtol`` of the best is reported as a candidate: on one straight
+frame the mirror pair has exactly equal cost (MATH §7).
+
+Starts. On a straight track the likelihood is mirror-symmetric, so starts are folded to one side
+(the mirror minima are added by :func:`~estimators.base.finalize_estimate`); a start on the
+track's vertical plane, where the cross-track gradient vanishes, gets a second start off it, so
+that both the off-track mirror pair and the on-track minimum of MATH §5 are reachable. When the
+CLS cannot start (e.g. a hovering sample) the search starts from LLS-ToA (MATH §9); optionally
+also from a Doppler-only fit of the last frame, useful when the ranges are useless.
+
+The covariance is the inverse Fisher information at the estimate,
+``(JᵀJ)⁻¹`` with ``J`` the whitened Jacobian (MATH §8): the CRLB evaluated at ``ŝ``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import ClassVar, Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import least_squares
+
+from estimators.base import Estimate, finalize_estimate, require_modalities
+from estimators.cls import solve_doppler_toa_cls
+from estimators.cls_rows import LocalFrame
+from estimators.lls import solve_lls_toa
+from scenarios import measurement_model as model
+from scenarios.geometry import cross_track_m, mirror_across_line, straight_track_line
+from scenarios.types import MeasurementSet
+
+FloatArray = NDArray[np.float64]
+Frames = Literal["all", "last"]
+Method = Literal["lm", "trf"]
+
+MERGE_RTOL = 1e-6
+"""Minima closer than ``MERGE_RTOL`` times the local length scale are one minimum."""
+
+_ON_TRACK_RTOL = 1e-6
+"""A start this close (relative) to a straight track's vertical plane gets a second start off it."""
+
+
+# --------------------------------------------------------------------------------------------
+# the whitened residuals and their Jacobian
+# --------------------------------------------------------------------------------------------
+
+
+def whitened_residuals(
+    data: MeasurementSet, emitter_m: ArrayLike, *, use_rss: bool = False
+) -> FloatArray:
+    """``e(s)``: Doppler, ToA (and RSS) residuals divided by their σ (MATH §10).
+
+    Rows are ordered Doppler block, ToA block, then the RSS block when ``use_rss``; each block
+    has one row per sample. Measured minus predicted, Doppler with the physical sign (MATH §1).
+    Vectorised: ``emitter_m`` of shape ``(..., 2)`` gives residuals of shape ``(..., n_rows)``.
+    """
+    emitter = np.asarray(emitter_m, dtype=float)
+    position, height = data.position_m, data.emitter_height_m
+    blocks = [
+        (
+            data.doppler_hz
+            - model.doppler_hz(position, data.velocity_mps, emitter, data.gamma_per_m, height)
+        )
+        / data.noise.doppler_hz,
+        (data.toa_s - model.toa_s(position, emitter, data.speed_of_light_mps, height))
+        / data.noise.toa_s,
+    ]
+    if use_rss:
+        blocks.append(
+            (data.rss_dbm - model.rss_dbm(position, emitter, data.rss_model, height))
+            / data.noise.rss_db
+        )
+    return np.concatenate(blocks, axis=-1)
+
+
+def whitened_residual_jacobian(
+    data: MeasurementSet, emitter_m: ArrayLike, *, use_rss: bool = False
+) -> FloatArray:
+    """``∂e/∂(x_s, y_s) = −[∇f_k/σ_f; ∇τ_k/σ_τ; ∇P_k/σ_P]`` (MATH §8, §10).
+
+    Shape ``(..., n_rows, 2)`` for ``emitter_m`` of shape ``(..., 2)``. Its Gram matrix
+    ``JᵀJ`` is the Fisher information of MATH §8 at ``emitter_m``.
+    """
+    emitter = np.asarray(emitter_m, dtype=float)
+    position, height = data.position_m, data.emitter_height_m
+    blocks = [
+        model.doppler_jacobian(position, data.velocity_mps, emitter, data.gamma_per_m, height)
+        / data.noise.doppler_hz,
+        model.toa_jacobian(position, emitter, data.speed_of_light_mps, height) / data.noise.toa_s,
+    ]
+    if use_rss:
+        blocks.append(
+            model.rss_jacobian(position, emitter, data.rss_model, height) / data.noise.rss_db
+        )
+    return -np.concatenate(blocks, axis=-2)
+
+
+# --------------------------------------------------------------------------------------------
+# the solver
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class MlSolution:
+    """Distinct local minima of ``‖e(s)‖²`` found from the starts, best first.
+
+    Attributes
+    ----------
+    minima_m : (n, 2)
+        Converged points in world coordinates (empty when no start converged).
+    costs : (n,)
+        ``‖e‖²`` at each (−2 log-likelihood up to a constant; χ² with n_rows − 2 degrees of
+        freedom at the true minimum).
+    n_starts : int
+        Starts tried.
+    n_evaluations : int
+        Residual evaluations over all starts (``nfev`` summed).
+    messages : tuple of str
+        The solver's message for every start that did not converge.
+    """
+
+    minima_m: FloatArray
+    costs: FloatArray
+    n_starts: int
+    n_evaluations: int
+    messages: tuple[str, ...]
+
+
+def solve_maximum_likelihood(
+    data: MeasurementSet,
+    starts_m: ArrayLike,
+    *,
+    use_rss: bool = False,
+    method: Method = "lm",
+    frame: LocalFrame | None = None,
+    cost_rtol: float = 1e-6,
+    xtol: float = 1e-10,
+    max_nfev: int = 200,
+) -> MlSolution:
+    """Minimise ``‖e(s)‖²`` (MATH §10) from each start; return the distinct local minima.
+
+    The problem is solved in ``frame`` (default: centred on the track and scaled by the
+    ranges, :meth:`LocalFrame.fit`), so that the unknowns are of order one.
+
+    Parameters
+    ----------
+    data : MeasurementSet
+        Needs Doppler and ToA (and RSS with ``use_rss``).
+    starts_m : (n_starts, 2)
+        Initial positions in world coordinates.
+    use_rss : bool
+        Include the RSS residuals.
+    method : {"lm", "trf"}
+        ``scipy.optimize.least_squares`` method.
+    frame : LocalFrame or None
+    cost_rtol : float
+        Two minima whose costs tie within ``cost_rtol`` (relative) and with no cost barrier
+        between them (the midpoint no higher than the tie level) are one flat minimum and are
+        merged; so are minima closer than ``MERGE_RTOL`` times the length scale.
+    xtol : float
+        Relative step tolerance (``ftol`` and ``gtol`` use it too).
+    max_nfev : int
+        Evaluation budget per start; a start that exhausts it has not converged.
+    """
+    starts = np.asarray(starts_m, dtype=float).reshape(-1, 2)
+    if frame is None:
+        frame = LocalFrame.fit(data.position_m, data.range_m)
+    scale = frame.scale_m
+
+    def residual(u: FloatArray) -> FloatArray:
+        return whitened_residuals(data, frame.to_world(u), use_rss=use_rss)
+
+    def jacobian(u: FloatArray) -> FloatArray:
+        return whitened_residual_jacobian(data, frame.to_world(u), use_rss=use_rss) * scale
+
+    minima: list[FloatArray] = []
+    costs: list[float] = []
+    messages: list[str] = []
+    n_evaluations = 0
+    for start in frame.to_local(starts):
+        if not np.all(np.isfinite(start)):
+            messages.append("non-finite start")
+            continue
+        try:
+            result = least_squares(
+                residual,
+                start,
+                jac=jacobian,
+                method=method,
+                xtol=xtol,
+                ftol=xtol,
+                gtol=xtol,
+                max_nfev=max_nfev,
+            )
+        except (ValueError, np.linalg.LinAlgError) as error:
+            messages.append(str(error))
+            continue
+        n_evaluations += int(result.nfev)
+        cost = 2.0 * float(result.cost)  # scipy's cost is ½‖e‖²
+        if result.status <= 0 or not (np.all(np.isfinite(result.x)) and np.isfinite(cost)):
+            messages.append(result.message)
+            continue
+        minima.append(frame.to_world(result.x))
+        costs.append(cost)
+    points, values = _distinct_minima(np.reshape(minima, (-1, 2)), np.asarray(costs), scale)
+    if len(values) > 1:
+        points, values = _merge_flat_ties(data, points, values, use_rss, cost_rtol)
+    return MlSolution(
+        minima_m=points,
+        costs=values,
+        n_starts=len(starts),
+        n_evaluations=n_evaluations,
+        messages=tuple(messages),
+    )
+
+
+def _distinct_minima(
+    points_m: FloatArray, costs: FloatArray, scale_m: float
+) -> tuple[FloatArray, FloatArray]:
+    """Merge points closer than ``MERGE_RTOL · scale_m`` (keeping the lower cost), best first."""
+    order = np.argsort(costs, kind="stable")
+    kept: list[int] = []
+    for index in order:
+        if all(np.linalg.norm(points_m[index] - points_m[j]) > MERGE_RTOL * scale_m for j in kept):
+            kept.append(int(index))
+    return points_m[kept], costs[kept]
+
+
+def _merge_flat_ties(
+    data: MeasurementSet,
+    points_m: FloatArray,
+    costs: FloatArray,
+    use_rss: bool,
+    cost_rtol: float,
+) -> tuple[FloatArray, FloatArray]:
+    """Drop tied minima joined to a better one by a flat valley (no barrier at the midpoint).
+
+    Near a straight track's vertical plane the cost can be almost flat across the track, and
+    two starts stop at slightly different points of that valley: they are one minimum.
+    ``points_m`` is sorted by cost; the better point of each merged pair is kept.
+    """
+    best = costs[0]
+    tie_level = best + cost_rtol * abs(best) + np.finfo(float).eps * 64 * max(abs(best), 1.0)
+    kept: list[int] = [0]
+    for index in range(1, len(costs)):
+        if costs[index] <= tie_level:
+            flat = False
+            for j in kept:
+                middle = 0.5 * (points_m[index] + points_m[j])
+                middle_cost = float(np.sum(whitened_residuals(data, middle, use_rss=use_rss) ** 2))
+                if middle_cost <= tie_level:
+                    flat = True
+                    break
+            if flat:
+                continue
+        kept.append(index)
+    return points_m[kept], costs[kept]
+
+
+def fisher_covariance_m2(
+    data: MeasurementSet, emitter_m: ArrayLike, *, use_rss: bool = False
+) -> FloatArray | None:
+    """``(JᵀJ)⁻¹`` with ``J`` the whitened Jacobian at ``emitter_m`` (MATH §8); None if singular."""
+    J = whitened_residual_jacobian(data, emitter_m, use_rss=use_rss)
+    information = J.T @ J
+    a, b, d = information[0, 0], information[0, 1], information[1, 1]
+    determinant = a * d - b * b
+    if not determinant > 1e-12 * abs(a * d):
+        return None
+    return np.array([[d, -b], [-b, a]]) / determinant
+
+
+def ranges_uninformative(data: MeasurementSet) -> bool:
+    """True when the range noise ``c σ_τ`` exceeds the size of the geometry.
+
+    The size is ``√(mean‖p_k,xy − p̄_xy‖² + mean (z_k − z_s)²)``, the spread of the track and
+    its height above the emitter, which bounds the ranges from below; a range error larger than
+    that leaves the CLS start (MATH §5) without range information.
+    """
+    position = data.position_m
+    spread_sq = np.mean(np.sum((position[:, :2] - position[:, :2].mean(axis=0)) ** 2, axis=1))
+    height_sq = np.mean((position[:, 2] - data.emitter_height_m) ** 2)
+    return bool(data.noise.toa_s * data.speed_of_light_mps > np.sqrt(spread_sq + height_sq))
+
+
+def doppler_frame_starts(frame_data: MeasurementSet) -> FloatArray:
+    """Doppler-only starting points from one straight, level frame: a mirror pair, (2, 2).
+
+    With ``g_k = f_k/(γ|v|) = −v̂ᵀu_k = −a_k/ρ_k`` (physical sign, MATH §1), ``a_k`` the
+    along-track offset ``v̂ᵀ(p_k − s)`` and ``ρ_0`` the distance from the emitter to the line of
+    flight, ``ρ_k² = a_k² + ρ_0²`` gives ``a_k = −ρ_0 g_k/√(1 − g_k²)``, so
+
+    ``v̂ᵀp_k = v̂ᵀs − ρ_0 g_k/√(1 − g_k²)``
+
+    is linear in ``(v̂ᵀs, ρ_0)``: least squares over the frame, then the cross-track distance
+    ``√(ρ_0² − (z − z_s)²)`` on both sides. Independent of the ToA, so it still starts the
+    search near the emitter when the ranges are useless (the paper's ``c σ_τ = 300 km``).
+    Returns an empty (0, 2) array when the frame is not straight and level or the fit fails.
+    """
+    velocity = frame_data.velocity_mps
+    if frame_data.n_samples < 2 or np.ptp(velocity, axis=0).any() or velocity[0, 2] != 0.0:
+        return np.empty((0, 2))
+    speed = float(np.linalg.norm(velocity[0]))
+    if not speed > 0.0:
+        return np.empty((0, 2))
+    direction = velocity[0, :2] / speed
+    g = frame_data.doppler_hz / (frame_data.gamma_per_m * speed)
+    usable = np.abs(g) < 0.999
+    if np.count_nonzero(usable) < 2:
+        return np.empty((0, 2))
+    along = frame_data.position_m[usable, :2] @ direction
+    slope = -g[usable] / np.sqrt(1.0 - g[usable] ** 2)
+    A = np.column_stack([np.ones_like(slope), slope])
+    (along_s, closest_m), *_ = np.linalg.lstsq(A, along, rcond=None)
+    height_m = float(np.mean(frame_data.position_m[:, 2])) - frame_data.emitter_height_m
+    if not (np.isfinite(along_s) and np.isfinite(closest_m)):
+        return np.empty((0, 2))
+    cross = np.sqrt(max(closest_m**2 - height_m**2, 0.0))
+    origin = frame_data.position_m[0, :2]
+    on_line = origin + (along_s - origin @ direction) * direction
+    normal = np.array([-direction[1], direction[0]])
+    return np.vstack([on_line + cross * normal, on_line - cross * normal])
+
+
+def straight_track_starts(
+    data: MeasurementSet,
+    starts_m: ArrayLike,
+    line: tuple[FloatArray, FloatArray],
+    scale_m: float,
+) -> FloatArray:
+    """Starts folded to the left of a straight track, with a second start for those on it.
+
+    The likelihood is symmetric about the track's vertical plane (MATH §7), so a start and its
+    mirror converge to mirror-image minima: one side suffices (the caller adds the mirrors).
+    On the plane itself the cross-track gradient vanishes and a local method cannot leave it,
+    so a start there also gets a copy moved off the plane by the cross-track distance the
+    ranges imply, ``√mean(r_k² − (z_k − z_s)² − a_k²)`` with ``a_k`` the along-track offset
+    (at least ``0.1 scale_m``). ``scale_m`` is the problem's length scale (``LocalFrame``).
+    """
+    origin, direction = line
+    starts = np.asarray(starts_m, dtype=float).reshape(-1, 2)
+    cross = cross_track_m(starts, origin, direction)
+    starts = np.where((cross < 0.0)[:, None], mirror_across_line(starts, origin, direction), starts)
+    scale = scale_m
+    # a mirror pair of starts folds onto one point: keep it once
+    starts, cross = _distinct_minima(starts, np.abs(cross), scale)
+    on_track = np.abs(cross) <= _ON_TRACK_RTOL * scale
+    if not np.any(on_track):
+        return starts
+    normal = np.array([-direction[1], direction[0]])
+    along = (data.position_m[:, :2] - starts[on_track][:, None, :]) @ direction
+    horizontal_sq = data.range_m**2 - (data.position_m[:, 2] - data.emitter_height_m) ** 2
+    offset_sq = np.mean(horizontal_sq - along**2, axis=1)
+    offset = np.sqrt(np.maximum(offset_sq, (0.1 * scale) ** 2))
+    return np.vstack([starts, starts[on_track] + offset[:, None] * normal])
+
+
+# --------------------------------------------------------------------------------------------
+# the estimator
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, kw_only=True)
+class MaximumLikelihood:
+    """Maximum likelihood on the raw measurements, started from every CLS candidate (MATH §10).
+
+    Parameters
+    ----------
+    frames : {"all", "last"}
+        Use every frame so far, or only the last.
+    use_rss : bool
+        Add the RSS residuals (needs ``rss_dbm`` in the data).
+    cost_rtol : float
+        Minima within this relative cost gap of the best are all candidates (MATH §7).
+    side_prior_m : (x, y) or None
+        A rough emitter position; picks the nearer of equal-cost candidates (MATH §7).
+    fallback_lls : bool
+        When the CLS cannot give a start (e.g. a hovering sample), start from LLS-ToA.
+    doppler_start : bool or "auto"
+        Also start from the Doppler-only fit of the last frame (:func:`doppler_frame_starts`),
+        which does not depend on the ranges; costs one more local search. ``"auto"``: only when
+        the range noise ``c σ_τ`` exceeds the size of the geometry (:func:`ranges_uninformative`),
+        e.g. the paper's printed ``c σ_τ = 300 km``, where the CLS start is meaningless.
+    method : {"lm", "trf"}
+        The ``scipy.optimize.least_squares`` method.
+    """
+
+    name: ClassVar[str] = "ml"
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+
+    frames: Frames = "all"
+    use_rss: bool = False
+    cost_rtol: float = 1e-6
+    side_prior_m: tuple[float, float] | None = None
+    fallback_lls: bool = True
+    doppler_start: bool | Literal["auto"] = "auto"
+    method: Method = "lm"
+
+    def __post_init__(self) -> None:
+        if self.frames not in ("all", "last"):
+            raise ValueError(f"frames: expected 'all' or 'last', got {self.frames!r}")
+        if not (isinstance(self.cost_rtol, int | float) and 0.0 <= self.cost_rtol < np.inf):
+            raise ValueError(f"cost_rtol: expected a finite number >= 0, got {self.cost_rtol!r}")
+        if self.doppler_start not in (True, False, "auto"):
+            raise ValueError(
+                f"doppler_start: expected True, False or 'auto', got {self.doppler_start!r}"
+            )
+        if self.method not in ("lm", "trf"):
+            raise ValueError(f"method: expected 'lm' or 'trf', got {self.method!r}")
+        if self.side_prior_m is not None and (
+            np.shape(self.side_prior_m) != (2,) or not np.all(np.isfinite(self.side_prior_m))
+        ):
+            raise ValueError(
+                f"side_prior_m: expected a finite (x, y) in metres, got {self.side_prior_m!r}"
+            )
+
+    def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
+        require_modalities(self, data)
+        if self.use_rss and data.rss_dbm is None:
+            raise ValueError(
+                "rss_dbm: estimator 'ml' with use_rss=True needs RSS measurements; add them "
+                "or set use_rss=False"
+            )
+        used = data.select_frames(self.frames)
+        starts, start_method, start_note = self._starts(used)
+        if starts is None:
+            return Estimate.failed(self.name, f"no starting point: {start_note}")
+        if self.doppler_start is True or (
+            self.doppler_start == "auto" and ranges_uninformative(used)
+        ):
+            last = used.take(used.frame == used.frame[-1])
+            starts = np.vstack([starts, doppler_frame_starts(last)])
+        frame = LocalFrame.fit(used.position_m, used.range_m)
+        line = straight_track_line(used.position_m, used.velocity_mps)
+        if line is not None:
+            starts = straight_track_starts(used, starts, line, frame.scale_m)
+        solution = solve_maximum_likelihood(
+            used,
+            starts,
+            use_rss=self.use_rss,
+            method=self.method,
+            frame=frame,
+            cost_rtol=self.cost_rtol,
+        )
+        diagnostics = {
+            "n_starts": solution.n_starts,
+            "nfev": solution.n_evaluations,
+            "start_method": start_method,
+            "n_samples": used.n_samples,
+        }
+        if len(solution.minima_m) == 0:
+            reasons = "; ".join(dict.fromkeys(solution.messages)) or "no start converged"
+            return Estimate.failed(self.name, f"least squares failed: {reasons}", **diagnostics)
+        estimate = finalize_estimate(
+            self.name,
+            solution.minima_m,
+            solution.costs,
+            used,
+            rng=rng,
+            side_prior_m=self.side_prior_m,
+            cost_rtol=self.cost_rtol,
+            message=start_note,
+            diagnostics=dict(
+                diagnostics,
+                cost=float(solution.costs[0]),
+                n_minima=len(solution.minima_m),
+            ),
+        )
+        covariance = fisher_covariance_m2(used, estimate.position_m, use_rss=self.use_rss)
+        if covariance is None:
+            note = "singular Fisher information at the estimate: no covariance"
+            message = f"{estimate.message}; {note}" if estimate.message else note
+            return dataclasses.replace(estimate, message=message)
+        return dataclasses.replace(estimate, covariance_m2=covariance)
+
+    def _starts(self, data: MeasurementSet) -> tuple[FloatArray | None, str, str]:
+        """The CLS candidates, or the LLS-ToA solution when the CLS fails and fallback is on."""
+        try:
+            candidates = solve_doppler_toa_cls(data).candidates_m
+            if np.all(np.isfinite(candidates)) and len(candidates):
+                return candidates, "cls", ""
+            reason = "CLS returned no finite candidate"
+        except (ValueError, np.linalg.LinAlgError) as error:
+            reason = f"CLS failed ({error})"
+        if not self.fallback_lls:
+            return None, "none", reason
+        lls = solve_lls_toa(data.position_m, data.range_m, data.emitter_height_m)
+        if not np.all(np.isfinite(lls.position_m)):
+            return None, "none", f"{reason}; LLS-ToA returned a non-finite solution"
+        return lls.position_m[None, :], "lls-toa", f"{reason}; started from LLS-ToA"
