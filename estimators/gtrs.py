@@ -85,8 +85,10 @@ def solve_gtrs(A: ArrayLike, b: ArrayLike, *, hard_case_rtol: float = 1e-10) -> 
         preferably in a frame centred on the data and scaled to order one.
     b : (m,)
     hard_case_rtol : float
-        The hard case is declared when the root of φ would lie within
-        ``hard_case_rtol · μ₂`` of the pole ``−μ₁``: a smaller shift than rounding can resolve.
+        The hard case is considered when the root of φ would lie within
+        ``hard_case_rtol · μ₂`` of the pole ``−μ₁``, and declared only if the two points of the
+        null line then have costs equal to rounding (they differ by ``4|e₁|√(−φ(−μ₁))``);
+        otherwise the unique root is returned.
 
     Raises
     ------
@@ -117,31 +119,56 @@ def solve_gtrs(A: ArrayLike, b: ArrayLike, *, hard_case_rtol: float = 1e-10) -> 
     def phi(shift: float, include_first: bool = True) -> float:
         """φ(λ) at λ = −μ₁ + shift (MATH §5); the e₁ term dropped when ``include_first`` is off."""
         lam = shift - mu[0]
-        first = e[0] ** 2 / shift**2 if include_first else 0.0
+        first = (e[0] / shift) ** 2 if include_first else 0.0  # shift² underflows first
         second = e[1] ** 2 / (gap + shift) ** 2 if shift > 0 else second_at_pole
         return float(first + second - h_sq - (q3 + lam / 2.0) / m33)
 
     phi_pole = phi(0.0, include_first=False)
+    hard = False
     if phi_pole < 0.0 and abs(e[0]) <= hard_case_rtol * mu_scale * np.sqrt(-phi_pole):
         # Hard case: λ* = −μ₁, both points of the null line on the paraboloid (MATH §5).
         lam = -mu[0]
         y2 = (e[1] / gap if gap > 0 else 0.0) - h_t[1]
         half_width = np.sqrt(-phi_pole)
         y_t = np.array([[-h_t[0] + half_width, y2], [-h_t[0] - half_width, y2]])
-        hard = True
-    else:
+        points, costs = _lift_and_cost(y_t @ U.T, A, b)
+        # A small but real e₁ (two headings a few millidegrees apart) passes the screen above,
+        # yet the pair's costs then differ by 4|e₁|√(−φ(−μ₁)): keep the pair only when its costs
+        # agree to rounding, else the minimiser is the unique root below.
+        hard = _equal_to_rounding(costs, A, b, points)
+    if not hard:
         shift = _root_of_decreasing(phi, e, mu_scale)
         lam = shift - mu[0]
-        denominator = mu + lam
+        denominator = np.array([shift, gap + shift])  # μ + λ, without cancellation
         ratio = np.divide(e, denominator, out=np.zeros(2), where=denominator > 0)
-        y_t = (ratio - h_t)[None, :]
-        hard = False
-    xy = y_t @ U.T
-    points = np.column_stack([xy, np.sum(xy**2, axis=1)])
-    costs = np.sum((points @ A.T - b) ** 2, axis=1)
+        points, costs = _lift_and_cost((ratio - h_t)[None, :] @ U.T, A, b)
     return GtrsSolution(
         points=points, costs=costs, multiplier=float(lam), hard_case=hard, rank=rank
     )
+
+
+def _lift_and_cost(xy: FloatArray, A: FloatArray, b: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Points ``r = (x, y, x² + y²)`` (n, 3) and their costs ``‖A r − b‖²`` (n,)."""
+    points = np.column_stack([xy, np.sum(xy**2, axis=1)])
+    return points, np.sum((points @ A.T - b) ** 2, axis=1)
+
+
+def _equal_to_rounding(costs: FloatArray, A: FloatArray, b: FloatArray, points: FloatArray) -> bool:
+    """Whether the two hard-case costs differ by no more than the rounding of their evaluation.
+
+    The residual ``A r − b`` is computed with an error up to ``δ = ε √m (‖A‖_F ‖r‖ + ‖b‖)``, so a
+    cost ``C`` is known to about ``2 √C δ + δ²``; the bound used is 16 times that, plus a relative
+    ``1e-12``. On exactly straight frames the gap stays below that rounding term.
+    """
+    eps = np.finfo(float).eps
+    delta = (
+        eps
+        * np.sqrt(len(b))
+        * (np.linalg.norm(A) * np.max(np.linalg.norm(points, axis=1)) + np.linalg.norm(b))
+    )
+    best = float(np.min(costs))
+    tolerance = 1e-12 * best + 16.0 * (2.0 * np.sqrt(best) * delta + delta**2)
+    return bool(np.max(costs) - best <= tolerance)
 
 
 def _root_of_decreasing(phi, e: FloatArray, scale: float) -> float:
