@@ -1,4 +1,4 @@
-"""The ``emitterbench`` command line: ``simulate``, ``estimate``, ``crlb`` and ``list``.
+"""The ``emitterbench`` command line: ``simulate``, ``estimate``, ``crlb``, ``list``, ``run``, ``report``.
 
 Adding a command is one function registered with ``@command("name")``: its parameters are
 typed ``Annotated`` typer options, it imports the heavy modules it needs inside its body (so
@@ -520,7 +520,7 @@ def crlb_command(
 
 @command("list")
 def list_command() -> None:
-    """The named scenarios and the estimators, one line each."""
+    """The built-in experiments, named scenarios and estimators, one line each."""
     import importlib.util
 
     from estimators.registry import all_entries
@@ -537,13 +537,141 @@ def list_command() -> None:
             missing.append(module)
         return f"  [unavailable: needs {', '.join(missing)}]" if missing else ""
 
-    width = max(len(name) for name in (*CATALOG, *all_entries()))
+    from comparison.experiment import BUILTIN_EXPERIMENTS
+
+    width = max(len(name) for name in (*CATALOG, *all_entries(), *BUILTIN_EXPERIMENTS))
+    typer.echo("experiments (emitterbench run NAME -o DIR):")
+    for name, summary in BUILTIN_EXPERIMENTS.items():
+        typer.echo(f"  {name:<{width}}  {summary}")
     typer.echo("scenarios:")
     for name, entry in CATALOG.items():
         typer.echo(f"  {name:<{width}}  {entry.summary}")
     typer.echo("estimators:")
     for name, entry in all_entries().items():
         typer.echo(f"  {name:<{width}}  {entry.summary}{unavailable(entry)}")
+
+
+@command("run")
+def run_command(
+    experiment: Annotated[
+        str, typer.Argument(help="A built-in experiment (see `emitterbench list`) or a .toml file.")
+    ],
+    output: Annotated[Path, typer.Option("--output", "-o", help="Run folder to write.")],
+    trials: Annotated[
+        int | None, typer.Option("--trials", min=1, help="Trials per point (overrides the file).")
+    ] = None,
+    workers: Annotated[
+        int | None, typer.Option("--workers", min=1, help="Local worker processes [all cores].")
+    ] = None,
+    resume: Annotated[
+        bool, typer.Option("--resume", help="Finish an interrupted run in the same folder.")
+    ] = False,
+    scheduler: Annotated[
+        str | None,
+        typer.Option(
+            "--scheduler",
+            envvar="DASK_SCHEDULER_ADDRESS",
+            help="Run on a Dask cluster at tcp://HOST:PORT (extra emitterbench[cluster]).",
+        ),
+    ] = None,
+) -> None:
+    """Run a Monte Carlo comparison into a run folder, then write its report.
+
+    Rows are stored as they arrive (results.sqlite): a killed run loses at most the trials in
+    flight, and --resume finishes it with exactly the rows of an uninterrupted run.
+    """
+    from comparison.engine import run_experiment
+    from comparison.experiment import load_experiment
+    from comparison.report import write_report
+
+    definition = load_experiment(experiment)
+    run_dir = run_experiment(
+        definition, output, workers=workers, scheduler=scheduler, resume=resume, trials=trials
+    )
+    html = write_report(run_dir)
+    typer.echo(f"report: {html}")
+    typer.echo(f"tables: {run_dir / 'summary.csv'}, {run_dir / 'trials.csv'}")
+
+
+@command("report")
+def report_command(
+    run_dir: Annotated[Path, typer.Argument(help="A run folder written by `emitterbench run`.")],
+    bootstrap: Annotated[
+        int, typer.Option("--bootstrap", min=100, help="Bootstrap resamples for intervals.")
+    ] = 1000,
+) -> None:
+    """(Re)write summary.csv, trials.csv, figures/ and report.html of a run folder."""
+    from comparison.report import write_report
+
+    if not (run_dir / "results.sqlite").exists():
+        raise ValueError(
+            f"run_dir: {run_dir} holds no results.sqlite; run `emitterbench run` first"
+        )
+    typer.echo(f"report: {write_report(run_dir, n_bootstrap=bootstrap)}")
+
+
+@command("validate")
+def validate_command(
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="Folder for validate.json and reports.")
+    ] = None,
+    instances: Annotated[
+        int, typer.Option("--instances", min=1, help="Seeded instances per family.")
+    ] = 1000,
+    families: Annotated[
+        list[str] | None,
+        typer.Option("--families", help="Instance families (repeat); default: all."),
+    ] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the instance draws.")] = 0,
+    replay_seed: Annotated[
+        int | None,
+        typer.Option("--replay", help="Re-run one instance verbosely (give one --families)."),
+    ] = None,
+) -> None:
+    """Check the closed-form CLS against its SDP relaxation on seeded random instances.
+
+    Exit status 1 when any instance disagrees beyond tolerance (MATH §5, §11).
+    """
+    from comparison.validate import FAMILIES, replay, run_validation
+
+    chosen = tuple(families) if families else FAMILIES
+    unknown = sorted(set(chosen) - set(FAMILIES))
+    if unknown:
+        raise ValueError(f"--families: unknown {unknown}; choose from {', '.join(FAMILIES)}")
+    if replay_seed is not None:
+        if len(chosen) != 1:
+            raise ValueError("--families: --replay needs exactly one family")
+        typer.echo(replay(replay_seed, chosen[0]))
+        return
+    if output is None:
+        raise ValueError("--output: give the folder for validate.json (-o DIR)")
+    import sys
+
+    from rich.progress import Progress
+
+    with Progress(disable=not sys.stderr.isatty(), transient=True) as bar:
+        task = bar.add_task("validating", total=instances * len(chosen))
+        result = run_validation(
+            instances=instances,
+            families=chosen,
+            seed=seed,
+            out_dir=output,
+            progress=lambda done, total, family: bar.update(
+                task, completed=done, total=total, description=family
+            ),
+        )
+    for name, summary in result.families.items():
+        typer.echo(
+            f"{name:<14} n={summary.n:<5} hard={summary.n_hard:<5} "
+            f"max rel. gap {summary.max_rel_objective_gap:.1e}  "
+            f"max argmin dist. {summary.max_argmin_distance_rel:.1e}  "
+            f"max pair dist. {summary.max_candidate_pair_distance_rel:.1e} (of the length scale)  "
+            f"disagreements {summary.n_disagreements}"
+        )
+    typer.echo(f"report: {output / 'validate.html'}")
+    if not result.ok:
+        typer.echo(f"{len(result.disagreements)} instance(s) disagree; see {output}", err=True)
+        raise typer.Exit(1)
 
 
 def main() -> None:

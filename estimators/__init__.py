@@ -1,6 +1,7 @@
 """Localization estimators behind one interface (:class:`estimators.base.Estimator`).
 
-Built-ins: ``cls``, ``cls-paper``, ``cls-as-printed``, ``lls-toa``, ``lls-rss``, ``ml``.
+Built-ins: ``cls``, ``cls-paper``, ``cls-as-printed``, ``lls-toa``, ``lls-rss``, ``ml``,
+``sdp-cls``, ``ekf``, ``gtsam-smoother``.
 Look them up with :func:`make_estimator`; plug-ins register under the entry-point group
 ``emitterbench.estimators``.
 """

@@ -153,7 +153,9 @@ class SequentialEstimator(Estimator, Protocol[State]):
 
     def update(self, state: State, frame: MeasurementSet) -> State: ...
 
-    def estimate_state(self, state: State) -> Estimate: ...
+    def estimate_state(
+        self, state: State, *, rng: np.random.Generator | None = None
+    ) -> Estimate: ...
 
 
 # --------------------------------------------------------------------------------------------

@@ -58,6 +58,24 @@ BUILTIN: dict[str, RegistryEntry] = {
             "lls-rss", "estimators.lls:LlsRss", "So & Lin linear LS on RSS distances (MATH §9)"
         ),
         RegistryEntry(
+            "sdp-cls",
+            "estimators.sdp_cls:SdpCls",
+            "Shor SDP relaxation of the CLS, cvxpy + Clarabel (MATH §11)",
+            ("cvxpy", "clarabel"),
+        ),
+        RegistryEntry(
+            "ekf",
+            "estimators.ekf:Ekf",
+            "iterated EKF (or UKF) over frames, one filter per mirror hypothesis (MATH §7-§8)",
+            ("filterpy",),
+        ),
+        RegistryEntry(
+            "gtsam-smoother",
+            "estimators.gtsam_smoother:GtsamSmoother",
+            "GTSAM factor-graph smoother: LM in batch, ISAM2 streaming, mirror hypotheses",
+            ("gtsam",),
+        ),
+        RegistryEntry(
             "ml",
             "estimators.ml:MaximumLikelihood",
             "maximum likelihood, Gauss-Newton from the CLS candidates (MATH §10)",

@@ -1,0 +1,772 @@
+"""Experiments as data: which scenarios, which sweep, which estimators, how many trials.
+
+An :class:`Experiment` is a frozen, validated description of a Monte Carlo comparison. It is
+loaded from a TOML file or a dict (:func:`load_experiment`, :meth:`Experiment.from_dict`),
+written to JSON exactly and read back (:meth:`Experiment.to_json`, :meth:`Experiment.from_json`),
+and run by :func:`comparison.engine.run_experiment`. Every check happens at load, before any
+work: unknown keys (a typo), unknown scenarios or estimators, bad estimator options, bad ranges
+and duplicate labels raise a ``ValueError`` whose message starts with the key path
+(``sweep.valuez``, ``estimators[2].options``, ``trials``) and says how to fix it.
+
+TOML format
+-----------
+A complete example (every key; the optional ones show their defaults)::
+
+    name = "snr-sweep"                      # required; names the rows of the results
+    description = "CLS vs ML against SNR"   # optional
+    scenarios = ["paper-1m", "paper-10m"]   # required; names from scenarios.catalog
+    trials = 500                            # required; Monte Carlo trials per point, >= 1
+    seed = 12345                            # required; integer >= 0, drives every draw
+    frames = 1                              # optional; frames flown in every scenario
+    per_frame = false                       # optional; estimate after every frame
+    metrics = ["rmse_m", "efficiency"]      # optional; comparison.metrics.METRIC_NAMES
+    chunk_size = 25                         # optional; trials per parallel task
+
+    [sweep]                                 # optional; without it: one point at 0 dB
+    parameter = "snr_db"                    # snr_db, a scenarios.sweep.SWEEPABLE name,
+    values = [-10, 0, 10, 20, 30]           #   or "emitter_m" (then x = [...], y = [...])
+
+    [sweep.fixed]                           # optional; parameters held at one value
+    range_sigma_m = 1.0
+
+    [[estimators]]                          # required; one table per estimator
+    name = "cls"                            # registry name or "package.module:Class"
+    label = "cls"                           # optional (default: name); unique per experiment
+
+    [[estimators]]
+    name = "ml"
+    label = "ml-rss"
+    options = { use_rss = true }            # optional; keyword arguments of the estimator
+
+``estimators = ["cls", "ml"]`` (plain names) is shorthand for tables with only ``name``.
+
+The sweep has one parameter with a list of ``values``, or the 2-D grid ``parameter =
+"emitter_m"`` with ``x = [...]`` and ``y = [...]`` (metres): point ``p`` is ``x[p // len(y)]``,
+``y[p % len(y)]``, and the result rows get the columns ``emitter_x_m`` and ``emitter_y_m``.
+``snr_db`` must lie in [-60, 100] dB; it is not a scenario parameter but scales every reference
+σ by ``10^(−snr_db/20)`` (MATH §2), and it is 0 dB unless swept or fixed. The other parameters
+are those of :data:`scenarios.sweep.SWEEPABLE`; :func:`scenarios.sweep.with_parameter` applies
+them after ``frames``.
+
+Built-in experiments (:data:`BUILTIN_EXPERIMENTS`) are written in the same format, as dicts.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from estimators.base import Estimator
+from estimators.registry import estimator_class, make_estimator
+from scenarios.catalog import CATALOG, get_scenario
+from scenarios.sweep import SWEEPABLE, check_parameter_value, with_parameters
+from scenarios.types import Scenario
+
+SNR_RANGE_DB = (-60.0, 100.0)
+"""The SNR values an experiment accepts, dB (inclusive)."""
+
+GRID_PARAMETER = "emitter_m"
+"""The 2-D sweep parameter: a grid of emitter positions given as ``x`` and ``y``."""
+
+GRID_COLUMNS = ("emitter_x_m", "emitter_y_m")
+"""The result columns of the ``emitter_m`` grid."""
+
+_EXPERIMENT_KEYS = (
+    "name",
+    "description",
+    "scenarios",
+    "sweep",
+    "estimators",
+    "trials",
+    "seed",
+    "frames",
+    "per_frame",
+    "metrics",
+    "chunk_size",
+    "swept_columns",
+)
+_REQUIRED_KEYS = ("name", "scenarios", "estimators", "trials", "seed")
+_SWEEP_KEYS = ("parameter", "values", "x", "y", "fixed")
+_ESTIMATOR_KEYS = ("name", "label", "options")
+
+
+# --------------------------------------------------------------------------------------------
+# an immutable mapping (estimator options, fixed sweep values)
+# --------------------------------------------------------------------------------------------
+
+
+class FrozenDict(Mapping[str, Any]):
+    """A read-only, hashable, picklable ``dict``; nested lists become tuples."""
+
+    __slots__ = ("_data",)
+
+    def __init__(self, data: Mapping[str, Any] | None = None) -> None:
+        object.__setattr__(self, "_data", {k: _freeze(v) for k, v in dict(data or {}).items()})
+
+    def __getitem__(self, key: str) -> Any:
+        return self._data[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._data)
+
+    def __len__(self) -> int:
+        return len(self._data)
+
+    def __hash__(self) -> int:
+        return hash(frozenset(self._data.items()))
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, Mapping):
+            return self._data == dict(other.items())
+        return NotImplemented
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError("FrozenDict is read-only")
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (FrozenDict, (thaw(self),))
+
+    def __repr__(self) -> str:
+        return f"FrozenDict({self._data!r})"
+
+
+def _freeze(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        return value if isinstance(value, FrozenDict) else FrozenDict(value)
+    if isinstance(value, list | tuple):
+        return tuple(_freeze(v) for v in value)
+    return value
+
+
+def thaw(value: Any, *, sequence: type = list) -> Any:
+    """A plain-``dict``/``list`` copy of a frozen value (``sequence=tuple`` keeps tuples)."""
+    if isinstance(value, Mapping):
+        return {k: thaw(v, sequence=sequence) for k, v in value.items()}
+    if isinstance(value, tuple | list):
+        return sequence(thaw(v, sequence=sequence) for v in value)
+    return value
+
+
+# --------------------------------------------------------------------------------------------
+# small validators: every message starts with the key path
+# --------------------------------------------------------------------------------------------
+
+
+def _check_keys(raw: Mapping[str, Any], allowed: Sequence[str], path: str) -> None:
+    if not isinstance(raw, Mapping):
+        raise ValueError(f"{path or 'experiment'}: expected a table, got {type(raw).__name__}")
+    for key in raw:
+        if key not in allowed:
+            where = f"{path}.{key}" if path else str(key)
+            raise ValueError(f"{where}: unknown key; expected one of {', '.join(allowed)}")
+
+
+def _whole(value: Any, path: str, *, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        else:
+            raise ValueError(f"{path}: expected a whole number >= {minimum}, got {value!r}")
+    if value < minimum:
+        raise ValueError(f"{path}: must be a whole number >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def _number(value: Any, path: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise ValueError(f"{path}: expected a number, got {value!r}")
+    number = float(value)
+    if not math.isfinite(number):
+        raise ValueError(f"{path}: must be finite, got {value!r}")
+    return number
+
+
+def _text(value: Any, path: str, *, allow_empty: bool = False) -> str:
+    if not isinstance(value, str) or (not value and not allow_empty):
+        raise ValueError(f"{path}: expected a non-empty string, got {value!r}")
+    return value
+
+
+def _check_parameter(name: str, value: float, path: str) -> float:
+    """One sweep value: SNR range or the scenario parameter's own domain."""
+    number = _number(value, path)
+    if name == "snr_db":
+        low, high = SNR_RANGE_DB
+        if not low <= number <= high:
+            raise ValueError(f"{path}: snr_db must lie in [{low:g}, {high:g}] dB, got {value!r}")
+        return number
+    try:
+        return check_parameter_value(name, number)
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}") from None
+
+
+def _check_option(value: Any, path: str) -> None:
+    """Estimator options: strings, booleans, finite numbers, lists and tables of them."""
+    if isinstance(value, str | bool | int):
+        return
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ValueError(f"{path}: must be finite, got {value!r}")
+        return
+    if isinstance(value, list | tuple):
+        for index, item in enumerate(value):
+            _check_option(item, f"{path}[{index}]")
+        return
+    if isinstance(value, Mapping):
+        for key, item in value.items():
+            _check_option(item, f"{path}.{key}")
+        return
+    raise ValueError(
+        f"{path}: expected a string, boolean, number, list or table, got {type(value).__name__}"
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# the dataclasses
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class EstimatorSpec:
+    """One estimator of an experiment: registry ``name``, a unique ``label`` and its ``options``.
+
+    Parameters
+    ----------
+    name : str
+        A name of :func:`estimators.registry.all_entries` or ``"package.module:Class"``.
+    label : str, optional
+        What the result rows call it (default: ``name``); lets one estimator appear twice with
+        different options.
+    options : mapping
+        Keyword arguments of the estimator's constructor (lists become tuples).
+    """
+
+    name: str
+    label: str | None = None
+    options: Mapping[str, Any] = field(default_factory=FrozenDict)
+
+    def __post_init__(self) -> None:
+        _text(self.name, "name")
+        if self.label is None:
+            object.__setattr__(self, "label", self.name)
+        _text(self.label, "label")
+        if not isinstance(self.options, Mapping):
+            raise ValueError(f"options: expected a table, got {type(self.options).__name__}")
+        for key, value in self.options.items():
+            _text(key, "options")
+            _check_option(value, f"options.{key}")
+        object.__setattr__(self, "options", FrozenDict(self.options))
+
+    def build(self) -> Estimator:
+        """A new estimator object (:func:`estimators.registry.make_estimator`)."""
+        return make_estimator(self.name, **thaw(self.options, sequence=tuple))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "label": self.label, "options": thaw(self.options)}
+
+    @classmethod
+    def from_dict(cls, raw: Mapping[str, Any] | str, *, path: str = "estimator") -> EstimatorSpec:
+        """From a table ``{name, label?, options?}`` or a bare name."""
+        if isinstance(raw, str):
+            raw = {"name": raw}
+        _check_keys(raw, _ESTIMATOR_KEYS, path)
+        if "name" not in raw:
+            raise ValueError(f"{path}.name: missing; give a registry name such as 'cls'")
+        try:
+            return cls(name=raw["name"], label=raw.get("label"), options=raw.get("options", {}))
+        except ValueError as error:
+            raise ValueError(f"{path}.{error}") from None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Sweep:
+    """The points of an experiment: one swept parameter (or an emitter grid) and fixed values.
+
+    Parameters
+    ----------
+    parameter : str or None
+        ``"snr_db"``, a name of :data:`scenarios.sweep.SWEEPABLE`, ``"emitter_m"`` (a grid of
+        ``x_m`` × ``y_m``), or None for a single point made of the ``fixed`` values.
+    values : sequence of float
+        The values of ``parameter`` (not for ``emitter_m``); distinct.
+    x_m, y_m : sequence of float
+        The grid of ``emitter_m`` (TOML keys ``x`` and ``y``); point ``p`` is
+        ``(x_m[p // len(y_m)], y_m[p % len(y_m)])``.
+    fixed : mapping
+        Values of other parameters held at every point, e.g. ``{"snr_db": 10.0}``. ``snr_db``
+        is 0 dB unless swept or fixed.
+    """
+
+    parameter: str | None = None
+    values: tuple[float, ...] = ()
+    x_m: tuple[float, ...] = ()
+    y_m: tuple[float, ...] = ()
+    fixed: Mapping[str, float] = field(default_factory=FrozenDict)
+
+    def __post_init__(self) -> None:
+        known = ("snr_db", *SWEEPABLE, GRID_PARAMETER)
+        parameter = self.parameter
+        if parameter is not None and parameter not in known:
+            raise ValueError(f"parameter: unknown {parameter!r}; choose one of {', '.join(known)}")
+        grid = parameter == GRID_PARAMETER
+        values = self._sequence(self.values, "values", parameter if not grid else None)
+        x_m = self._sequence(self.x_m, "x", "emitter_x_m" if grid else None)
+        y_m = self._sequence(self.y_m, "y", "emitter_y_m" if grid else None)
+        if grid:
+            if values:
+                raise ValueError("values: the emitter_m grid takes x = [...] and y = [...]")
+            for name, sequence in (("x", x_m), ("y", y_m)):
+                if not sequence:
+                    raise ValueError(f"{name}: the emitter_m grid needs a non-empty list (metres)")
+        else:
+            if x_m or y_m:
+                raise ValueError(
+                    f"{'x' if x_m else 'y'}: only the emitter_m grid takes x and y; "
+                    "set parameter = 'emitter_m' or use values"
+                )
+            if parameter is not None and not values:
+                raise ValueError(f"values: give at least one value of {parameter}")
+            if parameter is None and values:
+                raise ValueError("parameter: values are given but no parameter to sweep")
+        if not isinstance(self.fixed, Mapping):
+            raise ValueError(f"fixed: expected a table, got {type(self.fixed).__name__}")
+        swept = set(GRID_COLUMNS) if grid else {parameter}
+        fixed = {}
+        for name, value in self.fixed.items():
+            if name not in ("snr_db", *SWEEPABLE):
+                raise ValueError(
+                    f"fixed.{name}: unknown parameter; choose one of snr_db, {', '.join(SWEEPABLE)}"
+                )
+            if name in swept:
+                raise ValueError(f"fixed.{name}: is also swept; remove it from one of the two")
+            fixed[name] = _check_parameter(name, value, f"fixed.{name}")
+        object.__setattr__(self, "values", values)
+        object.__setattr__(self, "x_m", x_m)
+        object.__setattr__(self, "y_m", y_m)
+        object.__setattr__(self, "fixed", FrozenDict(fixed))
+
+    @staticmethod
+    def _sequence(raw: Any, key: str, parameter: str | None) -> tuple[float, ...]:
+        if isinstance(raw, str | bytes) or not isinstance(raw, Sequence | np.ndarray):
+            raise ValueError(f"{key}: expected a list of numbers, got {raw!r}")
+        if parameter is None:
+            return tuple(raw) if len(raw) == 0 else tuple(_number(v, key) for v in raw)
+        values = tuple(_check_parameter(parameter, v, f"{key}[{i}]") for i, v in enumerate(raw))
+        for index, value in enumerate(values):
+            if value in values[:index]:
+                first = values.index(value)
+                raise ValueError(
+                    f"{key}[{index}]: {value:g} repeats {key}[{first}]; give distinct values"
+                )
+        return values
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """The swept columns of the result rows other than ``snr_db``."""
+        if self.parameter == GRID_PARAMETER:
+            return GRID_COLUMNS
+        if self.parameter is None or self.parameter == "snr_db":
+            return ()
+        return (self.parameter,)
+
+    @property
+    def n_points(self) -> int:
+        if self.parameter == GRID_PARAMETER:
+            return len(self.x_m) * len(self.y_m)
+        return len(self.values) if self.parameter is not None else 1
+
+    def points(self) -> list[dict[str, float]]:
+        """Every point's settings: ``snr_db`` and each fixed or swept scenario parameter."""
+        base = {"snr_db": 0.0, **self.fixed}
+        if self.parameter is None:
+            return [base]
+        if self.parameter == GRID_PARAMETER:
+            return [
+                {**base, "emitter_x_m": x, "emitter_y_m": y} for x in self.x_m for y in self.y_m
+            ]
+        return [{**base, self.parameter: value} for value in self.values]
+
+    def to_dict(self) -> dict[str, Any]:
+        raw: dict[str, Any] = {}
+        if self.parameter is not None:
+            raw["parameter"] = self.parameter
+        if self.parameter == GRID_PARAMETER:
+            raw["x"] = list(self.x_m)
+            raw["y"] = list(self.y_m)
+        elif self.parameter is not None:
+            raw["values"] = list(self.values)
+        raw["fixed"] = dict(self.fixed)
+        return raw
+
+    @classmethod
+    def from_dict(cls, raw: Mapping[str, Any], *, path: str = "sweep") -> Sweep:
+        _check_keys(raw, _SWEEP_KEYS, path)
+        try:
+            return cls(
+                parameter=raw.get("parameter"),
+                values=raw.get("values", ()),
+                x_m=raw.get("x", ()),
+                y_m=raw.get("y", ()),
+                fixed=raw.get("fixed", {}),
+            )
+        except ValueError as error:
+            raise ValueError(f"{path}.{error}") from None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Experiment:
+    """A Monte Carlo comparison: scenarios × sweep points × estimators × trials.
+
+    Parameters
+    ----------
+    name : str
+        Names the result rows (column ``experiment``).
+    description : str
+    scenarios : sequence of str
+        Names of :data:`scenarios.catalog.CATALOG`, distinct.
+    sweep : Sweep
+    estimators : sequence of EstimatorSpec
+        Distinct labels; each is constructed once here, which checks its options, and must
+        find the modalities it requires in every scenario.
+    trials : int
+        Monte Carlo trials per (scenario, point), >= 1.
+    seed : int
+        Root of every random draw (>= 0); see :mod:`comparison.engine` for the seed tree.
+    frames : int or None
+        Frames flown in every scenario (extended at the last velocity); None keeps each
+        scenario's own.
+    per_frame : bool
+        Estimate after every frame (on the data up to it) instead of once at the end.
+    metrics : sequence of str or None
+        Metric columns the report shows (:data:`comparison.metrics.METRIC_NAMES`); None: all.
+    chunk_size : int
+        Trials per parallel task (>= 1); results never depend on it.
+
+    Raises
+    ------
+    ValueError
+        Whose message starts with the key path, on any malformed field.
+    """
+
+    name: str
+    description: str = ""
+    scenarios: tuple[str, ...]
+    sweep: Sweep = field(default_factory=Sweep)
+    estimators: tuple[EstimatorSpec, ...]
+    trials: int
+    seed: int
+    frames: int | None = None
+    per_frame: bool = False
+    metrics: tuple[str, ...] | None = None
+    chunk_size: int = 25
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        _text(self.name, "name")
+        _text(self.description, "description", allow_empty=True)
+        set_(self, "trials", _whole(self.trials, "trials", minimum=1))
+        set_(self, "seed", _whole(self.seed, "seed", minimum=0))
+        set_(self, "chunk_size", _whole(self.chunk_size, "chunk_size", minimum=1))
+        if self.frames is not None:
+            set_(self, "frames", _whole(self.frames, "frames", minimum=1))
+        if not isinstance(self.per_frame, bool):
+            raise ValueError(f"per_frame: expected true or false, got {self.per_frame!r}")
+        if not isinstance(self.sweep, Sweep):
+            raise ValueError(f"sweep: expected a Sweep, got {type(self.sweep).__name__}")
+        self._check_scenarios()
+        self._check_metrics()
+        self._check_estimators()
+
+    # -- validation ------------------------------------------------------------------------
+
+    def _check_scenarios(self) -> None:
+        if isinstance(self.scenarios, str) or not isinstance(self.scenarios, Sequence):
+            raise ValueError(f"scenarios: expected a list of names, got {self.scenarios!r}")
+        names = tuple(self.scenarios)
+        if not names:
+            raise ValueError(f"scenarios: give at least one of {', '.join(CATALOG)}")
+        for index, name in enumerate(names):
+            if not isinstance(name, str) or name not in CATALOG:
+                raise ValueError(
+                    f"scenarios[{index}]: unknown scenario {name!r}; "
+                    f"known scenarios: {', '.join(CATALOG)}"
+                )
+            if name in names[:index]:
+                raise ValueError(f"scenarios[{index}]: {name!r} is listed twice; list it once")
+        object.__setattr__(self, "scenarios", names)
+        for index, name in enumerate(names):
+            for point, settings in enumerate(self.sweep.points()):
+                try:
+                    build_scenario(name, settings, frames=self.frames)
+                except ValueError as error:
+                    raise ValueError(
+                        f"sweep: point {point} cannot be applied to scenarios[{index}] "
+                        f"({name}): {error}"
+                    ) from None
+
+    def _check_metrics(self) -> None:
+        if self.metrics is None:
+            return
+        if isinstance(self.metrics, str) or not isinstance(self.metrics, Sequence):
+            raise ValueError(f"metrics: expected a list of metric names, got {self.metrics!r}")
+        metrics = tuple(self.metrics)
+        known = _known_metrics()
+        for index, metric in enumerate(metrics):
+            _text(metric, f"metrics[{index}]")
+            if known is not None and metric not in known:
+                raise ValueError(
+                    f"metrics[{index}]: unknown metric {metric!r}; choose from {', '.join(known)}"
+                )
+        object.__setattr__(self, "metrics", metrics)
+
+    def _check_estimators(self) -> None:
+        if isinstance(self.estimators, str | Mapping) or not isinstance(self.estimators, Sequence):
+            raise ValueError("estimators: expected a list of estimator tables")
+        specs = tuple(self.estimators)
+        if not specs:
+            raise ValueError("estimators: give at least one estimator, e.g. name = 'cls'")
+        labels: dict[str, int] = {}
+        scenarios = {name: get_scenario(name, frames=self.frames) for name in self.scenarios}
+        for index, spec in enumerate(specs):
+            path = f"estimators[{index}]"
+            if not isinstance(spec, EstimatorSpec):
+                raise ValueError(f"{path}: expected an EstimatorSpec, got {type(spec).__name__}")
+            if spec.label in labels:
+                raise ValueError(
+                    f"{path}.label: duplicate label {spec.label!r} (also "
+                    f"estimators[{labels[spec.label]}]); give each entry a distinct label"
+                )
+            labels[spec.label] = index
+            try:
+                estimator_class(spec.name)
+            except ValueError as error:
+                raise ValueError(f"{path}.name: {error}") from None
+            try:
+                estimator = spec.build()
+            except ValueError as error:
+                raise ValueError(f"{path}.options: {error}") from None
+            for name, scenario in scenarios.items():
+                missing = sorted(set(estimator_modalities(estimator)) - set(scenario.modalities))
+                if missing:
+                    raise ValueError(
+                        f"{path}: {spec.label!r} needs {', '.join(missing)} measurements, "
+                        f"which scenario {name!r} does not simulate; drop one of the two"
+                    )
+        object.__setattr__(self, "estimators", specs)
+
+    # -- derived -----------------------------------------------------------------------------
+
+    @property
+    def labels(self) -> tuple[str, ...]:
+        """The estimator labels, in order."""
+        return tuple(spec.label for spec in self.estimators)
+
+    @property
+    def swept_columns(self) -> tuple[str, ...]:
+        """Swept columns of the result rows other than ``snr_db`` (see :class:`Sweep`)."""
+        return self.sweep.columns
+
+    def point_scenario(self, scenario_index: int, point: int) -> tuple[Scenario, float]:
+        """The scenario of ``(scenario_index, point)`` and its SNR in dB."""
+        settings = self.sweep.points()[point]
+        return build_scenario(self.scenarios[scenario_index], settings, frames=self.frames), (
+            settings["snr_db"]
+        )
+
+    def with_trials(self, trials: int) -> Experiment:
+        """This experiment with ``trials`` trials per point."""
+        return Experiment.from_dict({**self.to_dict(), "trials": trials})
+
+    # -- serialisation -------------------------------------------------------------------------
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON/TOML-ready dict; :meth:`from_dict` gives back an equal experiment."""
+        return {
+            "name": self.name,
+            "description": self.description,
+            "scenarios": list(self.scenarios),
+            "sweep": self.sweep.to_dict(),
+            "estimators": [spec.to_dict() for spec in self.estimators],
+            "trials": self.trials,
+            "seed": self.seed,
+            "frames": self.frames,
+            "per_frame": self.per_frame,
+            "metrics": None if self.metrics is None else list(self.metrics),
+            "chunk_size": self.chunk_size,
+            "swept_columns": list(self.swept_columns),
+        }
+
+    def to_json(self) -> str:
+        """The experiment as JSON text (floats written exactly)."""
+        return json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n"
+
+    @classmethod
+    def from_json(cls, text: str) -> Experiment:
+        try:
+            raw = json.loads(text)
+        except json.JSONDecodeError as error:
+            raise ValueError(f"experiment: not valid JSON ({error})") from None
+        return cls.from_dict(raw)
+
+    @classmethod
+    def from_dict(cls, raw: Mapping[str, Any]) -> Experiment:
+        """Validate a dict in the TOML layout of the module docstring (``None`` = absent)."""
+        _check_keys(raw, _EXPERIMENT_KEYS, "")
+        for key in _REQUIRED_KEYS:
+            if key not in raw:
+                raise ValueError(f"{key}: missing; see the example in comparison.experiment")
+        sweep = Sweep.from_dict(raw.get("sweep", {}))
+        estimators = raw["estimators"]
+        if isinstance(estimators, str | Mapping) or not isinstance(estimators, Sequence):
+            raise ValueError("estimators: expected a list of [[estimators]] tables or names")
+        specs = tuple(
+            EstimatorSpec.from_dict(entry, path=f"estimators[{index}]")
+            for index, entry in enumerate(estimators)
+        )
+        experiment = cls(
+            name=raw["name"],
+            description=raw.get("description", ""),
+            scenarios=raw["scenarios"],
+            sweep=sweep,
+            estimators=specs,
+            trials=raw["trials"],
+            seed=raw["seed"],
+            frames=raw.get("frames"),
+            per_frame=raw.get("per_frame", False),
+            metrics=raw.get("metrics"),
+            chunk_size=raw.get("chunk_size", 25),
+        )
+        if "swept_columns" in raw and list(raw["swept_columns"]) != list(sweep.columns):
+            raise ValueError(
+                f"swept_columns: {raw['swept_columns']!r} does not match the sweep "
+                f"({list(sweep.columns)!r}); remove the key, it is derived from the sweep"
+            )
+        return experiment
+
+
+def estimator_modalities(estimator: Estimator) -> frozenset[str]:
+    """The modalities an estimator uses: its ``requires``, plus RSS when ``use_rss`` is set."""
+    used = set(getattr(estimator, "requires", frozenset()))
+    if getattr(estimator, "use_rss", False):
+        used.add("rss")
+    return frozenset(used)
+
+
+def build_scenario(
+    name: str, settings: Mapping[str, float], *, frames: int | None = None
+) -> Scenario:
+    """The catalog scenario ``name`` with ``frames`` frames and every setting but ``snr_db``."""
+    scenario = get_scenario(name, frames=frames)
+    return with_parameters(scenario, {k: v for k, v in settings.items() if k != "snr_db"})
+
+
+def _known_metrics() -> tuple[str, ...] | None:
+    try:
+        from comparison.metrics import METRIC_NAMES
+    except ImportError:
+        return None
+    return tuple(METRIC_NAMES)
+
+
+# --------------------------------------------------------------------------------------------
+# built-in experiments and loading
+# --------------------------------------------------------------------------------------------
+
+_BUILTIN_DEFINITIONS: dict[str, dict[str, Any]] = {
+    "paper-fig2": {
+        "name": "paper-fig2",
+        "description": (
+            "accuracy vs SNR on one frame of the paper's track (paper Fig. 2), with the printed "
+            "c*sigma_tau = 300 km and the meaningful 1 m and 10 m (MATH §14)"
+        ),
+        "scenarios": ["paper", "paper-1m", "paper-10m"],
+        "sweep": {"parameter": "snr_db", "values": [-10, -5, 0, 5, 10, 15, 20, 25, 30]},
+        "estimators": ["lls-rss", "lls-toa", "cls-as-printed", "cls-paper", "cls", "ml"],
+        "trials": 500,
+        "seed": 20_240_602,
+        "frames": 1,
+    },
+    "geometry-map": {
+        "name": "geometry-map",
+        "description": (
+            "RMSE against the CRLB over a grid of emitter positions beside the paper's track "
+            "(paper-1m at 10 dB, one frame)"
+        ),
+        "scenarios": ["paper-1m"],
+        "sweep": {
+            "parameter": "emitter_m",
+            "x": [-40, -30, -20, -10, 0, 10, 20, 30, 40, 50, 60],
+            "y": [5, 15, 25, 35, 45, 55, 65],
+            "fixed": {"snr_db": 10},
+        },
+        "estimators": ["cls", "ml", "lls-toa"],
+        "trials": 100,
+        "seed": 20_240_603,
+        "frames": 1,
+    },
+    "smoke": {
+        "name": "smoke",
+        "description": "a tiny run for tests: two SNR points, two CLS variants, 20 trials",
+        "scenarios": ["paper-1m"],
+        "sweep": {"parameter": "snr_db", "values": [0, 20]},
+        "estimators": ["cls", "cls-paper"],
+        "trials": 20,
+        "seed": 7,
+        "chunk_size": 5,
+    },
+}
+
+BUILTIN_EXPERIMENTS: dict[str, str] = {
+    "paper-fig2": "accuracy vs SNR, one frame, paper/paper-1m/paper-10m, 6 estimators, 500 trials",
+    "geometry-map": "RMSE/CRLB of cls, ml, lls-toa over an emitter grid, paper-1m at 10 dB",
+    "smoke": "2 SNR points, cls and cls-paper, 20 trials (for tests)",
+}
+"""Built-in experiments by name: one-line summaries (``emitterbench list``)."""
+
+
+def builtin_experiment(name: str) -> Experiment:
+    """The built-in experiment ``name`` (see :data:`BUILTIN_EXPERIMENTS`)."""
+    if name not in _BUILTIN_DEFINITIONS:
+        raise ValueError(
+            f"experiment: unknown built-in {name!r}; built-ins: {', '.join(BUILTIN_EXPERIMENTS)}"
+        )
+    return Experiment.from_dict(_BUILTIN_DEFINITIONS[name])
+
+
+def load_experiment(name_or_path: str | Path) -> Experiment:
+    """A built-in experiment by name, or one read from a ``.toml`` (or ``.json``) file.
+
+    Raises
+    ------
+    ValueError
+        Unknown name, unreadable file, invalid TOML, or any invalid key (the message starts
+        with the key path).
+    """
+    text = str(name_or_path)
+    if text in _BUILTIN_DEFINITIONS:
+        return builtin_experiment(text)
+    path = Path(name_or_path)
+    if path.suffix not in (".toml", ".json"):
+        raise ValueError(
+            f"experiment: {text!r} is neither a built-in ({', '.join(BUILTIN_EXPERIMENTS)}) "
+            "nor a .toml file"
+        )
+    try:
+        content = path.read_bytes()
+    except OSError as error:
+        raise ValueError(f"experiment: cannot read {path} ({error.strerror})") from None
+    if path.suffix == ".json":
+        return Experiment.from_json(content.decode())
+    try:
+        raw = tomllib.loads(content.decode())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
+        raise ValueError(f"experiment: {path} is not valid TOML ({error})") from None
+    return Experiment.from_dict(raw)

@@ -1,0 +1,486 @@
+"""The comparison report of a run folder: summary.csv, trials.csv, figures and report.html.
+
+:func:`write_report` reads a run folder written by :mod:`comparison.engine`
+(``experiment.json``, ``run.json``, ``results.sqlite``) and writes beside them:
+
+- ``summary.csv``: :func:`comparison.metrics.summarize`, full precision, one row per
+  (scenario, point, frame, estimator);
+- ``trials.csv``: the tidy trial rows, one per estimator × scenario × point × frame × trial;
+- ``figures/<name>.png`` (150 dpi) and ``figures/<name>.svg`` for every figure of
+  :mod:`comparison.figures` that applies to the sweep;
+- ``report.html``: one self-contained file (figures embedded as base64 PNG, styles inline, no
+  external resource) with the CRLB-attainment statements, the figures, the summary tables,
+  the metric definitions, the experiment definition and the run's provenance. The markup is
+  XHTML-compatible, so any XML parser reads it.
+
+The tables print every number with :func:`comparison.metrics.format_number` (4 significant
+digits) from the same frame that is written to ``summary.csv``.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+from comparison import figures
+from comparison.metrics import (
+    DEFAULT_N_BOOTSTRAP,
+    METRIC_DESCRIPTIONS,
+    METRIC_NAMES,
+    attainment_criterion,
+    crlb_attainment,
+    format_number,
+    summarize,
+    summary_swept_columns,
+)
+
+BOOTSTRAP_STREAM = 2**31 + 7
+"""Spawn key of the bootstrap's seed sequence under the experiment seed (no trial uses it)."""
+
+FIGURE_STEMS: tuple[str, ...] = (
+    "rmse",
+    "rmse_side_resolved",
+    "wrong_side",
+    "geometry",
+    "error_cdf",
+    "runtime",
+    "rmse_vs_frame",
+    "nees_vs_frame",
+)
+"""File names (without suffix) of every figure a report can write under ``figures/``."""
+
+COMPACT_COLUMNS: tuple[str, ...] = (
+    "n_trials",
+    "rmse_m",
+    "rmse_ci_low_m",
+    "rmse_ci_high_m",
+    "rmse_side_resolved_m",
+    "crlb_rmse_m",
+    "efficiency",
+    "efficiency_side_resolved",
+    "mean_error_m",
+    "cep50_m",
+    "wrong_side_rate",
+    "success_rate",
+    "nees_mean",
+    "runtime_median_s",
+)
+"""Metric columns of the compact per-scenario tables unless the experiment lists its own
+``metrics``; every column is in the full tables."""
+
+SNR_CAPTION = (
+    "SNR axis (MATH §2): each scenario has reference noise standard deviations "
+    "(σ_f for Doppler, σ_τ for ToA, σ_P for RSS) at 0 dB; at a given SNR every one of them is "
+    "multiplied by 10^(−SNR/20). The SNR is therefore a common scale of all noise levels, not "
+    "the signal-to-noise ratio of a receiver."
+)
+
+SIDE_CAPTION = (
+    "Side-resolved metrics (MATH §7): Doppler and ToA from one straight frame are identical "
+    "for the emitter and its mirror image across the vertical plane through the track, so no "
+    "estimator can tell the side. Estimators report every equal-cost candidate; the "
+    "side-resolved error is that of the candidate nearest to the truth (what the paper's "
+    "figures implicitly assume). The error of the returned position and the wrong-side rate "
+    "(returned position and truth on opposite sides of the last frame's track) show what the "
+    "ambiguity costs. √CRLB is the square root of the trace of the inverse Fisher information "
+    "over the samples and modalities an estimator uses (MATH §8)."
+)
+
+_STYLE = """
+body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px;
+       padding: 0 1em; color: #222; line-height: 1.45; }
+h1 { font-size: 1.6em; } h2 { border-bottom: 1px solid #ccc; margin-top: 2em; }
+figure { margin: 1.5em 0; } figure img { max-width: 100%; height: auto; }
+figcaption { font-size: 0.92em; color: #444; }
+.table-wrap { overflow-x: auto; margin: 0.8em 0; }
+table { border-collapse: collapse; font-size: 0.82em; }
+th, td { border: 1px solid #ddd; padding: 2px 6px; text-align: right; white-space: nowrap; }
+th { background: #f3f3f3; }
+td:nth-child(1), th:nth-child(1) { text-align: left; }
+pre { background: #f7f7f7; padding: 0.8em; overflow-x: auto; font-size: 0.85em; }
+.criterion { background: #f4f8ff; border-left: 4px solid #4a78c2; padding: 0.5em 0.8em; }
+dt { font-family: monospace; font-weight: bold; } dd { margin: 0 0 0.4em 1.5em; }
+"""
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{path.name}: not valid JSON ({error}); rerun the experiment") from None
+
+
+def _load(
+    run_dir: Path,
+    trials: pd.DataFrame | None,
+    points: pd.DataFrame | None,
+    experiment: Mapping[str, Any] | None,
+    run_info: Mapping[str, Any] | None,
+) -> tuple[pd.DataFrame, pd.DataFrame | None, dict[str, Any], dict[str, Any]]:
+    """The run's data: the given frames, else the engine's readers (imported only then)."""
+    if trials is None or points is None or experiment is None:
+        from comparison import engine
+
+        if experiment is None:
+            experiment = engine.read_experiment(run_dir)
+        if trials is None:
+            trials = engine.read_trials(run_dir)
+        if points is None:
+            points = engine.read_points(run_dir)
+    if run_info is None:
+        run_path = run_dir / "run.json"
+        run_info = _read_json(run_path) if run_path.exists() else {}
+    return trials, points, experiment_dict(experiment), dict(run_info)
+
+
+def experiment_dict(experiment: Any) -> dict[str, Any]:
+    """The experiment definition as a plain dict (from a mapping or an ``Experiment``)."""
+    if isinstance(experiment, Mapping):
+        return dict(experiment)
+    to_dict = getattr(experiment, "to_dict", None)
+    if callable(to_dict):
+        return dict(to_dict())
+    raise ValueError(
+        f"experiment: expected the parsed experiment.json (a dict) or an Experiment, "
+        f"got {type(experiment).__name__}"
+    )
+
+
+def scenario_tracks_m(experiment: Mapping[str, Any]) -> dict[str, np.ndarray]:
+    """UAV positions ``(n, 3)`` of each catalogue scenario named in ``experiment``.
+
+    Scenarios are catalogue names, flown for the experiment's ``frames`` when it gives them;
+    an entry that is not a known name is skipped (no track is drawn for it).
+    """
+    from scenarios.catalog import get_scenario
+
+    tracks: dict[str, np.ndarray] = {}
+    for entry in experiment.get("scenarios", []) or []:
+        if not isinstance(entry, str):
+            continue
+        try:
+            scenario = get_scenario(entry, frames=experiment.get("frames"))
+        except (ValueError, TypeError):
+            continue
+        tracks[entry] = scenario.flight.sample_positions_m()
+    return tracks
+
+
+def _png_data_uri(png_path: Path) -> str:
+    return "data:image/png;base64," + base64.b64encode(png_path.read_bytes()).decode("ascii")
+
+
+def report_figures(
+    summary: pd.DataFrame,
+    trials: pd.DataFrame,
+    points: pd.DataFrame | None,
+    tracks_m: Mapping[str, np.ndarray] | None,
+) -> list[tuple[str, str, Figure]]:
+    """``(stem, caption, figure)`` of every figure that applies to this sweep."""
+    colors = figures.estimator_colors(summary["estimator"].unique())
+    x = figures.sweep_axis(summary)
+    made: list[tuple[str, str, Figure]] = []
+    if x is not None:
+        what = figures.axis_label(x).split(":")[0]
+        made.append(
+            (
+                "rmse",
+                f"RMSE of the returned position against {what}, one panel per scenario; "
+                "shaded: 95% percentile-bootstrap interval; solid black: √CRLB for "
+                "ToA+Doppler; dashed: the bound of an estimator that uses other modalities.",
+                figures.rmse_figure(summary, points=points, x=x, colors=colors),
+            )
+        )
+        if not np.allclose(
+            summary["rmse_side_resolved_m"], summary["rmse_m"], rtol=1e-12, equal_nan=True
+        ):
+            made.append(
+                (
+                    "rmse_side_resolved",
+                    f"Side-resolved RMSE (nearest candidate to the truth, MATH §7) against "
+                    f"{what}; same layout as the RMSE figure.",
+                    figures.side_resolved_rmse_figure(summary, points=points, x=x, colors=colors),
+                )
+            )
+        made.append(
+            (
+                "wrong_side",
+                f"Wrong-side rate against {what}: the fraction of successful estimates on "
+                "the other side of the last frame's track from the truth; 0.5 is a coin toss.",
+                figures.wrong_side_figure(summary, x=x, colors=colors),
+            )
+        )
+    if figures.is_geometry_sweep(summary):
+        made.append(
+            (
+                "geometry",
+                "Efficiency RMSE/√CRLB over the emitter grid (log colour scale; side-resolved "
+                "RMSE for estimators that flag ambiguous answers), with the UAV track where "
+                "known; the first panel is the ToA+Doppler √CRLB in metres.",
+                figures.geometry_heatmap_figure(summary, points=points, tracks_m=tracks_m),
+            )
+        )
+    made.append(
+        (
+            "error_cdf",
+            "Empirical CDF of the distance error at the lowest, middle and highest sweep "
+            "points; failed estimates count as infinite errors. Dashed: side-resolved error.",
+            figures.error_cdf_figure(trials, x=x, colors=colors),
+        )
+    )
+    made.append(
+        (
+            "runtime",
+            "Wall time of one estimate per estimator over the whole run (median and 5th to "
+            "95th percentiles; log axis). Timings depend on the machine in the run section.",
+            figures.runtime_figure(trials, colors=colors),
+        )
+    )
+    if figures.is_per_frame(summary):
+        made.append(
+            (
+                "rmse_vs_frame",
+                "RMSE as frames accumulate, with the √CRLB accumulated over the same frames "
+                "(MATH §8); dotted: side-resolved RMSE where it differs.",
+                figures.rmse_vs_frame_figure(summary, points=points, colors=colors),
+            )
+        )
+        if (summary["n_nees"] > 0).any():
+            made.append(
+                (
+                    "nees_vs_frame",
+                    "Mean NEES against the frame for estimators with a covariance; grey: the "
+                    "95% chi-square band of the mean of n consistent 2-dof NEES values.",
+                    figures.nees_vs_frame_figure(summary, colors=colors),
+                )
+            )
+    return made
+
+
+def _escape(value: object) -> str:
+    return html.escape(str(value), quote=True)
+
+
+def _table_html(frame: pd.DataFrame, table_id: str) -> str:
+    """``frame`` as an XHTML-compatible table, numbers by :func:`format_number`."""
+    formatters = {
+        column: format_number
+        for column in frame.columns
+        if pd.api.types.is_numeric_dtype(frame[column])
+    }
+    return frame.to_html(
+        index=False,
+        formatters=formatters,
+        na_rep="NaN",
+        border=0,
+        table_id=table_id,
+        classes="summary",
+        escape=True,
+    )
+
+
+def _value_html(value: Any) -> str:
+    """A JSON value as nested XHTML tables and lists."""
+    if isinstance(value, Mapping):
+        if not value:
+            return "<em>none</em>"
+        rows = "".join(
+            f"<tr><th>{_escape(k)}</th><td>{_value_html(v)}</td></tr>" for k, v in value.items()
+        )
+        return f'<table class="info">{rows}</table>'
+    if isinstance(value, list | tuple):
+        if all(not isinstance(v, Mapping | list | tuple) for v in value):
+            return _escape(", ".join(str(v) for v in value))
+        return "<ol>" + "".join(f"<li>{_value_html(v)}</li>" for v in value) + "</ol>"
+    return _escape(value)
+
+
+def _summary_tables(summary: pd.DataFrame, metrics: Sequence[str] | None = None) -> str:
+    """Per scenario: the chosen metrics at the last frame, and every metric in a fold."""
+    chosen = list(COMPACT_COLUMNS if metrics is None else metrics)
+    unknown = [m for m in chosen if m not in METRIC_NAMES]
+    if unknown:
+        raise ValueError(
+            f"metrics: unknown metric columns {unknown}; choose from {', '.join(METRIC_NAMES)}"
+        )
+    swept = summary_swept_columns(summary)
+    key_columns = ["snr_db", *swept, "frame", "estimator"]
+    latest = summary.groupby(["scenario", "snr_db", *swept, "estimator"], sort=False)[
+        "frame"
+    ].transform("max")
+    parts = []
+    for index, (scenario, rows) in enumerate(summary.groupby("scenario", sort=False)):
+        compact = rows[rows["frame"] == latest[rows.index]][[*key_columns, *chosen]]
+        full = rows.drop(columns="scenario")
+        note = " (last frame of each point)" if figures.is_per_frame(rows) else ""
+        parts.append(
+            f'<section class="scenario-tables" data-scenario="{_escape(scenario)}">'
+            f"<h3>{_escape(scenario)}{note}</h3>"
+            f'<div class="table-wrap">{_table_html(compact, f"summary-{index}-compact")}</div>'
+            f"<details><summary>every metric of {_escape(scenario)} "
+            f"({len(full)} rows)</summary>"
+            f'<div class="table-wrap">{_table_html(full, f"summary-{index}-full")}</div>'
+            "</details></section>"
+        )
+    return "".join(parts)
+
+
+def _metric_definitions() -> str:
+    items = "".join(
+        f"<dt>{_escape(name)}</dt><dd>{_escape(text)}</dd>"
+        for name, text in METRIC_DESCRIPTIONS.items()
+    )
+    return f"<dl>{items}</dl>"
+
+
+def _experiment_overview(experiment: Mapping[str, Any], definition: str | None) -> str:
+    shown = {
+        key: experiment[key]
+        for key in ("name", "description", "trials", "seed", "estimators", "scenarios", "sweep")
+        if key in experiment
+    }
+    if definition is None:
+        definition = json.dumps(experiment, indent=2, default=str)
+    return (
+        _value_html(shown)
+        + "<details><summary>experiment.json</summary>"
+        + f"<pre>{_escape(definition)}</pre></details>"
+    )
+
+
+def render_html(
+    *,
+    summary: pd.DataFrame,
+    experiment: Mapping[str, Any],
+    run_info: Mapping[str, Any],
+    figure_entries: list[tuple[str, str, str]],
+    sentences: list[str],
+    experiment_text: str | None = None,
+) -> str:
+    """The report page; ``figure_entries`` are ``(stem, caption, data URI)``.
+
+    ``experiment_text`` is the text of experiment.json, shown verbatim (default: ``experiment``
+    as JSON).
+    """
+    name = str(experiment.get("name", "experiment"))
+    description = experiment.get("description", "")
+    seed = experiment.get("seed", run_info.get("seed", ""))
+    figures_html = "".join(
+        f'<figure id="figure-{_escape(stem)}"><img src="{uri}" alt="{_escape(caption)}"/>'
+        f"<figcaption><strong>{_escape(stem)}</strong> ({_escape(stem)}.png, "
+        f"{_escape(stem)}.svg in figures/): {_escape(caption)}</figcaption></figure>"
+        for stem, caption, uri in figure_entries
+    )
+    statements = "".join(f"<li>{_escape(sentence)}</li>" for sentence in sentences)
+    return (
+        "<!DOCTYPE html>\n"
+        '<html lang="en"><head><meta charset="utf-8"/>'
+        '<meta name="viewport" content="width=device-width, initial-scale=1"/>'
+        f"<title>emitterbench report: {_escape(name)}</title>"
+        f"<style>{_STYLE}</style></head><body>"
+        f"<h1>emitterbench report: {_escape(name)}</h1>"
+        f"<p>{_escape(description)}</p>"
+        f"<p>Seed {_escape(seed)}; {int(summary['n_trials'].sum())} estimates in "
+        f"{len(summary)} summary rows (estimators: {summary['estimator'].nunique()}, "
+        f"scenarios: {summary['scenario'].nunique()}).</p>"
+        '<section id="attainment"><h2>Where the CRLB is attained</h2>'
+        f"<ul>{statements}</ul>"
+        f'<p class="criterion">{_escape(attainment_criterion())}</p></section>'
+        '<section id="reading"><h2>How to read this report</h2>'
+        f"<p>{_escape(SNR_CAPTION)}</p><p>{_escape(SIDE_CAPTION)}</p></section>"
+        f'<section id="figures"><h2>Figures</h2>{figures_html}</section>'
+        '<section id="tables"><h2>Summary tables</h2>'
+        "<p>Every number below is the value in summary.csv printed to 4 significant digits; "
+        "error metrics are over the successful trials, rates as fractions.</p>"
+        f"{_summary_tables(summary, experiment.get('metrics'))}</section>"
+        f'<section id="metrics"><h2>Metric definitions</h2>{_metric_definitions()}</section>'
+        f'<section id="experiment"><h2>Experiment</h2>{_experiment_overview(experiment, experiment_text)}'
+        "</section>"
+        f'<section id="run"><h2>Run: versions, machine, times</h2>{_value_html(run_info)}'
+        "</section></body></html>\n"
+    )
+
+
+def write_report(
+    run_dir: str | Path,
+    *,
+    trials: pd.DataFrame | None = None,
+    points: pd.DataFrame | None = None,
+    experiment: Mapping[str, Any] | None = None,
+    run_info: Mapping[str, Any] | None = None,
+    tracks_m: Mapping[str, np.ndarray] | None = None,
+    n_bootstrap: int = DEFAULT_N_BOOTSTRAP,
+    dpi: int = 150,
+) -> Path:
+    """Write summary.csv, trials.csv, figures/ and report.html into ``run_dir``.
+
+    Parameters
+    ----------
+    run_dir : str or Path
+        The run folder (``experiment.json``, ``run.json``, ``results.sqlite``).
+    trials, points, experiment, run_info : optional
+        The run's data, bypassing :func:`comparison.engine.read_trials`,
+        :func:`~comparison.engine.read_points`, :func:`~comparison.engine.read_experiment`
+        and ``run.json``.
+    tracks_m : mapping, optional
+        Scenario → UAV positions ``(n, 2 or 3)`` for the geometry heatmap; by default the
+        tracks of the catalogue scenarios named in the experiment (:func:`scenario_tracks_m`).
+    n_bootstrap : int
+        Bootstrap resamples; the bootstrap is seeded from the experiment's seed.
+    dpi : int
+        Resolution of the PNG figures.
+
+    Returns
+    -------
+    Path
+        The path of ``report.html``.
+    """
+    folder = Path(run_dir)
+    if not folder.is_dir():
+        raise ValueError(
+            f"run_dir: {folder} is not a folder; give the folder of a finished run "
+            "(the one holding experiment.json)"
+        )
+    trials, points, experiment, run_info = _load(folder, trials, points, experiment, run_info)
+    seed = int(experiment.get("seed", 0))
+    swept = experiment.get("swept_columns")
+    summary = summarize(
+        trials,
+        n_bootstrap=n_bootstrap,
+        seed=np.random.SeedSequence(seed, spawn_key=(BOOTSTRAP_STREAM,)),
+        swept_columns=None if swept is None else list(swept),
+    )
+    summary.to_csv(folder / "summary.csv", index=False)
+    trials.to_csv(folder / "trials.csv", index=False)
+    if tracks_m is None and figures.is_geometry_sweep(summary):
+        tracks_m = scenario_tracks_m(experiment)
+    figure_dir = folder / "figures"
+    for stale in FIGURE_STEMS:  # a previous report's figures that may not apply any more
+        for suffix in (".png", ".svg"):
+            (figure_dir / f"{stale}{suffix}").unlink(missing_ok=True)
+    entries = []
+    for stem, caption, figure in report_figures(summary, trials, points, tracks_m):
+        png_path, _ = figures.save_figure(figure, figure_dir, stem, dpi=dpi)
+        entries.append((stem, caption, _png_data_uri(png_path)))
+    definition_path = folder / "experiment.json"
+    page = render_html(
+        summary=summary,
+        experiment=experiment,
+        run_info=run_info,
+        figure_entries=entries,
+        sentences=crlb_attainment(summary),
+        experiment_text=definition_path.read_text(encoding="utf-8")
+        if definition_path.is_file()
+        else None,
+    )
+    path = folder / "report.html"
+    path.write_text(page, encoding="utf-8")
+    return path

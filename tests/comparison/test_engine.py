@@ -1,0 +1,536 @@
+"""Tests of comparison.engine: determinism, seeds, resume, failures, CRLB and the row contract.
+
+The estimator classes at the top are test plug-ins, referred to by experiments as
+``tests.comparison.test_engine:Name`` (worker processes import them by that path).
+"""
+
+import dataclasses
+import hashlib
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from comparison.crlb import fisher_information, rmse_bound_m
+from comparison.engine import (
+    TRIAL_COLUMNS,
+    read_experiment,
+    read_points,
+    read_trials,
+    run_experiment,
+    tie_rng,
+    trial_seed,
+)
+from comparison.experiment import Experiment, load_experiment
+from estimators.base import Estimate
+from estimators.cls import Cls
+from scenarios.simulate import noise_free, simulate_trials
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+HERE = "tests.comparison.test_engine"
+KEYS = ["scenario", "point", "estimator", "frame", "trial"]
+
+
+# --------------------------------------------------------------------------------------------
+# test plug-in estimators
+# --------------------------------------------------------------------------------------------
+
+
+dataclass_frozen = dataclasses.dataclass(frozen=True, kw_only=True)
+
+
+@dataclass_frozen
+class FlakyCls:
+    """``cls``, except that it raises where its tie-breaking generator first draws < 0.5."""
+
+    name: ClassVar[str] = "flaky-cls"
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+
+    def estimate(self, data, *, rng=None):
+        if rng.random() < 0.5:
+            raise RuntimeError("flaky on purpose")
+        return Cls().estimate(data, rng=rng)
+
+
+@dataclass_frozen
+class SleepyCls:
+    """``cls`` after a pause, to make a run last long enough to be killed."""
+
+    name: ClassVar[str] = "sleepy-cls"
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+    sleep_s: float = 0.0
+
+    def estimate(self, data, *, rng=None):
+        time.sleep(self.sleep_s)
+        return Cls().estimate(data, rng=rng)
+
+
+@dataclass_frozen
+class BatchCls:
+    """``cls`` with an ``estimate_batch`` that records the batch size (or raises)."""
+
+    name: ClassVar[str] = "batch-cls"
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+    broken: bool = False
+
+    def estimate(self, data, *, rng=None):
+        return Cls().estimate(data, rng=rng)
+
+    def estimate_batch(self, batch, *, rngs=None):
+        if self.broken:
+            raise RuntimeError("batch path broken on purpose")
+        return [
+            dataclasses.replace(
+                Cls().estimate(data, rng=rng), diagnostics={"batch_size": len(batch)}
+            )
+            for data, rng in zip(batch, rngs, strict=True)
+        ]
+
+
+def concatenate(frames):
+    """One MeasurementSet of consecutive frames."""
+    first = frames[0]
+    fields = {
+        name: np.concatenate([getattr(f, name) for f in frames])
+        for name in ("frame", "time_s", "position_m", "velocity_mps", "doppler_hz", "toa_s")
+    }
+    rss = None if first.rss_dbm is None else np.concatenate([f.rss_dbm for f in frames])
+    return dataclasses.replace(first, rss_dbm=rss, **fields)
+
+
+@dataclass_frozen
+class StreamedCls:
+    """``cls`` as a sequential estimator: the state is the tuple of frames seen."""
+
+    name: ClassVar[str] = "streamed-cls"
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+
+    def estimate(self, data, *, rng=None):
+        raise AssertionError("a per-frame run must stream a sequential estimator")
+
+    def init(self):
+        return ()
+
+    def update(self, state, frame):
+        return (*state, frame)
+
+    def estimate_state(self, state, *, rng=None):
+        estimate = Cls().estimate(concatenate(state), rng=rng)
+        return dataclasses.replace(estimate, diagnostics={"frames_seen": len(state)})
+
+
+@dataclass_frozen
+class DataDigest:
+    """Fails on purpose, reporting a digest of the data it was given."""
+
+    name: ClassVar[str] = "data-digest"
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+
+    def estimate(self, data, *, rng=None):
+        values = np.concatenate([data.doppler_hz, data.toa_s, data.rss_dbm])
+        digest = hashlib.sha256(values.tobytes()).hexdigest()
+        return Estimate.failed(self.name, "digest only", digest=digest, truth=data.truth_emitter_m)
+
+
+# --------------------------------------------------------------------------------------------
+# helpers
+# --------------------------------------------------------------------------------------------
+
+
+def smoke(**changes) -> Experiment:
+    raw = load_experiment("smoke").to_dict()
+    raw.pop("swept_columns")
+    raw.update(changes)
+    return Experiment.from_dict(raw)
+
+
+def rows(out) -> pd.DataFrame:
+    """Every column but the wall time, which is the only non-deterministic one."""
+    return read_trials(out).drop(columns="runtime_s")
+
+
+# --------------------------------------------------------------------------------------------
+# determinism, seeds, common random numbers
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow  # starting worker processes takes seconds on a busy machine
+def test_rows_do_not_depend_on_the_number_of_workers(tmp_path):
+    one = run_experiment(smoke(), tmp_path / "one", workers=1)
+    two = run_experiment(smoke(), tmp_path / "two", workers=2)
+    pd.testing.assert_frame_equal(rows(one), rows(two))
+    assert json.loads((two / "run.json").read_text())["backend"] == "loky"
+
+
+def test_rows_do_not_depend_on_chunking(tmp_path, capsys):
+    one = run_experiment(smoke(chunk_size=5), tmp_path / "one", workers=1, progress=True)
+    two = run_experiment(smoke(chunk_size=3), tmp_path / "two", workers=1, progress=False)
+    assert "trials" in capsys.readouterr().err  # the progress bar went to stderr
+    pd.testing.assert_frame_equal(rows(one), rows(two))
+    trials = read_trials(one)
+    assert list(trials.columns) == list(TRIAL_COLUMNS)
+    assert len(trials) == 2 * 20 * 2  # points × trials × estimators
+    assert not trials.duplicated(KEYS).any()
+    assert trials.success.all()
+    assert set(trials.snr_db) == {0.0, 20.0}
+    assert (trials.experiment == "smoke").all()
+    # sorted by scenario, point, estimator (experiment order), frame, trial
+    order = trials.estimator.map({"cls": 0, "cls-paper": 1})
+    sort_key = list(zip(trials.point, order, trials.frame, trials.trial, strict=True))
+    assert sort_key == sorted(sort_key)
+    assert trials.dtypes["trial"] == np.int64 and trials.dtypes["success"] == np.bool_
+    assert json.loads((one / "run.json").read_text())["workers"] == 1
+    assert read_experiment(two) == smoke(chunk_size=3)
+
+
+def test_more_trials_extend_a_run_and_never_change_it(tmp_path):
+    ten = run_experiment(smoke(), tmp_path / "ten", workers=1, trials=10)
+    twenty = run_experiment(smoke(), tmp_path / "twenty", workers=1, trials=20)
+    short, long = rows(ten), rows(twenty)
+    assert len(short) == 2 * 10 * 2 and len(long) == 2 * 20 * 2
+    head = long[long.trial < 10].reset_index(drop=True)
+    pd.testing.assert_frame_equal(head, short)
+    # resuming the 10-trial folder with 20 trials gives exactly the 20-trial run
+    run_experiment(smoke(), ten, workers=1, trials=20, resume=True)
+    pd.testing.assert_frame_equal(rows(ten), long)
+    assert read_experiment(ten).trials == 20
+
+
+def test_seeds_and_common_random_numbers(tmp_path):
+    experiment = smoke(
+        scenarios=["paper-1m", "paper-10m"],
+        estimators=[
+            {"name": f"{HERE}:DataDigest", "label": "a"},
+            {"name": f"{HERE}:DataDigest", "label": "b"},
+        ],
+        trials=3,
+    )
+    trials = read_trials(run_experiment(experiment, tmp_path / "run", workers=1))
+    digests = trials.diagnostics_json.map(lambda text: json.loads(text)["digest"])
+    by_label = {label: digests[trials.estimator == label].to_list() for label in ("a", "b")}
+    assert by_label["a"] == by_label["b"]  # every estimator sees the same data
+    assert len(set(by_label["a"])) == 2 * 2 * 3  # and it differs across (scenario, point, trial)
+    # the truth is hidden from the estimators
+    assert all(json.loads(text)["truth"] is None for text in trials.diagnostics_json)
+    # trial t of point p of scenario i is SeedSequence(seed, spawn_key=(i, p, t))
+    i, point, trial = 1, 1, 2
+    scenario, snr_db = experiment.point_scenario(i, point)
+    batch = simulate_trials(
+        scenario, snr_db=snr_db, seeds=[trial_seed(experiment.seed, i, point, trial)]
+    )
+    data = batch.trial(0)
+    expected = hashlib.sha256(
+        np.concatenate([data.doppler_hz, data.toa_s, data.rss_dbm]).tobytes()
+    ).hexdigest()
+    row = trials[
+        (trials.scenario == "paper-10m")
+        & (trials.point == point)
+        & (trials.trial == trial)
+        & (trials.estimator == "a")
+    ]
+    assert json.loads(row.diagnostics_json.item())["digest"] == expected
+
+
+# --------------------------------------------------------------------------------------------
+# failures, estimator kinds
+# --------------------------------------------------------------------------------------------
+
+
+def test_an_estimator_that_raises_gives_failed_rows(tmp_path):
+    experiment = smoke(estimators=[{"name": "cls"}, {"name": f"{HERE}:FlakyCls", "label": "flaky"}])
+    trials = read_trials(run_experiment(experiment, tmp_path / "run", workers=1))
+    flaky = trials[trials.estimator == "flaky"]
+    expected_failures = [
+        tie_rng(experiment.seed, 0, p, t, "flaky").random() < 0.5
+        for p, t in zip(flaky.point, flaky.trial, strict=True)
+    ]
+    assert (~flaky.success).to_list() == expected_failures
+    assert 5 < sum(expected_failures) < 35  # some of the 40 rows fail, not all
+    failed = flaky[~flaky.success]
+    assert (failed.message == "RuntimeError: flaky on purpose").all()
+    assert (
+        failed[["x_m", "y_m", "error_m", "error_side_resolved_m", "wrong_side"]].isna().all().all()
+    )
+    assert (failed.n_candidates == 0).all()
+    assert flaky[flaky.success].error_m.notna().all()
+    assert trials[trials.estimator == "cls"].success.all()
+    assert len(trials) == 2 * 20 * 2
+
+
+def test_batch_estimators_get_the_chunk_and_fall_back_per_trial(tmp_path):
+    reference = rows(run_experiment(smoke(chunk_size=8), tmp_path / "ref", workers=1))
+    for broken in (False, True):
+        experiment = smoke(
+            chunk_size=8,
+            estimators=[
+                {"name": f"{HERE}:BatchCls", "label": "cls", "options": {"broken": broken}},
+                {"name": "cls-paper"},
+            ],
+        )
+        trials = rows(run_experiment(experiment, tmp_path / f"batch-{broken}", workers=1))
+        columns = [c for c in trials.columns if c != "diagnostics_json"]
+        pd.testing.assert_frame_equal(trials[columns], reference[columns])
+        sizes = trials[trials.estimator == "cls"].diagnostics_json.map(json.loads)
+        if broken:
+            assert sizes.map(lambda d: "batch_size" in d).sum() == 0
+        else:
+            # chunks of 8 trials out of 20: 8, 8, 4 at each point
+            assert sorted(sizes.map(lambda d: d["batch_size"]).to_list()) == sorted(
+                [8] * 16 + [4] * 4 + [8] * 16 + [4] * 4
+            )
+
+
+def test_per_frame_runs_every_frame_and_streams_sequential_estimators(tmp_path):
+    base = {"scenarios": ["turn"], "trials": 4, "chunk_size": 2}
+    whole = rows(run_experiment(smoke(**base), tmp_path / "whole", workers=1))
+    per_frame = rows(run_experiment(smoke(**base, per_frame=True), tmp_path / "pf", workers=1))
+    assert len(per_frame) == 2 * 4 * 2 * 2  # points × trials × estimators × frames
+    assert set(whole.frame) == {1}
+    last = per_frame[per_frame.frame == 1].reset_index(drop=True)
+    pd.testing.assert_frame_equal(last, whole)  # same tie-breaking rng as without per_frame
+    first = per_frame[(per_frame.frame == 0) & (per_frame.estimator == "cls")]
+    assert first.ambiguous.all()  # one straight frame: the mirror pair (MATH §7)
+    assert not last[last.estimator == "cls"].ambiguous.any()  # the turn resolves the side
+    streamed = smoke(
+        **base,
+        per_frame=True,
+        estimators=[{"name": f"{HERE}:StreamedCls", "label": "cls"}, {"name": "cls-paper"}],
+    )
+    trials = rows(run_experiment(streamed, tmp_path / "streamed", workers=1))
+    columns = [c for c in trials.columns if c != "diagnostics_json"]
+    pd.testing.assert_frame_equal(trials[columns], per_frame[columns])
+    seen = trials[trials.estimator == "cls"].diagnostics_json.map(json.loads)
+    assert seen.map(lambda d: d["frames_seen"]).to_list() == ([1] * 4 + [2] * 4) * 2
+
+
+# --------------------------------------------------------------------------------------------
+# derived columns
+# --------------------------------------------------------------------------------------------
+
+
+def test_crlb_columns_equal_comparison_crlb(tmp_path):
+    experiment = smoke(scenarios=["turn"], trials=2, per_frame=True)
+    out = run_experiment(experiment, tmp_path / "run", workers=1)
+    trials, points = read_trials(out), read_points(out)
+    assert len(points) == 2 * 2  # points × frames
+    for point in (0, 1):
+        scenario, snr_db = experiment.point_scenario(0, point)
+        data = noise_free(scenario, snr_db=snr_db)
+        truth = scenario.emitter_m
+
+        def bound(subset, modalities, truth=truth):
+            return float(rmse_bound_m(fisher_information(subset, truth, modalities)))
+
+        at = trials[trials.point == point]
+        here = points[points.point == point].set_index("frame")
+        for frame in (0, 1):
+            upto, only = data.up_to_frame(frame), data.take(data.frame == frame)
+            # cls uses every frame so far; cls-paper only the last (its frames="last")
+            cls = at[(at.estimator == "cls") & (at.frame == frame)].crlb_rmse_m
+            paper = at[(at.estimator == "cls-paper") & (at.frame == frame)].crlb_rmse_m
+            assert cls.to_list() == pytest.approx([bound(upto, ("toa", "doppler"))] * 2, rel=1e-12)
+            assert paper.to_list() == pytest.approx(
+                [bound(only, ("toa", "doppler"))] * 2, rel=1e-12
+            )
+            expected = {
+                "crlb_rmse_toa_m": ("toa",),
+                "crlb_rmse_doppler_m": ("doppler",),
+                "crlb_rmse_rss_m": ("rss",),
+                "crlb_rmse_toa_doppler_m": ("toa", "doppler"),
+                "crlb_rmse_all_m": ("toa", "doppler", "rss"),
+            }
+            for column, modalities in expected.items():
+                assert here.loc[frame, column] == pytest.approx(bound(upto, modalities), rel=1e-12)
+    assert trials.truth_x_m.eq(35.0).all() and trials.truth_y_m.eq(15.0).all()
+
+
+def test_side_resolved_error_and_wrong_side(tmp_path):
+    trials = read_trials(run_experiment(smoke(), tmp_path / "run", workers=1))
+    for row in trials.itertuples():
+        candidates = np.asarray(json.loads(row.candidates_json))
+        assert len(candidates) == row.n_candidates
+        distances = np.hypot(*(candidates - [row.truth_x_m, row.truth_y_m]).T)
+        assert row.error_side_resolved_m == pytest.approx(distances.min(), rel=1e-12)
+        assert row.error_m == pytest.approx(np.hypot(row.x_m - 35.0, row.y_m - 15.0), rel=1e-12)
+        # the track runs east along y = 0 and the truth is at y = 15; on the track: neither side
+        expected = np.nan if row.y_m == 0.0 else (1.0 if row.y_m < 0 else 0.0)
+        assert row.wrong_side == pytest.approx(expected, nan_ok=True)
+    cls = trials[trials.estimator == "cls"]
+    assert cls.ambiguous.all() and (cls.n_candidates == 2).all()
+    assert 0.2 < cls.wrong_side.mean() < 0.8  # a fair coin between the mirror pair
+    assert (cls.error_side_resolved_m <= cls.error_m).all()
+
+
+def test_nees_uses_the_side_resolved_candidate(tmp_path):
+    experiment = smoke(
+        estimators=[{"name": "ml"}], trials=4, sweep={"parameter": "snr_db", "values": [20]}
+    )
+    trials = read_trials(run_experiment(experiment, tmp_path / "run", workers=1))
+    assert trials.cov_xx_m2.notna().all()
+    for row in trials.itertuples():
+        candidates = np.asarray(json.loads(row.candidates_json))
+        nearest = candidates[np.argmin(np.hypot(*(candidates - [35.0, 15.0]).T))]
+        error = nearest - [35.0, 15.0]
+        P = np.array([[row.cov_xx_m2, row.cov_xy_m2], [row.cov_xy_m2, row.cov_yy_m2]])
+        assert row.nees == pytest.approx(error @ np.linalg.solve(P, error), rel=1e-9)
+
+
+def test_grid_rows_carry_the_swept_columns(tmp_path):
+    experiment = smoke(
+        sweep={"parameter": "emitter_m", "x": [10, 30], "y": [20, 40], "fixed": {"snr_db": 10}},
+        estimators=["cls"],
+        trials=2,
+    )
+    out = run_experiment(experiment, tmp_path / "run", workers=1)
+    trials, points = read_trials(out), read_points(out)
+    assert list(trials.columns[:6]) == [
+        "experiment",
+        "scenario",
+        "point",
+        "snr_db",
+        "emitter_x_m",
+        "emitter_y_m",
+    ]
+    assert json.loads((out / "experiment.json").read_text())["swept_columns"] == [
+        "emitter_x_m",
+        "emitter_y_m",
+    ]
+    assert (trials.emitter_x_m == trials.truth_x_m).all()
+    assert (trials.emitter_y_m == trials.truth_y_m).all()
+    assert points[["point", "emitter_x_m", "emitter_y_m"]].values.tolist() == [
+        [0, 10.0, 20.0],
+        [1, 10.0, 40.0],
+        [2, 30.0, 20.0],
+        [3, 30.0, 40.0],
+    ]
+    assert (trials.snr_db == 10.0).all()
+
+
+# --------------------------------------------------------------------------------------------
+# run folders and resume
+# --------------------------------------------------------------------------------------------
+
+
+def test_run_folder_rules(tmp_path):
+    out = run_experiment(smoke(trials=4), tmp_path / "run", workers=1)
+    with pytest.raises(ValueError, match=r"^out_dir: .* already holds files; pass --resume"):
+        run_experiment(smoke(trials=4), out, workers=1)
+    with pytest.raises(ValueError, match=r"^resume: the experiment differs .* in seed"):
+        run_experiment(smoke(trials=4, seed=8), out, workers=1, resume=True)
+    with pytest.raises(ValueError, match=r"^trials: the run .* has 4 trials per point"):
+        run_experiment(smoke(trials=4), out, workers=1, resume=True, trials=3)
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "notes.txt").write_text("mine")
+    with pytest.raises(ValueError, match=r"^out_dir: .* no experiment.json"):
+        run_experiment(smoke(), tmp_path / "other", workers=1, resume=True)
+    with pytest.raises(ValueError, match=r"^workers: "):
+        run_experiment(smoke(), tmp_path / "new", workers=0)
+    before = rows(out)
+    run_experiment(smoke(trials=4), out, workers=1, resume=True)  # complete: nothing to run
+    pd.testing.assert_frame_equal(rows(out), before)
+    info = json.loads((out / "run.json").read_text())
+    assert info["tasks_run"] == 0 and len(info["sessions"]) == 2
+
+
+def test_resume_warns_when_the_code_changed(tmp_path):
+    out = run_experiment(smoke(trials=2), tmp_path / "run", workers=1)
+    info = json.loads((out / "run.json").read_text())
+    assert len(info["code_digest"]) == 64
+    info["sessions"][0]["code_digest"] = "0" * 64  # as if written by other code
+    (out / "run.json").write_text(json.dumps(info))
+    with pytest.warns(UserWarning, match=r"^resume: the code differs"):
+        run_experiment(smoke(trials=3), out, workers=1, resume=True)
+    assert len(read_trials(out)) == 2 * 3 * 2
+
+
+def test_missing_dask_is_a_clear_error(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)  # import now fails
+    with pytest.raises(ValueError, match=r"^scheduler: .*emitterbench\[cluster\]"):
+        run_experiment(smoke(trials=2), tmp_path / "run", scheduler="tcp://127.0.0.1:1")
+    assert not (tmp_path / "run").exists()  # checked before the folder is touched
+
+
+def count_rows(database: Path) -> int:
+    if not database.exists():
+        return 0
+    try:
+        with sqlite3.connect(f"file:{database}?mode=ro", uri=True, timeout=5) as connection:
+            return connection.execute("SELECT COUNT(*) FROM trials").fetchone()[0]
+    except sqlite3.OperationalError:  # the table is not created yet
+        return 0
+
+
+@pytest.mark.slow
+def test_resume_after_sigkill_gives_the_rows_of_an_uninterrupted_run(tmp_path):
+    def experiment(sleep_s):
+        return smoke(
+            trials=40,
+            chunk_size=2,
+            estimators=[
+                {"name": "cls"},
+                {"name": f"{HERE}:SleepyCls", "label": "sleepy", "options": {"sleep_s": sleep_s}},
+            ],
+        )
+
+    slow = experiment(0.02)  # 2 points × 40 trials × 20 ms ≈ 1.6 s of sleeping
+    definition = tmp_path / "slow.json"
+    definition.write_text(slow.to_json())
+    out = tmp_path / "killed"
+    script = (
+        "from comparison.engine import run_experiment\n"
+        "from comparison.experiment import load_experiment\n"
+        f"run_experiment(load_experiment({str(definition)!r}), {str(out)!r}, workers=2)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(REPO_ROOT)}
+    process = subprocess.Popen(
+        [sys.executable, "-c", script],
+        cwd=REPO_ROOT,
+        env=env,
+        start_new_session=True,  # its own process group: the loky workers die with it
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    database = out / "results.sqlite"
+    deadline = time.monotonic() + 60
+    while count_rows(database) == 0:
+        assert process.poll() is None, process.stderr.read().decode()
+        assert time.monotonic() < deadline, "the run wrote no rows in 60 s"
+        time.sleep(0.02)
+    os.killpg(process.pid, signal.SIGKILL)
+    process.wait()
+    process.stderr.close()
+    total = 2 * 40 * 2
+    at_kill = count_rows(database)
+    assert 0 < at_kill < total
+    assert at_kill % (2 * 2) == 0  # whole tasks only: 2 trials × 2 estimators each
+
+    run_experiment(slow, out, workers=1, resume=True)
+    resumed = rows(out)
+    reference = rows(run_experiment(experiment(0.0), tmp_path / "reference", workers=1))
+    assert len(resumed) == total
+    assert not resumed.duplicated(KEYS).any()
+    pd.testing.assert_frame_equal(resumed, reference)
+
+
+@pytest.mark.slow
+def test_a_dask_cluster_gives_the_same_rows(tmp_path):
+    distributed = pytest.importorskip(
+        "dask.distributed", reason="dask.distributed is not installed (emitterbench[cluster])"
+    )
+    reference = rows(run_experiment(smoke(), tmp_path / "local", workers=1))
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
+    ) as cluster:
+        out = run_experiment(smoke(), tmp_path / "dask", scheduler=cluster.scheduler_address)
+    pd.testing.assert_frame_equal(rows(out), reference)
+    info = json.loads((out / "run.json").read_text())
+    assert info["backend"] == "dask" and info["scheduler"] == cluster.scheduler_address

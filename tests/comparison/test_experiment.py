@@ -1,0 +1,255 @@
+"""Tests of comparison.experiment: loading, validation with key paths, exact serialisation."""
+
+import copy
+import pickle
+import textwrap
+
+import pytest
+
+import comparison.experiment as experiment_module
+from comparison.experiment import (
+    BUILTIN_EXPERIMENTS,
+    EstimatorSpec,
+    Experiment,
+    Sweep,
+    builtin_experiment,
+    load_experiment,
+)
+
+BASE = {
+    "name": "unit",
+    "scenarios": ["paper-1m"],
+    "sweep": {"parameter": "snr_db", "values": [0, 10]},
+    "estimators": [{"name": "cls"}, {"name": "cls-paper"}],
+    "trials": 3,
+    "seed": 1,
+}
+
+
+def modified(**changes):
+    raw = copy.deepcopy(BASE)
+    raw.update(changes)
+    return raw
+
+
+def docstring_example() -> str:
+    """The complete TOML example of the module docstring."""
+    doc = experiment_module.__doc__
+    start = doc.index("A complete example")
+    block = doc[doc.index("::", start) + 2 : doc.index("``estimators = [", start)]
+    return textwrap.dedent(block).strip() + "\n"
+
+
+def test_builtin_paper_fig2():
+    experiment = load_experiment("paper-fig2")
+    assert experiment.scenarios == ("paper", "paper-1m", "paper-10m")
+    assert experiment.sweep.parameter == "snr_db"
+    assert experiment.sweep.values == tuple(float(v) for v in range(-10, 31, 5))
+    assert experiment.labels == ("lls-rss", "lls-toa", "cls-as-printed", "cls-paper", "cls", "ml")
+    assert experiment.trials == 500
+    assert experiment.frames == 1
+    assert experiment.swept_columns == ()
+
+
+def test_builtin_geometry_map_is_a_grid_beside_the_track():
+    experiment = builtin_experiment("geometry-map")
+    sweep = experiment.sweep
+    assert experiment.scenarios == ("paper-1m",)
+    assert experiment.labels == ("cls", "ml", "lls-toa")
+    assert experiment.trials == 100
+    assert experiment.swept_columns == ("emitter_x_m", "emitter_y_m")
+    assert sweep.fixed == {"snr_db": 10.0}
+    points = sweep.points()
+    assert len(points) == sweep.n_points == 11 * 7
+    # point p = (x[p // len(y)], y[p % len(y)])
+    assert points[0] == {"snr_db": 10.0, "emitter_x_m": -40.0, "emitter_y_m": 5.0}
+    assert points[8] == {"snr_db": 10.0, "emitter_x_m": -30.0, "emitter_y_m": 15.0}
+    assert min(p["emitter_y_m"] for p in points) == 5.0  # the track is at y = 0
+    scenario, snr_db = experiment.point_scenario(0, 8)
+    assert list(scenario.emitter_m) == [-30.0, 15.0]
+    assert snr_db == 10.0
+
+
+def test_smoke_is_small():
+    experiment = load_experiment("smoke")
+    assert experiment.labels == ("cls", "cls-paper")
+    assert experiment.sweep.n_points == 2
+    assert experiment.trials == 20
+
+
+@pytest.mark.parametrize("name", sorted(BUILTIN_EXPERIMENTS))
+def test_json_round_trip_is_exact(name):
+    experiment = load_experiment(name)
+    text = experiment.to_json()
+    again = Experiment.from_json(text)
+    assert again == experiment
+    assert again.to_json() == text
+    assert pickle.loads(pickle.dumps(experiment)) == experiment
+    assert hash(again) == hash(experiment)
+
+
+def test_docstring_example_loads_from_a_toml_file(tmp_path):
+    path = tmp_path / "example.toml"
+    path.write_text(docstring_example())
+    experiment = load_experiment(path)
+    assert experiment.name == "snr-sweep"
+    assert experiment.scenarios == ("paper-1m", "paper-10m")
+    assert experiment.sweep.values == (-10.0, 0.0, 10.0, 20.0, 30.0)
+    assert experiment.sweep.fixed == {"range_sigma_m": 1.0}
+    assert experiment.swept_columns == ()
+    assert experiment.labels == ("cls", "ml-rss")
+    assert experiment.estimators[1].options == {"use_rss": True}
+    assert experiment.metrics == ("rmse_m", "efficiency")
+    assert experiment.frames == 1
+    assert experiment.chunk_size == 25
+    assert Experiment.from_json(experiment.to_json()) == experiment
+    # a fixed range_sigma_m reaches the point's scenario: c σ_τ = 1 m with c = 3e8
+    scenario, _ = experiment.point_scenario(1, 0)
+    assert scenario.noise.toa_s == 1.0 / 3.0e8
+
+
+def test_estimator_shorthand_and_default_label():
+    short = Experiment.from_dict(modified(estimators=["cls", "cls-paper"]))
+    assert short == Experiment.from_dict(BASE)
+    assert short.estimators[0] == EstimatorSpec(name="cls", label="cls", options={})
+
+
+def test_same_estimator_twice_with_distinct_labels():
+    experiment = Experiment.from_dict(
+        modified(
+            estimators=[
+                {"name": "cls"},
+                {"name": "cls", "label": "cls-unweighted", "options": {"weighting": "none"}},
+            ]
+        )
+    )
+    assert experiment.labels == ("cls", "cls-unweighted")
+    assert experiment.estimators[1].build().weighting == "none"
+
+
+def test_sweep_without_parameter_is_one_point_of_fixed_values():
+    experiment = Experiment.from_dict(modified(sweep={"fixed": {"snr_db": 5, "frames": 2}}))
+    assert experiment.sweep.points() == [{"snr_db": 5.0, "frames": 2.0}]
+    assert experiment.point_scenario(0, 0)[0].flight.n_frames == 2
+    assert Experiment.from_dict(modified(sweep={})).sweep.points() == [{"snr_db": 0.0}]
+
+
+def test_range_sigma_sweep_columns():
+    experiment = Experiment.from_dict(
+        modified(sweep={"parameter": "range_sigma_m", "values": [1, 10], "fixed": {"snr_db": 0}})
+    )
+    assert experiment.swept_columns == ("range_sigma_m",)
+    assert experiment.sweep.points()[1] == {"snr_db": 0.0, "range_sigma_m": 10.0}
+
+
+@pytest.mark.parametrize(
+    ("changes", "prefix"),
+    [
+        ({"trails": 3}, "trails: unknown key"),
+        ({"sweep": {"parameter": "snr_db", "valuez": [1]}}, "sweep.valuez: unknown key"),
+        ({"sweep": {"parameter": "snr", "values": [1]}}, "sweep.parameter: unknown 'snr'"),
+        ({"sweep": {"parameter": "snr_db", "values": []}}, "sweep.values: give at least one"),
+        ({"sweep": {"parameter": "snr_db", "values": [0, "ten"]}}, "sweep.values[1]: expected"),
+        ({"sweep": {"parameter": "snr_db", "values": [120]}}, "sweep.values[0]: snr_db must lie"),
+        ({"sweep": {"parameter": "snr_db", "values": [-61]}}, "sweep.values[0]: snr_db must lie"),
+        ({"sweep": {"parameter": "snr_db", "values": [5, 5]}}, "sweep.values[1]: 5 repeats"),
+        (
+            {"sweep": {"parameter": "range_sigma_m", "values": [1, -1]}},
+            "sweep.values[1]: range_sigma_m: must be > 0",
+        ),
+        (
+            {"sweep": {"parameter": "snr_db", "values": [0], "fixed": {"doppler_sigma_hz": -0.1}}},
+            "sweep.fixed.doppler_sigma_hz: doppler_sigma_hz: must be > 0",
+        ),
+        (
+            {"sweep": {"parameter": "snr_db", "values": [0], "fixed": {"snr_db": 3}}},
+            "sweep.fixed.snr_db: is also swept",
+        ),
+        (
+            {"sweep": {"parameter": "snr_db", "values": [0], "fixed": {"heading": 3}}},
+            "sweep.fixed.heading: unknown parameter",
+        ),
+        ({"sweep": {"parameter": "emitter_m", "x": [1, 2]}}, "sweep.y: the emitter_m grid"),
+        ({"sweep": {"parameter": "frames", "values": [1, 2.5]}}, "sweep.values[1]: frames:"),
+        ({"scenarios": ["paper-1m", "paper-2m"]}, "scenarios[1]: unknown scenario 'paper-2m'"),
+        ({"scenarios": ["paper-1m", "paper-1m"]}, "scenarios[1]: 'paper-1m' is listed twice"),
+        ({"scenarios": []}, "scenarios: give at least one"),
+        ({"estimators": [{"name": "cls"}, {"name": "clss"}]}, "estimators[1].name: estimator"),
+        (
+            {"estimators": [{"name": "cls", "options": {"weighting": "bogus"}}]},
+            "estimators[0].options: weighting",
+        ),
+        (
+            {"estimators": [{"name": "cls", "options": {"colour": "red"}}]},
+            "estimators[0].options: colour",
+        ),
+        ({"estimators": [{"name": "cls", "optoins": {}}]}, "estimators[0].optoins: unknown key"),
+        (
+            {"estimators": [{"name": "cls"}, {"name": "cls-paper", "label": "cls"}]},
+            "estimators[1].label: duplicate label 'cls' (also estimators[0])",
+        ),
+        ({"estimators": []}, "estimators: give at least one"),
+        ({"trials": 0}, "trials: must be a whole number >= 1"),
+        ({"trials": 2.5}, "trials: expected a whole number"),
+        ({"seed": -1}, "seed: must be a whole number >= 0"),
+        ({"frames": 0}, "frames: must be a whole number >= 1"),
+        ({"chunk_size": 0}, "chunk_size: must be a whole number >= 1"),
+        ({"per_frame": "yes"}, "per_frame: expected true or false"),
+        ({"metrics": ["rmse_m", "rmse"]}, "metrics[1]: unknown metric 'rmse'"),
+        ({"swept_columns": ["snr_db"]}, "swept_columns:"),
+    ],
+)
+def test_malformed_experiments_name_the_key_path(changes, prefix):
+    with pytest.raises(ValueError) as info:
+        Experiment.from_dict(modified(**changes))
+    assert str(info.value).startswith(prefix), str(info.value)
+
+
+def test_missing_required_key():
+    raw = modified()
+    del raw["seed"]
+    with pytest.raises(ValueError, match=r"^seed: missing"):
+        Experiment.from_dict(raw)
+
+
+def test_a_malformed_file_fails_at_load(tmp_path):
+    path = tmp_path / "bad.toml"
+    path.write_text(
+        docstring_example().replace('name = "ml"', 'name = "mll"'),
+    )
+    with pytest.raises(ValueError, match=r"^estimators\[1\]\.name: estimator: unknown name 'mll'"):
+        load_experiment(path)
+    path.write_text("name = \n")
+    with pytest.raises(ValueError, match=r"^experiment: .*not valid TOML"):
+        load_experiment(path)
+    with pytest.raises(ValueError, match=r"^experiment: cannot read"):
+        load_experiment(tmp_path / "absent.toml")
+
+
+def test_unknown_builtin_lists_the_builtins():
+    with pytest.raises(ValueError, match=r"^experiment: 'fig2' is neither a built-in") as info:
+        load_experiment("fig2")
+    for name in BUILTIN_EXPERIMENTS:
+        assert name in str(info.value)
+
+
+def test_direct_construction_validates_too():
+    with pytest.raises(ValueError, match=r"^estimators\[0\]\.name"):
+        Experiment(
+            name="x",
+            scenarios=("paper",),
+            estimators=(EstimatorSpec(name="nope"),),
+            trials=1,
+            seed=0,
+        )
+    with pytest.raises(ValueError, match=r"^values\[0\]: snr_db must lie"):
+        Sweep(parameter="snr_db", values=(200.0,))
+
+
+def test_options_are_frozen():
+    spec = EstimatorSpec(name="cls", options={"side_prior_m": [30.0, 10.0]})
+    assert spec.options["side_prior_m"] == (30.0, 10.0)
+    with pytest.raises(TypeError):
+        spec.options["side_prior_m"] = (0.0, 0.0)
+    assert spec.to_dict()["options"] == {"side_prior_m": [30.0, 10.0]}
+    assert spec.build().side_prior_m == (30.0, 10.0)

@@ -1,0 +1,353 @@
+"""The report of a synthetic run folder that follows the engine's contract exactly."""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+import sys
+import types
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import comparison
+from comparison.metrics import (
+    CONTRACT_METRIC_NAMES,
+    crlb_attainment,
+    format_number,
+    nees_band,
+    summarize,
+)
+from comparison.report import render_html, report_figures, scenario_tracks_m, write_report
+
+# name: (RMSE / √CRLB, ambiguous on one straight frame, has a covariance, bound factor)
+ESTIMATORS = {
+    "cls": (1.0, True, False, 1.0),
+    "cls-as-printed": (3.0, True, False, 1.0),
+    "lls-toa": (1.0, False, False, 3.0),
+    "ml": (1.0, False, True, 1.0),
+}
+BOUND_FACTORS = {
+    "crlb_rmse_toa_m": 3.0,
+    "crlb_rmse_doppler_m": 2.0,
+    "crlb_rmse_rss_m": 10.0,
+    "crlb_rmse_toa_doppler_m": 1.0,
+    "crlb_rmse_all_m": 0.95,
+}
+RUN_INFO = {
+    "packages": {"numpy": "2.4.6", "pandas": "3.0.0", "emitterbench": "0.1.0"},
+    "machine": {"cpu": "synthetic-cpu", "cores": 2},
+    "seed": 20240611,
+    "start": "2025-01-01T00:00:00Z",
+    "end": "2025-01-01T00:01:00Z",
+    "workers": 2,
+}
+
+
+def synthetic_run(
+    sweep: list[dict[str, float]], *, n_trials: int, frames: int = 1, seed: int = 0
+) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
+    """Trial rows, point rows and experiment.json of a run, per the engine's contract.
+
+    √CRLB(ToA+Doppler) is ``10^(−SNR/20)/√(frame + 1)`` m; each estimator's errors are
+    circular Gaussian with RMSE its factor times its own bound. Ambiguous estimators return
+    the mirror image across the track (y = 0) in half the trials of frame 0; ``lls-toa`` fails
+    in a fifth of the trials at SNR < 0 dB.
+    """
+    rng = np.random.default_rng(seed)
+    swept = [c for c in sweep[0] if c != "snr_db"]
+    names = list(ESTIMATORS)
+    point, estimator, frame, trial = (
+        a.ravel()
+        for a in np.meshgrid(
+            np.arange(len(sweep)),
+            np.arange(len(names)),
+            np.arange(frames),
+            np.arange(n_trials),
+            indexing="ij",
+        )
+    )
+    table = pd.DataFrame(sweep)
+    snr = table["snr_db"].to_numpy(float)[point]
+    truth = np.column_stack(
+        [
+            table.get("emitter_x_m", pd.Series([35.0] * len(sweep))).to_numpy(float)[point],
+            table.get("emitter_y_m", pd.Series([15.0] * len(sweep))).to_numpy(float)[point],
+        ]
+    )
+    scale, ambiguous, has_cov, factor = (
+        np.array([ESTIMATORS[n][i] for n in names])[estimator] for i in range(4)
+    )
+    base_bound = 10 ** (-snr / 20) / np.sqrt(frame + 1)
+    bound = base_bound * factor
+    sigma = scale * bound / math.sqrt(2)
+    errors = rng.normal(size=(len(point), 2)) * sigma[:, None]
+    estimate = truth + errors
+    mirror = estimate * [1.0, -1.0]
+    ambiguous = ambiguous.astype(bool) & (frame == 0)
+    flip = ambiguous & (rng.random(len(point)) < 0.5)
+    returned = np.where(flip[:, None], mirror, estimate)
+    success = ~(
+        (np.array(names)[estimator] == "lls-toa") & (snr < 0) & (rng.random(len(point)) < 0.2)
+    )
+    error = np.linalg.norm(returned - truth, axis=1)
+    side = np.where(
+        ambiguous,
+        np.minimum(np.linalg.norm(errors, axis=1), np.linalg.norm(mirror - truth, axis=1)),
+        error,
+    )
+    variance = np.where(has_cov.astype(bool), sigma**2, np.nan)
+    nees = np.sum(errors**2, axis=1) / variance
+
+    def ok(values):
+        return np.where(success, values, np.nan)
+
+    trials = pd.DataFrame({"experiment": "synthetic", "scenario": "paper-1m", "point": point})
+    trials["snr_db"] = snr
+    for column in swept:
+        trials[column] = table[column].to_numpy(float)[point]
+    trials = trials.assign(
+        estimator=np.array(names)[estimator],
+        frame=frame,
+        trial=trial,
+        truth_x_m=truth[:, 0],
+        truth_y_m=truth[:, 1],
+        x_m=ok(returned[:, 0]),
+        y_m=ok(returned[:, 1]),
+        error_m=ok(error),
+        error_side_resolved_m=ok(side),
+        wrong_side=ok((np.sign(returned[:, 1]) != np.sign(truth[:, 1])).astype(float)),
+        ambiguous=ambiguous & success,
+        success=success,
+        n_candidates=np.where(success, np.where(ambiguous, 2, 1), 0),
+        candidates_json=[json.dumps([r.tolist()]) for r in returned],
+        cov_xx_m2=ok(variance),
+        cov_xy_m2=ok(np.where(has_cov.astype(bool), 0.0, np.nan)),
+        cov_yy_m2=ok(variance),
+        nees=ok(nees),
+        crlb_rmse_m=bound,
+        runtime_s=1e-4 * np.where(has_cov.astype(bool), 30.0, 1.0) * (1 + rng.random(len(point))),
+        message=np.where(success, "", "rank deficient"),
+        diagnostics_json="{}",
+    )
+    trials = trials.sort_values(["scenario", "point", "estimator", "frame", "trial"])
+    points = (
+        trials[
+            ["experiment", "scenario", "point", "snr_db", *swept, "frame", "truth_x_m", "truth_y_m"]
+        ]
+        .drop_duplicates(["scenario", "point", "frame"])
+        .reset_index(drop=True)
+    )
+    reference = 10 ** (-points["snr_db"] / 20) / np.sqrt(points["frame"] + 1)
+    for column, bound_factor in BOUND_FACTORS.items():
+        points[column] = reference * bound_factor
+    experiment = {
+        "name": "synthetic-comparison",
+        "description": "synthetic rows with known error distributions",
+        "scenarios": ["paper-1m"],
+        "sweep": {c: sorted({float(p[c]) for p in sweep}) for c in sweep[0]},
+        "estimators": names,
+        "trials": n_trials,
+        "seed": 7,
+        "swept_columns": swept,
+    }
+    return trials.reset_index(drop=True), points, experiment
+
+
+def write_run_folder(folder: Path, experiment: dict) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "experiment.json").write_text(json.dumps(experiment))
+    (folder / "run.json").write_text(json.dumps(RUN_INFO))
+
+
+@pytest.fixture(scope="module")
+def snr_run(tmp_path_factory):
+    """An SNR sweep reported through the engine's readers (a stand-in engine module)."""
+    folder = tmp_path_factory.mktemp("snr-run")
+    trials, points, experiment = synthetic_run(
+        [{"snr_db": s} for s in (-10.0, 0.0, 10.0, 20.0, 30.0)], n_trials=80
+    )
+    write_run_folder(folder, experiment)
+    engine = types.ModuleType("comparison.engine")
+    engine.read_trials = lambda run_dir: trials.copy()
+    engine.read_points = lambda run_dir: points.copy()
+    engine.read_experiment = lambda run_dir: json.loads(
+        (Path(run_dir) / "experiment.json").read_text()
+    )
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setitem(sys.modules, "comparison.engine", engine)
+        patch.setattr(comparison, "engine", engine, raising=False)
+        html_path = write_report(folder, n_bootstrap=200)
+    return folder, html_path, trials
+
+
+def parse_html(path: Path) -> ET.Element:
+    return ET.parse(path).getroot()
+
+
+def test_report_writes_summary_trials_and_every_figure(snr_run):
+    folder, html_path, trials = snr_run
+    assert html_path == folder / "report.html"
+    summary = pd.read_csv(folder / "summary.csv")
+    assert list(summary.columns[: 4 + len(CONTRACT_METRIC_NAMES)]) == [
+        "scenario",
+        "snr_db",
+        "frame",
+        "estimator",
+        *CONTRACT_METRIC_NAMES,
+    ]
+    assert len(summary) == 5 * 4  # points × estimators
+    assert summary["n_trials"].tolist() == [80] * 20
+    assert len(pd.read_csv(folder / "trials.csv")) == len(trials) == 5 * 4 * 80
+    stems = {"rmse", "rmse_side_resolved", "wrong_side", "error_cdf", "runtime"}
+    assert {p.name for p in (folder / "figures").iterdir()} == {
+        f"{stem}.{ext}" for stem in stems for ext in ("png", "svg")
+    }
+    for stem in stems:
+        assert (folder / "figures" / f"{stem}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert ET.parse(folder / "figures" / f"{stem}.svg").getroot().tag.endswith("svg")
+
+
+def test_html_is_well_formed_self_contained_and_embeds_every_figure(snr_run):
+    folder, html_path, _ = snr_run
+    root = parse_html(html_path)  # raises on any unclosed or mismatched tag
+    assert root.tag == "html"
+    assert not [e for e in root.iter() if e.tag in {"link", "script", "iframe", "object"}]
+    images = list(root.iter("img"))
+    assert all(img.get("src").startswith("data:image/png;base64,") for img in images)
+    embedded = {base64.b64decode(img.get("src").split(",", 1)[1]) for img in images}
+    on_disk = {p.read_bytes() for p in (folder / "figures").glob("*.png")}
+    assert embedded == on_disk and len(images) == 5
+    assert "http://" not in html_path.read_text() and "https://" not in html_path.read_text()
+
+
+def test_every_table_number_equals_summary_csv(snr_run):
+    folder, html_path, _ = snr_run
+    summary = pd.read_csv(folder / "summary.csv")
+    keys = ["snr_db", "frame", "estimator"]
+    by_key = {
+        (
+            row["scenario"],
+            *(format_number(row[k]) if k != "estimator" else row[k] for k in keys),
+        ): row
+        for _, row in summary.iterrows()
+    }
+    checked = 0
+    for section in parse_html(html_path).iter("section"):
+        if section.get("class") != "scenario-tables":
+            continue
+        for table in section.iter("table"):
+            header = [th.text for th in table.find("thead").iter("th")]
+            for tr in table.find("tbody").iter("tr"):
+                cells = dict(zip(header, (td.text for td in tr.iter("td")), strict=True))
+                key = (section.get("data-scenario"), *(cells[k] for k in keys))
+                row = by_key[key]
+                for column, text in cells.items():
+                    value = row[column]
+                    expected = value if isinstance(value, str) else format_number(value)
+                    assert text == expected, (key, column)
+                    checked += 1
+    # compact (20 rows × 17 columns) and full (20 rows × 29 columns) tables
+    assert checked == 20 * 17 + 20 * (len(summary.columns) - 1)
+
+
+def test_html_states_attainment_definitions_and_provenance(snr_run):
+    folder, html_path, _ = snr_run
+    root = parse_html(html_path)
+    section = next(s for s in root.iter("section") if s.get("id") == "attainment")
+    shown = [li.text for li in section.iter("li")]
+    assert shown == crlb_attainment(pd.read_csv(folder / "summary.csv"))
+    assert shown[1].startswith(
+        "cls-as-printed does not attain the CRLB (side-resolved RMSE) on paper-1m at any point"
+    )
+    assert shown[3].startswith("ml attains the CRLB on paper-1m at every point")
+    text = "".join(root.itertext())
+    assert "multiplied by 10^(−SNR/20)" in text and "MATH §2" in text and "MATH §7" in text
+    assert "overlaps the band from 0.9·√CRLB to 1.1·√CRLB" in text
+    for fragment in ("synthetic-comparison", "20240611", "synthetic-cpu", "3.0.0"):
+        assert fragment in text
+    run_section = next(s for s in root.iter("section") if s.get("id") == "run")
+    assert "workers" in "".join(run_section.itertext())
+
+
+def test_geometry_sweep_draws_the_efficiency_heatmap_with_the_track():
+    grid = [
+        {"snr_db": 10.0, "emitter_x_m": x, "emitter_y_m": y}
+        for y in (-40.0, 15.0, 60.0)
+        for x in (-20.0, 35.0, 90.0)
+    ]
+    trials, points, experiment = synthetic_run(grid, n_trials=30, seed=3)
+    summary = summarize(trials, n_bootstrap=50, swept_columns=experiment["swept_columns"])
+    track = scenario_tracks_m(experiment)["paper-1m"]
+    assert track.shape == (10, 3)
+    assert track[-1] == pytest.approx([4.5, 0.0, 50.0])  # 10 m/s east for 9 × 0.05 s
+    made = dict(
+        (stem, figure)
+        for stem, _, figure in report_figures(summary, trials, points, {"paper-1m": track})
+    )
+    assert list(made) == ["geometry", "error_cdf", "runtime"]  # no line plots over a grid
+
+    bound_axes, cls_axes = made["geometry"].axes[0], made["geometry"].axes[1]
+    assert cls_axes.get_title().endswith("cls")
+    drawn = [line for line in cls_axes.get_lines() if line.get_label() == "UAV track"]
+    assert drawn[0].get_xdata() == pytest.approx(track[:, 0])
+    # The cls cell at emitter (35, 15) holds its side-resolved efficiency (cls is ambiguous).
+    image = cls_axes.collections[0].get_array().reshape(3, 3)
+    cls = summary[summary["estimator"] == "cls"].set_index(["emitter_y_m", "emitter_x_m"])
+    assert image[1, 1] == pytest.approx(cls.loc[(15.0, 35.0), "efficiency_side_resolved"])
+    assert image[1, 1] != pytest.approx(cls.loc[(15.0, 35.0), "efficiency"])
+    bound_image = bound_axes.collections[0].get_array().reshape(3, 3)
+    assert bound_image[0, 2] == pytest.approx(10 ** (-10 / 20))
+
+
+def test_per_frame_run_draws_rmse_and_nees_against_the_frame():
+    trials, points, _ = synthetic_run(
+        [{"snr_db": 0.0}, {"snr_db": 20.0}], n_trials=40, frames=3, seed=4
+    )
+    summary = summarize(trials, n_bootstrap=50)
+    made = dict((stem, figure) for stem, _, figure in report_figures(summary, trials, points, None))
+    assert {"rmse_vs_frame", "nees_vs_frame", "rmse"} <= set(made)
+    ml = summary[(summary["estimator"] == "ml") & (summary["snr_db"] == 0)]
+    assert ml["crlb_rmse_m"].tolist() == pytest.approx([1, 1 / math.sqrt(2), 1 / math.sqrt(3)])
+    # RMSE panel at SNR 0 dB: the accumulated ToA+Doppler bound from the points, per frame.
+    rmse_axes = made["rmse_vs_frame"].axes[0]
+    bound = next(ln for ln in rmse_axes.get_lines() if ln.get_label() == "√CRLB, ToA+Doppler")
+    assert bound.get_ydata() == pytest.approx([1, 1 / math.sqrt(2), 1 / math.sqrt(3)])
+    nees_axes = made["nees_vs_frame"].axes[0]
+    line = next(ln for ln in nees_axes.get_lines() if ln.get_label() == "ml")
+    assert line.get_ydata() == pytest.approx(ml["nees_mean"].to_numpy())
+    low, high = nees_band(40)
+    band = nees_axes.collections[0].get_paths()[0].vertices[:, 1]
+    assert band.min() == pytest.approx(low) and band.max() == pytest.approx(high)
+
+
+def test_experiment_metrics_choose_the_compact_columns(snr_run):
+    folder, _, _ = snr_run
+    summary = pd.read_csv(folder / "summary.csv")
+    page = render_html(
+        summary=summary,
+        experiment={"metrics": ["efficiency", "rmse_m"]},
+        run_info={},
+        figure_entries=[],
+        sentences=[],
+    )
+    table = ET.fromstring(page.split("\n", 1)[1]).find(".//table[@id='summary-0-compact']")
+    header = [th.text for th in table.find("thead").iter("th")]
+    assert header == ["snr_db", "frame", "estimator", "efficiency", "rmse_m"]
+    with pytest.raises(ValueError, match=r"^metrics: unknown metric columns \['rmse'\]"):
+        render_html(
+            summary=summary,
+            experiment={"metrics": ["rmse"]},
+            run_info={},
+            figure_entries=[],
+            sentences=[],
+        )
+
+
+def test_missing_run_folder_names_the_field(tmp_path):
+    with pytest.raises(ValueError, match=r"^run_dir: .* is not a folder"):
+        write_report(tmp_path / "absent")
