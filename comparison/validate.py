@@ -1,0 +1,770 @@
+"""Validate the closed-form CLS against its SDP relaxation on seeded instances (MATH §5, §11).
+
+The SDP relaxation (:func:`estimators.sdp_cls.solve_sdp_relaxation`) is an independent witness
+for the closed form (:func:`estimators.gtrs.solve_gtrs`): on the same stacked rows its optimal
+value must equal the closed form's on every instance, and its argmin must equal the closed
+form's minimiser when that is unique; in the hard case (MATH §5) the mirror pair recovered from
+the rank-two lift must equal the closed form's pair. Where they part, the report says why, with
+the instance's own seed so :func:`replay` can re-run it verbosely.
+
+Families of instances (each drawn from its own ``SeedSequence``):
+
+``straight``
+    One straight frame: random heading, speed, K, sample interval, height, carrier, emitter and
+    noise levels; weighted rows (MATH §6, stage 1). Mostly the hard case.
+``turn``
+    Two frames at different headings, unweighted per-sample rows (SI units).
+``turn-weighted``
+    The same geometries with weighted rows.
+``paper``
+    The paper's geometry (MATH §14) with the ``paper-1m`` or ``paper-10m`` constants at a
+    random SNR (MATH §2), weighted rows.
+
+Length scale: every distance is also given relative to the problem's length scale, the
+:class:`~estimators.cls_rows.LocalFrame` scale (RMS of the track spread and the ranges).
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import math
+import time
+import zlib
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from estimators.cls import Rows, cls_rows
+from estimators.cls_rows import LocalFrame
+from estimators.gtrs import GtrsSolution, solve_gtrs
+from estimators.sdp_cls import SdpSolution, solve_sdp_relaxation
+from scenarios.catalog import heading_velocities_mps, paper_scenario
+from scenarios.simulate import simulate
+from scenarios.types import FlightPlan, MeasurementSet, NoiseSigmas, Scenario
+
+FloatArray = NDArray[np.float64]
+
+FAMILIES: tuple[str, ...] = ("straight", "turn", "turn-weighted", "paper")
+"""The instance families, in report order."""
+
+Progress = Callable[[int, int, str], None]
+"""``progress(done, total, family)``, called after every instance."""
+
+
+# --------------------------------------------------------------------------------------------
+# instances
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class ValidationInstance:
+    """One stacked system ``A r = b`` (local frame) and how it was drawn."""
+
+    family: str
+    seed: int
+    data: MeasurementSet
+    frame: LocalFrame
+    rows: str
+    A: FloatArray
+    b: FloatArray
+    parameters: dict[str, Any]
+
+    @property
+    def length_scale_m(self) -> float:
+        return self.frame.scale_m
+
+
+def instance_seeds(seed: int, family: str, instances: int) -> list[int]:
+    """``instances`` integer seeds for ``family``: instance ``i`` does not depend on the count."""
+    _check_family(family)
+    words = np.random.SeedSequence([int(seed), zlib.crc32(family.encode())]).generate_state(
+        instances, dtype=np.uint64
+    )
+    return [int(word) for word in words]
+
+
+def _check_family(family: str) -> None:
+    if family not in FAMILIES:
+        raise ValueError(f"families: unknown family {family!r}; choose from {', '.join(FAMILIES)}")
+
+
+def _log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
+    return float(np.exp(rng.uniform(np.log(low), np.log(high))))
+
+
+def _random_flight_scenario(rng: np.random.Generator, n_frames: int) -> tuple[Scenario, dict]:
+    """A random level flight of ``n_frames`` straight frames and a random ground emitter."""
+    speed = rng.uniform(2.0, 40.0)
+    heading = rng.uniform(0.0, 360.0)
+    headings = [heading]
+    for _ in range(n_frames - 1):
+        turn = rng.uniform(20.0, 160.0) * rng.choice([-1.0, 1.0])
+        headings.append(headings[-1] + turn)
+    samples = int(rng.integers(3, 41))
+    interval = _log_uniform(rng, 0.01, 0.5)
+    height = rng.uniform(5.0, 200.0)
+    track_m = speed * interval * samples * n_frames
+    distance = _log_uniform(rng, 10.0, 2000.0) + 0.1 * track_m
+    bearing = rng.uniform(0.0, 2.0 * np.pi)
+    emitter = distance * np.array([np.cos(bearing), np.sin(bearing)])
+    carrier = _log_uniform(rng, 1e8, 6e9)
+    doppler_sigma = _log_uniform(rng, 1e-3, 10.0)
+    range_sigma = _log_uniform(rng, 1e-2, 30.0)
+    scenario = Scenario(
+        name="validate",
+        emitter_m=emitter,
+        flight=FlightPlan(
+            start_position_m=[0.0, 0.0, height],
+            frame_velocities_mps=heading_velocities_mps(speed, headings),
+            samples_per_frame=samples,
+            sample_interval_s=interval,
+        ),
+        carrier_hz=carrier,
+        noise=NoiseSigmas(doppler_hz=doppler_sigma, toa_s=range_sigma / 299_792_458.0),
+        modalities=("doppler", "toa"),
+    )
+    parameters = {
+        "speed_mps": speed,
+        "headings_deg": headings,
+        "samples_per_frame": samples,
+        "sample_interval_s": interval,
+        "uav_height_m": height,
+        "emitter_m": emitter.tolist(),
+        "carrier_hz": carrier,
+        "doppler_sigma_hz": doppler_sigma,
+        "range_sigma_m": range_sigma,
+    }
+    return scenario, parameters
+
+
+def make_instance(family: str, seed: int) -> ValidationInstance:
+    """The instance ``seed`` of ``family``: every draw from ``SeedSequence(seed)``."""
+    _check_family(family)
+    geometry_seed, noise_seed = np.random.SeedSequence(int(seed)).spawn(2)
+    rng = np.random.default_rng(geometry_seed)
+    rows: Rows
+    if family == "paper":
+        range_sigma = float(rng.choice([1.0, 10.0]))
+        snr_db = float(rng.uniform(-10.0, 40.0))
+        scenario = paper_scenario(range_sigma_m=range_sigma, name=f"paper-{range_sigma:g}m")
+        scenario = scenario.replace(modalities=("doppler", "toa"))
+        parameters: dict[str, Any] = {"scenario": scenario.name, "snr_db": snr_db}
+        rows = "weighted"
+    else:
+        n_frames = 1 if family == "straight" else 2
+        scenario, parameters = _random_flight_scenario(rng, n_frames)
+        snr_db = 0.0
+        rows = "per-sample" if family == "turn" else "weighted"
+    data = simulate(scenario, snr_db=snr_db, seed=noise_seed)
+    frame = LocalFrame.fit(data.position_m, data.range_m)
+    A, b = cls_rows(data, frame, rows)
+    return ValidationInstance(
+        family=family,
+        seed=int(seed),
+        data=data,
+        frame=frame,
+        rows=rows,
+        A=A,
+        b=b,
+        parameters=dict(parameters, rows=rows, n_rows=len(b)),
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# comparing one instance
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class InstanceResult:
+    """The closed form and the SDP on one instance, and where they disagree.
+
+    Distances are in metres; ``*_rel`` divides by the length scale. ``argmin_distance_m`` is
+    NaN on hard instances, ``pair_distance_m`` NaN on unique-minimiser ones.
+    """
+
+    family: str
+    seed: int
+    status: str
+    hard_case: bool
+    sdp_rank: int
+    multiplier: float
+    sdp_multiplier: float
+    closed_form_value: float
+    sdp_value: float
+    rel_objective_gap: float
+    argmin_distance_m: float
+    argmin_distance_rel: float
+    pair_distance_m: float
+    pair_distance_rel: float
+    length_scale_m: float
+    closed_form_time_s: float
+    sdp_time_s: float
+    tolerance_rung: int = 1
+    reasons: tuple[str, ...] = ()
+
+    @property
+    def agrees(self) -> bool:
+        return not self.reasons
+
+
+def relative_objective_gap(sdp_value: float, closed_form_value: float) -> float:
+    """``|v_sdp − v_cf| / max(|v_cf|, tiny)``."""
+    return abs(sdp_value - closed_form_value) / max(abs(closed_form_value), np.finfo(float).tiny)
+
+
+def point_set_distance(first: FloatArray, second: FloatArray) -> float:
+    """Hausdorff distance between two point sets (n, 2) and (m, 2); inf if one is empty."""
+    first = np.asarray(first, dtype=float).reshape(-1, 2)
+    second = np.asarray(second, dtype=float).reshape(-1, 2)
+    if len(first) == 0 or len(second) == 0:
+        return float("inf")
+    pairwise = np.linalg.norm(first[:, None, :] - second[None, :, :], axis=-1)
+    return float(max(pairwise.min(axis=1).max(), pairwise.min(axis=0).max()))
+
+
+def compare_solutions(
+    instance: ValidationInstance,
+    closed_form: GtrsSolution,
+    sdp: SdpSolution,
+    *,
+    closed_form_time_s: float,
+    rtol_objective: float,
+    rtol_argmin: float,
+) -> InstanceResult:
+    """Judge one instance: objective gap, argmin or mirror-pair distance, solver status."""
+    scale = instance.length_scale_m
+    value = float(np.min(closed_form.costs))
+    reasons: list[str] = []
+    gap = argmin = pair = float("nan")
+    if not sdp.optimal:
+        reasons.append(f"solver status {sdp.status}: {sdp.message}")
+    if sdp.has_solution:
+        gap = relative_objective_gap(sdp.value, value)
+        if not gap <= rtol_objective:
+            reasons.append(f"relative objective gap {gap:.3g} > {rtol_objective:g}")
+        cf_points = closed_form.points[:, :2]
+        if closed_form.hard_case:
+            pair = point_set_distance(sdp.points[:, :2], cf_points)
+            if not pair <= rtol_argmin:
+                reasons.append(
+                    f"hard case: SDP pair ({len(sdp.points)} points, rank {sdp.rank}) is "
+                    f"{pair:.3g} (of the length scale) from the closed-form mirror pair"
+                )
+        else:
+            best = sdp.points[int(np.argmin(sdp.costs)), :2]
+            argmin = float(np.min(np.linalg.norm(cf_points - best, axis=1)))
+            if not argmin <= rtol_argmin:
+                reasons.append(
+                    f"unique minimiser: SDP argmin is {argmin:.3g} (of the length scale) from "
+                    f"the closed form's (SDP rank {sdp.rank})"
+                )
+    return InstanceResult(
+        family=instance.family,
+        seed=instance.seed,
+        status=sdp.status,
+        hard_case=bool(closed_form.hard_case),
+        sdp_rank=sdp.rank,
+        multiplier=closed_form.multiplier,
+        sdp_multiplier=sdp.multiplier,
+        closed_form_value=value,
+        sdp_value=sdp.value,
+        rel_objective_gap=gap,
+        argmin_distance_m=argmin * scale,
+        argmin_distance_rel=argmin,
+        pair_distance_m=pair * scale,
+        pair_distance_rel=pair,
+        length_scale_m=scale,
+        closed_form_time_s=closed_form_time_s,
+        sdp_time_s=sdp.wall_time_s,
+        tolerance_rung=sdp.rung,
+        reasons=tuple(reasons),
+    )
+
+
+def validate_instance(
+    instance: ValidationInstance,
+    *,
+    rtol_objective: float = 1e-6,
+    rtol_argmin: float = 1e-3,
+    solver: str = "CLARABEL",
+) -> tuple[InstanceResult, GtrsSolution, SdpSolution]:
+    """Run the closed form and the SDP (equality relaxation) on the instance's rows."""
+    started = time.perf_counter()
+    closed_form = solve_gtrs(instance.A, instance.b)
+    closed_form_time = time.perf_counter() - started
+    sdp = solve_sdp_relaxation(instance.A, instance.b, relaxation="equality", solver=solver)
+    result = compare_solutions(
+        instance,
+        closed_form,
+        sdp,
+        closed_form_time_s=closed_form_time,
+        rtol_objective=rtol_objective,
+        rtol_argmin=rtol_argmin,
+    )
+    return result, closed_form, sdp
+
+
+# --------------------------------------------------------------------------------------------
+# a run over families
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class FamilySummary:
+    """Aggregates of one family (the per-family block of ``validate.json``)."""
+
+    family: str
+    n: int
+    n_hard: int
+    n_unique: int
+    n_disagreements: int
+    max_rel_objective_gap: float
+    max_argmin_distance_m: float
+    max_argmin_distance_rel: float
+    max_candidate_pair_distance_m: float
+    max_candidate_pair_distance_rel: float
+    statuses: dict[str, int]
+    tolerance_rungs: dict[str, int]
+    median_closed_form_time_s: float
+    median_sdp_time_s: float
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class ValidationResult:
+    """What :func:`run_validation` found; ``ok`` is false when any instance disagrees."""
+
+    seed: int
+    rtol_objective: float
+    rtol_argmin: float
+    families: dict[str, FamilySummary]
+    results: tuple[InstanceResult, ...]
+    files: dict[str, Path] = field(default_factory=dict)
+
+    @property
+    def disagreements(self) -> tuple[InstanceResult, ...]:
+        return tuple(result for result in self.results if not result.agrees)
+
+    @property
+    def ok(self) -> bool:
+        return not self.disagreements
+
+    def to_dict(self) -> dict[str, Any]:
+        """The content of ``validate.json`` (NaN becomes None)."""
+        import cvxpy
+
+        try:
+            from importlib.metadata import version
+
+            clarabel_version = version("clarabel")
+        except Exception:  # pragma: no cover - metadata missing
+            clarabel_version = None
+        return _json_clean(
+            {
+                "ok": self.ok,
+                "seed": self.seed,
+                "tolerances": {
+                    "rel_objective_gap": self.rtol_objective,
+                    "argmin_distance_rel": self.rtol_argmin,
+                },
+                "relaxation": "equality (Shor, MATH §11)",
+                "versions": {"cvxpy": cvxpy.__version__, "clarabel": clarabel_version},
+                "families": {name: asdict(summary) for name, summary in self.families.items()},
+                "disagreements": [
+                    {
+                        "family": r.family,
+                        "seed": r.seed,
+                        "reasons": list(r.reasons),
+                        "status": r.status,
+                        "hard_case": r.hard_case,
+                        "rel_objective_gap": r.rel_objective_gap,
+                        "argmin_distance_m": r.argmin_distance_m,
+                        "pair_distance_m": r.pair_distance_m,
+                        "replay": f"emitterbench validate --replay {r.seed} --families {r.family}",
+                    }
+                    for r in self.disagreements
+                ],
+            }
+        )
+
+
+def _json_clean(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _json_clean(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_clean(v) for v in value]
+    if isinstance(value, float | np.floating):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.integer | np.bool_):
+        return value.item()
+    return value
+
+
+def _nanmax(values: Sequence[float]) -> float:
+    finite = [v for v in values if not math.isnan(v)]
+    return max(finite) if finite else float("nan")
+
+
+def summarise_family(family: str, results: Sequence[InstanceResult]) -> FamilySummary:
+    """Per-family counts, worst gaps and distances, statuses and median times."""
+    hard = [r for r in results if r.hard_case]
+    unique = [r for r in results if not r.hard_case]
+    return FamilySummary(
+        family=family,
+        n=len(results),
+        n_hard=len(hard),
+        n_unique=len(unique),
+        n_disagreements=sum(not r.agrees for r in results),
+        max_rel_objective_gap=_nanmax([r.rel_objective_gap for r in results]),
+        max_argmin_distance_m=_nanmax([r.argmin_distance_m for r in unique]),
+        max_argmin_distance_rel=_nanmax([r.argmin_distance_rel for r in unique]),
+        max_candidate_pair_distance_m=_nanmax([r.pair_distance_m for r in hard]),
+        max_candidate_pair_distance_rel=_nanmax([r.pair_distance_rel for r in hard]),
+        statuses=dict(Counter(r.status for r in results)),
+        tolerance_rungs={
+            str(rung): count
+            for rung, count in sorted(Counter(r.tolerance_rung for r in results).items())
+        },
+        median_closed_form_time_s=float(np.median([r.closed_form_time_s for r in results]))
+        if results
+        else float("nan"),
+        median_sdp_time_s=float(np.median([r.sdp_time_s for r in results]))
+        if results
+        else float("nan"),
+    )
+
+
+def run_validation(
+    *,
+    instances: int,
+    families: Sequence[str] = FAMILIES,
+    seed: int = 0,
+    out_dir: str | Path | None = None,
+    rtol_objective: float = 1e-6,
+    rtol_argmin: float = 1e-3,
+    progress: Progress | None = None,
+) -> ValidationResult:
+    """Validate the closed form against the SDP on ``instances`` seeded instances per family.
+
+    Parameters
+    ----------
+    instances : int
+        Instances per family (the acceptance uses >= 1000).
+    families : sequence of str
+        A subset of :data:`FAMILIES`.
+    seed : int
+        Root seed; instance ``i`` of a family has its own seed (:func:`instance_seeds`),
+        listed with every disagreement for :func:`replay`.
+    out_dir : path or None
+        Where to write ``validate.json``, ``validate.md``, ``validate.html`` and
+        ``validate_gaps.png``; None writes nothing.
+    rtol_objective : float
+        Largest accepted ``|v_sdp − v_cf| / v_cf``.
+    rtol_argmin : float
+        Largest accepted argmin (unique case) or mirror-pair (hard case) distance, relative to
+        the problem's length scale.
+    progress : callable or None
+        ``progress(done, total, family)`` after each instance.
+
+    Returns
+    -------
+    ValidationResult
+        ``ok`` is false when any instance disagrees beyond tolerance or the solver did not
+        reach status ``optimal``.
+    """
+    if int(instances) != instances or instances < 1:
+        raise ValueError(f"instances: expected a whole number >= 1, got {instances!r}")
+    families = tuple(families)
+    if not families:
+        raise ValueError(f"families: choose at least one of {', '.join(FAMILIES)}")
+    for family in families:
+        _check_family(family)
+    for name, value in (("rtol_objective", rtol_objective), ("rtol_argmin", rtol_argmin)):
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{name}: expected a positive tolerance, got {value!r}")
+    total = instances * len(families)
+    done = 0
+    results: list[InstanceResult] = []
+    summaries: dict[str, FamilySummary] = {}
+    for family in families:
+        family_results = []
+        for instance_seed in instance_seeds(seed, family, int(instances)):
+            instance = make_instance(family, instance_seed)
+            result, _, _ = validate_instance(
+                instance, rtol_objective=rtol_objective, rtol_argmin=rtol_argmin
+            )
+            family_results.append(result)
+            done += 1
+            if progress is not None:
+                progress(done, total, family)
+        summaries[family] = summarise_family(family, family_results)
+        results.extend(family_results)
+    validation = ValidationResult(
+        seed=int(seed),
+        rtol_objective=rtol_objective,
+        rtol_argmin=rtol_argmin,
+        families=summaries,
+        results=tuple(results),
+    )
+    if out_dir is None:
+        return validation
+    files = write_reports(validation, Path(out_dir))
+    return ValidationResult(
+        seed=validation.seed,
+        rtol_objective=rtol_objective,
+        rtol_argmin=rtol_argmin,
+        families=summaries,
+        results=validation.results,
+        files=files,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# reports
+# --------------------------------------------------------------------------------------------
+
+_COLUMNS = (
+    ("family", "family"),
+    ("n", "n"),
+    ("n_hard", "hard"),
+    ("max_rel_objective_gap", "max rel. objective gap"),
+    ("max_argmin_distance_m", "max argmin dist. (m)"),
+    ("max_argmin_distance_rel", "(rel.)"),
+    ("max_candidate_pair_distance_m", "max pair dist. (m)"),
+    ("max_candidate_pair_distance_rel", "(rel.)"),
+    ("statuses", "solver statuses"),
+    ("tolerance_rungs", "tolerance rungs"),
+    ("median_sdp_time_s", "median SDP time (ms)"),
+    ("median_closed_form_time_s", "median closed-form time (ms)"),
+    ("n_disagreements", "disagreements"),
+)
+
+
+def _cell(key: str, value: Any) -> str:
+    if key in ("statuses", "tolerance_rungs"):
+        return ", ".join(f"{k} {v}" for k, v in sorted(value.items()))
+    if key.endswith("time_s"):
+        return f"{value * 1e3:.2f}"
+    if isinstance(value, float):
+        return "–" if math.isnan(value) else f"{value:.2e}"
+    return str(value)
+
+
+def _table_rows(result: ValidationResult) -> list[list[str]]:
+    return [
+        [_cell(key, getattr(summary, key)) for key, _ in _COLUMNS]
+        for summary in result.families.values()
+    ]
+
+
+def _caption(result: ValidationResult) -> str:
+    return (
+        f"Closed-form CLS (MATH §5) against its Shor SDP relaxation (MATH §11, cvxpy + "
+        f"Clarabel) on the same stacked rows; root seed {result.seed}. Tolerances: relative "
+        f"objective gap {result.rtol_objective:g}; argmin distance (unique minimiser) and "
+        f"mirror-pair distance (hard case) {result.rtol_argmin:g} of the length scale (RMS of "
+        "the track spread and the ranges). Noise levels follow the SNR axis of MATH §2. "
+        "Tolerance rung 1: Clarabel at gap 1e-10, feasibility 1e-9; rung 2 (used when rung 1 "
+        "ends optimal_inaccurate): Clarabel's defaults, 1e-8."
+    )
+
+
+def write_reports(result: ValidationResult, out_dir: Path) -> dict[str, Path]:
+    """Write ``validate.json``, ``validate.md``, ``validate_gaps.png`` and ``validate.html``."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    files = {
+        "json": out_dir / "validate.json",
+        "md": out_dir / "validate.md",
+        "png": out_dir / "validate_gaps.png",
+        "html": out_dir / "validate.html",
+    }
+    files["json"].write_text(json.dumps(result.to_dict(), indent=2) + "\n", encoding="utf-8")
+    png = gap_scatter_png(result)
+    files["png"].write_bytes(png)
+    files["md"].write_text(markdown_report(result), encoding="utf-8")
+    files["html"].write_text(html_report(result, png), encoding="utf-8")
+    return files
+
+
+def _disagreement_lines(result: ValidationResult, limit: int = 200) -> list[str]:
+    lines = []
+    for r in result.disagreements[:limit]:
+        lines.append(
+            f"{r.family} seed {r.seed}: {'; '.join(r.reasons)} "
+            f"(replay: emitterbench validate --replay {r.seed} --families {r.family})"
+        )
+    if len(result.disagreements) > limit:
+        lines.append(f"... and {len(result.disagreements) - limit} more (see validate.json)")
+    return lines
+
+
+def markdown_report(result: ValidationResult) -> str:
+    """A short Markdown summary: verdict, the per-family table, every disagreement."""
+    headers = [title for _, title in _COLUMNS]
+    lines = [
+        "# Closed form vs SDP relaxation",
+        "",
+        f"**{'PASS' if result.ok else 'FAIL'}**: {len(result.results)} instances, "
+        f"{len(result.disagreements)} disagreements.",
+        "",
+        _caption(result),
+        "",
+        "| " + " | ".join(headers) + " |",
+        "|" + "|".join("---" for _ in headers) + "|",
+    ]
+    lines += ["| " + " | ".join(row) + " |" for row in _table_rows(result)]
+    lines += ["", "## Disagreements", ""]
+    found = _disagreement_lines(result)
+    lines += [f"- {line}" for line in found] if found else ["None."]
+    lines += ["", "Objective gaps: `validate_gaps.png`.", ""]
+    return "\n".join(lines)
+
+
+def html_report(result: ValidationResult, png: bytes) -> str:
+    """The same content as HTML, the gap scatter embedded as a PNG data URI."""
+    from html import escape
+
+    head = "".join(f"<th>{escape(title)}</th>" for _, title in _COLUMNS)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{escape(cell)}</td>" for cell in row) + "</tr>"
+        for row in _table_rows(result)
+    )
+    found = _disagreement_lines(result)
+    items = "".join(f"<li>{escape(line)}</li>" for line in found) or "<li>None.</li>"
+    image = base64.b64encode(png).decode("ascii")
+    verdict = "PASS" if result.ok else "FAIL"
+    return (
+        "<!DOCTYPE html>\n<html><head><meta charset='utf-8'>"
+        "<title>Closed form vs SDP relaxation</title>"
+        "<style>body{font-family:sans-serif;max-width:70em;margin:2em auto}"
+        "table{border-collapse:collapse}td,th{border:1px solid #999;padding:.2em .5em}"
+        "</style></head><body>\n"
+        f"<h1>Closed form vs SDP relaxation: {verdict}</h1>\n"
+        f"<p>{len(result.results)} instances, {len(result.disagreements)} disagreements.</p>\n"
+        f"<p>{escape(_caption(result))}</p>\n"
+        f"<table><tr>{head}</tr>{body}</table>\n"
+        f"<h2>Disagreements</h2><ul>{items}</ul>\n"
+        f"<h2>Objective gaps</h2><img alt='relative objective gap per instance' "
+        f"src='data:image/png;base64,{image}'>\n"
+        "</body></html>\n"
+    )
+
+
+def gap_scatter_png(result: ValidationResult) -> bytes:
+    """Scatter of the relative objective gaps per instance, by family, hard vs unique (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    floor = 1e-17
+    figure, axes = plt.subplots(figsize=(9.5, 4.5), dpi=100)
+    offset = 0
+    for index, family in enumerate(result.families):
+        rows = [r for r in result.results if r.family == family]
+        x = offset + np.arange(len(rows))
+        gaps = np.array([r.rel_objective_gap for r in rows], dtype=float)
+        gaps = np.where(np.isfinite(gaps), np.maximum(gaps, floor), np.nan)
+        hard = np.array([r.hard_case for r in rows], dtype=bool)
+        for mask, marker, kind in ((hard, "o", "hard case"), (~hard, "x", "unique")):
+            if mask.any():
+                axes.scatter(
+                    x[mask],
+                    gaps[mask],
+                    s=8,
+                    marker=marker,
+                    color=f"C{index}",
+                    label=f"{family} ({kind})",
+                )
+        offset += len(rows)
+    axes.axhline(result.rtol_objective, color="k", linestyle="--", linewidth=1, label="tolerance")
+    axes.set_yscale("log")
+    axes.set_xlabel("instance (grouped by family)")
+    axes.set_ylabel(f"|v_sdp − v_cf| / v_cf (floored at {floor:g})")
+    axes.set_title("SDP relaxation vs closed form: relative objective gap")
+    axes.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    figure.tight_layout()
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png")
+    plt.close(figure)
+    return buffer.getvalue()
+
+
+# --------------------------------------------------------------------------------------------
+# replay
+# --------------------------------------------------------------------------------------------
+
+
+def _matrix_text(matrix: FloatArray) -> str:
+    return np.array2string(
+        np.asarray(matrix), precision=6, suppress_small=False, max_line_width=100
+    )
+
+
+def replay(
+    instance_seed: int,
+    family: str,
+    *,
+    rtol_objective: float = 1e-6,
+    rtol_argmin: float = 1e-3,
+) -> str:
+    """Re-run one instance verbosely: the draw, the closed form, the SDP and the verdict."""
+    instance = make_instance(family, instance_seed)
+    result, closed_form, sdp = validate_instance(
+        instance, rtol_objective=rtol_objective, rtol_argmin=rtol_argmin
+    )
+    frame = instance.frame
+    lines = [
+        f"instance {family} seed {instance_seed}",
+        f"  parameters: {json.dumps(_json_clean(instance.parameters))}",
+        f"  truth emitter (m): {_matrix_text(instance.data.truth_emitter_m)}",
+        f"  local frame: origin {_matrix_text(frame.origin_m)} m, "
+        f"length scale {frame.scale_m:.6g} m",
+        f"  rows: {instance.rows}, A {instance.A.shape}, numerical rank {closed_form.rank}",
+        "closed form (MATH §5)",
+        f"  lambda* = {closed_form.multiplier:.10g}, hard case {closed_form.hard_case}",
+    ]
+    for point, cost in zip(closed_form.points, closed_form.costs, strict=True):
+        lines.append(f"  minimiser (m) {_matrix_text(frame.to_world(point[:2]))}  cost {cost:.12g}")
+    lines += [
+        "SDP relaxation (MATH §11, equality)",
+        f"  status {sdp.status} (tolerance rung {sdp.rung}), iterations {sdp.iterations}, "
+        f"solver time "
+        f"{sdp.solve_time_s * 1e3:.3f} ms, call {sdp.wall_time_s * 1e3:.3f} ms",
+    ]
+    if sdp.message:
+        lines.append(f"  message: {sdp.message}")
+    if sdp.has_solution:
+        lines += [
+            f"  value {sdp.value:.12g}, lambda (dual) {sdp.multiplier:.10g}, rank {sdp.rank}",
+            f"  eigenvalues of Z: {_matrix_text(sdp.z_eigenvalues)}",
+            f"  eigenvalues of the lift: {_matrix_text(sdp.lift_eigenvalues)}",
+            f"  relaxed r (local): {_matrix_text(sdp.relaxed_point)}",
+        ]
+        for point, cost in zip(sdp.points, sdp.costs, strict=True):
+            lines.append(
+                f"  recovered point (m) {_matrix_text(frame.to_world(point[:2]))}  cost {cost:.12g}"
+            )
+    lines += [
+        "verdict",
+        f"  relative objective gap {result.rel_objective_gap:.3e} (tolerance {rtol_objective:g})",
+    ]
+    if result.hard_case:
+        lines.append(
+            f"  mirror-pair distance {result.pair_distance_m:.3e} m "
+            f"({result.pair_distance_rel:.3e} of the length scale; tolerance {rtol_argmin:g})"
+        )
+    else:
+        lines.append(
+            f"  argmin distance {result.argmin_distance_m:.3e} m "
+            f"({result.argmin_distance_rel:.3e} of the length scale; tolerance {rtol_argmin:g})"
+        )
+    lines.append("  AGREE" if result.agrees else "  DISAGREE: " + "; ".join(result.reasons))
+    return "\n".join(lines) + "\n"
