@@ -1,0 +1,413 @@
+r"""Frame-by-frame Kalman filtering of the emitter position with the mirror pair (MATH §1, §7, §8).
+
+State ``s = (x_s, y_s)`` (a 1-D array, DEPENDENCIES §2), a random walk between frames
+
+.. math::
+
+    s_{t} = s_{t-1} + \nu_t,\qquad \nu_t \sim N\big(0, (q\,\Delta t_t)^2 I\big)
+
+with ``q = process_noise_mps`` (0: a static emitter) and ``Δt_t`` the time between the frames'
+mean sample times. Each frame is one update with its stacked measurements
+``z = [f_1..f_K, c τ_1..c τ_K]`` (Doppler in Hz, physical sign; ToA as range in metres, MATH §1)
+and ``R = diag(σ_f², …, σ_r², …)``, ``σ_r = c σ_τ``.
+
+**Initialisation without counting the first frame twice.** The closed form
+(:class:`estimators.cls.Cls`, MATH §5-§6) on the first frame gives the mirror candidates. They
+serve only as *starting points*: the first frame's update runs from each candidate with a
+diffuse prior (:mod:`estimators.hypotheses`), in information form, i.e. Gauss-Newton to the
+first frame's maximum likelihood; its covariance is the inverse Fisher information there
+(MATH §8). The first frame's data thus enter once, through that update. Later frames are
+(iterated) EKF updates by filterpy's ``ExtendedKalmanFilter``, or unscented updates
+(``filter="ukf"``, filterpy's ``UnscentedKalmanFilter``).
+
+**Iterated EKF.** ``max_iterations > 1`` relinearises at the updated mean (the IEKF:
+Gauss-Newton on the frame's posterior, with step halving when the cost rises), each pass a
+filterpy update of the same prior with the measurement function linearised at the current
+iterate, ``h(s) ≈ h(s_i) + H_i (s − s_i)``; ``max_iterations=1`` is the plain EKF. On the
+paper geometry at 0 dB (4 frames east, 6 north) one pass already reaches the accumulated CRLB,
+because the first frame is iterated to its maximum likelihood. At −15 dB the prediction after
+the turn is metres off and one pass is not enough: over 400 trials the plain EKF's RMSE was
+14 % above the CRLB with a mean NEES of 2.64, the IEKF's 2 % above with 2.12.
+
+**Mirror hypotheses** (MATH §7). One filter per mirror candidate, weighted by the frames'
+predictive likelihoods (:func:`estimators.hypotheses.laplace_log_likelihood`, the innovation
+likelihood ``N(z; h(s̄), H P̄ Hᵀ + R)`` evaluated at the iterated mode), pruned when one weight
+exceeds ``1 − 1e−9``. While the track is straight the second filter is the exact reflection of
+the first, so the weights stay exactly equal and the estimate ambiguous.
+
+The state (:class:`EkfState`) is a frozen value of plain arrays; filterpy objects live only
+inside one ``update`` call, so the state and the estimator pickle.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from estimators.base import Estimate, require_modalities
+from estimators.hypotheses import (
+    EstimationFailure,
+    FrameModel,
+    StraightTrack,
+    diffuse_prior_information,
+    first_frame_candidates,
+    fisher_rank,
+    hypotheses_estimate,
+    iterated_update,
+    laplace_log_likelihood,
+    map_cost,
+    read_only,
+    surviving_hypotheses,
+    symmetric_inverse,
+)
+from scenarios.types import MeasurementSet
+
+FloatArray = NDArray[np.float64]
+FilterKind = Literal["ekf", "ukf"]
+
+STEP_RTOL = 1e-10
+"""The IEKF stops when a step is shorter than ``STEP_RTOL ×`` the mean slant range."""
+
+UKF_SIGMA_POINTS = {"alpha": 1.0, "beta": 2.0, "kappa": 1.0}
+"""Van der Merwe's scaled sigma points for a 2-D state (``n + κ = 3``, Julier's choice)."""
+
+
+# --------------------------------------------------------------------------------------------
+# state
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class EkfHypothesis:
+    """One mirror hypothesis: a Gaussian belief and its accumulated log likelihood.
+
+    Attributes
+    ----------
+    mean_m : (2,)
+    covariance_m2 : (2, 2)
+    log_weight : float
+        Sum of the frames' log predictive likelihoods (up to a constant shared by all).
+    data_information : (2, 2)
+        Accumulated Fisher information of the data (MATH §8) at the updates' linearisation
+        points, without prior or process noise; its rank says whether the data determine ``s``.
+    """
+
+    mean_m: FloatArray
+    covariance_m2: FloatArray
+    log_weight: float
+    data_information: FloatArray
+
+    def __post_init__(self) -> None:
+        read_only(self.mean_m, self.covariance_m2, self.data_information)
+
+    def mirrored(self, track: StraightTrack) -> EkfHypothesis:
+        """The reflection across a straight track: same likelihood by MATH §7."""
+        return EkfHypothesis(
+            mean_m=track.mirror_point(self.mean_m),
+            covariance_m2=track.mirror_covariance(self.covariance_m2),
+            log_weight=self.log_weight,
+            data_information=track.mirror_covariance(self.data_information),
+        )
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class EkfState:
+    """Everything the filter knows after some frames; an immutable value.
+
+    While ``track`` is not None (every frame so far on one straight line), ``hypotheses`` holds
+    only the first hypothesis and the second is its reflection across ``track``.
+    """
+
+    hypotheses: tuple[EkfHypothesis, ...] = ()
+    track: StraightTrack | None = None
+    length_scale_m: float = math.nan
+    time_s: float = math.nan
+    n_frames: int = 0
+    iterations: int = 0
+    failure: str = ""
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+
+    def all_hypotheses(self) -> tuple[EkfHypothesis, ...]:
+        """The explicit hypotheses plus, on a straight track, the mirror of the first."""
+        if self.track is None or not self.hypotheses:
+            return self.hypotheses
+        return (*self.hypotheses, self.hypotheses[0].mirrored(self.track))
+
+
+# --------------------------------------------------------------------------------------------
+# one update
+# --------------------------------------------------------------------------------------------
+
+
+def ekf_update(
+    frame: FrameModel,
+    prior_mean_m: FloatArray,
+    prior_covariance_m2: FloatArray,
+    *,
+    max_iterations: int,
+) -> tuple[FloatArray, FloatArray, int]:
+    r"""One (iterated) EKF update by filterpy's ``ExtendedKalmanFilter``.
+
+    Pass ``i`` linearises at the iterate ``s_i`` and applies the standard update to the prior
+    ``(s̄, P̄)``: ``s_{i+1} = s̄ + K_i (z − h(s_i) − H_i (s̄ − s_i))``,
+    ``K_i = P̄ H_iᵀ (H_i P̄ H_iᵀ + R)⁻¹`` (Gauss-Newton on the frame's posterior), with the step
+    ``s_{i+1} − s_i`` halved while the posterior cost rises. Stops when a step is shorter than
+    ``STEP_RTOL ×`` the range; the covariance is the Joseph-form ``P`` of the last pass.
+
+    Returns ``(mean_m, covariance_m2, iterations)``.
+    """
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    prior_information = np.linalg.inv(prior_covariance_m2)
+    scale = frame.mean_range_m(prior_mean_m)
+    kf = ExtendedKalmanFilter(dim_x=2, dim_z=frame.n_rows)
+    kf.R = np.diag(frame.sigma**2)
+    point = prior_mean_m.copy()
+    cost = map_cost(frame, point, prior_mean_m, prior_information)
+    mean, covariance = point, prior_covariance_m2
+    iterations = 0
+    while iterations < max_iterations:
+        iterations += 1
+        H = frame.jacobian(point)
+        h_at_point = frame.predicted(point)
+        linearised_at = point
+        kf.x = prior_mean_m.copy()  # 1-D x: a (2, 1) x would broadcast (DEPENDENCIES §2)
+        kf.P = prior_covariance_m2.copy()
+        kf.update(
+            frame.measured,
+            HJacobian=lambda _x, H=H: H,
+            Hx=lambda x, h=h_at_point, H=H, s=linearised_at: h + H @ (x - s),
+        )
+        mean, covariance = np.array(kf.x, dtype=float), np.array(kf.P, dtype=float)
+        if max_iterations == 1:
+            break
+        step = mean - point
+        trial, trial_cost = mean, map_cost(frame, mean, prior_mean_m, prior_information)
+        for _ in range(30):
+            if trial_cost <= cost:
+                break
+            step = 0.5 * step
+            trial = point + step
+            trial_cost = map_cost(frame, trial, prior_mean_m, prior_information)
+        else:
+            mean = point  # no decrease along the Gauss-Newton direction: at the mode
+            break
+        point, cost = trial, trial_cost
+        mean = point
+        if np.linalg.norm(step) <= STEP_RTOL * scale:
+            break
+    return mean, 0.5 * (covariance + covariance.T), iterations
+
+
+def ukf_update(
+    frame: FrameModel, prior_mean_m: FloatArray, prior_covariance_m2: FloatArray
+) -> tuple[FloatArray, FloatArray, float]:
+    """One unscented update by filterpy's ``UnscentedKalmanFilter`` (identity motion).
+
+    Returns ``(mean_m, covariance_m2, log_likelihood)``, the last ``log N(y; 0, S)`` plus
+    ``½ log det R`` (the convention of :func:`estimators.hypotheses.laplace_log_likelihood`).
+    """
+    from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+    points = MerweScaledSigmaPoints(2, **UKF_SIGMA_POINTS)
+    kf = UnscentedKalmanFilter(
+        dim_x=2, dim_z=frame.n_rows, dt=1.0, hx=frame.predicted, fx=lambda x, _dt: x, points=points
+    )
+    kf.x = prior_mean_m.copy()
+    kf.P = prior_covariance_m2.copy()
+    kf.Q = np.zeros((2, 2))
+    kf.R = np.diag(frame.sigma**2)
+    kf.predict()
+    kf.update(frame.measured)
+    y, S = np.asarray(kf.y, dtype=float), np.asarray(kf.S, dtype=float)
+    _, logdet_S = np.linalg.slogdet(S)
+    log_likelihood = -0.5 * float(y @ np.linalg.solve(S, y)) - 0.5 * logdet_S
+    log_likelihood += float(np.sum(np.log(frame.sigma)))
+    covariance = np.array(kf.P, dtype=float)
+    return np.array(kf.x, dtype=float), 0.5 * (covariance + covariance.T), log_likelihood
+
+
+# --------------------------------------------------------------------------------------------
+# the estimator
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, kw_only=True)
+class Ekf:
+    """Iterated EKF (or UKF) over frames, one filter per mirror hypothesis (MATH §7, §8).
+
+    Parameters
+    ----------
+    filter : {"ekf", "ukf"}
+        ``ekf``: filterpy's ``ExtendedKalmanFilter``, iterated (IEKF) up to
+        ``max_iterations`` times per frame; ``ukf``: filterpy's ``UnscentedKalmanFilter``
+        (with the IEKF update while the data's Fisher information is still rank-deficient,
+        e.g. an emitter on the track, where sigma points would sample the diffuse prior).
+    process_noise_mps : float
+        ``q``: the emitter's random-walk step between frames has standard deviation ``q Δt``
+        per axis (``Δt`` between the frames' mean sample times). 0: a static emitter.
+    max_iterations : int
+        IEKF passes per frame (1: the plain EKF). The first frame is always iterated to its
+        maximum likelihood.
+    """
+
+    name: ClassVar[str] = "ekf"
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+
+    filter: FilterKind = "ekf"
+    process_noise_mps: float = 0.0
+    max_iterations: int = 20
+
+    def __post_init__(self) -> None:
+        if self.filter not in ("ekf", "ukf"):
+            raise ValueError(f"filter: expected 'ekf' or 'ukf', got {self.filter!r}")
+        q = self.process_noise_mps
+        if not isinstance(q, int | float) or not math.isfinite(q) or q < 0:
+            raise ValueError(f"process_noise_mps: must be a finite number >= 0, got {q!r}")
+        n = self.max_iterations
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise ValueError(f"max_iterations: must be a whole number >= 1, got {n!r}")
+
+    # -- the SequentialEstimator pair ----------------------------------------------------------
+
+    def init(self) -> EkfState:
+        """No frame yet."""
+        return EkfState()
+
+    def update(self, state: EkfState, frame: MeasurementSet) -> EkfState:
+        """The state after one more frame (``frame``: that frame's samples only)."""
+        require_modalities(self, frame)
+        model = FrameModel.from_measurements(frame)
+        if state.failure:
+            return replace(state, n_frames=state.n_frames + 1)
+        try:
+            if state.n_frames == 0:
+                return self._first_update(frame, model)
+            return self._next_update(state, model)
+        except (EstimationFailure, np.linalg.LinAlgError) as error:
+            return replace(state, n_frames=state.n_frames + 1, failure=str(error))
+
+    def estimate_state(
+        self, state: EkfState, *, rng: np.random.Generator | None = None
+    ) -> Estimate:
+        """The estimate after the frames seen (``rng`` breaks an exact mirror tie)."""
+        if state.failure:
+            return Estimate.failed(self.name, state.failure, frames=state.n_frames)
+        if state.n_frames == 0:
+            return Estimate.failed(self.name, "no frame has been processed yet", frames=0)
+        hypotheses = state.all_hypotheses()
+        return hypotheses_estimate(
+            self.name,
+            [h.mean_m for h in hypotheses],
+            [h.covariance_m2 for h in hypotheses],
+            [h.log_weight for h in hypotheses],
+            [h.data_information for h in hypotheses],
+            straight_track=state.track is not None,
+            length_scale_m=state.length_scale_m,
+            rng=rng,
+            diagnostics=dict(
+                state.diagnostics,
+                frames=state.n_frames,
+                filter=self.filter,
+                iterations=state.iterations,
+            ),
+        )
+
+    def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
+        """Stream ``data.iter_frames()`` through :meth:`init`/:meth:`update`."""
+        require_modalities(self, data)
+        state = self.init()
+        for frame in data.iter_frames():
+            state = self.update(state, frame)
+        return self.estimate_state(state, rng=rng)
+
+    # -- internals ----------------------------------------------------------------------------
+
+    def _first_update(self, frame: MeasurementSet, model: FrameModel) -> EkfState:
+        candidates = first_frame_candidates(frame)
+        track = StraightTrack.of_frame(model)
+        starts = candidates[:1] if track is not None else candidates
+        length_scale = model.mean_range_m(candidates[0])
+        prior_information = diffuse_prior_information(length_scale)
+        hypotheses = []
+        iterations = 0
+        for start in starts:
+            mean, information, log_likelihood, n_iter = iterated_update(
+                model, start, prior_information, max_iterations=50
+            )
+            iterations = max(iterations, n_iter)
+            hypotheses.append(
+                EkfHypothesis(
+                    mean_m=mean,
+                    covariance_m2=symmetric_inverse(information),
+                    log_weight=log_likelihood,
+                    data_information=model.information(mean),
+                )
+            )
+        return EkfState(
+            hypotheses=tuple(hypotheses),
+            track=track,
+            length_scale_m=length_scale,
+            time_s=model.time_s,
+            n_frames=1,
+            iterations=iterations,
+            diagnostics={"first_frame_candidates": len(candidates)},
+        )
+
+    def _next_update(self, state: EkfState, model: FrameModel) -> EkfState:
+        track = None if state.track is None else state.track.extended(model)
+        hypotheses = state.hypotheses if track is not None else state.all_hypotheses()
+        step_m = self.process_noise_mps * abs(model.time_s - state.time_s)
+        process_covariance = step_m**2 * np.eye(2)
+        updated = []
+        iterations = 0
+        for hypothesis in hypotheses:
+            prior_mean = hypothesis.mean_m
+            prior_covariance = hypothesis.covariance_m2 + process_covariance
+            # sigma points spread along a direction the data do not yet fix would sample the
+            # diffuse prior hundreds of kilometres away: linearise (IEKF) until the data do
+            if self.filter == "ukf" and fisher_rank(hypothesis.data_information) == 2:
+                mean, covariance, log_likelihood = ukf_update(model, prior_mean, prior_covariance)
+                n_iter = 1
+            else:
+                mean, covariance, n_iter = ekf_update(
+                    model, prior_mean, prior_covariance, max_iterations=self.max_iterations
+                )
+                prior_information = np.linalg.inv(prior_covariance)
+                log_likelihood = laplace_log_likelihood(
+                    map_cost(model, mean, prior_mean, prior_information),
+                    prior_information,
+                    np.linalg.inv(covariance),
+                )
+            if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(covariance))):
+                raise EstimationFailure(f"the {self.filter} update diverged (non-finite state)")
+            iterations = max(iterations, n_iter)
+            updated.append(
+                EkfHypothesis(
+                    mean_m=mean,
+                    covariance_m2=covariance,
+                    log_weight=hypothesis.log_weight + log_likelihood,
+                    data_information=hypothesis.data_information + model.information(mean),
+                )
+            )
+        if track is None:
+            kept, log_weights = surviving_hypotheses(
+                [h.mean_m for h in updated], [h.log_weight for h in updated], state.length_scale_m
+            )
+            top = float(log_weights[0])
+            updated = [
+                replace(updated[i], log_weight=float(w) - top)
+                for i, w in zip(kept, log_weights, strict=True)
+            ]
+        return replace(
+            state,
+            hypotheses=tuple(updated),
+            track=track,
+            time_s=model.time_s,
+            n_frames=state.n_frames + 1,
+            iterations=iterations,
+        )

@@ -1,0 +1,396 @@
+"""The frame-by-frame (iterated) EKF and UKF with mirror hypotheses (MATH §1, §7, §8, §10).
+
+Also the shared per-frame model of :mod:`estimators.hypotheses`: its Jacobian against central
+differences and its information against the CRLB's.
+"""
+
+from __future__ import annotations
+
+import itertools
+import pickle
+
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+from scipy.stats import chi2
+
+from comparison.crlb import fisher_information, rmse_bound_m
+from estimators.base import SequentialEstimator
+from estimators.ekf import Ekf, ekf_update
+from estimators.hypotheses import (
+    DIFFUSE_PRIOR_SCALE,
+    FrameModel,
+    diffuse_prior_information,
+    iterated_update,
+)
+from scenarios import measurement_model as model
+from scenarios.catalog import heading_velocities_mps, paper_scenario
+from scenarios.simulate import noise_free, simulate, simulate_trials, trial_seeds
+from scenarios.types import FlightPlan, MeasurementSet, Scenario
+
+EAST_THEN_NORTH = [0.0] * 4 + [90.0] * 6
+"""Headings of the turning test flight: 4 frames east, then 6 frames north (MATH §7)."""
+
+
+def flight_scenario(headings_deg: list[float], emitter_m=(35.0, 15.0)) -> Scenario:
+    """The paper geometry at ``c σ_τ = 1 m`` (``paper-1m``), 10 m/s, K = 10, Δ = 0.05 s."""
+    base = paper_scenario(range_sigma_m=1.0, name="paper-1m")
+    return base.replace(
+        emitter_m=emitter_m,
+        flight=FlightPlan(
+            start_position_m=[0.0, 0.0, 50.0],
+            frame_velocities_mps=heading_velocities_mps(10.0, headings_deg),
+            samples_per_frame=10,
+            sample_interval_s=0.05,
+        ),
+    )
+
+
+def frame_ml_m(frames: list[FrameModel], start_m) -> np.ndarray:
+    """Maximum likelihood over ``frames`` by scipy (MATH §10), to tight tolerances."""
+    result = least_squares(
+        lambda s: np.concatenate([f.whitened_error(s) for f in frames]),
+        np.asarray(start_m, dtype=float),
+        jac=lambda s: np.vstack([f.whitened_jacobian(s) for f in frames]),
+        method="lm",
+        xtol=1e-15,
+        ftol=1e-15,
+        gtol=1e-15,
+    )
+    return result.x
+
+
+def streamed_states(estimator: Ekf, data: MeasurementSet) -> list:
+    state = estimator.init()
+    states = []
+    for frame in data.iter_frames():
+        state = estimator.update(state, frame)
+        states.append(state)
+    return states
+
+
+# --------------------------------------------------------------------------------------------
+# the shared frame model
+# --------------------------------------------------------------------------------------------
+
+
+def test_frame_model_is_the_forward_model() -> None:
+    """``h(s)`` stacks MATH §1's Doppler and ``c τ``; the noise-free error is zero at the truth."""
+    data = noise_free(flight_scenario(EAST_THEN_NORTH))
+    frame = next(data.iter_frames())
+    stacked = FrameModel.from_measurements(frame)
+    point = np.array([12.0, -7.0])
+    expected = np.concatenate(
+        [
+            model.doppler_hz(frame.position_m, frame.velocity_mps, point, frame.gamma_per_m),
+            frame.speed_of_light_mps * model.toa_s(frame.position_m, point, 3e8),
+        ]
+    )
+    np.testing.assert_allclose(stacked.predicted(point), expected, rtol=1e-13)
+    np.testing.assert_allclose(stacked.whitened_error([35.0, 15.0]), 0.0, atol=1e-6)
+    assert stacked.n_rows == 20
+    np.testing.assert_array_equal(stacked.sigma, [0.1] * 10 + [1.0] * 10)
+
+
+@pytest.mark.parametrize("frame_index", [0, 5])
+def test_frame_jacobian_matches_central_differences(frame_index: int) -> None:
+    """``E(s)``, the filter's H and the factor's Jacobian, against central differences."""
+    data = noise_free(flight_scenario(EAST_THEN_NORTH))
+    frame = FrameModel.from_measurements(list(data.iter_frames())[frame_index])
+    rng = np.random.default_rng(7)
+    points = np.vstack([[35.0, 15.0], [35.0, -15.0], rng.uniform(-80.0, 80.0, (6, 2))])
+    step = 1e-5
+    for point in points:
+        numeric = np.column_stack(
+            [
+                (
+                    frame.whitened_error(point + step * axis)
+                    - frame.whitened_error(point - step * axis)
+                )
+                / (2 * step)
+                for axis in np.eye(2)
+            ]
+        )
+        analytic = frame.whitened_jacobian(point)
+        np.testing.assert_allclose(analytic, numeric, rtol=1e-6, atol=1e-8)
+        error, jacobian = frame.whitened_error_and_jacobian(point)
+        np.testing.assert_array_equal(error, frame.whitened_error(point))
+        np.testing.assert_array_equal(jacobian, analytic)
+
+
+def test_frame_information_sums_to_the_crlb_fisher_information() -> None:
+    """``Σ_frames EᵀE`` is MATH §8's toa+doppler Fisher information."""
+    data = noise_free(flight_scenario(EAST_THEN_NORTH))
+    frames = [FrameModel.from_measurements(f) for f in data.iter_frames()]
+    truth = np.array([35.0, 15.0])
+    total = sum(frame.information(truth) for frame in frames)
+    np.testing.assert_allclose(total, fisher_information(data, truth, "toa+doppler"), rtol=1e-12)
+
+
+# --------------------------------------------------------------------------------------------
+# one update
+# --------------------------------------------------------------------------------------------
+
+
+def frame_after_turn() -> tuple[FrameModel, np.ndarray, np.ndarray]:
+    data = simulate(flight_scenario(EAST_THEN_NORTH), seed=11)
+    frame = FrameModel.from_measurements(list(data.iter_frames())[5])
+    prior_mean = np.array([36.0, 14.2])
+    prior_covariance = np.array([[0.4, 0.1], [0.1, 0.9]])
+    return frame, prior_mean, prior_covariance
+
+
+def test_single_pass_is_the_kalman_update() -> None:
+    """``max_iterations=1``: ``s̄ + K(z − h(s̄))``, ``K = P̄Hᵀ(HP̄Hᵀ + R)⁻¹``, ``P = (I − KH)P̄``."""
+    frame, prior_mean, prior_covariance = frame_after_turn()
+    mean, covariance, iterations = ekf_update(frame, prior_mean, prior_covariance, max_iterations=1)
+    H = frame.jacobian(prior_mean)
+    S = H @ prior_covariance @ H.T + np.diag(frame.sigma**2)
+    K = prior_covariance @ H.T @ np.linalg.inv(S)
+    np.testing.assert_allclose(
+        mean, prior_mean + K @ (frame.measured - frame.predicted(prior_mean)), rtol=1e-12
+    )
+    np.testing.assert_allclose(covariance, (np.eye(2) - K @ H) @ prior_covariance, rtol=1e-9)
+    assert mean.shape == (2,) and iterations == 1
+
+
+def test_iterated_filterpy_update_is_the_posterior_mode() -> None:
+    """The IEKF's filterpy passes converge to the Gauss-Newton mode of the frame's posterior."""
+    frame, prior_mean, prior_covariance = frame_after_turn()
+    mean, covariance, iterations = ekf_update(
+        frame, prior_mean, prior_covariance, max_iterations=50
+    )
+    mode, information, _, _ = iterated_update(frame, prior_mean, np.linalg.inv(prior_covariance))
+    assert 1 < iterations < 50
+    np.testing.assert_allclose(mean, mode, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.inv(covariance), information, rtol=1e-7)
+    # the single pass stops short of the mode by far more than the IEKF's tolerance
+    single, _, _ = ekf_update(frame, prior_mean, prior_covariance, max_iterations=1)
+    assert np.linalg.norm(single - mode) > 1e-4
+
+
+# --------------------------------------------------------------------------------------------
+# the estimator
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("estimator", "atol_m"),
+    [
+        (Ekf(), 1e-6),
+        (Ekf(max_iterations=1), 1e-6),
+        (Ekf(process_noise_mps=0.1), 1e-6),
+        # the unscented mean of h is not h(mean): a bias of ~1 % of the CRLB's σ remains
+        (Ekf(filter="ukf"), 2e-3),
+    ],
+)
+def test_noise_free_turn_returns_the_truth(estimator: Ekf, atol_m: float) -> None:
+    """Noise-free, east then north: the truth, one hypothesis, not ambiguous (MATH §7)."""
+    data = noise_free(flight_scenario(EAST_THEN_NORTH))
+    estimate = estimator.estimate(data)
+    assert estimate.success, estimate.message
+    np.testing.assert_allclose(estimate.position_m, [35.0, 15.0], atol=atol_m)
+    assert not estimate.ambiguous
+    assert estimate.diagnostics["weights"] == (1.0,)
+    np.testing.assert_allclose(estimate.candidates_m, [[35.0, 15.0]], atol=atol_m)
+
+
+def test_noise_free_covariance_is_the_accumulated_crlb() -> None:
+    """Static and linearised at the truth, ``P`` is the accumulated ``J⁻¹`` (MATH §8)."""
+    data = noise_free(flight_scenario(EAST_THEN_NORTH))
+    estimate = Ekf().estimate(data)
+    bound = np.linalg.inv(fisher_information(data, [35.0, 15.0], "toa+doppler"))
+    np.testing.assert_allclose(estimate.covariance_m2, bound, rtol=1e-6)
+
+
+def test_random_walk_covariance_follows_the_information_recursion() -> None:
+    """``P_t = ((P_{t−1} + (qΔt)² I)⁻¹ + J_t)⁻¹`` with the frames' Fisher information at the truth."""
+    q = 0.2
+    data = noise_free(flight_scenario(EAST_THEN_NORTH))
+    frames = [FrameModel.from_measurements(f) for f in data.iter_frames()]
+    truth = np.array([35.0, 15.0])
+    length = frames[0].mean_range_m(truth)
+    covariance = np.linalg.inv(frames[0].information(truth) + diffuse_prior_information(length))
+    for previous, frame in itertools.pairwise(frames):
+        step = q * (frame.time_s - previous.time_s)
+        predicted = covariance + step**2 * np.eye(2)
+        covariance = np.linalg.inv(np.linalg.inv(predicted) + frame.information(truth))
+    estimate = Ekf(process_noise_mps=q).estimate(data)
+    np.testing.assert_allclose(estimate.covariance_m2, covariance, rtol=1e-6)
+    static = Ekf().estimate(data).covariance_m2
+    assert np.all(np.linalg.eigvalsh(estimate.covariance_m2 - static) > 0)
+
+
+def test_straight_track_keeps_both_mirrors_with_exactly_equal_weights() -> None:
+    """No turn: two mirror candidates, weights exactly ½/½, ambiguous (MATH §7)."""
+    data = simulate(flight_scenario([0.0] * 4), seed=3)
+    for estimator in (Ekf(), Ekf(filter="ukf")):
+        estimate = estimator.estimate(data)
+        assert estimate.success and estimate.ambiguous
+        assert estimate.diagnostics["weights"] == (0.5, 0.5)
+        first, second = estimate.candidates_m
+        np.testing.assert_allclose(second, [first[0], -first[1]], atol=1e-9)
+        assert abs(first[1]) > 10.0
+
+
+def test_single_frame_is_its_maximum_likelihood_with_inverse_fisher_covariance() -> None:
+    """One frame: the frame's ML (MATH §10) with the inverse Fisher information (MATH §8)."""
+    data = simulate(flight_scenario([0.0]), seed=5)
+    estimate = Ekf().estimate(data)
+    frame = FrameModel.from_measurements(data)
+    assert estimate.ambiguous and len(estimate.candidates_m) == 2
+    np.testing.assert_allclose(
+        estimate.position_m, frame_ml_m([frame], estimate.position_m + 0.5), atol=1e-6
+    )
+    np.testing.assert_allclose(
+        estimate.covariance_m2, np.linalg.inv(frame.information(estimate.position_m)), rtol=1e-6
+    )
+
+
+@pytest.mark.parametrize("estimator", [Ekf(), Ekf(filter="ukf")])
+def test_emitter_on_the_track_is_flagged_not_crashed(estimator: Ekf) -> None:
+    """Emitter on the track: the candidates coincide and the cross-track is unobservable."""
+    for headings in ([0.0], [0.0] * 4):
+        data = noise_free(flight_scenario(headings, emitter_m=(35.0, 0.0)))
+        estimate = estimator.estimate(data)
+        assert estimate.success and estimate.ambiguous
+        np.testing.assert_allclose(estimate.candidates_m, [[35.0, 0.0]], atol=1e-6)
+        assert estimate.covariance_m2 is None
+        assert estimate.diagnostics["fisher_rank"] == 1
+        assert "rank 1" in estimate.message
+    turned = noise_free(flight_scenario([0.0] * 4 + [90.0] * 3, emitter_m=(35.0, 0.0)))
+    estimate = estimator.estimate(turned)
+    assert estimate.success and not estimate.ambiguous
+    atol_m = 1e-6 if estimator.filter == "ekf" else 2e-3  # the UKF's bias, as above
+    np.testing.assert_allclose(estimate.position_m, [35.0, 0.0], atol=atol_m)
+    assert estimate.diagnostics["fisher_rank"] == 2 and estimate.covariance_m2 is not None
+
+
+def test_rng_breaks_the_mirror_tie_with_a_fair_coin() -> None:
+    """On a straight track ``rng`` picks either side; without one, the first hypothesis."""
+    estimator = Ekf()
+    state = streamed_states(estimator, simulate(flight_scenario([0.0] * 2), seed=8))[-1]
+    sides = [
+        np.sign(estimator.estimate_state(state, rng=np.random.default_rng(seed)).position_m[1])
+        for seed in range(200)
+    ]
+    assert 70 < sides.count(1.0) < 130
+    first = estimator.estimate_state(state)
+    np.testing.assert_array_equal(first.position_m, first.candidates_m[0])
+
+
+def test_streaming_equals_batch_and_states_are_values() -> None:
+    """``estimate`` equals init/update/estimate_state; an old state is unchanged by updates."""
+    estimator = Ekf()
+    data = simulate(flight_scenario(EAST_THEN_NORTH), seed=2)
+    states = streamed_states(estimator, data)
+    batch = estimator.estimate(data)
+    streamed = estimator.estimate_state(states[-1])
+    np.testing.assert_array_equal(batch.position_m, streamed.position_m)
+    np.testing.assert_array_equal(batch.covariance_m2, streamed.covariance_m2)
+    before = estimator.estimate_state(states[3]).position_m.copy()
+    frames = list(data.iter_frames())
+    again = estimator.update(states[3], frames[4])
+    np.testing.assert_array_equal(estimator.estimate_state(states[3]).position_m, before)
+    np.testing.assert_array_equal(
+        estimator.estimate_state(again).position_m, estimator.estimate_state(states[4]).position_m
+    )
+    with pytest.raises(ValueError, match="read-only"):
+        states[-1].hypotheses[0].mean_m[0] = 0.0
+
+
+def test_estimator_and_state_pickle() -> None:
+    """A pickled mid-stream state continues to the same estimate (worker processes)."""
+    estimator = pickle.loads(pickle.dumps(Ekf(filter="ukf", process_noise_mps=0.05)))
+    assert isinstance(estimator, SequentialEstimator)
+    data = simulate(flight_scenario(EAST_THEN_NORTH), seed=4)
+    frames = list(data.iter_frames())
+    state = estimator.init()
+    for frame in frames[:5]:
+        state = estimator.update(state, frame)
+    copy = pickle.loads(pickle.dumps(state))
+    for frame in frames[5:]:
+        state = estimator.update(state, frame)
+        copy = estimator.update(copy, frame)
+    np.testing.assert_array_equal(
+        estimator.estimate_state(copy).position_m, estimator.estimate_state(state).position_m
+    )
+
+
+def test_options_and_inputs_are_validated() -> None:
+    with pytest.raises(ValueError, match=r"^filter:"):
+        Ekf(filter="kalman")
+    with pytest.raises(ValueError, match=r"^process_noise_mps:"):
+        Ekf(process_noise_mps=-1.0)
+    with pytest.raises(ValueError, match=r"^max_iterations:"):
+        Ekf(max_iterations=0)
+    data = noise_free(flight_scenario([0.0]))
+    with pytest.raises(ValueError, match=r"^toa_s:"):
+        Ekf().estimate(data.without("toa"))
+
+
+def test_closed_form_failure_becomes_a_failed_estimate(monkeypatch) -> None:
+    def broken(self, data, *, rng=None):
+        raise np.linalg.LinAlgError("singular matrix")
+
+    monkeypatch.setattr("estimators.cls.Cls.estimate", broken)
+    estimate = Ekf().estimate(noise_free(flight_scenario([0.0] * 2)))
+    assert not estimate.success
+    assert "closed form failed" in estimate.message
+    assert np.all(np.isnan(estimate.position_m))
+
+
+def test_no_frame_yet_is_a_failed_estimate() -> None:
+    estimate = Ekf().estimate_state(Ekf().init())
+    assert not estimate.success and "no frame" in estimate.message
+
+
+def test_diffuse_prior_is_negligible_against_one_frame() -> None:
+    """The diffuse prior's information is < 1e−9 of one frame's (its effect on the estimate)."""
+    data = noise_free(flight_scenario([0.0]))
+    frame = FrameModel.from_measurements(data)
+    length = frame.mean_range_m([35.0, 15.0])
+    prior = diffuse_prior_information(length)
+    assert prior[0, 0] == pytest.approx(1.0 / (DIFFUSE_PRIOR_SCALE * length) ** 2)
+    assert prior[0, 0] < 1e-9 * np.linalg.eigvalsh(frame.information([35.0, 15.0]))[0]
+
+
+# --------------------------------------------------------------------------------------------
+# statistics: the accumulated CRLB after a turn
+# --------------------------------------------------------------------------------------------
+
+N_TRIALS = 500
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("estimator", [Ekf(), Ekf(filter="ukf")], ids=["ekf", "ukf"])
+def test_turn_reaches_the_accumulated_crlb_with_honest_covariance(estimator: Ekf) -> None:
+    """10 frames of ``paper-1m`` at 0 dB, turn after frame 4, 500 trials.
+
+    RMSE/√CRLB(accumulated, toa+doppler) <= 1.1; no wrong side in any frame after the turn;
+    the mean NEES inside the two-sided 95% chi-square band (2 dof, n trials).
+    """
+    scenario = flight_scenario(EAST_THEN_NORTH)
+    truth = scenario.emitter_m
+    mirror = np.array([truth[0], -truth[1]])
+    batch = simulate_trials(scenario, snr_db=0.0, seeds=trial_seeds(2024, N_TRIALS))
+    errors = np.empty((N_TRIALS, 2))
+    nees = np.empty(N_TRIALS)
+    wrong_side = np.zeros((N_TRIALS, 6), dtype=bool)
+    for trial, data in enumerate(batch):
+        for frame, state in enumerate(streamed_states(estimator, data)[4:]):
+            estimate = estimator.estimate_state(state)
+            assert estimate.success and not estimate.ambiguous
+            position = estimate.position_m
+            wrong_side[trial, frame] = np.linalg.norm(position - mirror) < np.linalg.norm(
+                position - truth
+            )
+        errors[trial] = position - truth
+        nees[trial] = errors[trial] @ np.linalg.solve(estimate.covariance_m2, errors[trial])
+    bound = rmse_bound_m(fisher_information(batch.geometry, truth, "toa+doppler"))
+    ratio = np.sqrt(np.mean(np.sum(errors**2, axis=1))) / bound
+    low, high = chi2.ppf([0.025, 0.975], 2 * N_TRIALS) / N_TRIALS
+    print(f"{estimator.filter}: RMSE/sqrt(CRLB) = {ratio:.3f}, mean NEES = {nees.mean():.3f}")
+    assert ratio <= 1.1
+    assert not wrong_side.any()
+    assert low <= nees.mean() <= high

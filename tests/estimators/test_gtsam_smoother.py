@@ -1,0 +1,314 @@
+"""The GTSAM factor-graph smoother with mirror hypotheses (MATH §7, §8, §10; DEPENDENCIES §1)."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+gtsam = pytest.importorskip("gtsam")
+
+from gtsam.symbol_shorthand import X  # noqa: E402
+
+from comparison.crlb import fisher_information, rmse_bound_m  # noqa: E402
+from estimators import gtsam_smoother  # noqa: E402
+from estimators.base import SequentialEstimator  # noqa: E402
+from estimators.gtsam_smoother import (  # noqa: E402
+    GtsamSmoother,
+    chain_log_evidence,
+    frame_factor,
+    graph_part,
+    step_sigmas_m,
+    values_of,
+)
+from estimators.hypotheses import FrameModel  # noqa: E402
+from scenarios.simulate import noise_free, simulate, simulate_trials, trial_seeds  # noqa: E402
+from tests.estimators.test_ekf import (  # noqa: E402
+    EAST_THEN_NORTH,
+    flight_scenario,
+    frame_ml_m,
+)
+
+SMOOTHERS = [GtsamSmoother(), GtsamSmoother(process_noise_mps=0.1)]
+SMOOTHER_IDS = ["static", "random-walk"]
+
+
+def streamed(estimator: GtsamSmoother, data, *, rng=None):
+    state = estimator.init()
+    for frame in data.iter_frames():
+        state = estimator.update(state, frame)
+    return state, estimator.estimate_state(state, rng=rng)
+
+
+def frame_models(data) -> tuple[FrameModel, ...]:
+    return tuple(FrameModel.from_measurements(frame) for frame in data.iter_frames())
+
+
+# --------------------------------------------------------------------------------------------
+# the factor and the evidence
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("frame_index", [0, 7])
+def test_custom_factor_jacobian_matches_central_differences(frame_index: int) -> None:
+    """``linearize(values).jacobian()`` against central differences of the factor's error."""
+    data = simulate(flight_scenario(EAST_THEN_NORTH), seed=1)
+    frame = frame_models(data)[frame_index]
+    factor = frame_factor(frame, X(0))
+    step = 1e-5
+    rng = np.random.default_rng(3)
+    for point in np.vstack([[35.0, 15.0], [35.0, -15.0], rng.uniform(-60.0, 60.0, (4, 2))]):
+        A, b = factor.linearize(values_of(point)).jacobian()
+        error = factor.unwhitenedError(values_of(point))
+        numeric = np.column_stack(
+            [
+                (
+                    factor.unwhitenedError(values_of(point + step * axis))
+                    - factor.unwhitenedError(values_of(point - step * axis))
+                )
+                / (2 * step)
+                for axis in np.eye(2)
+            ]
+        )
+        assert A.shape == (frame.n_rows, 2)
+        np.testing.assert_allclose(A, numeric, rtol=1e-6, atol=1e-8)
+        np.testing.assert_allclose(b, -error, rtol=1e-12)
+        np.testing.assert_allclose(error, frame.whitened_error(point), rtol=1e-12)
+        assert factor.error(values_of(point)) == pytest.approx(0.5 * error @ error, rel=1e-12)
+
+
+def test_chain_log_evidence_matches_gtsam_elimination() -> None:
+    """``−½χ² − ½ log det Λ`` equals GTSAM's ``−error − logDeterminant`` of the linearised graph."""
+    data = simulate(flight_scenario([0.0, 0.0, 90.0, 90.0]), seed=6)
+    frames = frame_models(data)
+    steps = step_sigmas_m(frames, 0.3)
+    estimates = np.array([[35.2, 15.1], [35.0, 14.8], [34.9, 15.3], [35.1, 15.0]])
+    prior_mean = np.array([34.0, 16.0])
+    graph = graph_part(
+        frames,
+        0,
+        4,
+        random_walk=True,
+        step_sigmas=steps,
+        prior_mean_m=prior_mean,
+        prior_sigma_m=50.0,
+    )
+    values = values_of(estimates)
+    log_evidence, information = chain_log_evidence(
+        frames,
+        estimates,
+        random_walk=True,
+        step_sigmas=steps,
+        prior_mean_m=prior_mean,
+        prior_sigma_m=50.0,
+    )
+    bayes_net = graph.linearize(values).eliminateSequential()
+    assert log_evidence == pytest.approx(
+        -graph.error(values) - bayes_net.logDeterminant(), rel=1e-10
+    )
+    expected = sum(f.information(s) for f, s in zip(frames, estimates, strict=True))
+    np.testing.assert_allclose(information, expected, rtol=1e-12)
+
+
+# --------------------------------------------------------------------------------------------
+# answers
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("estimator", SMOOTHERS, ids=SMOOTHER_IDS)
+def test_noise_free_turn_returns_the_truth(estimator: GtsamSmoother) -> None:
+    """Noise-free, east then north: the truth, batch and streaming, not ambiguous (MATH §7)."""
+    data = noise_free(flight_scenario(EAST_THEN_NORTH))
+    for estimate in (estimator.estimate(data), streamed(estimator, data)[1]):
+        assert estimate.success, estimate.message
+        np.testing.assert_allclose(estimate.position_m, [35.0, 15.0], atol=1e-6)
+        assert not estimate.ambiguous
+        assert estimate.diagnostics["weights"] == (1.0,)
+    static = GtsamSmoother().estimate(data)
+    bound = np.linalg.inv(fisher_information(data, [35.0, 15.0], "toa+doppler"))
+    np.testing.assert_allclose(static.covariance_m2, bound, rtol=1e-6)
+
+
+def test_static_smoother_is_the_maximum_likelihood_over_all_frames() -> None:
+    """Static emitter: the optimum is MATH §10's ML over all frames (scipy) within 1e-6 m."""
+    data = simulate(flight_scenario(EAST_THEN_NORTH), seed=9)
+    frames = list(frame_models(data))
+    estimator = GtsamSmoother()
+    batch = estimator.estimate(data)
+    _, streaming = streamed(estimator, data)
+    ml = frame_ml_m(frames, batch.position_m + np.array([0.4, -0.3]))
+    assert np.linalg.norm(ml - [35.0, 15.0]) > 0.01  # a noisy answer, not the truth
+    np.testing.assert_allclose(batch.position_m, ml, atol=1e-6)
+    np.testing.assert_allclose(streaming.position_m, ml, atol=1e-6)
+    fisher = sum(frame.information(ml) for frame in frames)
+    np.testing.assert_allclose(batch.covariance_m2, np.linalg.inv(fisher), rtol=1e-6)
+
+
+@pytest.mark.parametrize("estimator", SMOOTHERS, ids=SMOOTHER_IDS)
+def test_straight_track_keeps_both_mirrors_with_exactly_equal_weights(estimator) -> None:
+    """No turn: both mirror candidates, weights exactly ½/½, ambiguous (MATH §7)."""
+    data = simulate(flight_scenario([0.0] * 4), seed=3)
+    for estimate in (estimator.estimate(data), streamed(estimator, data)[1]):
+        assert estimate.success and estimate.ambiguous
+        assert estimate.diagnostics["weights"] == (0.5, 0.5)
+        first, second = estimate.candidates_m
+        np.testing.assert_allclose(second, [first[0], -first[1]], atol=1e-9)
+
+
+def test_single_frame_is_its_maximum_likelihood() -> None:
+    data = simulate(flight_scenario([0.0]), seed=5)
+    estimate = GtsamSmoother().estimate(data)
+    frame = FrameModel.from_measurements(data)
+    assert estimate.success and estimate.ambiguous and len(estimate.candidates_m) == 2
+    np.testing.assert_allclose(
+        estimate.position_m, frame_ml_m([frame], estimate.position_m + 0.5), atol=1e-6
+    )
+
+
+@pytest.mark.parametrize("estimator", SMOOTHERS, ids=SMOOTHER_IDS)
+def test_emitter_on_the_track_is_flagged_not_crashed(estimator: GtsamSmoother) -> None:
+    """Emitter on the track: rank-1 Fisher information flagged, no covariance, no exception."""
+    for headings in ([0.0], [0.0] * 4):
+        data = noise_free(flight_scenario(headings, emitter_m=(35.0, 0.0)))
+        for estimate in (estimator.estimate(data), streamed(estimator, data)[1]):
+            assert estimate.success and estimate.ambiguous
+            np.testing.assert_allclose(estimate.candidates_m, [[35.0, 0.0]], atol=1e-6)
+            assert estimate.covariance_m2 is None
+            assert estimate.diagnostics["fisher_rank"] == 1
+    turned = noise_free(flight_scenario([0.0] * 4 + [90.0] * 3, emitter_m=(35.0, 0.0)))
+    for estimate in (estimator.estimate(turned), streamed(estimator, turned)[1]):
+        assert estimate.success and not estimate.ambiguous
+        np.testing.assert_allclose(estimate.position_m, [35.0, 0.0], atol=1e-6)
+        assert estimate.diagnostics["fisher_rank"] == 2
+
+
+# --------------------------------------------------------------------------------------------
+# streaming, the ISAM2 cache, pickling
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("estimator", SMOOTHERS, ids=SMOOTHER_IDS)
+@pytest.mark.parametrize("headings", [EAST_THEN_NORTH, [0.0] * 3], ids=["turn", "straight"])
+def test_streaming_equals_batch(estimator: GtsamSmoother, headings) -> None:
+    """ISAM2 streaming and LM batch reach the same optimum, covariance and hypotheses."""
+    data = simulate(flight_scenario(headings), seed=12)
+    batch = estimator.estimate(data)
+    _, streaming = streamed(estimator, data)
+    np.testing.assert_allclose(streaming.position_m, batch.position_m, atol=1e-6)
+    np.testing.assert_allclose(streaming.candidates_m, batch.candidates_m, atol=1e-6)
+    np.testing.assert_allclose(streaming.covariance_m2, batch.covariance_m2, rtol=1e-6)
+    assert streaming.ambiguous == batch.ambiguous
+    np.testing.assert_allclose(
+        streaming.diagnostics["weights"], batch.diagnostics["weights"], atol=1e-9
+    )
+
+
+def test_replayed_isam2_equals_the_live_one() -> None:
+    """The result never depends on the per-process cache: a replay gives the same numbers."""
+    estimator = GtsamSmoother(process_noise_mps=0.1)
+    frames = list(simulate(flight_scenario(EAST_THEN_NORTH), seed=13).iter_frames())
+    state = estimator.init()
+    for frame in frames[:6]:
+        state = estimator.update(state, frame)
+    live = estimator.update(state, frames[6])  # takes the cached ISAM2s
+    replayed = estimator.update(state, frames[6])  # the cache no longer holds them: replay
+    gtsam_smoother._LIVE_ISAM2.clear()
+    cold = estimator.update(state, frames[6])
+    for other in (replayed, cold):
+        assert len(other.hypotheses) == len(live.hypotheses)
+        for a, b in zip(live.hypotheses, other.hypotheses, strict=True):
+            np.testing.assert_allclose(a.estimates_m, b.estimates_m, atol=1e-12)
+            np.testing.assert_allclose(a.covariance_m2, b.covariance_m2, rtol=1e-10)
+
+
+def test_estimator_and_state_pickle() -> None:
+    """Plain-array states pickle; a state continued in a fresh cache matches (worker processes)."""
+    estimator = pickle.loads(pickle.dumps(GtsamSmoother()))
+    assert isinstance(estimator, SequentialEstimator)
+    frames = list(simulate(flight_scenario(EAST_THEN_NORTH), seed=4).iter_frames())
+    state = estimator.init()
+    for frame in frames[:5]:
+        state = estimator.update(state, frame)
+    copy = pickle.loads(pickle.dumps(state))
+    for frame in frames[5:]:
+        state = estimator.update(state, frame)
+    gtsam_smoother._LIVE_ISAM2.clear()
+    for frame in frames[5:]:
+        copy = estimator.update(copy, frame)
+    np.testing.assert_allclose(
+        estimator.estimate_state(copy).position_m,
+        estimator.estimate_state(state).position_m,
+        atol=1e-12,
+    )
+
+
+def test_options_and_inputs_are_validated() -> None:
+    with pytest.raises(ValueError, match=r"^process_noise_mps:"):
+        GtsamSmoother(process_noise_mps=float("nan"))
+    with pytest.raises(ValueError, match=r"^max_iterations:"):
+        GtsamSmoother(max_iterations=0)
+    data = noise_free(flight_scenario([0.0, 90.0]))
+    with pytest.raises(ValueError, match=r"^doppler_hz:"):
+        GtsamSmoother().estimate(data.without("doppler"))
+    from dataclasses import replace
+
+    frozen_clock = replace(data, time_s=np.zeros(data.n_samples))
+    with pytest.raises(ValueError, match=r"^time_s:"):
+        GtsamSmoother(process_noise_mps=0.1).estimate(frozen_clock)
+
+
+def test_closed_form_failure_becomes_a_failed_estimate(monkeypatch) -> None:
+    def broken(self, data, *, rng=None):
+        raise np.linalg.LinAlgError("singular matrix")
+
+    monkeypatch.setattr("estimators.cls.Cls.estimate", broken)
+    data = noise_free(flight_scenario([0.0, 90.0]))
+    for estimate in (GtsamSmoother().estimate(data), streamed(GtsamSmoother(), data)[1]):
+        assert not estimate.success and "closed form failed" in estimate.message
+
+
+# --------------------------------------------------------------------------------------------
+# statistics: the accumulated CRLB after a turn
+# --------------------------------------------------------------------------------------------
+
+N_TRIALS = 500
+
+
+@pytest.mark.slow
+def test_turn_reaches_the_accumulated_crlb_with_honest_covariance() -> None:
+    """10 frames of ``paper-1m`` at 0 dB, turn after frame 4, 500 trials, streaming (ISAM2).
+
+    RMSE/√CRLB(accumulated, toa+doppler) <= 1.1; no wrong side in any frame after the turn;
+    the mean NEES inside the two-sided 95% chi-square band (2 dof, n trials).
+    """
+    estimator = GtsamSmoother()
+    scenario = flight_scenario(EAST_THEN_NORTH)
+    truth = scenario.emitter_m
+    mirror = np.array([truth[0], -truth[1]])
+    batch = simulate_trials(scenario, snr_db=0.0, seeds=trial_seeds(2024, N_TRIALS))
+    errors = np.empty((N_TRIALS, 2))
+    nees = np.empty(N_TRIALS)
+    wrong_side = np.zeros((N_TRIALS, 6), dtype=bool)
+    for trial, data in enumerate(batch):
+        state = estimator.init()
+        for frame_index, frame in enumerate(data.iter_frames()):
+            state = estimator.update(state, frame)
+            if frame_index < 4:
+                continue
+            estimate = estimator.estimate_state(state)
+            assert estimate.success and not estimate.ambiguous
+            position = estimate.position_m
+            wrong_side[trial, frame_index - 4] = np.linalg.norm(position - mirror) < np.linalg.norm(
+                position - truth
+            )
+        errors[trial] = position - truth
+        nees[trial] = errors[trial] @ np.linalg.solve(estimate.covariance_m2, errors[trial])
+    bound = rmse_bound_m(fisher_information(batch.geometry, truth, "toa+doppler"))
+    ratio = np.sqrt(np.mean(np.sum(errors**2, axis=1))) / bound
+    low, high = chi2.ppf([0.025, 0.975], 2 * N_TRIALS) / N_TRIALS
+    print(f"gtsam-smoother: RMSE/sqrt(CRLB) = {ratio:.3f}, mean NEES = {nees.mean():.3f}")
+    assert ratio <= 1.1
+    assert not wrong_side.any()
+    assert low <= nees.mean() <= high
