@@ -689,7 +689,7 @@ _BUILTIN_DEFINITIONS: dict[str, dict[str, Any]] = {
         ),
         "scenarios": ["paper", "paper-1m", "paper-10m"],
         "sweep": {"parameter": "snr_db", "values": [-10, -5, 0, 5, 10, 15, 20, 25, 30]},
-        "estimators": ["lls-rss", "lls-toa", "cls-as-printed", "cls-paper", "cls", "ml"],
+        "estimators": ["lls-rss", "lls-toa", "cls-as-printed", "cls-paper", "cls", "sdp-cls", "ml"],
         "trials": 500,
         "seed": 20_240_602,
         "frames": 1,
@@ -712,6 +712,27 @@ _BUILTIN_DEFINITIONS: dict[str, dict[str, Any]] = {
         "seed": 20_240_603,
         "frames": 1,
     },
+    "frames": {
+        "name": "frames",
+        "description": (
+            "10 frames of the paper geometry at c*sigma_tau = 1 m and 0 dB, with a turn after "
+            "frame 3 (paper-1m-turn) and without (paper-1m): per-frame RMSE against the "
+            "accumulated CRLB, NEES and wrong-side rate (MATH §7, §8)"
+        ),
+        "scenarios": ["paper-1m-turn", "paper-1m"],
+        "sweep": {"parameter": "snr_db", "values": [0]},
+        "estimators": [
+            {"name": "cls", "label": "cls-last", "options": {"frames": "last"}},
+            {"name": "cls", "label": "cls-all", "options": {"frames": "all"}},
+            {"name": "ml", "label": "ml-all", "options": {"frames": "all"}},
+            "ekf",
+            "gtsam-smoother",
+        ],
+        "trials": 500,
+        "seed": 20_240_604,
+        "frames": 10,
+        "per_frame": True,
+    },
     "smoke": {
         "name": "smoke",
         "description": "a tiny run for tests: two SNR points, two CLS variants, 20 trials",
@@ -725,7 +746,8 @@ _BUILTIN_DEFINITIONS: dict[str, dict[str, Any]] = {
 }
 
 BUILTIN_EXPERIMENTS: dict[str, str] = {
-    "paper-fig2": "accuracy vs SNR, one frame, paper/paper-1m/paper-10m, 6 estimators, 500 trials",
+    "paper-fig2": "accuracy vs SNR, one frame, paper/paper-1m/paper-10m, 7 estimators, 500 trials",
+    "frames": "per-frame RMSE, NEES, wrong side over 10 frames, with and without a turn",
     "geometry-map": "RMSE/CRLB of cls, ml, lls-toa over an emitter grid, paper-1m at 10 dB",
     "smoke": "2 SNR points, cls and cls-paper, 20 trials (for tests)",
 }

@@ -414,31 +414,60 @@ def wrong_side_figure(
     panels = _panels(rows, others)
     figure, axes = _figure_grid(len(panels), sharey=True)
     for ax, (title, panel) in zip(axes, panels, strict=True):
-        for estimator, own in panel.groupby("estimator", sort=False):
-            own = own.sort_values(x)
-            low, high = wilson_interval(own["wrong_side_rate"], own["n_successes"])
-            color = colors[str(estimator)]
-            ax.plot(
-                own[x],
-                own["wrong_side_rate"],
-                marker="o",
-                markersize=3.5,
-                color=color,
-                label=estimator_label(str(estimator)),
-            )
-            ax.fill_between(own[x], low, high, color=color, alpha=0.15, linewidth=0)
-        ax.axhline(0.5, color="grey", linestyle=":", linewidth=1, label="0.5 (a coin toss)")
-        ax.set_ylim(-0.03, 1.03)
+        _plot_wrong_side(ax, panel, x, colors)
         _set_x_scale(ax, x, panel[x].to_numpy(float))
-        ax.set_ylabel("wrong-side rate")
         ax.set_title(title, fontsize="medium")
-        ax.grid(True, alpha=0.3)
     figure.suptitle(
         "Estimates on the wrong side of the last frame's track; shaded: 95% Wilson interval",
         fontsize="medium",
     )
     _legend(figure, axes)
     return figure
+
+
+def wrong_side_vs_frame_figure(
+    summary: pd.DataFrame,
+    *,
+    n_points: int = 3,
+    colors: Mapping[str, tuple[float, ...]] | None = None,
+) -> Figure:
+    """Wrong-side rate against the last frame used (MATH §7): a turn should drive it to 0."""
+    colors = _default_colors(summary, colors)
+    panels = _frame_panels(summary, n_points)
+    figure, axes = _figure_grid(len(panels), sharey=True)
+    for ax, (title, panel) in zip(axes, panels, strict=True):
+        _plot_wrong_side(ax, panel, "frame", colors)
+        ax.set_xlabel("last frame used (index)")
+        ax.xaxis.get_major_locator().set_params(integer=True)
+        ax.set_title(title, fontsize="medium")
+    figure.suptitle(
+        "Wrong-side rate as frames accumulate; shaded: 95% Wilson interval", fontsize="medium"
+    )
+    _legend(figure, axes)
+    return figure
+
+
+def _plot_wrong_side(
+    ax: Axes, panel: pd.DataFrame, x: str, colors: Mapping[str, tuple[float, ...]]
+) -> None:
+    """One panel of wrong-side rate against ``x``, a line per estimator, 0.5 marked."""
+    for estimator, own in panel.groupby("estimator", sort=False):
+        own = own.sort_values(x)
+        low, high = wilson_interval(own["wrong_side_rate"], own["n_successes"])
+        color = colors[str(estimator)]
+        ax.plot(
+            own[x],
+            own["wrong_side_rate"],
+            marker="o",
+            markersize=3.5,
+            color=color,
+            label=estimator_label(str(estimator)),
+        )
+        ax.fill_between(own[x], low, high, color=color, alpha=0.15, linewidth=0)
+    ax.axhline(0.5, color="grey", linestyle=":", linewidth=1, label="0.5 (a coin toss)")
+    ax.set_ylim(-0.03, 1.03)
+    ax.set_ylabel("wrong-side rate")
+    ax.grid(True, alpha=0.3)
 
 
 def wilson_interval(rate: pd.Series, n: pd.Series, z: float = 1.96) -> tuple[np.ndarray, ...]:

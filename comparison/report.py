@@ -53,6 +53,7 @@ FIGURE_STEMS: tuple[str, ...] = (
     "error_cdf",
     "runtime",
     "rmse_vs_frame",
+    "wrong_side_vs_frame",
     "nees_vs_frame",
 )
 """File names (without suffix) of every figure a report can write under ``figures/``."""
@@ -188,7 +189,7 @@ def report_figures(
     colors = figures.estimator_colors(summary["estimator"].unique())
     x = figures.sweep_axis(summary)
     made: list[tuple[str, str, Figure]] = []
-    if x is not None:
+    if x is not None and summary[x].nunique() > 1:  # a one-point sweep has no curve to draw
         what = figures.axis_label(x).split(":")[0]
         made.append(
             (
@@ -251,6 +252,15 @@ def report_figures(
                 "RMSE as frames accumulate, with the √CRLB accumulated over the same frames "
                 "(MATH §8); dotted: side-resolved RMSE where it differs.",
                 figures.rmse_vs_frame_figure(summary, points=points, colors=colors),
+            )
+        )
+        made.append(
+            (
+                "wrong_side_vs_frame",
+                "Wrong-side rate as frames accumulate: the fraction of successful estimates on "
+                "the other side of the last frame's track from the truth; 0.5 is a coin toss, "
+                "and a turn should drive it to 0 (MATH §7).",
+                figures.wrong_side_vs_frame_figure(summary, colors=colors),
             )
         )
         if (summary["n_nees"] > 0).any():

@@ -75,6 +75,25 @@ def turn_scenario() -> Scenario:
     )
 
 
+def paper_turn_scenario() -> Scenario:
+    """10 frames of the paper geometry at ``c σ_τ = 1 m``: 4 frames east, then 6 north.
+
+    One straight frame cannot tell the side of the track (MATH §7); the turn after frame 3
+    resolves it, which is what estimators that accumulate frames should exploit.
+    """
+    base = paper_scenario(range_sigma_m=1.0)
+    return base.replace(
+        name="paper-1m-turn",
+        flight=FlightPlan(
+            start_position_m=base.flight.start_position_m,
+            frame_velocities_mps=heading_velocities_mps(10.0, [0.0] * 4 + [90.0] * 6),
+            samples_per_frame=10,
+            sample_interval_s=0.05,
+        ),
+        description="paper-1m geometry, 10 frames, turning north after frame 3",
+    )
+
+
 def orbit_scenario() -> Scenario:
     """A closed 12-gon of radius ≈ 38 m around the emitter: 12 frames, 30° turn per frame."""
     base = paper_scenario(range_sigma_m=1.0)
@@ -114,6 +133,9 @@ CATALOG: dict[str, CatalogEntry] = {
             "paper geometry, c*sigma_tau = 10 m",
         ),
         CatalogEntry("turn", turn_scenario, "paper geometry, east then north (two headings)"),
+        CatalogEntry(
+            "paper-1m-turn", paper_turn_scenario, "paper-1m, 10 frames, turning north after frame 3"
+        ),
         CatalogEntry("orbit", orbit_scenario, "a 12-frame polygonal orbit around the emitter"),
     )
 }
