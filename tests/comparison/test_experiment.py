@@ -45,7 +45,22 @@ def test_builtin_paper_fig2():
     assert experiment.scenarios == ("paper", "paper-1m", "paper-10m")
     assert experiment.sweep.parameter == "snr_db"
     assert experiment.sweep.values == tuple(float(v) for v in range(-10, 31, 5))
-    assert experiment.labels == ("lls-rss", "lls-toa", "cls-as-printed", "cls-paper", "cls", "ml")
+    assert experiment.labels == (
+        "lls-rss",
+        "lls-toa",
+        "cls-as-printed",
+        "cls-paper",
+        "cls",
+        "sdp-cls",
+        "ml",
+    )
+
+
+def test_builtin_frames_experiment_evaluates_every_frame():
+    experiment = load_experiment("frames")
+    assert experiment.scenarios == ("paper-1m-turn", "paper-1m")
+    assert experiment.frames == 10 and experiment.per_frame
+    assert experiment.labels == ("cls-last", "cls-all", "ml-all", "ekf", "gtsam-smoother")
     assert experiment.trials == 500
     assert experiment.frames == 1
     assert experiment.swept_columns == ()
