@@ -54,6 +54,9 @@ def test_builtin_paper_fig2():
         "sdp-cls",
         "ml",
     )
+    assert experiment.trials == 500
+    assert experiment.frames == 1
+    assert experiment.swept_columns == ()
 
 
 def test_builtin_frames_experiment_evaluates_every_frame():
@@ -61,9 +64,6 @@ def test_builtin_frames_experiment_evaluates_every_frame():
     assert experiment.scenarios == ("paper-1m-turn", "paper-1m")
     assert experiment.frames == 10 and experiment.per_frame
     assert experiment.labels == ("cls-last", "cls-all", "ml-all", "ekf", "gtsam-smoother")
-    assert experiment.trials == 500
-    assert experiment.frames == 1
-    assert experiment.swept_columns == ()
 
 
 def test_builtin_geometry_map_is_a_grid_beside_the_track():
