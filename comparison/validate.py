@@ -34,7 +34,7 @@ import time
 import zlib
 from collections import Counter
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -209,6 +209,8 @@ class InstanceResult:
     sdp_time_s: float
     tolerance_rung: int = 1
     reasons: tuple[str, ...] = ()
+    multiplier_rel: float = float("nan")
+    inequality_rel_gap: float = float("nan")
 
     @property
     def agrees(self) -> bool:
@@ -296,7 +298,13 @@ def validate_instance(
     rtol_argmin: float = 1e-3,
     solver: str = "CLARABEL",
 ) -> tuple[InstanceResult, GtrsSolution, SdpSolution]:
-    """Run the closed form and the SDP (equality relaxation) on the instance's rows."""
+    """Run the closed form and the SDP on the instance's rows.
+
+    The equality (Shor) relaxation is judged against the closed form. The inequality relaxation
+    ``r_z >= ‖y‖²`` is solved too, for the report only: it is tight exactly when λ* >= 0
+    (MATH §11). ``multiplier_rel = λ*/‖A_xy‖₂²`` (λ* acts on the xy block only) and
+    ``inequality_rel_gap`` (its value below the closed form's, relative) record it.
+    """
     started = time.perf_counter()
     closed_form = solve_gtrs(instance.A, instance.b)
     closed_form_time = time.perf_counter() - started
@@ -308,6 +316,17 @@ def validate_instance(
         closed_form_time_s=closed_form_time,
         rtol_objective=rtol_objective,
         rtol_argmin=rtol_argmin,
+    )
+    inequality = solve_sdp_relaxation(
+        instance.A, instance.b, relaxation="inequality", solver=solver
+    )
+    value = float(np.min(closed_form.costs))
+    result = replace(
+        result,
+        multiplier_rel=closed_form.multiplier / np.linalg.norm(instance.A[:, :2], 2) ** 2,
+        inequality_rel_gap=(value - inequality.value) / max(abs(value), np.finfo(float).tiny)
+        if inequality.has_solution
+        else float("nan"),
     )
     return result, closed_form, sdp
 
@@ -335,6 +354,12 @@ class FamilySummary:
     tolerance_rungs: dict[str, int]
     median_closed_form_time_s: float
     median_sdp_time_s: float
+    n_multiplier_nonnegative: int = 0
+    n_inequality_tight_when_nonnegative: int = 0
+    max_inequality_gap_when_nonnegative: float = float("nan")
+    n_multiplier_negative: int = 0
+    n_inequality_loose_when_negative: int = 0
+    min_inequality_gap_when_negative: float = float("nan")
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -412,10 +437,22 @@ def _nanmax(values: Sequence[float]) -> float:
     return max(finite) if finite else float("nan")
 
 
-def summarise_family(family: str, results: Sequence[InstanceResult]) -> FamilySummary:
-    """Per-family counts, worst gaps and distances, statuses and median times."""
+MULTIPLIER_ZERO_RTOL = 1e-9
+"""λ*/‖A_xy‖₂² above −this counts as λ* >= 0 (the hard case has λ* = −μ₁ = 0 to rounding)."""
+
+
+def summarise_family(
+    family: str, results: Sequence[InstanceResult], rtol_objective: float = 1e-6
+) -> FamilySummary:
+    """Per-family counts, worst gaps and distances, statuses and median times.
+
+    Also the inequality relaxation's tightness split by the sign of λ* (MATH §11): tight means
+    its value is within ``rtol_objective`` (relative) of the closed form's.
+    """
     hard = [r for r in results if r.hard_case]
     unique = [r for r in results if not r.hard_case]
+    nonnegative = [r for r in results if r.multiplier_rel >= -MULTIPLIER_ZERO_RTOL]
+    negative = [r for r in results if r.multiplier_rel < -MULTIPLIER_ZERO_RTOL]
     return FamilySummary(
         family=family,
         n=len(results),
@@ -438,6 +475,16 @@ def summarise_family(family: str, results: Sequence[InstanceResult]) -> FamilySu
         median_sdp_time_s=float(np.median([r.sdp_time_s for r in results]))
         if results
         else float("nan"),
+        n_multiplier_nonnegative=len(nonnegative),
+        n_inequality_tight_when_nonnegative=sum(
+            r.inequality_rel_gap <= rtol_objective for r in nonnegative
+        ),
+        max_inequality_gap_when_nonnegative=_nanmax([r.inequality_rel_gap for r in nonnegative]),
+        n_multiplier_negative=len(negative),
+        n_inequality_loose_when_negative=sum(
+            r.inequality_rel_gap > rtol_objective for r in negative
+        ),
+        min_inequality_gap_when_negative=-_nanmax([-r.inequality_rel_gap for r in negative]),
     )
 
 
@@ -504,7 +551,7 @@ def run_validation(
             done += 1
             if progress is not None:
                 progress(done, total, family)
-        summaries[family] = summarise_family(family, family_results)
+        summaries[family] = summarise_family(family, family_results, rtol_objective)
         results.extend(family_results)
     validation = ValidationResult(
         seed=int(seed),
@@ -547,6 +594,25 @@ _COLUMNS = (
 )
 
 
+_INEQUALITY_COLUMNS = (
+    ("family", "family"),
+    ("n_multiplier_nonnegative", "λ* ≥ 0"),
+    ("n_inequality_tight_when_nonnegative", "tight"),
+    ("max_inequality_gap_when_nonnegative", "max gap"),
+    ("n_multiplier_negative", "λ* < 0"),
+    ("n_inequality_loose_when_negative", "not tight"),
+    ("min_inequality_gap_when_negative", "min gap"),
+)
+
+_INEQUALITY_CAPTION = (
+    "The inequality relaxation (r_z ≥ x² + y², MATH §11) on the same instances: it is tight (value "
+    "within the objective tolerance of the closed form's) when the Lagrange multiplier λ* ≥ 0, "
+    "and strictly below the optimum when λ* < 0, by a gap that vanishes as λ* → 0⁻ (so a "
+    "barely negative λ* can fall within the tolerance). Gaps are relative to the closed form's "
+    "value."
+)
+
+
 def _cell(key: str, value: Any) -> str:
     if key in ("statuses", "tolerance_rungs"):
         return ", ".join(f"{k} {v}" for k, v in sorted(value.items()))
@@ -557,9 +623,11 @@ def _cell(key: str, value: Any) -> str:
     return str(value)
 
 
-def _table_rows(result: ValidationResult) -> list[list[str]]:
+def _table_rows(
+    result: ValidationResult, columns: Sequence[tuple[str, str]] = _COLUMNS
+) -> list[list[str]]:
     return [
-        [_cell(key, getattr(summary, key)) for key, _ in _COLUMNS]
+        [_cell(key, getattr(summary, key)) for key, _ in columns]
         for summary in result.families.values()
     ]
 
@@ -620,6 +688,17 @@ def markdown_report(result: ValidationResult) -> str:
         "|" + "|".join("---" for _ in headers) + "|",
     ]
     lines += ["| " + " | ".join(row) + " |" for row in _table_rows(result)]
+    inequality_headers = [title for _, title in _INEQUALITY_COLUMNS]
+    lines += [
+        "",
+        "## The inequality relaxation",
+        "",
+        _INEQUALITY_CAPTION,
+        "",
+        "| " + " | ".join(inequality_headers) + " |",
+        "|" + "|".join("---" for _ in inequality_headers) + "|",
+    ]
+    lines += ["| " + " | ".join(row) + " |" for row in _table_rows(result, _INEQUALITY_COLUMNS)]
     lines += ["", "## Disagreements", ""]
     found = _disagreement_lines(result)
     lines += [f"- {line}" for line in found] if found else ["None."]
@@ -636,6 +715,11 @@ def html_report(result: ValidationResult, png: bytes) -> str:
         "<tr>" + "".join(f"<td>{escape(cell)}</td>" for cell in row) + "</tr>"
         for row in _table_rows(result)
     )
+    inequality_head = "".join(f"<th>{escape(title)}</th>" for _, title in _INEQUALITY_COLUMNS)
+    inequality_body = "".join(
+        "<tr>" + "".join(f"<td>{escape(cell)}</td>" for cell in row) + "</tr>"
+        for row in _table_rows(result, _INEQUALITY_COLUMNS)
+    )
     found = _disagreement_lines(result)
     items = "".join(f"<li>{escape(line)}</li>" for line in found) or "<li>None.</li>"
     image = base64.b64encode(png).decode("ascii")
@@ -650,6 +734,9 @@ def html_report(result: ValidationResult, png: bytes) -> str:
         f"<p>{len(result.results)} instances, {len(result.disagreements)} disagreements.</p>\n"
         f"<p>{escape(_caption(result))}</p>\n"
         f"<table><tr>{head}</tr>{body}</table>\n"
+        "<h2>The inequality relaxation</h2>\n"
+        f"<p>{escape(_INEQUALITY_CAPTION)}</p>\n"
+        f"<table><tr>{inequality_head}</tr>{inequality_body}</table>\n"
         f"<h2>Disagreements</h2><ul>{items}</ul>\n"
         f"<h2>Objective gaps</h2><img alt='relative objective gap per instance' "
         f"src='data:image/png;base64,{image}'>\n"

@@ -182,3 +182,33 @@ def test_acceptance_one_thousand_instances_per_family(tmp_path):
     assert result.families["paper"].n_hard > 500
     assert result.families["turn"].n_hard == result.families["turn-weighted"].n_hard == 0
     assert result.ok, [(r.family, r.seed, r.reasons) for r in result.disagreements]
+    for summary in result.families.values():
+        # the inequality relaxation: tight whenever λ* >= 0, strictly below whenever λ* < 0
+        print(
+            f"{summary.family}: λ*>=0 {summary.n_multiplier_nonnegative} "
+            f"(tight {summary.n_inequality_tight_when_nonnegative}), λ*<0 "
+            f"{summary.n_multiplier_negative} (not tight {summary.n_inequality_loose_when_negative}"
+            f", min gap {summary.min_inequality_gap_when_negative:.2e})"
+        )
+        assert summary.n_inequality_tight_when_nonnegative == summary.n_multiplier_nonnegative
+        # the gap vanishes as λ* → 0⁻, so a few barely negative multipliers fall within 1e-6
+        assert summary.n_inequality_loose_when_negative >= 0.99 * summary.n_multiplier_negative
+        if summary.n_multiplier_negative:
+            assert summary.min_inequality_gap_when_negative > 1e-9  # strictly below, always
+    assert result.families["turn"].n_multiplier_negative > 100
+
+
+def test_inequality_relaxation_is_tight_exactly_when_the_multiplier_is_nonnegative(tmp_path):
+    """MATH §11: r_z >= ‖y‖² is tight when λ* >= 0 and strictly loose when λ* < 0."""
+    result = run_validation(instances=16, families=("turn", "straight"), seed=3, out_dir=tmp_path)
+    turn, straight = result.families["turn"], result.families["straight"]
+    assert turn.n_multiplier_negative > 0 and turn.n_multiplier_nonnegative > 0
+    assert turn.n_inequality_tight_when_nonnegative == turn.n_multiplier_nonnegative
+    assert turn.n_inequality_loose_when_negative == turn.n_multiplier_negative
+    assert turn.min_inequality_gap_when_negative > 1e-6
+    assert turn.max_inequality_gap_when_nonnegative <= 1e-6
+    # one straight frame: λ* = −μ₁ = 0 (the hard case), and the inequality is tight
+    assert straight.n_multiplier_negative == 0
+    assert straight.n_inequality_tight_when_nonnegative == straight.n
+    assert "## The inequality relaxation" in (tmp_path / "validate.md").read_text()
+    assert "The inequality relaxation</h2>" in (tmp_path / "validate.html").read_text()
