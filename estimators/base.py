@@ -164,7 +164,20 @@ class SequentialEstimator(Estimator, Protocol[State]):
 
 
 def require_modalities(estimator: Estimator, data: MeasurementSet) -> None:
-    """Raise ``ValueError`` naming the missing measurement field, if any."""
+    """Raise ``ValueError`` naming the missing measurement field, if any.
+
+    Anything but a :class:`~scenarios.types.MeasurementSet` raises ``TypeError`` naming
+    ``data``, before any attribute of it is read.
+    """
+    if not isinstance(data, MeasurementSet):
+        hint = (
+            "; estimate one trial at a time, batch.trial(i)"
+            if isinstance(data, MeasurementBatch)
+            else "; read a file with scenarios.files.read_measurements"
+        )
+        raise TypeError(
+            f"data: expected a scenarios.types.MeasurementSet, got {type(data).__name__}{hint}"
+        )
     missing = sorted(estimator.requires - data.modalities)
     if missing:
         fields = {"doppler": "doppler_hz", "toa": "toa_s", "rss": "rss_dbm"}
@@ -173,6 +186,16 @@ def require_modalities(estimator: Estimator, data: MeasurementSet) -> None:
             f"{names}: estimator {estimator.name!r} needs {', '.join(missing)} measurements; "
             f"add them to the data or choose an estimator that works without them"
         )
+
+
+def check_rng(rng: Any) -> np.random.Generator | None:
+    """Return ``rng`` if it is None or a ``numpy.random.Generator``; else raise ``TypeError``."""
+    if rng is None or isinstance(rng, np.random.Generator):
+        return rng
+    raise TypeError(
+        f"rng: expected a numpy.random.Generator or None, got {type(rng).__name__}; "
+        "pass numpy.random.default_rng(seed)"
+    )
 
 
 def choose_position(
@@ -190,6 +213,7 @@ def choose_position(
     is broken by ``rng`` (a fair coin: the data hold no side information) or, without one, by
     the lowest cost. Returns ``(position, kept_candidates, ambiguous)``.
     """
+    check_rng(rng)
     points = np.asarray(candidates_m, dtype=float).reshape(-1, 2)
     cost = np.asarray(costs, dtype=float).reshape(-1)
     order = np.argsort(cost, kind="stable")

@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from estimators.base import Estimate
+from estimators.base import Estimate, check_rng
 from scenarios import measurement_model as model
 from scenarios.geometry import mirror_across_line, straight_track_line
 from scenarios.types import MeasurementSet
@@ -487,6 +487,7 @@ def hypotheses_estimate(
     hypothesis is rank-deficient, because then the data do not determine the emitter to first
     order and any finite covariance would be the diffuse prior's, not the data's.
     """
+    check_rng(rng)
     means = np.asarray(means_m, dtype=float).reshape(-1, 2)
     kept, log_w = surviving_hypotheses(means, log_weights, length_scale_m)
     weights = normalised_weights(log_w)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import inspect
+import warnings
 from dataclasses import dataclass
 from importlib.metadata import entry_points
 from typing import Any
@@ -90,8 +91,10 @@ def _load(target: str) -> Any:
         raise ValueError(f"estimator: {target!r} is not of the form 'package.module:Class'")
     try:
         module = importlib.import_module(module_name)
-    except ImportError as error:
-        raise ValueError(f"estimator: cannot import {module_name!r} ({error})") from None
+    except Exception as error:  # a plug-in may fail in any way on import: report, don't crash
+        raise ValueError(
+            f"estimator: cannot import {module_name!r} ({type(error).__name__}: {error})"
+        ) from None
     try:
         return getattr(module, attribute)
     except AttributeError:
@@ -107,8 +110,14 @@ def plugin_entries() -> dict[str, RegistryEntry]:
 
 
 def all_entries() -> dict[str, RegistryEntry]:
-    """Built-ins first, then plug-ins (a plug-in cannot shadow a built-in)."""
+    """Built-ins first, then plug-ins (a plug-in cannot shadow a built-in: it is warned of)."""
     entries = dict(plugin_entries())
+    for name in sorted(set(entries) & set(BUILTIN)):
+        warnings.warn(
+            f"estimator: plug-in {entries[name].target!r} is registered as {name!r}, the name of "
+            "a built-in, and is ignored; register it under another name",
+            stacklevel=2,
+        )
     entries.update(BUILTIN)
     return dict(sorted(entries.items(), key=lambda item: (item[0] not in BUILTIN, item[0])))
 
