@@ -1,4 +1,4 @@
-"""The ``emitterbench`` command line: ``simulate``, ``estimate``, ``crlb``, ``list``, ``run``, ``report``.
+"""The ``emitterbench`` command line: ``simulate``, ``estimate``, ``crlb``, ``fly``, ``list``, ``run``, ``report``.
 
 Adding a command is one function registered with ``@command("name")``: its parameters are
 typed ``Annotated`` typer options, it imports the heavy modules it needs inside its body (so
@@ -518,6 +518,156 @@ def crlb_command(
     _console().print(view)
 
 
+@command("fly")
+def fly_command(
+    file: MeasurementFile,
+    planner: Annotated[
+        str,
+        typer.Option(
+            "--planner",
+            "-p",
+            help="Planner: constant, paper, fisher, orbit (see `emitterbench list`) or module:Class.",
+        ),
+    ],
+    estimator: Annotated[
+        str,
+        typer.Option(
+            "--estimator", "-e", help="Estimator whose estimate steers the planner (default ml)."
+        ),
+    ] = "ml",
+    option: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--option",
+            help="Planner option key=value, repeatable; JSON values, e.g. radius_m=25.",
+        ),
+    ] = None,
+    estimator_option: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--estimator-option",
+            help="Estimator option key=value, repeatable (as `estimate --option`).",
+        ),
+    ] = None,
+    as_json: JsonFlag = False,
+    carrier_hz: CarrierOption = None,
+    speed_of_light_mps: SpeedOfLightOption = None,
+    emitter_height_m: EmitterHeightOption = None,
+    sigma_doppler_hz: SigmaDopplerOption = None,
+    sigma_toa_s: SigmaToaOption = None,
+    sigma_rss_db: SigmaRssOption = None,
+    rss_reference_power_dbm: RssPowerOption = None,
+    rss_reference_distance_m: RssDistanceOption = None,
+    rss_path_loss_exponent: RssExponentOption = None,
+) -> None:
+    """The next frame's velocity, from the measurements of the frames flown so far.
+
+    The flight is reconstructed from the samples (frames of K samples at one constant velocity,
+    one sample interval); the estimator locates the emitter (rng seeded with 0, as `estimate`)
+    and the planner turns its estimate into the velocity of the next frame (MATH §12-§13).
+    """
+    import numpy as np
+
+    from estimators.registry import make_estimator
+    from scenarios.planners import get_planner
+
+    chosen_planner = get_planner(planner, **parse_estimator_options(option or []))
+    chosen_estimator = make_estimator(estimator, **parse_estimator_options(estimator_option or []))
+    data = load_measurements(
+        file,
+        carrier_hz=carrier_hz,
+        speed_of_light_mps=speed_of_light_mps,
+        emitter_height_m=emitter_height_m,
+        sigma_doppler_hz=sigma_doppler_hz,
+        sigma_toa_s=sigma_toa_s,
+        sigma_rss_db=sigma_rss_db,
+        rss_reference_power_dbm=rss_reference_power_dbm,
+        rss_reference_distance_m=rss_reference_distance_m,
+        rss_path_loss_exponent=rss_path_loss_exponent,
+    )
+    plan, estimate, flight = plan_next_velocity(
+        data, chosen_planner, chosen_estimator, rng=np.random.default_rng(0)
+    )
+    result = {
+        **plan.to_dict(),
+        "flight": {
+            "frames": flight.n_frames,
+            "samples_per_frame": flight.samples_per_frame,
+            "sample_interval_s": flight.sample_interval_s,
+            "next_frame_start_m": (
+                flight.sample_positions_m()[-1]
+                + flight.sample_interval_s * flight.frame_velocities_mps[-1]
+            ).tolist(),
+        },
+        "estimate": estimate_to_dict(estimate, data.truth_emitter_m),
+    }
+    if as_json:
+        print_json(result)
+        return
+    _print_plan(result, file)
+
+
+def plan_next_velocity(data: MeasurementSet, planner: Any, estimator: Any, *, rng: Any) -> Any:
+    """``(plan, estimate, flight)``: estimate on ``data``, then plan the next frame.
+
+    The flight is :func:`scenarios.planners.flight_from_measurements`; the planner gets the
+    estimate's candidates with the returned position first, and its covariance.
+
+    Raises
+    ------
+    ValueError
+        When the estimator fails (the planner needs a position), or from the planner.
+    """
+    from comparison.closed_loop import steering_candidates_m
+    from scenarios.planners import flight_from_measurements
+
+    flight = flight_from_measurements(data)
+    estimate = estimator.estimate(data.without_truth(), rng=rng)
+    if not estimate.success:
+        raise ValueError(
+            f"estimator: {estimator.name!r} failed ({estimate.message}); the planner needs a "
+            "position: choose another estimator or fly more frames"
+        )
+    plan = planner.plan(
+        flight,
+        steering_candidates_m(estimate),
+        data.without_truth(),
+        covariance_m2=estimate.covariance_m2,
+    )
+    return plan, estimate, flight
+
+
+def _print_plan(result: dict[str, Any], file: Path) -> None:
+    from rich.table import Table
+
+    table = Table.grid(padding=(0, 2))
+    table.add_column(style="bold")
+    table.add_column()
+    table.add_row("planner", result["planner"])
+    flight = result["flight"]
+    table.add_row(
+        "flight",
+        f"{file}: {flight['frames']} frame(s) of {flight['samples_per_frame']} samples, "
+        f"Δ = {flight['sample_interval_s']:g} s",
+    )
+    table.add_row("velocity_mps", _point_text(result["velocity_mps"]))
+    table.add_row(
+        "speed, heading",
+        f"{result['speed_mps']:.4g} m/s, {result['heading_deg']:.4g}° (from east, counter-clockwise)",
+    )
+    table.add_row("next frame from", _point_text(flight["next_frame_start_m"]))
+    table.add_row("message", result["message"] or "-")
+    estimate = result["estimate"]
+    others = [c for c in estimate["candidates_m"] if c != estimate["position_m"]]
+    table.add_row(
+        "estimate",
+        f"{estimate['estimator']}: {_point_text(estimate['position_m'])}"
+        + (f"; mirror {'  '.join(_point_text(c) for c in others)}" if others else "")
+        + (" (ambiguous, MATH §7: the planner uses the first)" if estimate["ambiguous"] else ""),
+    )
+    _console().print(table)
+
+
 @command("list")
 def list_command() -> None:
     """The built-in experiments, named scenarios and estimators, one line each."""
@@ -538,8 +688,11 @@ def list_command() -> None:
         return f"  [unavailable: needs {', '.join(missing)}]" if missing else ""
 
     from comparison.experiment import BUILTIN_EXPERIMENTS
+    from scenarios.planners import PLANNER_SUMMARIES
 
-    width = max(len(name) for name in (*CATALOG, *all_entries(), *BUILTIN_EXPERIMENTS))
+    width = max(
+        len(name) for name in (*CATALOG, *all_entries(), *BUILTIN_EXPERIMENTS, *PLANNER_SUMMARIES)
+    )
     typer.echo("experiments (emitterbench run NAME -o DIR):")
     for name, summary in BUILTIN_EXPERIMENTS.items():
         typer.echo(f"  {name:<{width}}  {summary}")
@@ -549,6 +702,9 @@ def list_command() -> None:
     typer.echo("estimators:")
     for name, entry in all_entries().items():
         typer.echo(f"  {name:<{width}}  {entry.summary}{unavailable(entry)}")
+    typer.echo("planners (emitterbench fly FILE --planner NAME):")
+    for name, summary in PLANNER_SUMMARIES.items():
+        typer.echo(f"  {name:<{width}}  {summary}")
 
 
 @command("run")

@@ -3,11 +3,14 @@
 A run folder ``DIR`` holds ``experiment.json`` (the experiment, exact), ``run.json`` (versions,
 a digest of the code, machine, seed, start and end times, workers; one entry per session in
 ``sessions``) and ``results.sqlite`` with the tables ``trials`` (one row per scenario × point ×
-estimator × frame × trial, primary key in that order), ``points`` (truth and CRLB per
-scenario × point × frame, MATH §8) and ``tasks`` (wall time of every task).
-:func:`read_trials` and :func:`read_points` return the first two as tidy pandas frames with the
-columns of the contract in :mod:`comparison.metrics`; ``runtime_s`` is the only column that
-is not a function of the experiment.
+planner × estimator × frame × trial, primary key in that order; the planner is empty in an
+open-loop experiment), ``points`` (truth and CRLB per scenario × point × frame, MATH §8, of the
+scenario's own flight: in a closed loop that of the ``constant`` planner), ``flights``
+(closed loop only: the velocity and start of every frame flown, per planner and trial) and
+``tasks`` (wall time of every task). :func:`read_trials`, :func:`read_points` and
+:func:`read_flights` return them as tidy pandas frames with the columns of the contract in
+:mod:`comparison.metrics`; ``runtime_s`` is the only column that is not a function of the
+experiment.
 
 Seeds
     The data of (scenario index ``i``, point ``p``, trial ``t``) come from
@@ -17,7 +20,9 @@ Seeds
     Estimator ``L`` breaks ties (MATH §7) with
     ``default_rng(SeedSequence(seed, spawn_key=(i, p, t, 1 + crc32(L))))``, a fresh generator
     for every estimate (so with ``per_frame`` the last frame's row equals the row of a run
-    without it).
+    without it). In a closed loop the noise block of the trial is drawn the same way (so every
+    planner meets the same noise, and ``constant`` reproduces the open-loop data) and planner
+    ``P`` gets the generator of the label ``"planner:" + P``.
 
 Tasks
     A task is a chunk of ``chunk_size`` trials of one (scenario, point). It simulates the chunk
@@ -26,8 +31,12 @@ Tasks
     if the batch call raises, so that a row never depends on its neighbours. With
     ``per_frame`` every estimator runs on ``data.up_to_frame(l)`` for every frame ``l``;
     sequential estimators (``init``/``update``/``estimate_state``) are streamed frame by frame
-    instead. An exception inside an estimator becomes a failed row (``success`` false, the
-    exception in ``message``); configuration errors are caught when the experiment loads.
+    instead. A closed-loop task flies every trial once per planner
+    (:func:`comparison.closed_loop.fly_closed_loop`), and each row carries the CRLB of the
+    trajectory that trial flew; its wrong side is judged against the track of the first frame
+    the estimator uses (:func:`_ambiguity_track`), the mirror ambiguity a turn must resolve.
+    An exception inside an estimator becomes a failed row (``success`` false, the exception in
+    ``message``); configuration errors are caught when the experiment loads.
 
 Execution
     Local processes through joblib/loky by default (``workers`` defaults to
@@ -66,9 +75,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from comparison.closed_loop import ClosedLoopTrial, fly_closed_loop
 from comparison.crlb import fisher_information_per_frame, rmse_bound_m
-from comparison.experiment import EstimatorSpec, Experiment, estimator_modalities
+from comparison.experiment import EstimatorSpec, Experiment, PlannerSpec, estimator_modalities
 from estimators.base import BatchEstimator, Estimate, Estimator, SequentialEstimator
+from scenarios.planners import Planner
 from scenarios.simulate import noise_free, simulate_trials
 from scenarios.types import MeasurementBatch, MeasurementSet, Scenario
 
@@ -91,6 +102,7 @@ TRIAL_COLUMNS: tuple[str, ...] = (
     "point",
     "snr_db",
     # <swept columns> come here
+    "planner",
     "estimator",
     "frame",
     "trial",
@@ -135,10 +147,11 @@ _ESTIMATE_COLUMNS = (
     "message",
     "diagnostics_json",
 )
-_KEY_COLUMNS = ("scenario", "point", "estimator", "frame", "trial")
+_KEY_COLUMNS = ("scenario", "point", "planner", "estimator", "frame", "trial")
 _TABLE_COLUMNS = (
     *_KEY_COLUMNS,
     "scenario_index",
+    "planner_index",
     "estimator_index",
     *_ESTIMATE_COLUMNS[:13],
     "crlb_rmse_m",
@@ -165,6 +178,27 @@ _FLOAT_COLUMNS = frozenset(
 )
 _INT_COLUMNS = frozenset({"point", "frame", "trial", "n_candidates"})
 _BOOL_COLUMNS = frozenset({"ambiguous", "success"})
+
+FLIGHT_COLUMNS: tuple[str, ...] = (
+    "scenario",
+    "point",
+    "planner",
+    "trial",
+    "frame",
+    "start_x_m",
+    "start_y_m",
+    "start_z_m",
+    "end_x_m",
+    "end_y_m",
+    "end_z_m",
+    "vx_mps",
+    "vy_mps",
+    "vz_mps",
+    "message",
+    "diagnostics_json",
+)
+"""Columns of :func:`read_flights`: frame ``frame``'s first and last samples and velocity, and
+the plan message that chose it (frame 0 is the scenario's own)."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -202,17 +236,21 @@ class Task:
     trials: tuple[int, ...]
     estimators: tuple[EstimatorSpec, ...]
     per_frame: bool
+    planners: tuple[PlannerSpec, ...] = ()
+    steering: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class TaskResult:
-    """A task's rows: ``(estimator_index, frame, trial, *estimate columns)`` each."""
+    """A task's rows, ``(planner_index, estimator_index, frame, trial, crlb, *estimate
+    columns)`` each (``crlb`` None when the main process adds it), and its flights rows."""
 
     scenario_index: int
     point: int
     trials: tuple[int, ...]
     rows: list[tuple[Any, ...]]
     elapsed_s: float
+    flights: list[tuple[Any, ...]] = dataclasses.field(default_factory=list)
 
 
 @functools.lru_cache(maxsize=128)
@@ -227,8 +265,11 @@ def run_task(task: Task) -> TaskResult:
     Returns
     -------
     TaskResult
-        Rows without the CRLB column, which the main process adds.
+        Rows without the CRLB column, which the main process adds (a closed-loop task, with
+        planners, is :func:`run_closed_loop_task`: its rows carry their own bounds).
     """
+    if task.planners:
+        return run_closed_loop_task(task)
     start = time.perf_counter()
     seeds = [trial_seed(task.seed, task.scenario_index, task.point, t) for t in task.trials]
     simulated = simulate_trials(task.scenario, snr_db=task.snr_db, seeds=seeds)
@@ -246,7 +287,7 @@ def run_task(task: Task) -> TaskResult:
         for (frame, position), (estimate, runtime_s) in results.items():
             trial = task.trials[position]
             values = estimate_columns(estimate, truth, tracks[frame], runtime_s)
-            rows.append((index, frame, trial, *values))
+            rows.append((0, index, frame, trial, None, *values))
     return TaskResult(
         scenario_index=task.scenario_index,
         point=task.point,
@@ -254,6 +295,127 @@ def run_task(task: Task) -> TaskResult:
         rows=rows,
         elapsed_s=time.perf_counter() - start,
     )
+
+
+@functools.lru_cache(maxsize=32)
+def _planner_of(spec: PlannerSpec) -> Planner:
+    """One planner object per spec and process (planners are immutable)."""
+    return spec.build()
+
+
+def run_closed_loop_task(task: Task) -> TaskResult:
+    """Fly the task's trials once per planner (:mod:`comparison.closed_loop`) and score them.
+
+    Every row carries ``crlb_rmse_m`` of the trajectory its trial flew, at the truth, for the
+    estimator's modalities and frames (MATH §8).
+    """
+    start = time.perf_counter()
+    truth = np.asarray(task.scenario.emitter_m, dtype=float)
+    estimators = [(spec.label, _estimator_of(spec)) for spec in task.estimators]
+    crlb_keys = [
+        (
+            _modality_key(estimator_modalities(estimator)),
+            thaw_frames(getattr(estimator, "frames", "all")),
+        )
+        for _, estimator in estimators
+    ]
+    rows: list[tuple[Any, ...]] = []
+    flights: list[tuple[Any, ...]] = []
+    for planner_index, planner_spec in enumerate(task.planners):
+        planner = _planner_of(planner_spec)
+        for trial in task.trials:
+            key = (task.scenario_index, task.point, trial)
+            flown = fly_closed_loop(
+                task.scenario,
+                snr_db=task.snr_db,
+                planner=planner,
+                estimators=estimators,
+                steering=task.steering[planner_index],
+                seed=trial_seed(task.seed, *key),
+                estimate_rng=lambda label, key=key: tie_rng(task.seed, *key, label),
+                planner_rng=tie_rng(task.seed, *key, f"planner:{planner_spec.label}"),
+            )
+            information = _trial_information(flown.data, truth, {m for m, _ in crlb_keys})
+            for frame in range(flown.n_frames):
+                for index, (label, _) in enumerate(estimators):
+                    estimate, runtime_s = flown.estimates[label][frame]
+                    modalities, frames = crlb_keys[index]
+                    track = _ambiguity_track(flown.data, frame, frames)
+                    bound = _bound_of(information.get(modalities), frame, frames)
+                    values = estimate_columns(estimate, truth, track, runtime_s)
+                    rows.append((planner_index, index, frame, trial, bound, *values))
+            flights.extend(_flight_rows(planner_index, trial, flown))
+    return TaskResult(
+        scenario_index=task.scenario_index,
+        point=task.point,
+        trials=task.trials,
+        rows=rows,
+        elapsed_s=time.perf_counter() - start,
+        flights=flights,
+    )
+
+
+def _ambiguity_track(
+    data: MeasurementSet, frame: int, frames: Any
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The track whose mirror ambiguity an estimator faces at ``frame`` (closed loop, MATH §7).
+
+    The first frame the estimator uses: ``frame`` itself for ``frames="last"``, frame 0 for
+    ``"all"``, the first listed frame up to ``frame`` otherwise. A cumulative estimator's side
+    is judged against the first track, the ambiguity a turn must resolve: the side of a later
+    track is ill-defined when a planner flies through the emitter's horizontal position (the
+    truth then lies within centimetres of that track's plane).
+    """
+    if isinstance(frames, str) and frames == "last":
+        first = frame
+    elif isinstance(frames, Sequence) and not isinstance(frames, str):
+        chosen = [int(f) for f in frames if 0 <= int(f) <= frame]
+        if not chosen:
+            return None
+        first = min(chosen)
+    else:
+        first = 0
+    return _frame_track(data, first)
+
+
+def _trial_information(
+    data: MeasurementSet, truth: np.ndarray, needed: Iterable[tuple[str, ...]]
+) -> dict[tuple[str, ...], tuple[np.ndarray, np.ndarray] | None]:
+    """Per-frame and accumulated Fisher information of one flown trial at the truth."""
+    information: dict[tuple[str, ...], tuple[np.ndarray, np.ndarray] | None] = {}
+    for modalities in needed:
+        try:
+            information[modalities] = fisher_information_per_frame(data, truth, modalities)
+        except ValueError:  # a σ or the RSS model is absent: no bound
+            information[modalities] = None
+    return information
+
+
+def _flight_rows(planner_index: int, trial: int, flown: ClosedLoopTrial) -> list[tuple[Any, ...]]:
+    """``(planner_index, trial, frame, start xyz, end xyz, velocity xyz, message,
+    diagnostics)`` rows."""
+    positions = flown.flight.sample_positions_m()
+    k = flown.flight.samples_per_frame
+    out = []
+    for frame, (begin, end, velocity) in enumerate(
+        zip(positions[::k], positions[k - 1 :: k], flown.flight.frame_velocities_mps, strict=True)
+    ):
+        plan = flown.plans[frame]
+        message = "the scenario's initial velocity" if plan is None else plan.message
+        diagnostics = {} if plan is None else dict(plan.diagnostics)
+        out.append(
+            (
+                planner_index,
+                trial,
+                frame,
+                *(float(v) for v in begin),
+                *(float(v) for v in end),
+                *(float(v) for v in velocity),
+                message,
+                json.dumps(_jsonable(diagnostics), sort_keys=True),
+            )
+        )
+    return out
 
 
 class _TaskData:
@@ -521,20 +683,25 @@ class _PointInfo:
 
     def rmse_bound_m(self, modalities: tuple[str, ...], frame: int, frames: Any = "all") -> float:
         """√trace(CRLB) of ``modalities`` over the frames an estimator uses up to ``frame``."""
-        info = self.information.get(modalities)
-        if info is None:
+        return _bound_of(self.information.get(modalities), frame, frames)
+
+
+def _bound_of(info: tuple[np.ndarray, np.ndarray] | None, frame: int, frames: Any = "all") -> float:
+    """√trace(CRLB) from ``(per_frame, accumulated)`` information over the frames an
+    estimator uses up to ``frame`` (``"all"``, ``"last"`` or listed frames; MATH §8)."""
+    if info is None:
+        return math.nan
+    per_frame, accumulated = info
+    if isinstance(frames, str) and frames == "last":
+        information = per_frame[frame]
+    elif isinstance(frames, Sequence) and not isinstance(frames, str):
+        chosen = [f for f in frames if 0 <= int(f) <= frame]
+        if not chosen:
             return math.nan
-        per_frame, accumulated = info
-        if isinstance(frames, str) and frames == "last":
-            information = per_frame[frame]
-        elif isinstance(frames, Sequence) and not isinstance(frames, str):
-            chosen = [f for f in frames if 0 <= int(f) <= frame]
-            if not chosen:
-                return math.nan
-            information = per_frame[np.asarray(chosen, dtype=int)].sum(axis=0)
-        else:
-            information = accumulated[frame]
-        return float(rmse_bound_m(information))
+        information = per_frame[np.asarray(chosen, dtype=int)].sum(axis=0)
+    else:
+        information = accumulated[frame]
+    return float(rmse_bound_m(information))
 
 
 def _modality_key(modalities: Iterable[str]) -> tuple[str, ...]:
@@ -586,6 +753,8 @@ def _create_tables(connection: sqlite3.Connection, experiment: Experiment) -> No
     real |= {"cov_xx_m2", "cov_xy_m2", "cov_yy_m2", "nees", "crlb_rmse_m", "runtime_s"}
     types = {
         "scenario": "TEXT",
+        "planner": "TEXT NOT NULL DEFAULT ''",
+        "planner_index": "INTEGER NOT NULL DEFAULT 0",
         "estimator": "TEXT",
         "candidates_json": "TEXT",
         "message": "TEXT",
@@ -609,6 +778,19 @@ def _create_tables(connection: sqlite3.Connection, experiment: Experiment) -> No
             "CREATE TABLE IF NOT EXISTS tasks (scenario TEXT, point INTEGER, "
             "first_trial INTEGER, n_trials INTEGER, elapsed_s REAL, finished_utc TEXT)"
         )
+        connection.execute(
+            "CREATE TABLE IF NOT EXISTS flights (scenario TEXT, point INTEGER, planner TEXT, "
+            "trial INTEGER, frame INTEGER, scenario_index INTEGER, planner_index INTEGER, "
+            "start_x_m REAL, start_y_m REAL, start_z_m REAL, end_x_m REAL, end_y_m REAL, "
+            "end_z_m REAL, vx_mps REAL, vy_mps REAL, "
+            "vz_mps REAL, message TEXT, diagnostics_json TEXT, "
+            "PRIMARY KEY (scenario, point, planner, trial, frame)) WITHOUT ROWID"
+        )
+        # a results file written before planners existed: add the (empty) planner columns
+        present = {row[1] for row in connection.execute("PRAGMA table_info(trials)")}
+        for column in ("planner", "planner_index"):
+            if column not in present:
+                connection.execute(f"ALTER TABLE trials ADD COLUMN {column} {types[column]}")
 
 
 def _write_points(
@@ -648,7 +830,7 @@ def _complete_trials(
     connection: sqlite3.Connection, experiment: Experiment, infos: Mapping[tuple[int, int], Any]
 ) -> dict[tuple[int, int], set[int]]:
     """The trials of each (scenario, point) whose rows are all in the database."""
-    n_estimators = len(experiment.estimators)
+    n_estimators = len(experiment.estimators) * max(len(experiment.planners), 1)
     complete: dict[tuple[int, int], set[int]] = {key: set() for key in infos}
     query = (
         "SELECT scenario_index, point, trial, COUNT(*) FROM trials "
@@ -674,32 +856,45 @@ def _write_task(
     """One task's rows and its log entry, in one transaction."""
     scenario = experiment.scenarios[result.scenario_index]
     labels = experiment.labels
+    planners = experiment.planner_labels or ("",)
     bounds: dict[tuple[int, int], float] = {}
     rows = []
-    for estimator_index, frame, trial, *values in result.rows:
-        key = (estimator_index, frame)
-        if key not in bounds:
-            modalities, frames = crlb_frames[estimator_index]
-            bounds[key] = info.rmse_bound_m(modalities, frame, frames)
+    for planner_index, estimator_index, frame, trial, bound, *values in result.rows:
+        if bound is None:  # open loop: the same flight in every trial
+            key = (estimator_index, frame)
+            if key not in bounds:
+                modalities, frames = crlb_frames[estimator_index]
+                bounds[key] = info.rmse_bound_m(modalities, frame, frames)
+            bound = bounds[key]
         rows.append(
             (
                 scenario,
                 result.point,
+                planners[planner_index],
                 labels[estimator_index],
                 frame,
                 trial,
                 result.scenario_index,
+                planner_index,
                 estimator_index,
                 *values[:13],
-                bounds[key],
+                bound,
                 *values[13:],
             )
         )
+    flights = [
+        (scenario, result.point, planners[p], trial, frame, result.scenario_index, p, *rest)
+        for p, trial, frame, *rest in result.flights
+    ]
     marks = ", ".join("?" * len(_TABLE_COLUMNS))
     with connection:
         connection.executemany(
             f"INSERT OR REPLACE INTO trials ({', '.join(_TABLE_COLUMNS)}) VALUES ({marks})", rows
         )
+        if flights:
+            connection.executemany(
+                f"INSERT OR REPLACE INTO flights VALUES ({', '.join('?' * 18)})", flights
+            )
         connection.execute(
             "INSERT INTO tasks VALUES (?, ?, ?, ?, ?, ?)",
             (
@@ -789,7 +984,8 @@ def _versions() -> dict[str, str | None]:
 
 
 def code_digest() -> str:
-    """SHA-256 of the source of ``scenarios``, ``estimators`` and ``comparison``.
+    """SHA-256 of the source of ``scenarios``, ``estimators`` and ``comparison`` (with their
+    sub-packages).
 
     Recorded per session in ``run.json``: rows of sessions with different digests may come
     from different code, which a resume warns about.
@@ -801,8 +997,8 @@ def code_digest() -> str:
     digest = hashlib.sha256()
     for package in (scenarios, estimators, comparison):
         folder = Path(package.__file__).parent
-        for path in sorted(folder.glob("*.py")):
-            digest.update(f"{package.__name__}/{path.name}\n".encode())
+        for path in sorted(folder.rglob("*.py")):
+            digest.update(f"{package.__name__}/{path.relative_to(folder).as_posix()}\n".encode())
             digest.update(path.read_bytes())
     return digest.hexdigest()
 
@@ -868,6 +1064,10 @@ def _plan_tasks(
                         trials=trials,
                         estimators=experiment.estimators,
                         per_frame=experiment.per_frame,
+                        planners=experiment.planners,
+                        steering=tuple(
+                            experiment.steering_label(k) for k in range(len(experiment.planners))
+                        ),
                     )
                 )
     return tasks
@@ -1123,7 +1323,8 @@ def read_trials(out_dir: str | os.PathLike[str]) -> pd.DataFrame:
     query = (
         f"SELECT {selected} FROM trials t JOIN points p ON t.scenario = p.scenario "
         "AND t.point = p.point AND t.frame = p.frame "
-        "ORDER BY t.scenario_index, t.point, t.estimator_index, t.frame, t.trial"
+        "ORDER BY t.scenario_index, t.point, t.planner_index, t.estimator_index, t.frame, "
+        "t.trial"
     )
     frame = _read_table(out, query)
     frame.insert(0, "experiment", experiment.name)
@@ -1160,3 +1361,29 @@ def read_points(out_dir: str | os.PathLike[str]) -> pd.DataFrame:
 def read_task_times(out_dir: str | os.PathLike[str]) -> pd.DataFrame:
     """Wall time of every task run (``scenario, point, first_trial, n_trials, elapsed_s``)."""
     return _read_table(Path(out_dir), "SELECT * FROM tasks ORDER BY finished_utc")
+
+
+def read_flights(out_dir: str | os.PathLike[str]) -> pd.DataFrame:
+    """The frames flown in a closed loop, one row per scenario × point × planner × trial × frame.
+
+    Columns :data:`FLIGHT_COLUMNS`: the first sample of each frame and its velocity, and the
+    message of the plan that chose it. Empty (with those columns) for an open-loop run, whose
+    flight is the scenario's own.
+    """
+    out = Path(out_dir)
+    path = out / RESULTS_FILE
+    if not path.is_file():
+        raise ValueError(f"out_dir: {path} not found; run the experiment first")
+    with closing(sqlite3.connect(path, timeout=60.0)) as connection:
+        connection.execute("PRAGMA query_only=ON")
+        tables = {row[0] for row in connection.execute("SELECT name FROM sqlite_master")}
+        if "flights" not in tables:
+            return pd.DataFrame({column: [] for column in FLIGHT_COLUMNS})
+        frame = pd.read_sql_query(
+            f"SELECT {', '.join(FLIGHT_COLUMNS)} FROM flights "
+            "ORDER BY scenario_index, point, planner_index, trial, frame",
+            connection,
+        )
+    for column in ("point", "trial", "frame"):
+        frame[column] = frame[column].astype("int64")
+    return frame.reset_index(drop=True)

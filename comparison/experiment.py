@@ -40,6 +40,21 @@ A complete example (every key; the optional ones show their defaults)::
 
 ``estimators = ["cls", "ml"]`` (plain names) is shorthand for tables with only ``name``.
 
+Closed loop (trajectory design, MATH §12-§13): with one or more ``[[planners]]`` every trial
+flies ``frames`` frames, each planned from the estimate after the previous one
+(:mod:`comparison.closed_loop`); every estimator runs after every frame (``per_frame`` must be
+true) and each row carries its ``planner`` label (empty in open-loop experiments)::
+
+    steering_estimator = "ml"               # optional; an estimator label (default: the first)
+
+    [[planners]]                            # optional; names from scenarios.planners
+    name = "fisher"
+    label = "fisher-D"                      # optional (default: name); unique
+    options = { criterion = "D" }           # optional; keyword arguments of the planner
+    steering_estimator = "cls-last"         # optional; overrides the experiment's
+
+``planners = ["constant", "paper"]`` is shorthand for tables with only ``name``.
+
 The sweep has one parameter with a list of ``values``, or the 2-D grid ``parameter =
 "emitter_m"`` with ``x = [...]`` and ``y = [...]`` (metres): point ``p`` is ``x[p // len(y)]``,
 ``y[p % len(y)]``, and the result rows get the columns ``emitter_x_m`` and ``emitter_y_m``.
@@ -66,6 +81,7 @@ import numpy as np
 from estimators.base import Estimator
 from estimators.registry import estimator_class, make_estimator
 from scenarios.catalog import CATALOG, get_scenario
+from scenarios.planners import Planner, get_planner, planner_class
 from scenarios.sweep import SWEEPABLE, check_parameter_value, with_parameters
 from scenarios.types import Scenario
 
@@ -91,10 +107,13 @@ _EXPERIMENT_KEYS = (
     "metrics",
     "chunk_size",
     "swept_columns",
+    "planners",
+    "steering_estimator",
 )
 _REQUIRED_KEYS = ("name", "scenarios", "estimators", "trials", "seed")
 _SWEEP_KEYS = ("parameter", "values", "x", "y", "fixed")
 _ESTIMATOR_KEYS = ("name", "label", "options")
+_PLANNER_KEYS = ("name", "label", "options", "steering_estimator")
 
 
 # --------------------------------------------------------------------------------------------
@@ -287,6 +306,71 @@ class EstimatorSpec:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class PlannerSpec:
+    """One planner of a closed-loop experiment (:mod:`scenarios.planners`).
+
+    Parameters
+    ----------
+    name : str
+        A name of :data:`scenarios.planners.PLANNERS` or ``"package.module:Class"``.
+    label : str, optional
+        What the result rows call it (column ``planner``; default: ``name``).
+    options : mapping
+        Keyword arguments of the planner's constructor (lists become tuples).
+    steering_estimator : str, optional
+        The label of the estimator whose estimate steers this planner; default: the
+        experiment's ``steering_estimator``.
+    """
+
+    name: str
+    label: str | None = None
+    options: Mapping[str, Any] = field(default_factory=FrozenDict)
+    steering_estimator: str | None = None
+
+    def __post_init__(self) -> None:
+        _text(self.name, "name")
+        if self.label is None:
+            object.__setattr__(self, "label", self.name)
+        _text(self.label, "label")
+        if self.steering_estimator is not None:
+            _text(self.steering_estimator, "steering_estimator")
+        if not isinstance(self.options, Mapping):
+            raise ValueError(f"options: expected a table, got {type(self.options).__name__}")
+        for key, value in self.options.items():
+            _text(key, "options")
+            _check_option(value, f"options.{key}")
+        object.__setattr__(self, "options", FrozenDict(self.options))
+
+    def build(self) -> Planner:
+        """A new planner object (:func:`scenarios.planners.get_planner`)."""
+        return get_planner(self.name, **thaw(self.options, sequence=tuple))
+
+    def to_dict(self) -> dict[str, Any]:
+        raw = {"name": self.name, "label": self.label, "options": thaw(self.options)}
+        if self.steering_estimator is not None:
+            raw["steering_estimator"] = self.steering_estimator
+        return raw
+
+    @classmethod
+    def from_dict(cls, raw: Mapping[str, Any] | str, *, path: str = "planner") -> PlannerSpec:
+        """From a table ``{name, label?, options?, steering_estimator?}`` or a bare name."""
+        if isinstance(raw, str):
+            raw = {"name": raw}
+        _check_keys(raw, _PLANNER_KEYS, path)
+        if "name" not in raw:
+            raise ValueError(f"{path}.name: missing; give a planner name such as 'fisher'")
+        try:
+            return cls(
+                name=raw["name"],
+                label=raw.get("label"),
+                options=raw.get("options", {}),
+                steering_estimator=raw.get("steering_estimator"),
+            )
+        except ValueError as error:
+            raise ValueError(f"{path}.{error}") from None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class Sweep:
     """The points of an experiment: one swept parameter (or an emitter grid) and fixed values.
 
@@ -449,6 +533,12 @@ class Experiment:
         Metric columns the report shows (:data:`comparison.metrics.METRIC_NAMES`); None: all.
     chunk_size : int
         Trials per parallel task (>= 1); results never depend on it.
+    planners : sequence of PlannerSpec
+        Closed loop: each planner flies every trial (distinct labels); empty for an
+        open-loop experiment. Needs ``per_frame``.
+    steering_estimator : str or None
+        The estimator label whose estimate steers the planners (default: the first
+        estimator); a planner may name its own.
 
     Raises
     ------
@@ -467,6 +557,8 @@ class Experiment:
     per_frame: bool = False
     metrics: tuple[str, ...] | None = None
     chunk_size: int = 25
+    planners: tuple[PlannerSpec, ...] = ()
+    steering_estimator: str | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -484,6 +576,7 @@ class Experiment:
         self._check_scenarios()
         self._check_metrics()
         self._check_estimators()
+        self._check_planners()
 
     # -- validation ------------------------------------------------------------------------
 
@@ -562,12 +655,78 @@ class Experiment:
                     )
         object.__setattr__(self, "estimators", specs)
 
+    def _check_planners(self) -> None:
+        if isinstance(self.planners, str | Mapping) or not isinstance(self.planners, Sequence):
+            raise ValueError("planners: expected a list of planner tables")
+        specs = tuple(self.planners)
+        steering = self.steering_estimator
+        if steering is not None:
+            _text(steering, "steering_estimator")
+        if not specs:
+            if steering is not None:
+                raise ValueError(
+                    "steering_estimator: only a closed loop steers; add [[planners]] or "
+                    "remove the key"
+                )
+            object.__setattr__(self, "planners", ())
+            return
+        if not self.per_frame:
+            raise ValueError(
+                "per_frame: a closed loop estimates after every frame; set per_frame = true"
+            )
+        labels: dict[str, int] = {}
+        for index, spec in enumerate(specs):
+            path = f"planners[{index}]"
+            if not isinstance(spec, PlannerSpec):
+                raise ValueError(f"{path}: expected a PlannerSpec, got {type(spec).__name__}")
+            if spec.label in labels:
+                raise ValueError(
+                    f"{path}.label: duplicate label {spec.label!r} (also "
+                    f"planners[{labels[spec.label]}]); give each entry a distinct label"
+                )
+            labels[spec.label] = index
+            try:
+                planner_class(spec.name)
+            except ValueError as error:
+                raise ValueError(f"{path}.name: {error}") from None
+            try:
+                spec.build()
+            except ValueError as error:
+                raise ValueError(f"{path}.options: {error}") from None
+            own = spec.steering_estimator
+            if own is not None and own not in self.labels:
+                raise ValueError(
+                    f"{path}.steering_estimator: {own!r} is not an estimator label; "
+                    f"choose one of {', '.join(self.labels)}"
+                )
+        if steering is not None and steering not in self.labels:
+            raise ValueError(
+                f"steering_estimator: {steering!r} is not an estimator label; choose one of "
+                f"{', '.join(self.labels)}"
+            )
+        object.__setattr__(self, "planners", specs)
+
     # -- derived -----------------------------------------------------------------------------
 
     @property
     def labels(self) -> tuple[str, ...]:
         """The estimator labels, in order."""
         return tuple(spec.label for spec in self.estimators)
+
+    @property
+    def planner_labels(self) -> tuple[str, ...]:
+        """The planner labels, in order (empty for an open-loop experiment)."""
+        return tuple(spec.label for spec in self.planners)
+
+    @property
+    def is_closed_loop(self) -> bool:
+        """True when planners steer the flight (:mod:`comparison.closed_loop`)."""
+        return bool(self.planners)
+
+    def steering_label(self, planner_index: int) -> str:
+        """The estimator label that steers planner ``planner_index``."""
+        spec = self.planners[planner_index]
+        return spec.steering_estimator or self.steering_estimator or self.labels[0]
 
     @property
     def swept_columns(self) -> tuple[str, ...]:
@@ -602,6 +761,15 @@ class Experiment:
             "metrics": None if self.metrics is None else list(self.metrics),
             "chunk_size": self.chunk_size,
             "swept_columns": list(self.swept_columns),
+        } | self._closed_loop_dict()
+
+    def _closed_loop_dict(self) -> dict[str, Any]:
+        """The closed-loop keys, only when there are planners (open-loop JSON is unchanged)."""
+        if not self.planners:
+            return {}
+        return {
+            "planners": [spec.to_dict() for spec in self.planners],
+            "steering_estimator": self.steering_estimator,
         }
 
     def to_json(self) -> str:
@@ -631,6 +799,13 @@ class Experiment:
             EstimatorSpec.from_dict(entry, path=f"estimators[{index}]")
             for index, entry in enumerate(estimators)
         )
+        planners = raw.get("planners") or ()
+        if isinstance(planners, str | Mapping) or not isinstance(planners, Sequence):
+            raise ValueError("planners: expected a list of [[planners]] tables or names")
+        planner_specs = tuple(
+            PlannerSpec.from_dict(entry, path=f"planners[{index}]")
+            for index, entry in enumerate(planners)
+        )
         experiment = cls(
             name=raw["name"],
             description=raw.get("description", ""),
@@ -643,6 +818,8 @@ class Experiment:
             per_frame=raw.get("per_frame", False),
             metrics=raw.get("metrics"),
             chunk_size=raw.get("chunk_size", 25),
+            planners=planner_specs,
+            steering_estimator=raw.get("steering_estimator"),
         )
         if "swept_columns" in raw and list(raw["swept_columns"]) != list(sweep.columns):
             raise ValueError(
@@ -733,6 +910,28 @@ _BUILTIN_DEFINITIONS: dict[str, dict[str, Any]] = {
         "frames": 10,
         "per_frame": True,
     },
+    "paper-fig3": {
+        "name": "paper-fig3",
+        "description": (
+            "the paper's Fig. 3 in closed loop: 10 frames of K = 10 on the paper geometry at "
+            "c*sigma_tau = 1 m and 10 m, 0 dB; each frame's velocity chosen by a planner "
+            "(none, the paper's rule corrected MATH §12, Fisher-optimal MATH §13, an orbit) "
+            "from the cumulative ml estimate; RMSE per frame of cumulative ml and of the "
+            "paper's per-frame cls against the CRLB of the flown trajectory"
+        ),
+        "scenarios": ["paper-1m", "paper-10m"],
+        "sweep": {"parameter": "snr_db", "values": [0]},
+        "estimators": [
+            {"name": "ml", "label": "ml", "options": {"frames": "all"}},
+            {"name": "cls", "label": "cls-last", "options": {"frames": "last"}},
+        ],
+        "planners": ["constant", "paper", "fisher", "orbit"],
+        "steering_estimator": "ml",
+        "trials": 300,
+        "seed": 20_240_605,
+        "frames": 10,
+        "per_frame": True,
+    },
     "smoke": {
         "name": "smoke",
         "description": "a tiny run for tests: two SNR points, two CLS variants, 20 trials",
@@ -749,6 +948,7 @@ BUILTIN_EXPERIMENTS: dict[str, str] = {
     "paper-fig2": "accuracy vs SNR, one frame, paper/paper-1m/paper-10m, 7 estimators, 500 trials",
     "frames": "per-frame RMSE, NEES, wrong side over 10 frames, with and without a turn",
     "geometry-map": "RMSE/CRLB of cls, ml, lls-toa over an emitter grid, paper-1m at 10 dB",
+    "paper-fig3": "closed loop: 4 planners x 10 frames, ml and per-frame cls vs flown CRLB",
     "smoke": "2 SNR points, cls and cls-paper, 20 trials (for tests)",
 }
 """Built-in experiments by name: one-line summaries (``emitterbench list``)."""

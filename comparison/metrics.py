@@ -1,8 +1,8 @@
 r"""Summary metrics of Monte Carlo trials, and statements of where the CRLB is attained.
 
 :func:`summarize` turns the tidy trial rows of :func:`comparison.engine.read_trials` (one row
-per estimator × scenario × point × frame × trial) into one row per
-(scenario, point, frame, estimator):
+per estimator × scenario × point × frame × trial, and planner in a closed loop) into one row per
+(scenario, point, frame, estimator), and planner when the rows have planners:
 
 - ``rmse_m`` :math:`= \sqrt{\tfrac1n\sum_i e_i^2}` over the successful trials, with a 95%
   percentile-bootstrap interval (``rmse_ci_low_m``, ``rmse_ci_high_m``);
@@ -10,8 +10,10 @@ per estimator × scenario × point × frame × trial) into one row per
   (MATH §7), i.e. the error once the mirror ambiguity is resolved, and its interval;
 - ``mean_error_m`` (the paper's "accuracy", MATH §14), ``median_error_m``, ``cep50_m``,
   ``p95_error_m``, ``bias_x_m``, ``bias_y_m``;
-- ``crlb_rmse_m`` (:math:`\sqrt{\operatorname{tr}\,\mathrm{CRLB}}`, MATH §8) and the
-  efficiencies ``rmse_m / crlb_rmse_m`` and ``rmse_side_resolved_m / crlb_rmse_m``;
+- ``crlb_rmse_m`` (:math:`\sqrt{\operatorname{tr}\,\mathrm{CRLB}}`, MATH §8; in a closed
+  loop, where every trial flies its own trajectory, the root mean square of the trials'
+  bounds) and the efficiencies ``rmse_m / crlb_rmse_m`` and
+  ``rmse_side_resolved_m / crlb_rmse_m``;
 - ``wrong_side_rate``, ``ambiguous_rate``, ``success_rate``, ``nees_mean`` with its 95%
   chi-square band, ``runtime_median_s``.
 
@@ -35,6 +37,7 @@ TRIAL_COLUMNS: tuple[str, ...] = (
     "scenario",
     "point",
     "snr_db",
+    "planner",
     "estimator",
     "frame",
     "trial",
@@ -58,7 +61,8 @@ TRIAL_COLUMNS: tuple[str, ...] = (
     "message",
     "diagnostics_json",
 )
-"""Every fixed column of a trial frame; the swept-parameter columns come on top of these."""
+"""Every fixed column of a trial frame; the swept-parameter columns come on top of these.
+``planner`` is optional (empty in open-loop runs)."""
 
 REQUIRED_TRIAL_COLUMNS: tuple[str, ...] = (
     "scenario",
@@ -133,7 +137,8 @@ METRIC_DESCRIPTIONS: dict[str, str] = {
     "p95_error_m": "95th percentile of the distance error",
     "bias_x_m": "mean of x_m - truth_x_m",
     "bias_y_m": "mean of y_m - truth_y_m",
-    "crlb_rmse_m": "√trace(CRLB) for the estimator's modalities and frames (MATH §8)",
+    "crlb_rmse_m": "√trace(CRLB) for the estimator's modalities and frames (MATH §8); the "
+    "root mean square over trials when each trial flew its own trajectory (closed loop)",
     "efficiency": "rmse_m / crlb_rmse_m (1 attains the bound)",
     "efficiency_side_resolved": "rmse_side_resolved_m / crlb_rmse_m",
     "wrong_side_rate": (
@@ -158,7 +163,13 @@ ATTAINMENT_TOLERANCE = 0.10
 MIN_SUCCESS_RATE = 0.99
 """Smallest success rate at which an estimator can be said to attain the bound."""
 
-_GROUP_KEYS = ("scenario", "point", "frame", "estimator")
+
+def has_planners(frame: pd.DataFrame) -> bool:
+    """True when the rows come from a closed loop: a ``planner`` column with a label."""
+    if "planner" not in frame.columns:
+        return False
+    labels = frame["planner"]
+    return bool((labels.notna() & (labels.astype(str) != "")).any())
 
 
 def attainment_criterion(
@@ -326,13 +337,17 @@ def summarize(
     confidence: float = 0.95,
     swept_columns: Sequence[str] | None = None,
 ) -> pd.DataFrame:
-    """One row of metrics per (scenario, point, frame, estimator).
+    """One row of metrics per (scenario, point, frame, estimator), and planner in a closed loop.
 
     ``n_trials`` counts every trial; the error metrics, the wrong-side and ambiguous rates and
     the NEES use the successful trials only; ``success_rate`` and ``runtime_median_s`` use
-    every trial. ``crlb_rmse_m`` is the mean of the rows' ``crlb_rmse_m`` (constant within a
-    group). ``cep50_m`` is the radius about the truth holding half the estimates, which is the
-    median distance error (``median_error_m``) by definition.
+    every trial. ``crlb_rmse_m`` is the rows' ``crlb_rmse_m`` when it is constant within a
+    group (one flight for all trials), else their root mean square: each closed-loop trial
+    flies its own trajectory, and ``E[e²] ≥ E[tr CRLB(trajectory)]`` makes the RMS of the
+    per-trial bounds the reference for the RMSE (a reference, not a strict bound, since the
+    trajectory depends on earlier noise). ``cep50_m`` is the radius about the truth holding
+    half the estimates, which is the median distance error (``median_error_m``) by
+    definition.
 
     Parameters
     ----------
@@ -353,21 +368,26 @@ def summarize(
     pandas.DataFrame
         Columns ``scenario, snr_db, <swept>, frame, estimator`` and then :data:`METRIC_NAMES`;
         rows ordered by scenario (first appearance), point, frame, estimator (first
-        appearance).
+        appearance). With planners (:func:`has_planners`) a ``planner`` column follows
+        ``frame`` and rows are ordered by scenario, point, planner, frame, estimator.
     """
     swept = list(swept_columns_of(trials) if swept_columns is None else swept_columns)
     _check_trials(trials, swept)
     success = trials["success"].to_numpy(dtype=bool)
-    codes = {key: _ordered_codes(trials[key]) for key in ("scenario", "estimator")}
+    planners = has_planners(trials)
+    keyed = ("scenario", "estimator", "planner") if planners else ("scenario", "estimator")
+    codes = {key: _ordered_codes(trials[key]) for key in keyed}
     group_frame = pd.DataFrame(
         {
             "scenario": codes["scenario"],
             "point": trials["point"].to_numpy(dtype=np.int64),
+            "planner": codes["planner"] if planners else 0,
             "frame": trials["frame"].to_numpy(dtype=np.int64),
             "estimator": codes["estimator"],
         }
     )
-    group = group_frame.groupby(list(_GROUP_KEYS), sort=True).ngroup().to_numpy(np.int64)
+    group_keys = ["scenario", "point", "planner", "frame", "estimator"]
+    group = group_frame.groupby(group_keys, sort=True).ngroup().to_numpy(np.int64)
     n_groups = int(group.max()) + 1
 
     def successful(column: str) -> FloatArray:
@@ -389,6 +409,7 @@ def summarize(
             "nees": successful("nees"),
             "runtime": trials["runtime_s"].to_numpy(dtype=float),
             "crlb": trials["crlb_rmse_m"].to_numpy(dtype=float),
+            "crlb_squared": trials["crlb_rmse_m"].to_numpy(dtype=float) ** 2,
         }
     )
     by_group = work.groupby("group", sort=True)
@@ -402,6 +423,9 @@ def summarize(
         bias_x_m=("error_x", "mean"),
         bias_y_m=("error_y", "mean"),
         crlb_rmse_m=("crlb", "mean"),
+        crlb_low=("crlb", "min"),
+        crlb_high=("crlb", "max"),
+        crlb_mean_squared=("crlb_squared", "mean"),
         wrong_side_rate=("wrong_side", "mean"),
         ambiguous_rate=("ambiguous", "mean"),
         success_rate=("success", "mean"),
@@ -432,7 +456,12 @@ def summarize(
 
     rmse = np.sqrt(stats_frame["mean_squared"].to_numpy())
     rmse_side = np.sqrt(stats_frame["mean_squared_side"].to_numpy())
-    crlb = stats_frame["crlb_rmse_m"].to_numpy()
+    # one flight for every trial: the common bound; one per trial (closed loop): their RMS
+    crlb = np.where(
+        stats_frame["crlb_low"].to_numpy() == stats_frame["crlb_high"].to_numpy(),
+        stats_frame["crlb_rmse_m"].to_numpy(),
+        np.sqrt(stats_frame["crlb_mean_squared"].to_numpy()),
+    )
     with np.errstate(divide="ignore", invalid="ignore"):
         efficiency = np.where(crlb > 0, rmse / crlb, np.nan)
         efficiency_side = np.where(crlb > 0, rmse_side / crlb, np.nan)
@@ -467,11 +496,11 @@ def summarize(
     )
     # The key columns of each group: its first row (they are constant within a group).
     first_rows = np.unique(group, return_index=True)[1]
-    keys = trials.iloc[first_rows][["scenario", "snr_db", *swept, "frame", "estimator"]]
+    key_columns = ["scenario", "snr_db", *swept, "frame", *(["planner"] if planners else [])]
+    key_columns.append("estimator")
+    keys = trials.iloc[first_rows][key_columns]
     keys = keys.reset_index(drop=True).astype({"snr_db": float, "frame": np.int64})
-    return pd.concat([keys, metrics], axis=1)[
-        ["scenario", "snr_db", *swept, "frame", "estimator", *METRIC_NAMES]
-    ]
+    return pd.concat([keys, metrics], axis=1)[[*key_columns, *METRIC_NAMES]]
 
 
 # --------------------------------------------------------------------------------------------
@@ -655,7 +684,8 @@ def crlb_attainment(
     missing = [c for c in METRIC_NAMES if c not in summary.columns]
     if missing:
         raise ValueError(f"summary: missing columns {missing}; pass the frame from summarize")
-    point_keys = ["scenario", "snr_db", *swept, "estimator"]
+    planners = has_planners(summary)
+    point_keys = ["scenario", "snr_db", *swept, *(["planner"] if planners else []), "estimator"]
     last = summary["frame"] == summary.groupby(point_keys, sort=False)["frame"].transform("max")
     rows = summary[last].copy()
     rows["status"] = attainment_status(rows, tolerance=tolerance, min_success_rate=min_success_rate)
@@ -665,10 +695,11 @@ def crlb_attainment(
     sentences: list[str] = []
     for scenario, in_scenario in rows.groupby("scenario", sort=False):
         varying = [c for c in ("snr_db", *swept) if in_scenario[c].nunique() > 1]
-        for estimator, own in in_scenario.groupby("estimator", sort=False):
-            sentences.append(
-                _attainment_sentence(str(estimator), str(scenario), own, varying, tolerance)
-            )
+        by = ["planner", "estimator"] if planners else ["estimator"]
+        for key, own in in_scenario.groupby(by, sort=False):
+            key = key if isinstance(key, tuple) else (key,)
+            who = f"{key[1]} (planner {key[0]})" if planners else str(key[0])
+            sentences.append(_attainment_sentence(who, str(scenario), own, varying, tolerance))
     return sentences
 
 

@@ -4,8 +4,11 @@
 (``experiment.json``, ``run.json``, ``results.sqlite``) and writes beside them:
 
 - ``summary.csv``: :func:`comparison.metrics.summarize`, full precision, one row per
-  (scenario, point, frame, estimator);
-- ``trials.csv``: the tidy trial rows, one per estimator × scenario × point × frame × trial;
+  (scenario, point, frame, estimator), and planner in a closed loop;
+- ``trials.csv``: the tidy trial rows, one per estimator × scenario × point × frame × trial
+  (× planner in a closed loop);
+- ``flights.csv`` (closed loop): every frame flown, per planner and trial
+  (:func:`comparison.engine.read_flights`);
 - ``figures/<name>.png`` (150 dpi) and ``figures/<name>.svg`` for every figure of
   :mod:`comparison.figures` that applies to the sweep;
 - ``report.html``: one self-contained file (figures embedded as base64 PNG, styles inline, no
@@ -55,6 +58,10 @@ FIGURE_STEMS: tuple[str, ...] = (
     "rmse_vs_frame",
     "wrong_side_vs_frame",
     "nees_vs_frame",
+    "planner_rmse_vs_frame",
+    "planner_rmse_side_resolved_vs_frame",
+    "planner_wrong_side_vs_frame",
+    "trajectories",
 )
 """File names (without suffix) of every figure a report can write under ``figures/``."""
 
@@ -82,6 +89,20 @@ SNR_CAPTION = (
     "(σ_f for Doppler, σ_τ for ToA, σ_P for RSS) at 0 dB; at a given SNR every one of them is "
     "multiplied by 10^(−SNR/20). The SNR is therefore a common scale of all noise levels, not "
     "the signal-to-noise ratio of a receiver."
+)
+
+CLOSED_LOOP_CAPTION = (
+    "Closed loop (MATH §12-§13): every trial flies the scenario's first frame, then each "
+    "next frame at the velocity a planner chose from the steering estimator's estimate after "
+    "the previous frame. Every planner meets the same noise (common random numbers), and "
+    "constant reproduces the open-loop flight. Each trial flies its own trajectory, so its "
+    "rows carry the CRLB of that trajectory at the truth; summaries show the root mean square "
+    "of these over trials (a reference for the RMSE rather than a strict bound, since the "
+    "trajectory depends on earlier noise). The wrong side is judged against the track of the "
+    "first frame an estimator uses, in the trial's own flight: frame 0 for a cumulative "
+    "estimator (the mirror ambiguity a turn must resolve), the current frame for a per-frame "
+    "one. The side of a later track is ill-defined when a planner flies through the "
+    "emitter's horizontal position."
 )
 
 SIDE_CAPTION = (
@@ -179,13 +200,80 @@ def _png_data_uri(png_path: Path) -> str:
     return "data:image/png;base64," + base64.b64encode(png_path.read_bytes()).decode("ascii")
 
 
+def closed_loop_figures(
+    summary: pd.DataFrame,
+    trials: pd.DataFrame,
+    flights: pd.DataFrame | None,
+    *,
+    estimator: str | None = None,
+) -> list[tuple[str, str, Figure]]:
+    """``(stem, caption, figure)`` of the closed-loop figures (planners against the frame)."""
+    colors = figures.planner_colors(summary["planner"].unique())
+    made = [
+        (
+            "planner_rmse_vs_frame",
+            "RMSE of the returned position per planner as frames accumulate, one panel per "
+            "scenario and estimator; shaded: 95% bootstrap interval; dashed, same colour: the "
+            "root mean square over trials of √CRLB of each trial's flown trajectory (MATH §8).",
+            figures.planner_rmse_vs_frame_figure(summary, colors=colors),
+        ),
+        (
+            "planner_rmse_side_resolved_vs_frame",
+            "Side-resolved RMSE (nearest candidate to the truth, MATH §7) per planner; same "
+            "layout. It shows what the estimates are worth once the mirror side is known.",
+            figures.planner_rmse_vs_frame_figure(summary, side_resolved=True, colors=colors),
+        ),
+        (
+            "planner_wrong_side_vs_frame",
+            "Wrong-side rate per planner as frames accumulate: the fraction of successful "
+            "estimates on the other side from the truth of the first track the estimator uses "
+            "(frame 0 for a cumulative estimator, the current frame for a per-frame one); 0.5 "
+            "is a coin toss, and a turn should drive it to 0 (MATH §7).",
+            figures.planner_wrong_side_vs_frame_figure(summary, colors=colors),
+        ),
+    ]
+    if flights is not None and not flights.empty:
+        label = estimator or str(summary["estimator"].iloc[0])
+        made.append(
+            (
+                "trajectories",
+                f"The paper's Fig. 3 in closed loop: UAV paths of a few trials per planner "
+                f"(one colour per trial, the same trials in every panel), the emitter (star), "
+                f"{label}'s estimate after every frame (dots); below each, a zoom on the truth "
+                "with every trial's last estimate (grey) and, for the drawn trials, the last "
+                "estimate (cross) with its 2σ covariance ellipse and the wrong-side count.",
+                figures.trajectory_figure(flights, trials, estimator=label),
+            )
+        )
+    return made
+
+
 def report_figures(
     summary: pd.DataFrame,
     trials: pd.DataFrame,
     points: pd.DataFrame | None,
     tracks_m: Mapping[str, np.ndarray] | None,
+    flights: pd.DataFrame | None = None,
+    *,
+    steering_estimator: str | None = None,
 ) -> list[tuple[str, str, Figure]]:
-    """``(stem, caption, figure)`` of every figure that applies to this sweep."""
+    """``(stem, caption, figure)`` of every figure that applies to this sweep.
+
+    A closed-loop run (a ``planner`` column in the summary) gets :func:`closed_loop_figures`
+    and the run-time figure: the open-loop figures would mix the planners.
+    """
+    if "planner" in summary.columns:
+        made = closed_loop_figures(summary, trials, flights, estimator=steering_estimator)
+        colors = figures.estimator_colors(summary["estimator"].unique())
+        made.append(
+            (
+                "runtime",
+                "Wall time of one estimate per estimator over the whole run, every planner and "
+                "frame (median and 5th to 95th percentiles; log axis).",
+                figures.runtime_figure(trials, colors=colors),
+            )
+        )
+        return made
     colors = figures.estimator_colors(summary["estimator"].unique())
     x = figures.sweep_axis(summary)
     made: list[tuple[str, str, Figure]] = []
@@ -322,8 +410,9 @@ def _summary_tables(summary: pd.DataFrame, metrics: Sequence[str] | None = None)
             f"metrics: unknown metric columns {unknown}; choose from {', '.join(METRIC_NAMES)}"
         )
     swept = summary_swept_columns(summary)
-    key_columns = ["snr_db", *swept, "frame", "estimator"]
-    latest = summary.groupby(["scenario", "snr_db", *swept, "estimator"], sort=False)[
+    planner = ["planner"] if "planner" in summary.columns else []
+    key_columns = ["snr_db", *swept, "frame", *planner, "estimator"]
+    latest = summary.groupby(["scenario", "snr_db", *swept, *planner, "estimator"], sort=False)[
         "frame"
     ].transform("max")
     parts = []
@@ -341,6 +430,70 @@ def _summary_tables(summary: pd.DataFrame, metrics: Sequence[str] | None = None)
             "</details></section>"
         )
     return "".join(parts)
+
+
+def closed_loop_table(summary: pd.DataFrame, *, from_frame: int = 2) -> pd.DataFrame:
+    """The last frame of each (scenario, point, planner, estimator), with the worst wrong-side
+    rate from frame ``from_frame`` (0-based) to the last.
+
+    Columns ``scenario, snr_db, <swept>, planner, estimator, frame``, then ``rmse_m`` with its
+    interval, ``rmse_side_resolved_m``, ``crlb_rmse_m``, ``efficiency``, ``wrong_side_rate``
+    and ``max_wrong_side_rate_from_frame_<from_frame>``.
+    """
+    swept = summary_swept_columns(summary)
+    keys = ["scenario", "snr_db", *swept, "planner", "estimator"]
+    latest = summary.groupby(keys, sort=False)["frame"].transform("max")
+    last = summary[summary["frame"] == latest]
+    later = summary[summary["frame"] >= from_frame]
+    worst = (
+        later.groupby(keys, sort=False)["wrong_side_rate"]
+        .max()
+        .rename(f"max_wrong_side_rate_from_frame_{from_frame}")
+    )
+    columns = [
+        "rmse_m",
+        "rmse_ci_low_m",
+        "rmse_ci_high_m",
+        "rmse_side_resolved_m",
+        "crlb_rmse_m",
+        "efficiency",
+        "wrong_side_rate",
+    ]
+    table = last[[*keys, "frame", *columns]].merge(worst.reset_index(), on=keys, how="left")
+    return table.reset_index(drop=True)
+
+
+def rmse_by_frame_table(summary: pd.DataFrame) -> pd.DataFrame:
+    """RMSE per frame: one row per (scenario, point, planner, estimator), a column per frame."""
+    swept = summary_swept_columns(summary)
+    keys = ["scenario", "snr_db", *swept, "planner", "estimator"]
+    table = summary.pivot_table(index=keys, columns="frame", values="rmse_m", sort=False)
+    table.columns = [f"frame {int(c)}" for c in table.columns]
+    return table.reset_index()
+
+
+def _closed_loop_section(summary: pd.DataFrame, experiment: Mapping[str, Any]) -> str:
+    """The closed-loop section: how to read it, the last-frame table, RMSE per frame."""
+    if "planner" not in summary.columns:
+        return ""
+    steering = experiment.get("steering_estimator")
+    planners = experiment.get("planners") or []
+    steer_text = ", ".join(
+        f"{p.get('label') or p.get('name')} by {p.get('steering_estimator') or steering}"
+        for p in planners
+        if isinstance(p, Mapping)
+    )
+    last = _table_html(closed_loop_table(summary), "closed-loop-last")
+    by_frame = _table_html(rmse_by_frame_table(summary), "closed-loop-frames")
+    return (
+        '<section id="closed-loop"><h2>Closed loop: planners</h2>'
+        f"<p>{_escape(CLOSED_LOOP_CAPTION)}</p>"
+        + (f"<p>Steering estimator per planner: {_escape(steer_text)}.</p>" if steer_text else "")
+        + "<h3>Last frame, and the worst wrong-side rate from frame 2 on</h3>"
+        f'<div class="table-wrap">{last}</div>'
+        "<h3>RMSE of the returned position (m) per frame</h3>"
+        f'<div class="table-wrap">{by_frame}</div></section>'
+    )
 
 
 def _metric_definitions() -> str:
@@ -406,6 +559,7 @@ def render_html(
         f'<p class="criterion">{_escape(attainment_criterion())}</p></section>'
         '<section id="reading"><h2>How to read this report</h2>'
         f"<p>{_escape(SNR_CAPTION)}</p><p>{_escape(SIDE_CAPTION)}</p></section>"
+        f"{_closed_loop_section(summary, experiment)}"
         f'<section id="figures"><h2>Figures</h2>{figures_html}</section>'
         '<section id="tables"><h2>Summary tables</h2>'
         "<p>Every number below is the value in summary.csv printed to 4 significant digits; "
@@ -427,6 +581,7 @@ def write_report(
     experiment: Mapping[str, Any] | None = None,
     run_info: Mapping[str, Any] | None = None,
     tracks_m: Mapping[str, np.ndarray] | None = None,
+    flights: pd.DataFrame | None = None,
     n_bootstrap: int = DEFAULT_N_BOOTSTRAP,
     dpi: int = 150,
 ) -> Path:
@@ -443,6 +598,9 @@ def write_report(
     tracks_m : mapping, optional
         Scenario → UAV positions ``(n, 2 or 3)`` for the geometry heatmap; by default the
         tracks of the catalogue scenarios named in the experiment (:func:`scenario_tracks_m`).
+    flights : pandas.DataFrame, optional
+        The frames flown in a closed loop, bypassing :func:`comparison.engine.read_flights`
+        (written to ``flights.csv``; drawn in the trajectory figure).
     n_bootstrap : int
         Bootstrap resamples; the bootstrap is seeded from the experiment's seed.
     dpi : int
@@ -470,6 +628,21 @@ def write_report(
     )
     summary.to_csv(folder / "summary.csv", index=False)
     trials.to_csv(folder / "trials.csv", index=False)
+    steering = None
+    if "planner" in summary.columns:
+        if flights is None and (folder / "results.sqlite").is_file():
+            from comparison import engine
+
+            flights = engine.read_flights(folder)
+        if flights is not None:
+            flights.to_csv(folder / "flights.csv", index=False)
+        steering = experiment.get("steering_estimator")
+        if steering is None and experiment.get("estimators"):
+            first = experiment["estimators"][0]
+            if isinstance(first, Mapping):
+                steering = first.get("label") or first.get("name")
+            else:
+                steering = str(first)
     if tracks_m is None and figures.is_geometry_sweep(summary):
         tracks_m = scenario_tracks_m(experiment)
     figure_dir = folder / "figures"
@@ -477,7 +650,8 @@ def write_report(
         for suffix in (".png", ".svg"):
             (figure_dir / f"{stale}{suffix}").unlink(missing_ok=True)
     entries = []
-    for stem, caption, figure in report_figures(summary, trials, points, tracks_m):
+    made = report_figures(summary, trials, points, tracks_m, flights, steering_estimator=steering)
+    for stem, caption, figure in made:
         png_path, _ = figures.save_figure(figure, figure_dir, stem, dpi=dpi)
         entries.append((stem, caption, _png_data_uri(png_path)))
     definition_path = folder / "experiment.json"

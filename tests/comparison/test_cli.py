@@ -343,3 +343,86 @@ def test_console_script_end_to_end(tmp_path: Path) -> None:
     assert failed.returncode == 2
     assert failed.stdout == ""
     assert failed.stderr == "error: samples: empty; give at least one sample\n"
+
+
+# --------------------------------------------------------------------------------------------
+# fly: the next velocity for a ground station
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("planner", "options", "estimator"),
+    [
+        ("paper", [], "ml"),
+        ("fisher", ["criterion=D"], "ml"),
+        ("orbit", ["radius_m=20"], "cls"),
+        ("constant", [], "ml"),
+    ],
+)
+def test_fly_prints_the_library_velocity(
+    tmp_path: Path, planner: str, options: list[str], estimator: str
+) -> None:
+    from comparison.closed_loop import steering_candidates_m
+    from scenarios.planners import flight_from_measurements, get_planner
+
+    path = tmp_path / "m.json"
+    result = invoke("simulate", "turn", "--seed", 4, "--frames", 3, "-o", path)
+    assert result.exit_code == 0, result.output
+    args = ["fly", path, "--planner", planner, "--estimator", estimator, "--json"]
+    for option in options:
+        args += ["--option", option]
+    result = invoke(*args)
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.stdout)
+    data = read_measurements(path)
+    estimate = make_estimator(estimator).estimate(
+        data.without_truth(), rng=np.random.default_rng(0)
+    )
+    parsed = {k: json.loads(v) if v[0].isdigit() else v for k, v in (o.split("=") for o in options)}
+    flight = flight_from_measurements(data)
+    candidates = steering_candidates_m(estimate)  # the returned position first
+    plan = get_planner(planner, **parsed).plan(
+        flight, candidates, data.without_truth(), covariance_m2=estimate.covariance_m2
+    )
+    assert out["velocity_mps"] == plan.velocity_mps.tolist()
+    assert out["planner"] == planner and out["message"] == plan.message
+    assert out["speed_mps"] == pytest.approx(float(np.hypot(*plan.velocity_mps[:2])))
+    assert out["flight"] == {
+        "frames": 3,
+        "samples_per_frame": 10,
+        "sample_interval_s": pytest.approx(0.05),
+        "next_frame_start_m": pytest.approx([5.0, 10.0, 50.0]),
+    }
+    assert out["estimate"]["position_m"] == estimate.position_m.tolist()
+    text = invoke("fly", path, "--planner", planner, "--estimator", estimator, *(
+        x for o in options for x in ("--option", o)
+    ))  # fmt: skip
+    assert text.exit_code == 0 and "velocity_mps" in text.stdout
+
+
+def test_fly_errors_name_the_field(tmp_path: Path) -> None:
+    path = simulated(tmp_path, "paper-1m", seed=1)
+    assert_clean_error(invoke("fly", path, "--planner", "orbits"), "planner")
+    assert_clean_error(invoke("fly", path, "--planner", "orbit", "--option", "radius=3"), "radius")
+    assert_clean_error(invoke("fly", path, "--planner", "paper", "--option", "tie=nearest"), "tie")
+    assert_clean_error(
+        invoke("fly", path, "--planner", "paper", "--estimator", "nope"), "estimator"
+    )
+    turned = tmp_path / "turn.json"
+    assert invoke("simulate", "turn", "--seed", 1, "-o", turned).exit_code == 0
+    data = read_measurements(turned)
+    uneven = write_measurements(data.take(np.arange(data.n_samples) < 15), tmp_path / "u.json")
+    assert_clean_error(invoke("fly", uneven, "--planner", "fisher"), "frame")
+    partial = write_measurements(data.take(np.arange(data.n_samples) < 5), tmp_path / "p.json")
+    assert invoke("fly", partial, "--planner", "fisher").exit_code == 0  # one frame of 5
+
+
+def test_list_names_every_planner() -> None:
+    from scenarios.planners import PLANNER_SUMMARIES
+
+    lines = invoke("list").stdout.splitlines()
+    assert lines.index("estimators:") < lines.index(
+        "planners (emitterbench fly FILE --planner NAME):"
+    )
+    for name, summary in PLANNER_SUMMARIES.items():
+        assert any(line.split()[:1] == [name] and summary in line for line in lines), name

@@ -268,3 +268,82 @@ def test_options_are_frozen():
         spec.options["side_prior_m"] = (0.0, 0.0)
     assert spec.to_dict()["options"] == {"side_prior_m": [30.0, 10.0]}
     assert spec.build().side_prior_m == (30.0, 10.0)
+
+
+# --------------------------------------------------------------------------------------------
+# closed loop: planners
+# --------------------------------------------------------------------------------------------
+
+CLOSED = {**BASE, "frames": 3, "per_frame": True, "planners": ["constant", "fisher"]}
+
+
+def test_builtin_paper_fig3_is_a_closed_loop():
+    experiment = load_experiment("paper-fig3")
+    assert experiment.is_closed_loop and experiment.per_frame and experiment.frames == 10
+    assert experiment.scenarios == ("paper-1m", "paper-10m")
+    assert experiment.planner_labels == ("constant", "paper", "fisher", "orbit")
+    assert experiment.labels == ("ml", "cls-last")
+    assert [experiment.steering_label(k) for k in range(4)] == ["ml"] * 4
+    assert experiment.trials == 300
+    assert [spec.options for spec in experiment.estimators] == [
+        {"frames": "all"},
+        {"frames": "last"},
+    ]
+
+
+def test_open_loop_json_has_no_planner_keys():
+    raw = load_experiment("frames").to_dict()
+    assert "planners" not in raw and "steering_estimator" not in raw
+    assert not load_experiment("frames").is_closed_loop
+
+
+def test_planner_shorthand_labels_and_own_steering():
+    experiment = Experiment.from_dict(
+        {
+            **CLOSED,
+            "planners": [
+                "paper",
+                {"name": "paper", "label": "paper-literal", "options": {"tie": "literal"}},
+                {"name": "orbit", "steering_estimator": "cls-paper"},
+            ],
+            "steering_estimator": "cls",
+        }
+    )
+    assert experiment.planner_labels == ("paper", "paper-literal", "orbit")
+    assert [experiment.steering_label(k) for k in range(3)] == ["cls", "cls", "cls-paper"]
+    assert experiment.planners[1].build().tie == "literal"
+    again = Experiment.from_json(experiment.to_json())
+    assert again == experiment and again.to_json() == experiment.to_json()
+
+
+@pytest.mark.parametrize(
+    ("changes", "prefix"),
+    [
+        ({"per_frame": False}, "per_frame: a closed loop estimates after every frame"),
+        ({"planners": ["constant", "orbits"]}, "planners[1].name: planner: unknown name 'orbits'"),
+        (
+            {"planners": [{"name": "orbit", "options": {"radius_m": -1}}]},
+            "planners[0].options: radius_m: must be finite and > 0",
+        ),
+        ({"planners": [{"name": "orbit", "radius_m": 3}]}, "planners[0].radius_m: unknown key"),
+        (
+            {"planners": ["paper", {"name": "fisher", "label": "paper"}]},
+            "planners[1].label: duplicate label 'paper' (also planners[0])",
+        ),
+        ({"steering_estimator": "ml"}, "steering_estimator: 'ml' is not an estimator label"),
+        (
+            {"planners": [{"name": "paper", "steering_estimator": "ekf"}]},
+            "planners[0].steering_estimator: 'ekf' is not an estimator label",
+        ),
+        ({"planners": "paper"}, "planners: expected a list"),
+    ],
+)
+def test_malformed_closed_loops_name_the_key_path(changes, prefix):
+    with pytest.raises(ValueError) as info:
+        Experiment.from_dict({**CLOSED, **changes})
+    assert str(info.value).startswith(prefix), str(info.value)
+
+
+def test_steering_without_planners_is_an_error():
+    with pytest.raises(ValueError, match=r"^steering_estimator: only a closed loop steers"):
+        Experiment.from_dict({**BASE, "steering_estimator": "cls"})

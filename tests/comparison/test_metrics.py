@@ -322,3 +322,26 @@ def test_format_number_prints_four_significant_digits():
     assert format_number(12345.6) == "1.235e+04"
     assert format_number(np.int64(500)) == "500"
     assert format_number(float("nan")) == "NaN"
+
+
+def test_planners_are_grouped_and_their_bounds_averaged_as_rms():
+    rng = np.random.default_rng(5)
+    first = trial_rows(rng.normal(0, math.sqrt(0.5), (200, 2)), crlb_rmse_m=1.0)
+    first["planner"] = "constant"
+    second = trial_rows(rng.normal(0, 2.0, (200, 2)))
+    second["planner"] = "fisher"
+    second["crlb_rmse_m"] = np.where(np.arange(200) % 2 == 0, 1.0, 3.0)  # per-trial bounds
+    summary = summarize(pd.concat([first, second], ignore_index=True), n_bootstrap=10)
+    assert list(summary.columns[:5]) == ["scenario", "snr_db", "frame", "planner", "estimator"]
+    assert summary["planner"].tolist() == ["constant", "fisher"]
+    assert summary["crlb_rmse_m"].tolist() == [1.0, pytest.approx(math.sqrt(5.0))]
+    assert summary["rmse_m"].iloc[1] == pytest.approx(
+        math.sqrt(np.mean(second["error_m"] ** 2)), rel=1e-12
+    )
+    sentences = crlb_attainment(summary)
+    assert sentences[0].startswith("est (planner constant) attains the CRLB on paper-1m")
+    # empty planner labels (an open-loop run) leave the summary as it was
+    first["planner"] = ""
+    plain = summarize(first, n_bootstrap=10)
+    assert "planner" not in plain.columns
+    assert plain["crlb_rmse_m"].tolist() == [1.0]

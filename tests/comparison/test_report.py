@@ -351,3 +351,109 @@ def test_experiment_metrics_choose_the_compact_columns(snr_run):
 def test_missing_run_folder_names_the_field(tmp_path):
     with pytest.raises(ValueError, match=r"^run_dir: .* is not a folder"):
         write_report(tmp_path / "absent")
+
+
+# --------------------------------------------------------------------------------------------
+# a closed-loop run (planners)
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def closed_report(tmp_path_factory):
+    from comparison.engine import run_experiment
+    from comparison.experiment import Experiment
+
+    experiment = Experiment.from_dict(
+        {
+            "name": "closed-report",
+            "scenarios": ["paper-1m"],
+            "estimators": [
+                {"name": "ml"},
+                {"name": "cls", "label": "cls-last", "options": {"frames": "last"}},
+            ],
+            "planners": ["constant", "paper", "orbit"],
+            "steering_estimator": "ml",
+            "trials": 6,
+            "seed": 3,
+            "frames": 3,
+            "per_frame": True,
+        }
+    )
+    folder = run_experiment(experiment, tmp_path_factory.mktemp("closed") / "run", workers=1)
+    return folder, write_report(folder, n_bootstrap=100)
+
+
+def test_closed_loop_report_has_planner_rows_figures_and_tables(closed_report):
+    folder, html_path = closed_report
+    summary = pd.read_csv(folder / "summary.csv")
+    assert list(summary.columns[:5]) == ["scenario", "snr_db", "frame", "planner", "estimator"]
+    assert len(summary) == 3 * 3 * 2  # frames × planners × estimators
+    assert summary["n_trials"].eq(6).all()
+    flights = pd.read_csv(folder / "flights.csv")
+    assert len(flights) == 3 * 6 * 3  # planners × trials × frames
+    stems = {
+        "planner_rmse_vs_frame",
+        "planner_rmse_side_resolved_vs_frame",
+        "planner_wrong_side_vs_frame",
+        "trajectories",
+        "runtime",
+    }
+    assert {p.stem for p in (folder / "figures").glob("*.png")} == stems
+    root = parse_html(html_path)
+    (section,) = [s for s in root.iter("section") if s.get("id") == "closed-loop"]
+    tables = {t.get("id"): t for t in section.iter("table")}
+    last = tables["closed-loop-last"]
+    header = [th.text for th in last.find("thead").iter("th")]
+    body = [
+        dict(zip(header, (td.text for td in tr.iter("td")), strict=True))
+        for tr in last.find("tbody").iter("tr")
+    ]
+    assert len(body) == 3 * 2
+    final = summary[summary["frame"] == 2].set_index(["planner", "estimator"])
+    for row in body:
+        expected = final.loc[(row["planner"], row["estimator"])]
+        assert row["rmse_m"] == format_number(expected["rmse_m"])
+        assert row["crlb_rmse_m"] == format_number(expected["crlb_rmse_m"])
+    frames = tables["closed-loop-frames"]
+    assert [th.text for th in frames.find("thead").iter("th")][-3:] == [
+        "frame 0",
+        "frame 1",
+        "frame 2",
+    ]
+
+
+def test_closed_loop_figures_draw_the_summary(closed_report):
+    from comparison import engine, figures
+
+    folder, _ = closed_report
+    trials = engine.read_trials(folder)
+    summary = summarize(trials, n_bootstrap=50)
+    figure = figures.planner_rmse_vs_frame_figure(summary)
+    axes = [ax for ax in figure.axes if ax.get_visible()]
+    assert [ax.get_title() for ax in axes] == ["paper-1m: ml", "paper-1m: cls-last"]
+    line = next(ln for ln in axes[0].get_lines() if ln.get_label() == "orbit: RMSE")
+    orbit = summary[(summary["planner"] == "orbit") & (summary["estimator"] == "ml")]
+    assert line.get_ydata() == pytest.approx(orbit["rmse_m"].to_numpy())
+    bound = next(
+        ln for ln in axes[0].get_lines() if ln.get_label() == "orbit: √CRLB of the flown paths"
+    )
+    assert bound.get_ydata() == pytest.approx(orbit["crlb_rmse_m"].to_numpy())
+    flights = engine.read_flights(folder)
+    paths = figures.trajectory_figure(flights, trials, estimator="ml", n_paths=2)
+    panels = [ax for ax in paths.axes if ax.get_visible()]
+    assert len(panels) == 2 * 3  # paths and zoom rows, one column per planner
+    path = next(ln for ln in panels[0].get_lines() if ln.get_label() == "trial 0")
+    own = flights[(flights["planner"] == "constant") & (flights["trial"] == 0)]
+    assert path.get_xdata() == pytest.approx(np.ravel(own[["start_x_m", "end_x_m"]].to_numpy()))
+    with pytest.raises(ValueError, match=r"^estimator: 'ekf' has no rows"):
+        figures.trajectory_figure(flights, trials, estimator="ekf")
+
+
+def test_covariance_ellipse_is_the_n_sigma_contour():
+    from comparison.figures import covariance_ellipse_m
+
+    covariance = np.array([[4.0, 1.0], [1.0, 2.0]])
+    ring = covariance_ellipse_m((1.0, -2.0), covariance, n_sigma=2.0)
+    offsets = ring - [1.0, -2.0]
+    mahalanobis = np.einsum("ij,jk,ik->i", offsets, np.linalg.inv(covariance), offsets)
+    assert mahalanobis == pytest.approx(np.full(len(ring), 4.0))
