@@ -216,8 +216,18 @@ def nominal_speed_mps(flight: FlightPlan, speed_mps: float | None) -> float:
     return first
 
 
-def check_max_speed(max_speed_mps: float) -> float:
-    return positive_finite(max_speed_mps, "max_speed_mps")
+def check_speed_limits(
+    *,
+    max_speed_mps: float,
+    speed_mps: float | None = None,
+    max_turn_rate_dps: float | None = None,
+) -> None:
+    """Validate the options every planner shares: nominal speed, V_max, turn-rate limit."""
+    positive_finite(max_speed_mps, "max_speed_mps")
+    if speed_mps is not None:
+        positive_finite(speed_mps, "speed_mps")
+    if max_turn_rate_dps is not None:
+        positive_finite(max_turn_rate_dps, "max_turn_rate_dps")
 
 
 def max_heading_change_rad(flight: FlightPlan, max_turn_rate_dps: float | None) -> float:

@@ -42,7 +42,7 @@ from scenarios.planners.base import (
     check_candidates,
     check_covariance,
     check_flight_matches,
-    check_max_speed,
+    check_speed_limits,
     heading_rad,
     last_velocity_mps,
     level_velocity_mps,
@@ -50,7 +50,7 @@ from scenarios.planners.base import (
     next_frame_start_m,
     nominal_speed_mps,
 )
-from scenarios.types import MODALITIES, FlightPlan, MeasurementSet, positive_finite
+from scenarios.types import MODALITIES, FlightPlan, MeasurementSet
 
 FloatArray = NDArray[np.float64]
 Criterion = Literal["A", "D"]
@@ -271,11 +271,11 @@ class FisherPlanner:
             value = getattr(self, name)
             if isinstance(value, bool) or int(value) != value or value < minimum:
                 raise ValueError(f"{name}: expected a whole number >= {minimum}, got {value!r}")
-        if self.speed_mps is not None:
-            positive_finite(self.speed_mps, "speed_mps")
-        check_max_speed(self.max_speed_mps)
-        if self.max_turn_rate_dps is not None:
-            positive_finite(self.max_turn_rate_dps, "max_turn_rate_dps")
+        check_speed_limits(
+            max_speed_mps=self.max_speed_mps,
+            speed_mps=self.speed_mps,
+            max_turn_rate_dps=self.max_turn_rate_dps,
+        )
 
     def plan(
         self,

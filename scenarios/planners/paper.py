@@ -75,13 +75,13 @@ from scenarios.planners.base import (
     apply_limits,
     check_candidates,
     check_flight_matches,
-    check_max_speed,
+    check_speed_limits,
     last_position_m,
     last_velocity_mps,
     max_heading_change_rad,
     nominal_speed_mps,
 )
-from scenarios.types import FlightPlan, MeasurementSet, positive_finite
+from scenarios.types import FlightPlan, MeasurementSet
 
 FloatArray = NDArray[np.float64]
 TieRule = Literal["turn", "literal"]
@@ -322,11 +322,11 @@ class PaperPlanner:
                 "doppler_prediction: expected 'frame' or 'last-sample', "
                 f"got {self.doppler_prediction!r}"
             )
-        if self.speed_mps is not None:
-            positive_finite(self.speed_mps, "speed_mps")
-        check_max_speed(self.max_speed_mps)
-        if self.max_turn_rate_dps is not None:
-            positive_finite(self.max_turn_rate_dps, "max_turn_rate_dps")
+        check_speed_limits(
+            max_speed_mps=self.max_speed_mps,
+            speed_mps=self.speed_mps,
+            max_turn_rate_dps=self.max_turn_rate_dps,
+        )
 
     def plan(
         self,

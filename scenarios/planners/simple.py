@@ -35,7 +35,7 @@ from scenarios.planners.base import (
     apply_limits,
     check_candidates,
     check_flight_matches,
-    check_max_speed,
+    check_speed_limits,
     frame_duration_s,
     heading_rad,
     last_velocity_mps,
@@ -68,9 +68,9 @@ class ConstantPlanner:
     max_turn_rate_dps: float | None = None
 
     def __post_init__(self) -> None:
-        check_max_speed(self.max_speed_mps)
-        if self.max_turn_rate_dps is not None:
-            positive_finite(self.max_turn_rate_dps, "max_turn_rate_dps")
+        check_speed_limits(
+            max_speed_mps=self.max_speed_mps, max_turn_rate_dps=self.max_turn_rate_dps
+        )
 
     def plan(
         self,
@@ -137,11 +137,11 @@ class OrbitPlanner:
         positive_finite(self.radius_m, "radius_m")
         if self.direction not in ("ccw", "cw"):
             raise ValueError(f"direction: expected 'ccw' or 'cw', got {self.direction!r}")
-        if self.speed_mps is not None:
-            positive_finite(self.speed_mps, "speed_mps")
-        check_max_speed(self.max_speed_mps)
-        if self.max_turn_rate_dps is not None:
-            positive_finite(self.max_turn_rate_dps, "max_turn_rate_dps")
+        check_speed_limits(
+            max_speed_mps=self.max_speed_mps,
+            speed_mps=self.speed_mps,
+            max_turn_rate_dps=self.max_turn_rate_dps,
+        )
 
     def plan(
         self,
