@@ -78,6 +78,7 @@ import pandas as pd
 from comparison.closed_loop import ClosedLoopTrial, fly_closed_loop
 from comparison.crlb import fisher_information_per_frame, rmse_bound_m
 from comparison.experiment import EstimatorSpec, Experiment, PlannerSpec, estimator_modalities
+from comparison.metrics import TRIAL_COLUMNS  # the row contract; swept columns follow snr_db
 from estimators.base import BatchEstimator, Estimate, Estimator, SequentialEstimator
 from scenarios.planners import Planner
 from scenarios.simulate import noise_free, simulate_trials
@@ -96,37 +97,6 @@ POINT_CRLB_SETS: dict[str, tuple[str, ...]] = {
 }
 """The CRLB columns of the points table and the modalities of each (MATH §8)."""
 
-TRIAL_COLUMNS: tuple[str, ...] = (
-    "experiment",
-    "scenario",
-    "point",
-    "snr_db",
-    # <swept columns> come here
-    "planner",
-    "estimator",
-    "frame",
-    "trial",
-    "truth_x_m",
-    "truth_y_m",
-    "x_m",
-    "y_m",
-    "error_m",
-    "error_side_resolved_m",
-    "wrong_side",
-    "ambiguous",
-    "success",
-    "n_candidates",
-    "candidates_json",
-    "cov_xx_m2",
-    "cov_xy_m2",
-    "cov_yy_m2",
-    "nees",
-    "crlb_rmse_m",
-    "runtime_s",
-    "message",
-    "diagnostics_json",
-)
-"""Columns of :func:`read_trials`, in order; the swept columns follow ``snr_db``."""
 
 # Columns a worker fills for each estimate, in this order.
 _ESTIMATE_COLUMNS = (
