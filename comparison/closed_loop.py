@@ -120,7 +120,8 @@ def timed_call(method: Callable[..., Any], *args: Any, **kwargs: Any) -> tuple[E
     return estimate, runtime_s
 
 
-def _accepts_rng(method: Any) -> bool:
+def accepts_rng(method: Any) -> bool:
+    """Whether ``method`` takes an ``rng`` keyword (third-party estimators may not)."""
     try:
         return "rng" in inspect.signature(method).parameters
     except (TypeError, ValueError):
@@ -132,7 +133,7 @@ class _Streamer:
 
     def __init__(self, estimator: Any) -> None:
         self.estimator = estimator
-        self.takes_rng = _accepts_rng(estimator.estimate_state)
+        self.takes_rng = accepts_rng(estimator.estimate_state)
         self.failure: Estimate | None = None
         self.carried_s = 0.0
         start = time.perf_counter()

@@ -53,7 +53,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import hashlib
-import inspect
 import json
 import math
 import os
@@ -75,7 +74,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from comparison.closed_loop import ClosedLoopTrial, fly_closed_loop
+from comparison.closed_loop import ClosedLoopTrial, accepts_rng, fly_closed_loop, timed_call
 from comparison.crlb import fisher_information_per_frame, rmse_bound_m
 from comparison.experiment import EstimatorSpec, Experiment, PlannerSpec, estimator_modalities
 from comparison.metrics import TRIAL_COLUMNS  # the row contract; swept columns follow snr_db
@@ -424,7 +423,7 @@ def _run_estimator(
 
     out: dict[tuple[int, int], tuple[Estimate, float]] = {}
     if task.per_frame and isinstance(estimator, SequentialEstimator):
-        takes_rng = _accepts_rng(estimator.estimate_state)
+        takes_rng = accepts_rng(estimator.estimate_state)
         for position, trial_data in enumerate(data.trials(data.final_frame)):
             trial = task.trials[position]
 
@@ -439,7 +438,7 @@ def _run_estimator(
         estimates = _call_batch(estimator, data.batch(frame), rngs())
         if estimates is None:
             estimates = [
-                _timed(estimator.estimate, trial_data, rng=rng)
+                timed_call(estimator.estimate, trial_data, rng=rng)
                 for trial_data, rng in zip(data.trials(frame), rngs(), strict=True)
             ]
         for position, result in enumerate(estimates):
@@ -462,28 +461,6 @@ def _call_batch(
     if len(estimates) != batch.n_trials or not all(isinstance(e, Estimate) for e in estimates):
         return None
     return [(estimate, runtime_s) for estimate in estimates]
-
-
-def _timed(method: Any, *args: Any, **kwargs: Any) -> tuple[Estimate, float]:
-    """Call an estimator method; an exception or a non-Estimate becomes a failed estimate."""
-    start = time.perf_counter()
-    try:
-        estimate = method(*args, **kwargs)
-    except Exception as error:
-        estimate = Estimate.failed("", f"{type(error).__name__}: {error}")
-    runtime_s = time.perf_counter() - start
-    if not isinstance(estimate, Estimate):
-        estimate = Estimate.failed(
-            "", f"TypeError: returned {type(estimate).__name__}, not an Estimate"
-        )
-    return estimate, runtime_s
-
-
-def _accepts_rng(method: Any) -> bool:
-    try:
-        return "rng" in inspect.signature(method).parameters
-    except (TypeError, ValueError):
-        return False
 
 
 def _stream(
@@ -524,9 +501,9 @@ def _stream(
         update_s = time.perf_counter() - start
         rng = make_rng()
         if rng is None:
-            estimate, estimate_s = _timed(estimator.estimate_state, state)
+            estimate, estimate_s = timed_call(estimator.estimate_state, state)
         else:
-            estimate, estimate_s = _timed(estimator.estimate_state, state, rng=rng)
+            estimate, estimate_s = timed_call(estimator.estimate_state, state, rng=rng)
         out[(frame, position)] = (estimate, carried_s + update_s + estimate_s)
         carried_s = 0.0
     return out
