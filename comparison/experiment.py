@@ -626,26 +626,10 @@ class Experiment:
         specs = tuple(self.estimators)
         if not specs:
             raise ValueError("estimators: give at least one estimator, e.g. name = 'cls'")
-        labels: dict[str, int] = {}
         scenarios = {name: get_scenario(name, frames=self.frames) for name in self.scenarios}
-        for index, spec in enumerate(specs):
-            path = f"estimators[{index}]"
-            if not isinstance(spec, EstimatorSpec):
-                raise ValueError(f"{path}: expected an EstimatorSpec, got {type(spec).__name__}")
-            if spec.label in labels:
-                raise ValueError(
-                    f"{path}.label: duplicate label {spec.label!r} (also "
-                    f"estimators[{labels[spec.label]}]); give each entry a distinct label"
-                )
-            labels[spec.label] = index
-            try:
-                estimator_class(spec.name)
-            except ValueError as error:
-                raise ValueError(f"{path}.name: {error}") from None
-            try:
-                estimator = spec.build()
-            except ValueError as error:
-                raise ValueError(f"{path}.options: {error}") from None
+        for path, spec, estimator in _built_specs(
+            specs, "estimators", EstimatorSpec, estimator_class
+        ):
             for name, scenario in scenarios.items():
                 missing = sorted(set(estimator_modalities(estimator)) - set(scenario.modalities))
                 if missing:
@@ -674,25 +658,7 @@ class Experiment:
             raise ValueError(
                 "per_frame: a closed loop estimates after every frame; set per_frame = true"
             )
-        labels: dict[str, int] = {}
-        for index, spec in enumerate(specs):
-            path = f"planners[{index}]"
-            if not isinstance(spec, PlannerSpec):
-                raise ValueError(f"{path}: expected a PlannerSpec, got {type(spec).__name__}")
-            if spec.label in labels:
-                raise ValueError(
-                    f"{path}.label: duplicate label {spec.label!r} (also "
-                    f"planners[{labels[spec.label]}]); give each entry a distinct label"
-                )
-            labels[spec.label] = index
-            try:
-                planner_class(spec.name)
-            except ValueError as error:
-                raise ValueError(f"{path}.name: {error}") from None
-            try:
-                spec.build()
-            except ValueError as error:
-                raise ValueError(f"{path}.options: {error}") from None
+        for path, spec, _ in _built_specs(specs, "planners", PlannerSpec, planner_class):
             own = spec.steering_estimator
             if own is not None and own not in self.labels:
                 raise ValueError(
@@ -827,6 +793,36 @@ class Experiment:
                 f"({list(sweep.columns)!r}); remove the key, it is derived from the sweep"
             )
         return experiment
+
+
+def _built_specs(
+    specs: Sequence[Any], key: str, spec_type: type, find_class: Any
+) -> Iterator[tuple[str, Any, Any]]:
+    """Check a list of estimator or planner specs; yield ``(key path, spec, built object)``.
+
+    Each entry must be a ``spec_type`` with a label unique in the list, a name that
+    ``find_class`` resolves, and options its class accepts; errors name the key path.
+    """
+    labels: dict[str, int] = {}
+    for index, spec in enumerate(specs):
+        path = f"{key}[{index}]"
+        if not isinstance(spec, spec_type):
+            raise ValueError(f"{path}: expected a {spec_type.__name__}, got {type(spec).__name__}")
+        if spec.label in labels:
+            raise ValueError(
+                f"{path}.label: duplicate label {spec.label!r} (also "
+                f"{key}[{labels[spec.label]}]); give each entry a distinct label"
+            )
+        labels[spec.label] = index
+        try:
+            find_class(spec.name)
+        except ValueError as error:
+            raise ValueError(f"{path}.name: {error}") from None
+        try:
+            built = spec.build()
+        except ValueError as error:
+            raise ValueError(f"{path}.options: {error}") from None
+        yield path, spec, built
 
 
 def estimator_modalities(estimator: Estimator) -> frozenset[str]:
