@@ -253,6 +253,21 @@ def _check_option(value: Any, path: str) -> None:
 # --------------------------------------------------------------------------------------------
 
 
+def _check_spec_fields(spec: Any) -> None:
+    """Validate an estimator or planner entry: ``name``, ``label`` (default: the name) and
+    ``options`` (a table of JSON-like values, frozen)."""
+    _text(spec.name, "name")
+    if spec.label is None:
+        object.__setattr__(spec, "label", spec.name)
+    _text(spec.label, "label")
+    if not isinstance(spec.options, Mapping):
+        raise ValueError(f"options: expected a table, got {type(spec.options).__name__}")
+    for key, value in spec.options.items():
+        _text(key, "options")
+        _check_option(value, f"options.{key}")
+    object.__setattr__(spec, "options", FrozenDict(spec.options))
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class EstimatorSpec:
     """One estimator of an experiment: registry ``name``, a unique ``label`` and its ``options``.
@@ -273,16 +288,7 @@ class EstimatorSpec:
     options: Mapping[str, Any] = field(default_factory=FrozenDict)
 
     def __post_init__(self) -> None:
-        _text(self.name, "name")
-        if self.label is None:
-            object.__setattr__(self, "label", self.name)
-        _text(self.label, "label")
-        if not isinstance(self.options, Mapping):
-            raise ValueError(f"options: expected a table, got {type(self.options).__name__}")
-        for key, value in self.options.items():
-            _text(key, "options")
-            _check_option(value, f"options.{key}")
-        object.__setattr__(self, "options", FrozenDict(self.options))
+        _check_spec_fields(self)
 
     def build(self) -> Estimator:
         """A new estimator object (:func:`estimators.registry.make_estimator`)."""
@@ -328,18 +334,9 @@ class PlannerSpec:
     steering_estimator: str | None = None
 
     def __post_init__(self) -> None:
-        _text(self.name, "name")
-        if self.label is None:
-            object.__setattr__(self, "label", self.name)
-        _text(self.label, "label")
+        _check_spec_fields(self)
         if self.steering_estimator is not None:
             _text(self.steering_estimator, "steering_estimator")
-        if not isinstance(self.options, Mapping):
-            raise ValueError(f"options: expected a table, got {type(self.options).__name__}")
-        for key, value in self.options.items():
-            _text(key, "options")
-            _check_option(value, f"options.{key}")
-        object.__setattr__(self, "options", FrozenDict(self.options))
 
     def build(self) -> Planner:
         """A new planner object (:func:`scenarios.planners.get_planner`)."""

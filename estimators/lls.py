@@ -20,7 +20,7 @@ rank (MATH §9).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -233,6 +233,32 @@ def _check_frames(frames: str) -> None:
         raise ValueError(f"frames: expected 'all' or 'last', got {frames!r}")
 
 
+def _lls_estimate(
+    name: str,
+    solution: Any,
+    used: MeasurementSet,
+    rng: np.random.Generator | None,
+    **diagnostics: Any,
+) -> Estimate:
+    """The estimate of an LLS solution: failed if non-finite, else rank and cost reported."""
+    if not np.all(np.isfinite(solution.position_m)):
+        return Estimate.failed(name, "least squares returned a non-finite solution")
+    return finalize_estimate(
+        name,
+        solution.position_m,
+        [solution.cost_m4],
+        used,
+        rng=rng,
+        message=_rank_message(solution),
+        diagnostics={
+            "cost_m4": solution.cost_m4,
+            "rank": solution.rank,
+            "rank_deficient": solution.rank_deficient,
+            **diagnostics,
+        },
+    )
+
+
 def _rank_message(solution: LinearLsSolution) -> str:
     if not solution.rank_deficient:
         return ""
@@ -264,22 +290,7 @@ class LlsToa:
         require_modalities(self, data)
         used = data.select_frames(self.frames)
         solution = solve_lls_toa(used.position_m, used.range_m, used.emitter_height_m)
-        if not np.all(np.isfinite(solution.position_m)):
-            return Estimate.failed(self.name, "least squares returned a non-finite solution")
-        return finalize_estimate(
-            self.name,
-            solution.position_m,
-            [solution.cost_m4],
-            used,
-            rng=rng,
-            message=_rank_message(solution),
-            diagnostics={
-                "cost_m4": solution.cost_m4,
-                "rank": solution.rank,
-                "rank_deficient": solution.rank_deficient,
-                "n_samples": used.n_samples,
-            },
-        )
+        return _lls_estimate(self.name, solution, used, rng, n_samples=used.n_samples)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -318,23 +329,12 @@ class LlsRss:
             used.emitter_height_m,
             reference=self.reference,
         )
-        if not np.all(np.isfinite(solution.position_m)):
-            return Estimate.failed(self.name, "least squares returned a non-finite solution")
-        return finalize_estimate(
+        return _lls_estimate(
             self.name,
-            solution.position_m,
-            [solution.cost_m4],
+            solution,
             used,
-            rng=rng,
-            message=_rank_message(solution),
-            diagnostics={
-                "cost_m4": solution.cost_m4,
-                "rank": solution.rank,
-                "rank_deficient": solution.rank_deficient,
-                "reference_sample": -1 if reference is None else reference,
-                "bias_factor": rss_bias_factor(
-                    used.noise.rss_db, used.rss_model.path_loss_exponent
-                ),
-                "n_samples": used.n_samples,
-            },
+            rng,
+            reference_sample=-1 if reference is None else reference,
+            bias_factor=rss_bias_factor(used.noise.rss_db, used.rss_model.path_loss_exponent),
+            n_samples=used.n_samples,
         )
