@@ -2,7 +2,11 @@
 
 An estimator is any object with a ``name``, the set of modalities it ``requires`` and an
 ``estimate(data, *, rng=None)`` method returning an :class:`Estimate`. No inheritance is
-needed (a ``typing.Protocol``, as optax does). Two optional capabilities extend it:
+needed (a ``typing.Protocol``, as optax does). It declares what the comparison needs to know
+in ``capabilities() -> Capabilities`` (the modalities and frames it uses, the modules it needs,
+whether it is batch or sequential, what it claims); :func:`capabilities_of` reads it, with a
+default from the protocol for an estimator that declares nothing. Two optional capabilities
+extend it:
 
 - :class:`BatchEstimator`: ``estimate_batch(batch)`` takes a whole
   :class:`~scenarios.types.MeasurementBatch` of Monte Carlo trials at once;
@@ -18,6 +22,7 @@ the built-ins are frozen dataclasses. A failure to estimate is data (``success=F
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol, TypeVar, runtime_checkable
@@ -118,6 +123,143 @@ class Estimate:
             "message": self.message,
             "diagnostics": {key: clean(value) for key, value in self.diagnostics.items()},
         }
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Capabilities:
+    """What an estimator uses and claims, declared by the estimator (``capabilities()``).
+
+    The comparison reads only this to score an estimator against the right bound (the CRLB of
+    the modalities and frames it uses, MATH §8), to check what it needs is installed and to
+    feed it batches or frames; the conformance suite (:mod:`estimators.checks`) checks every
+    field against what the estimator does.
+
+    Attributes
+    ----------
+    modalities : frozenset of {"doppler", "toa", "rss"}
+        Every modality the estimate depends on: the required ones (``requires``) and the
+        optional ones it uses when they are present (e.g. ``ml(use_rss=True)`` adds ``rss``).
+    frames : "all", "last" or tuple of int
+        The frames of the data it uses: every frame so far, only the last, or those listed.
+    modules : tuple of str
+        Importable modules it needs (``("gtsam",)``); checked before a run starts.
+    batch : bool
+        It has ``estimate_batch(batch, *, rngs)`` (:class:`BatchEstimator`).
+    sequential : bool
+        It has ``init``, ``update`` and ``estimate_state`` (:class:`SequentialEstimator`).
+    unit_invariant : bool
+        It claims the same answer, scaled, in any consistent unit system (MATH §6).
+    noise_free_tolerance_m : float
+        Distance from the emitter within which its noise-free candidates are exact; looser
+        than the suite's default only with a ``tolerance_reason`` and within the suite's cap.
+    tolerance_reason : str
+        Why the tolerance is looser than the default (an iterative stop, a grid).
+    """
+
+    modalities: frozenset[str]
+    frames: str | tuple[int, ...] = "all"
+    modules: tuple[str, ...] = ()
+    batch: bool = False
+    sequential: bool = False
+    unit_invariant: bool = False
+    noise_free_tolerance_m: float = 1e-6
+    tolerance_reason: str = ""
+
+    def __post_init__(self) -> None:
+        from scenarios.types import MODALITIES
+
+        modalities = frozenset(self.modalities)
+        unknown = sorted(modalities - set(MODALITIES))
+        if unknown or not modalities:
+            raise ValueError(
+                f"modalities: expected a non-empty subset of {sorted(MODALITIES)}, got "
+                f"{sorted(modalities)}"
+            )
+        object.__setattr__(self, "modalities", modalities)
+        frames = self.frames
+        if isinstance(frames, str):
+            if frames not in ("all", "last"):
+                raise ValueError(f"frames: expected 'all', 'last' or frame indices, got {frames!r}")
+        else:
+            object.__setattr__(self, "frames", tuple(int(f) for f in frames))
+        object.__setattr__(self, "modules", tuple(str(m) for m in self.modules))
+        if not (self.noise_free_tolerance_m > 0 and np.isfinite(self.noise_free_tolerance_m)):
+            raise ValueError(
+                f"noise_free_tolerance_m: must be a positive finite distance in metres, got "
+                f"{self.noise_free_tolerance_m!r}"
+            )
+
+
+def capabilities_of(estimator: Any) -> Capabilities:
+    """The estimator's declared :class:`Capabilities`.
+
+    An estimator without a ``capabilities()`` method is taken at its protocol: it uses exactly
+    its ``requires``, every frame, the modules of its class attribute ``required_modules``
+    (default none), and it is batch or sequential when it has those methods. Nothing is
+    inferred from option names.
+    """
+    declare = getattr(estimator, "capabilities", None)
+    if callable(declare):
+        declared = declare()
+        if not isinstance(declared, Capabilities):
+            raise TypeError(
+                f"capabilities: {type(estimator).__name__}.capabilities() returned "
+                f"{type(declared).__name__}; return an estimators.base.Capabilities"
+            )
+        return declared
+    return Capabilities(
+        modalities=frozenset(getattr(estimator, "requires", ())),
+        modules=tuple(getattr(type(estimator), "required_modules", ())),
+        batch=callable(getattr(estimator, "estimate_batch", None)),
+        sequential=all(
+            callable(getattr(estimator, m, None)) for m in ("init", "update", "estimate_state")
+        ),
+    )
+
+
+def _takes_keyword(method: Any, keyword: str) -> bool:
+    try:
+        parameters = inspect.signature(method).parameters
+    except (TypeError, ValueError):
+        return False
+    return keyword in parameters or any(
+        p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values()
+    )
+
+
+def protocol_problems(estimator: Any) -> list[str]:
+    """What an object lacks to be used as an estimator by the comparison (empty: nothing).
+
+    ``estimate(data, *, rng)`` (and ``estimate_state(state, *, rng)``,
+    ``estimate_batch(batch, *, rngs)`` when declared) must take the generator the runner
+    passes for tie-breaking (MATH §7); ``capabilities()`` must return :class:`Capabilities`.
+    """
+    problems = []
+    for attribute in ("name", "requires"):
+        if not hasattr(type(estimator), attribute):
+            problems.append(f"the class attribute {attribute} is missing")
+    if not callable(getattr(estimator, "estimate", None)):
+        return [*problems, "estimate(data, *, rng=None) is missing"]
+    if not _takes_keyword(estimator.estimate, "rng"):
+        problems.append("estimate must take the keyword rng (a numpy Generator or None)")
+    try:
+        capabilities = capabilities_of(estimator)
+    except (TypeError, ValueError) as error:
+        return [*problems, str(error)]
+    if capabilities.sequential:
+        for method in ("init", "update", "estimate_state"):
+            if not callable(getattr(estimator, method, None)):
+                problems.append(f"capabilities says sequential, but {method}() is missing")
+        state = getattr(estimator, "estimate_state", None)
+        if callable(state) and not _takes_keyword(state, "rng"):
+            problems.append("estimate_state must take the keyword rng")
+    if capabilities.batch:
+        batch = getattr(estimator, "estimate_batch", None)
+        if not callable(batch):
+            problems.append("capabilities says batch, but estimate_batch() is missing")
+        elif not _takes_keyword(batch, "rngs"):
+            problems.append("estimate_batch must take the keyword rngs")
+    return problems
 
 
 @runtime_checkable

@@ -8,15 +8,22 @@ Three estimators share one pipeline, :func:`solve_doppler_toa_cls`:
     and two-stage optimal weighting by the exact second moments (§6), which makes it invariant
     to the unit system, the speed and the heading.
 ``cls-paper`` (:class:`ClsPaper`)
-    The paper's unweighted system with its errata fixed: one projected Doppler row per frame,
-    the height term, the transpose, λ solved exactly.
+    The paper's unweighted system with its errata fixed: one projected Doppler row per frame at
+    the paper's scale ``K|v|²`` (MATH §3), the height term, the transpose, λ solved exactly.
 ``cls-as-printed`` (:class:`ClsAsPrinted`)
     The printed formulas: the first row of the rank-one Doppler system and no height term, λ
     solved exactly. On the paper's own scenario its noise-free answer is (35, ±52.2), not
     (35, ±15). Kept only to show what the errors cost.
 
-Unweighted variants minimise the rows as written in SI units (metres for Doppler rows, m² for
-ToA rows), as the paper does; all are solved in a centred, scaled frame for conditioning.
+Unweighted variants minimise the rows as written in SI units, as the paper does: a ToA residual
+in m², the paper's Doppler rows (``cls-paper``, ``cls-as-printed``) in m³/s², the per-sample unit
+rows of ``cls(weighting="none")`` in metres. In an unweighted least squares the scale of a row is
+its weight, so these variants depend on the unit system (MATH §3, §6); the weighted ``cls`` does
+not. All are solved in a centred, scaled frame for conditioning.
+
+Each exposes the system it minimises, ``constrained_ls(data)`` (the rows of the last stage, in
+its local frame; :mod:`estimators.constrained_ls`), so that ``emitterbench validate --estimator``
+can check its candidates against the exact optimum and the SDP relaxation (MATH §5, §11).
 """
 
 from __future__ import annotations
@@ -27,17 +34,19 @@ from typing import ClassVar, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from estimators.base import Estimate, finalize_estimate, require_modalities
+from estimators.base import Capabilities, Estimate, finalize_estimate, require_modalities
 from estimators.cls_rows import (
     LocalFrame,
     doppler_rows,
     doppler_rows_as_printed,
     frame_mean_rows,
     horizontal_speed_mps,
+    paper_row_scale_m2ps2,
     sample_pair_covariance,
     toa_rows,
     whiten_sample_pairs,
 )
+from estimators.constrained_ls import ConstrainedLS
 from estimators.gtrs import GtrsSolution, solve_gtrs
 from scenarios import measurement_model as model
 from scenarios.types import MeasurementSet
@@ -49,13 +58,18 @@ Frames = Literal["all", "last"]
 
 @dataclass(frozen=True, slots=True, eq=False)
 class ClsSolution:
-    """Minimisers in world coordinates with the GTRS diagnostics of the last stage."""
+    """Minimisers in world coordinates with the GTRS diagnostics of the last stage.
+
+    ``A``, ``b`` are the rows of the last stage in ``frame``: the system ``gtrs`` solves.
+    """
 
     candidates_m: FloatArray
     costs: FloatArray
     gtrs: GtrsSolution
     frame: LocalFrame
     stages: int
+    A: FloatArray
+    b: FloatArray
 
 
 def cls_rows(
@@ -107,10 +121,18 @@ def cls_rows(
         A_t, b_t = toa_rows(position, range_local, height)
         if rows == "per-frame":
             A_d, b_d = frame_mean_rows(data.frame, A_d, b_d)
-    # Unweighted in SI units: a Doppler residual in metres, a ToA residual in m². In the local
-    # frame they shrink by L and L², so the Doppler rows get the factor 1/L (L in metres).
-    doppler_weight = 1.0 / frame.scale_m
-    return np.vstack([A_d * doppler_weight, A_t]), np.concatenate([b_d * doppler_weight, b_t])
+    # Unweighted in SI units, a ToA residual in m². In the local frame lengths shrink by L, so a
+    # ToA residual shrinks by L² and a unit-row Doppler residual (metres) by L: the Doppler rows
+    # get the factor 1/L (L in metres), times the row's own SI scale. The per-sample rows keep
+    # the unit scale (a residual in metres); the paper's per-frame row has the scale K|v|², a
+    # residual in m³/s² (MATH §3, "Row scale in the unweighted system").
+    doppler_weight = np.full(len(b_d), 1.0 / frame.scale_m)
+    if rows == "per-frame":
+        doppler_weight *= paper_row_scale_m2ps2(data.frame, data.velocity_mps)
+    return (
+        np.vstack([A_d * doppler_weight[:, None], A_t]),
+        np.concatenate([b_d * doppler_weight, b_t]),
+    )
 
 
 def solve_doppler_toa_cls(
@@ -140,6 +162,8 @@ def solve_doppler_toa_cls(
         gtrs=solution,
         frame=frame,
         stages=n_stages,
+        A=A,
+        b=b,
     )
 
 
@@ -171,6 +195,12 @@ def _estimate(
             "n_samples": used.n_samples,
         },
     )
+
+
+def _constrained_ls(rows: Rows, frames: Frames, data: MeasurementSet) -> ConstrainedLS:
+    """The rows whose minimisers :func:`_estimate` returns: the last stage's, frames used."""
+    solution = solve_doppler_toa_cls(data.select_frames(frames), rows)
+    return ConstrainedLS.in_frame(solution.A, solution.b, solution.frame)
 
 
 def _check_frames(frames: str) -> None:
@@ -205,15 +235,36 @@ class Cls:
             raise ValueError(f"weighting: expected 'optimal' or 'none', got {self.weighting!r}")
         _check_frames(self.frames)
 
+    def _rows(self) -> Rows:
+        return "weighted" if self.weighting == "optimal" else "per-sample"
+
+    def capabilities(self) -> Capabilities:
+        """Doppler and ToA on the frames used; the optimal weighting is unit-invariant (MATH §6)."""
+        return Capabilities(
+            modalities=self.requires,
+            frames=self.frames,
+            unit_invariant=self.weighting == "optimal",
+        )
+
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)
-        rows: Rows = "weighted" if self.weighting == "optimal" else "per-sample"
-        return _estimate(self.name, rows, self.frames, data, rng, self.side_prior_m)
+        return _estimate(self.name, self._rows(), self.frames, data, rng, self.side_prior_m)
+
+    def constrained_ls(self, data: MeasurementSet) -> ConstrainedLS:
+        """The system ``estimate`` minimises: with ``optimal`` weighting, stage 2's rows."""
+        require_modalities(self, data)
+        return _constrained_ls(self._rows(), self.frames, data)
 
 
 @dataclass(frozen=True, kw_only=True)
 class ClsPaper:
-    """The paper's unweighted CLS with the errata fixed: one projected Doppler row per frame."""
+    """The paper's unweighted CLS with the errata fixed (MATH §3-§5, paper eq ``finalest``).
+
+    One projected Doppler row per frame at the paper's scale ``K|v|²``, a residual in m³/s²
+    (MATH §3, "Row scale in the unweighted system"), and the squared-range rows with the
+    height term, in m² (MATH §4), solved exactly (MATH §5). Unweighted, so its answer depends
+    on the unit system, as the paper's does; ``frames="last"`` is Algorithm 1.
+    """
 
     name: ClassVar[str] = "cls-paper"
     requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
@@ -224,9 +275,17 @@ class ClsPaper:
     def __post_init__(self) -> None:
         _check_frames(self.frames)
 
+    def capabilities(self) -> Capabilities:
+        return Capabilities(modalities=self.requires, frames=self.frames)
+
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)
         return _estimate(self.name, "per-frame", self.frames, data, rng, self.side_prior_m)
+
+    def constrained_ls(self, data: MeasurementSet) -> ConstrainedLS:
+        """The system ``estimate`` minimises (unweighted, SI-unit rows, frames used)."""
+        require_modalities(self, data)
+        return _constrained_ls("per-frame", self.frames, data)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -245,6 +304,14 @@ class ClsAsPrinted:
     def __post_init__(self) -> None:
         _check_frames(self.frames)
 
+    def capabilities(self) -> Capabilities:
+        return Capabilities(modalities=self.requires, frames=self.frames)
+
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)
         return _estimate(self.name, "as-printed", self.frames, data, rng, self.side_prior_m)
+
+    def constrained_ls(self, data: MeasurementSet) -> ConstrainedLS:
+        """The system ``estimate`` minimises (the printed rows, frames used)."""
+        require_modalities(self, data)
+        return _constrained_ls("as-printed", self.frames, data)

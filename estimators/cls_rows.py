@@ -120,6 +120,7 @@ def frame_mean_rows(
 
     Within a straight frame every Doppler row has the same left side, so the least squares of
     paper eq ``glsf`` fixes only their mean: ``[v̂ᵀ, 0] r = mean_k(...)``.
+    Returns ``A`` (n_frames, 3) and ``b`` (n_frames,), frames in ascending order.
     """
     frame = np.asarray(frame)
     labels, index, counts = np.unique(frame, return_inverse=True, return_counts=True)
@@ -128,6 +129,20 @@ def frame_mean_rows(
     np.add.at(A_mean, index, A)
     np.add.at(b_mean, index, b)
     return A_mean / counts[:, None], b_mean / counts
+
+
+def paper_row_scale_m2ps2(frame: ArrayLike, velocity_mps: ArrayLike) -> FloatArray:
+    """``K|v|²`` of each frame: the scale of the paper's projected Doppler row (MATH §3).
+
+    The paper's rank-one system ``A s = c₁`` has ``A = Σ_k v_k v_kᵀ = K v vᵀ``; projected on
+    ``v̂`` it is the unit row of :func:`frame_mean_rows` times ``K|v|²`` (horizontal speed),
+    in m²/s². In an unweighted least squares this scale is the row's weight. Returns
+    (n_frames,), frames in ascending order.
+    """
+    frame = np.asarray(frame)
+    _, first, counts = np.unique(frame, return_index=True, return_counts=True)
+    speed_sq = np.sum(np.asarray(velocity_mps, dtype=float)[first, :2] ** 2, axis=1)
+    return counts * speed_sq
 
 
 def doppler_rows_as_printed(

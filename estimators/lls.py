@@ -25,7 +25,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from estimators.base import Estimate, finalize_estimate, require_modalities
+from estimators.base import Capabilities, Estimate, finalize_estimate, require_modalities
 from estimators.cls_rows import LocalFrame, toa_rows
 from scenarios.types import MeasurementSet, RssModel
 
@@ -286,6 +286,10 @@ class LlsToa:
     def __post_init__(self) -> None:
         _check_frames(self.frames)
 
+    def capabilities(self) -> Capabilities:
+        """One unit in every row (m², or dB-derived m²): unit-invariant."""
+        return Capabilities(modalities=self.requires, frames=self.frames, unit_invariant=True)
+
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)
         used = data.select_frames(self.frames)
@@ -316,6 +320,10 @@ class LlsRss:
         _check_frames(self.frames)
         if self.reference not in ("strongest", "mean"):
             raise ValueError(f"reference: expected 'strongest' or 'mean', got {self.reference!r}")
+
+    def capabilities(self) -> Capabilities:
+        """One unit in every row (m², or dB-derived m²): unit-invariant."""
+        return Capabilities(modalities=self.requires, frames=self.frames, unit_invariant=True)
 
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)

@@ -25,6 +25,19 @@ also from a Doppler-only fit of the last frame, useful when the ranges are usele
 
 The covariance is the inverse Fisher information at the estimate,
 ``(JᵀJ)⁻¹`` with ``J`` the whitened Jacobian (MATH §8): the CRLB evaluated at ``ŝ``.
+
+Convergence. How each start's Levenberg-Marquardt run ended is recorded per start in
+``diagnostics["lm_status"]``: ``converged`` (a tolerance met, ``gtol``/``ftol``/``xtol``, *and*
+the point stationary: its decrement, the smaller of the Gauss-Newton ``‖P_J e‖²`` and the
+Newton ``gᵀH⁻¹g`` with the exact Hessian ``H`` where it is positive definite, at most
+``DECREMENT_TOL``, i.e. within 0.01 σ of a minimum, :mod:`estimators.hypotheses`),
+``iteration cap`` (all ``max_nfev`` evaluations used), ``stalled`` (a tolerance met away from
+a stationary point: the trust region collapsed) or ``error``. Only converged starts give minima.
+The estimate fails when no start converged, or when a start that did not converge ended below
+every converged minimum (the optimum found is then not the best the data allow); starts that
+did not converge but ended higher are counted in ``diagnostics`` and noted in ``message``.
+The exact Hessian is the central difference of the analytic gradient ``Jᵀe`` (step
+``HESSIAN_STEP_RTOL`` of the length scale: truncation and rounding both ~1e−11 relative).
 """
 
 from __future__ import annotations
@@ -37,9 +50,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
-from estimators.base import Estimate, finalize_estimate, require_modalities
+from estimators.base import Capabilities, Estimate, finalize_estimate, require_modalities
 from estimators.cls import solve_doppler_toa_cls
 from estimators.cls_rows import LocalFrame
+from estimators.hypotheses import DECREMENT_TOL, stationarity_decrement
 from estimators.lls import solve_lls_toa
 from scenarios import measurement_model as model
 from scenarios.geometry import cross_track_m, mirror_across_line, straight_track_line
@@ -54,6 +68,19 @@ MERGE_RTOL = 1e-6
 
 _ON_TRACK_RTOL = 1e-6
 """A start this close (relative) to a straight track's vertical plane gets a second start off it."""
+
+HESSIAN_STEP_RTOL = 1e-6
+"""Central-difference step of the exact Hessian (module text), relative to the length scale."""
+
+MINPACK_STATUS = {
+    -1: "improper input",
+    0: "max_nfev",
+    1: "gtol",
+    2: "ftol",
+    3: "xtol",
+    4: "ftol+xtol",
+}
+"""``scipy.optimize.least_squares`` status codes (1-4: a tolerance met; 0: the evaluation cap)."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -133,6 +160,11 @@ class MlSolution:
         Residual evaluations over all starts (``nfev`` summed).
     messages : tuple of str
         The solver's message for every start that did not converge.
+    statuses : tuple of str
+        One per start: ``"converged (xtol)"``, ``"iteration cap (max_nfev=200)"``,
+        ``"stalled (ftol, decrement 0.03)"``, ``"error"`` or ``"non-finite start"``.
+    unconverged_best_cost : float
+        The lowest ``‖e‖²`` at which a start that did not converge ended (inf if none).
     """
 
     minima_m: FloatArray
@@ -140,6 +172,12 @@ class MlSolution:
     n_starts: int
     n_evaluations: int
     messages: tuple[str, ...]
+    statuses: tuple[str, ...] = ()
+    unconverged_best_cost: float = float("inf")
+
+    @property
+    def n_converged(self) -> int:
+        return sum(status.startswith("converged") for status in self.statuses)
 
 
 def solve_maximum_likelihood(
@@ -177,6 +215,9 @@ def solve_maximum_likelihood(
         Relative step tolerance (``ftol`` and ``gtol`` use it too).
     max_nfev : int
         Evaluation budget per start; a start that exhausts it has not converged.
+
+    A start gives a minimum only if it converged (module text, "Convergence"): a tolerance
+    met and the point stationary (:func:`ml_decrement` at most ``DECREMENT_TOL``).
     """
     starts = np.asarray(starts_m, dtype=float).reshape(-1, 2)
     if frame is None:
@@ -192,10 +233,13 @@ def solve_maximum_likelihood(
     minima: list[FloatArray] = []
     costs: list[float] = []
     messages: list[str] = []
+    statuses: list[str] = []
+    unconverged_best = float("inf")
     n_evaluations = 0
     for start in frame.to_local(starts):
         if not np.all(np.isfinite(start)):
             messages.append("non-finite start")
+            statuses.append("non-finite start")
             continue
         try:
             result = least_squares(
@@ -210,13 +254,33 @@ def solve_maximum_likelihood(
             )
         except (ValueError, np.linalg.LinAlgError) as error:
             messages.append(str(error))
+            statuses.append("error")
             continue
         n_evaluations += int(result.nfev)
         cost = 2.0 * float(result.cost)  # scipy's cost is ½‖e‖²
-        if result.status <= 0 or not (np.all(np.isfinite(result.x)) and np.isfinite(cost)):
-            messages.append(result.message)
+        code = MINPACK_STATUS.get(int(result.status), f"status {result.status}")
+        if not (np.all(np.isfinite(result.x)) and np.isfinite(cost)):
+            messages.append(f"{result.message} (non-finite result)")
+            statuses.append(f"error ({code}, non-finite result)")
             continue
-        minima.append(frame.to_world(result.x))
+        point = frame.to_world(result.x)
+        if result.status <= 0:
+            status = (
+                f"iteration cap (max_nfev={max_nfev})" if result.status == 0 else f"error ({code})"
+            )
+            messages.append(f"{result.message} ({status})")
+        else:
+            decrement = ml_decrement(data, point, use_rss=use_rss, scale_m=scale)
+            if decrement <= DECREMENT_TOL:
+                status = f"converged ({code})"
+            else:
+                status = f"stalled ({code}, decrement {decrement:.3g} > {DECREMENT_TOL:g})"
+                messages.append(f"{result.message} but not at a minimum: {status}")
+        statuses.append(status)
+        if not status.startswith("converged"):
+            unconverged_best = min(unconverged_best, cost)
+            continue
+        minima.append(point)
         costs.append(cost)
     points, values = _distinct_minima(np.reshape(minima, (-1, 2)), np.asarray(costs), scale)
     if len(values) > 1:
@@ -227,7 +291,43 @@ def solve_maximum_likelihood(
         n_starts=len(starts),
         n_evaluations=n_evaluations,
         messages=tuple(messages),
+        statuses=tuple(statuses),
+        unconverged_best_cost=unconverged_best,
     )
+
+
+def ml_decrement(
+    data: MeasurementSet, emitter_m: ArrayLike, *, use_rss: bool = False, scale_m: float
+) -> float:
+    """The decrement of ``‖e‖²`` at ``emitter_m`` (χ² units; module text, "Convergence").
+
+    ``min(‖P_J e‖², gᵀH⁻¹g)``: the Gauss-Newton decrement (``P_J`` the projection on the range
+    of the whitened Jacobian ``J``, finite even where ``JᵀJ`` is singular) and the Newton
+    decrement with the exact Hessian ``H`` (central differences of ``g = Jᵀe``, step
+    ``HESSIAN_STEP_RTOL · scale_m``), the latter only where ``H`` is positive definite.
+    """
+    point = np.asarray(emitter_m, dtype=float)
+
+    def gradient(at: FloatArray) -> FloatArray:
+        J = whitened_residual_jacobian(data, at, use_rss=use_rss)
+        return J.T @ whitened_residuals(data, at, use_rss=use_rss)
+
+    e = whitened_residuals(data, point, use_rss=use_rss)
+    J = whitened_residual_jacobian(data, point, use_rss=use_rss)
+    if not (np.all(np.isfinite(e)) and np.all(np.isfinite(J))):
+        return float("inf")
+    step, *_ = np.linalg.lstsq(J, e, rcond=None)
+    gauss_newton = float(np.sum((J @ step) ** 2))
+    h = HESSIAN_STEP_RTOL * scale_m
+    hessian = np.column_stack(
+        [
+            (gradient(point + h * axis) - gradient(point - h * axis)) / (2.0 * h)
+            for axis in np.eye(2)
+        ]
+    )
+    hessian = 0.5 * (hessian + hessian.T)
+    information = J.T @ J
+    return min(gauss_newton, stationarity_decrement(information, hessian - information, J.T @ e))
 
 
 def _distinct_minima(
@@ -399,6 +499,9 @@ class MaximumLikelihood:
         e.g. the paper's printed ``c σ_τ = 300 km``, where the CLS start is meaningless.
     method : {"lm", "trf"}
         The ``scipy.optimize.least_squares`` method.
+    max_nfev : int
+        Residual evaluations per start, at most; a start that uses them all has not converged
+        (module text, "Convergence").
     """
 
     name: ClassVar[str] = "ml"
@@ -411,6 +514,7 @@ class MaximumLikelihood:
     fallback_lls: bool = True
     doppler_start: bool | Literal["auto"] = "auto"
     method: Method = "lm"
+    max_nfev: int = 200
 
     def __post_init__(self) -> None:
         if self.frames not in ("all", "last"):
@@ -423,12 +527,20 @@ class MaximumLikelihood:
             )
         if self.method not in ("lm", "trf"):
             raise ValueError(f"method: expected 'lm' or 'trf', got {self.method!r}")
+        n = self.max_nfev
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise ValueError(f"max_nfev: expected a whole number >= 1, got {n!r}")
         if self.side_prior_m is not None and (
             np.shape(self.side_prior_m) != (2,) or not np.all(np.isfinite(self.side_prior_m))
         ):
             raise ValueError(
                 f"side_prior_m: expected a finite (x, y) in metres, got {self.side_prior_m!r}"
             )
+
+    def capabilities(self) -> Capabilities:
+        """Doppler and ToA, and RSS with ``use_rss``; whitened residuals: unit-invariant."""
+        modalities = self.requires | ({"rss"} if self.use_rss else set())
+        return Capabilities(modalities=modalities, frames=self.frames, unit_invariant=True)
 
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)
@@ -457,16 +569,40 @@ class MaximumLikelihood:
             method=self.method,
             frame=frame,
             cost_rtol=self.cost_rtol,
+            max_nfev=self.max_nfev,
         )
         diagnostics = {
             "n_starts": solution.n_starts,
             "nfev": solution.n_evaluations,
+            "max_nfev": self.max_nfev,
             "start_method": start_method,
             "n_samples": used.n_samples,
+            "lm_status": list(solution.statuses),
+            "n_converged": solution.n_converged,
         }
+        reasons = "; ".join(dict.fromkeys(solution.messages))
         if len(solution.minima_m) == 0:
-            reasons = "; ".join(dict.fromkeys(solution.messages)) or "no start converged"
-            return Estimate.failed(self.name, f"least squares failed: {reasons}", **diagnostics)
+            return Estimate.failed(
+                self.name,
+                f"least squares did not converge from any start: {reasons or 'no start'}",
+                **diagnostics,
+            )
+        best = float(solution.costs[0])
+        if solution.unconverged_best_cost < best - self.cost_rtol * abs(best):
+            return Estimate.failed(
+                self.name,
+                f"a start that did not converge ended below every converged minimum "
+                f"(cost {solution.unconverged_best_cost:.6g} < {best:.6g}): the optimum was "
+                f"not reached ({reasons})",
+                **diagnostics,
+            )
+        unconverged = solution.n_starts - solution.n_converged
+        if unconverged:
+            note = (
+                f"{unconverged} of {solution.n_starts} starts did not converge and were "
+                f"dropped ({reasons})"
+            )
+            start_note = f"{start_note}; {note}" if start_note else note
         estimate = finalize_estimate(
             self.name,
             solution.minima_m,
@@ -482,6 +618,12 @@ class MaximumLikelihood:
                 n_minima=len(solution.minima_m),
             ),
         )
+        if not (
+            np.all(np.isfinite(estimate.position_m)) and np.all(np.isfinite(estimate.candidates_m))
+        ):
+            return Estimate.failed(
+                self.name, "least squares returned a non-finite minimum", **diagnostics
+            )
         covariance = fisher_covariance_m2(used, estimate.position_m, use_rss=self.use_rss)
         if covariance is None:
             note = "singular Fisher information at the estimate: no covariance"

@@ -20,20 +20,48 @@ from dataclasses import dataclass
 from importlib.metadata import entry_points
 from typing import Any
 
-from estimators.base import Estimator
+from estimators.base import Estimator, protocol_problems
 
 ENTRY_POINT_GROUP = "emitterbench.estimators"
 
 
 @dataclass(frozen=True)
 class RegistryEntry:
+    """A registered estimator: its name, ``module:Class`` target and a one-line summary.
+
+    What it needs to run is declared on the class (``required_modules``, read without
+    constructing it: a module that wraps an optional back-end imports it only when used).
+    """
+
     name: str
     target: str  # "module:attribute"
     summary: str
-    required_modules: tuple[str, ...] = ()
+
+    @property
+    def required_modules(self) -> tuple[str, ...]:
+        """The class's ``required_modules``, plus the class's own module if it cannot be found."""
+        module = self.target.partition(":")[0]
+        try:
+            found = importlib.util.find_spec(module) is not None
+        except (ImportError, ValueError):
+            found = False
+        if not found:
+            return (module,)
+        return tuple(getattr(_load(self.target), "required_modules", ()))
+
+    def missing_modules(self) -> list[str]:
+        """The required modules that are not installed."""
+        missing = []
+        for module in self.required_modules:
+            try:
+                if importlib.util.find_spec(module) is None:
+                    missing.append(module)
+            except (ImportError, ValueError):
+                missing.append(module)
+        return missing
 
     def is_available(self) -> bool:
-        return all(importlib.util.find_spec(m) is not None for m in self.required_modules)
+        return not self.missing_modules()
 
 
 BUILTIN: dict[str, RegistryEntry] = {
@@ -62,19 +90,16 @@ BUILTIN: dict[str, RegistryEntry] = {
             "sdp-cls",
             "estimators.sdp_cls:SdpCls",
             "Shor SDP relaxation of the CLS, cvxpy + Clarabel (MATH §11)",
-            ("cvxpy", "clarabel"),
         ),
         RegistryEntry(
             "ekf",
             "estimators.ekf:Ekf",
             "iterated EKF (or UKF) over frames, one filter per mirror hypothesis (MATH §7-§8)",
-            ("filterpy",),
         ),
         RegistryEntry(
             "gtsam-smoother",
             "estimators.gtsam_smoother:GtsamSmoother",
             "GTSAM factor-graph smoother: LM in batch, ISAM2 streaming, mirror hypotheses",
-            ("gtsam",),
         ),
         RegistryEntry(
             "ml",
@@ -134,8 +159,8 @@ def estimator_class(name: str) -> type:
             "(or give 'package.module:Class')"
         )
     entry = entries[name]
-    if not entry.is_available():
-        missing = [m for m in entry.required_modules if importlib.util.find_spec(m) is None]
+    missing = entry.missing_modules()
+    if missing:
         raise ValueError(f"estimator: {name!r} needs {', '.join(missing)}, which is not installed")
     return _load(entry.target)
 
@@ -156,9 +181,11 @@ def make_estimator(name: str, **options: Any) -> Estimator:
         raise ValueError(
             f"options: estimator {name!r} rejected {sorted(options)} ({error})"
         ) from None
-    if not isinstance(estimator, Estimator):
+    problems = protocol_problems(estimator)
+    if problems or not isinstance(estimator, Estimator):
         raise ValueError(
-            f"estimator {name!r}: {cls.__name__} lacks the Estimator interface "
-            "(needs name, requires and estimate(data, *, rng=None))"
+            f"estimator {name!r}: {cls.__name__} lacks the Estimator interface: "
+            f"{'; '.join(problems) or 'needs name, requires and estimate(data, *, rng=None)'} "
+            "(docs/writing-an-estimator.md)"
         )
     return estimator

@@ -57,17 +57,23 @@ import threading
 import time
 import warnings
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
-import cvxpy as cp
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from estimators.base import Estimate, finalize_estimate, require_modalities
+from estimators.base import Capabilities, Estimate, finalize_estimate, require_modalities
 from estimators.cls import cls_rows
 from estimators.cls_rows import LocalFrame
 from estimators.gtrs import constrained_cost
 from scenarios.types import MeasurementSet
+
+if TYPE_CHECKING:
+    import cvxpy as cp
+
+# cvxpy's status strings (cvxpy.OPTIMAL, ...), so that importing this module does not import
+# cvxpy: the registry reads ``SdpCls.required_modules`` before anything is imported.
+OPTIMAL, OPTIMAL_INACCURATE, USER_LIMIT = "optimal", "optimal_inaccurate", "user_limit"
 
 FloatArray = NDArray[np.float64]
 Relaxation = Literal["equality", "inequality"]
@@ -94,6 +100,10 @@ SCS_MAX_ITERS = 100_000
 
 RANK_RTOL = 1e-6
 """An eigenvalue of the whitened lift below ``RANK_RTOL`` times the largest counts as zero."""
+
+NON_FINITE = "non_finite"
+"""Status of a solve whose solver claimed success but whose lift, points or value are not
+finite (NaN or infinity): a failure, never an estimate."""
 
 _SINGULAR_RTOL = 1e-12
 
@@ -329,6 +339,8 @@ def relaxation_problem(relaxation: Relaxation) -> RelaxationProblem:
     """
     if relaxation not in RELAXATIONS:
         raise ValueError(f"relaxation: expected one of {RELAXATIONS}, got {relaxation!r}")
+    import cvxpy as cp
+
     lift = cp.Variable((4, 4), symmetric=True, name="W")
     objective = cp.Parameter((4, 4), symmetric=True, name="H")
     constraint = cp.Parameter((4, 4), symmetric=True, name="C")
@@ -385,8 +397,8 @@ class SdpSolution:
     Attributes
     ----------
     status : str
-        The cvxpy status (``optimal``, ``optimal_inaccurate``, ``user_limit``, ...) or
-        ``solver_error``.
+        The cvxpy status (``optimal``, ``optimal_inaccurate``, ``user_limit``, ...),
+        ``solver_error``, or ``non_finite`` (:data:`NON_FINITE`).
     message : str
         Empty on ``optimal``; otherwise what happened and what to try.
     value : float
@@ -429,12 +441,12 @@ class SdpSolution:
 
     @property
     def optimal(self) -> bool:
-        return self.status == cp.OPTIMAL
+        return self.status == OPTIMAL
 
     @property
     def has_solution(self) -> bool:
         """A lift was returned with status ``optimal`` or ``optimal_inaccurate``."""
-        return self.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) and len(self.points) > 0
+        return self.status in (OPTIMAL, OPTIMAL_INACCURATE) and len(self.points) > 0
 
     @property
     def z_matrix(self) -> FloatArray:
@@ -506,6 +518,8 @@ def _solve_built(
     options: dict[str, Any],
 ) -> _SolveOutcome:
     """One solve of the shared problem with the whitened data; a solver error is an outcome."""
+    from cvxpy.error import SolverError
+
     with built.lock:
         built.objective.value = 0.5 * (whitened.objective + whitened.objective.T)
         built.constraint.value = 0.5 * (whitened.constraint + whitened.constraint.T)
@@ -514,7 +528,7 @@ def _solve_built(
                 # reported through the status, not as a warning
                 warnings.filterwarnings("ignore", "Solution may be inaccurate", UserWarning)
                 built.problem.solve(solver=solver, verbose=False, **options)
-        except cp.error.SolverError as error:
+        except SolverError as error:
             return _SolveOutcome("solver_error", None, None, None, float("nan"), str(error))
         stats = built.problem.solver_stats
         return _SolveOutcome(
@@ -594,7 +608,7 @@ def solve_sdp_relaxation(
     for options in attempts:
         rung += 1
         outcome = _solve_built(built, whitened, solver, options)
-        if outcome.status not in (cp.OPTIMAL_INACCURATE, "solver_error"):
+        if outcome.status not in (OPTIMAL_INACCURATE, "solver_error"):
             break
     status, iterations, solve_time = outcome.status, outcome.iterations, outcome.solve_time_s
     if status == "solver_error":
@@ -605,11 +619,19 @@ def solve_sdp_relaxation(
             rung=rung,
         )
     lift_w = outcome.lift
-    if status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or lift_w is None:
-        hint = " (raise max_iter)" if status == cp.USER_LIMIT else ""
+    if status not in (OPTIMAL, OPTIMAL_INACCURATE) or lift_w is None:
+        hint = " (raise max_iter)" if status == USER_LIMIT else ""
         return _failed_solution(
             status,
             f"solver {solver} stopped with status {status}{hint}",
+            started,
+            iterations=iterations,
+            rung=rung,
+        )
+    if not np.all(np.isfinite(lift_w)):
+        return _failed_solution(
+            NON_FINITE,
+            f"solver {solver} reported {status} but its lift is not finite",
             started,
             iterations=iterations,
             rung=rung,
@@ -618,6 +640,15 @@ def solve_sdp_relaxation(
     points, rank = recover_minimisers(lift_w, whitened, rank_rtol=rank_rtol)
     costs = constrained_cost(A, b, points[:, :2])
     value = whitened.objective_scale * float(np.sum(whitened.objective * lift_w))
+    if not (np.all(np.isfinite(points)) and np.all(np.isfinite(costs)) and np.isfinite(value)):
+        return _failed_solution(
+            NON_FINITE,
+            f"solver {solver} reported {status} but the recovered points or the value are "
+            "not finite",
+            started,
+            iterations=iterations,
+            rung=rung,
+        )
     # Lagrangian of the solver: tr(H W)/s + ν tr(C W)/κ  ⇔  ‖Ar − b‖² + ν (s/κ)(‖y‖² − r_z);
     # MATH §5 writes λ (‖y‖² − r_z) with the same sign.
     multiplier = (
@@ -628,7 +659,7 @@ def solve_sdp_relaxation(
         else float("nan")
     )
     message = ""
-    if status == cp.OPTIMAL_INACCURATE:
+    if status == OPTIMAL_INACCURATE:
         message = f"solver {solver} returned optimal_inaccurate: the witness is not certified"
     return SdpSolution(
         status=status,
@@ -659,8 +690,12 @@ class SdpCls:
     weights from the data, stage 2 from the stage-1 SDP estimate. The returned
     ``diagnostics`` carry the solver status, the relaxation value, the CLS cost of the
     returned points (their difference is the tightness gap), the eigenvalues of ``Z`` and of
-    the full lift, the rank and λ from the dual. The built problem is cached per process, so
-    the estimator itself only stores options (and pickles).
+    the full lift, the rank and λ from the dual, and ``stage_statuses`` (one solver status per
+    stage). Only status ``optimal`` is a success (``optimal_inaccurate`` too with
+    ``accept_inaccurate``, flagged in ``message``), after the tolerance rungs of
+    :func:`solver_attempts` (the documented retry); a solve that reports success with a
+    non-finite lift, point or value is a failure with status ``non_finite``. The built problem
+    is cached per process, so the estimator itself only stores options (and pickles).
 
     Parameters
     ----------
@@ -682,6 +717,7 @@ class SdpCls:
 
     name: ClassVar[str] = "sdp-cls"
     requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+    required_modules: ClassVar[tuple[str, ...]] = ("cvxpy", "clarabel")
 
     relaxation: Relaxation = "equality"
     solver: Solver = "CLARABEL"
@@ -711,6 +747,17 @@ class SdpCls:
         if self.frames not in ("all", "last"):
             raise ValueError(f"frames: expected 'all' or 'last', got {self.frames!r}")
 
+    def capabilities(self) -> Capabilities:
+        """Like ``cls`` (unit-invariant when weighted), to the interior-point solver's accuracy."""
+        return Capabilities(
+            modalities=self.requires,
+            frames=self.frames,
+            modules=self.required_modules,
+            unit_invariant=self.weighting == "optimal",
+            noise_free_tolerance_m=1e-5,
+            tolerance_reason="the interior-point solver stops at a relative gap of about 1e-8",
+        )
+
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)
         used = data.select_frames(self.frames)
@@ -718,6 +765,7 @@ class SdpCls:
         rows = "weighted" if self.weighting == "optimal" else "per-sample"
         stages = 2 if rows == "weighted" else 1
         solution: SdpSolution | None = None
+        statuses: list[str] = []
         for stage in range(stages):
             weights_at = None if solution is None else solution.points[0, :2]
             A, b = cls_rows(used, frame, rows, weights_at_local_xy=weights_at)
@@ -731,15 +779,20 @@ class SdpCls:
             solution = solve_sdp_relaxation(
                 A, b, relaxation=self.relaxation, solver=self.solver, max_iter=self.max_iter
             )
+            statuses.append(solution.status)
             accepted = solution.optimal or (
-                self.accept_inaccurate and solution.status == cp.OPTIMAL_INACCURATE
+                self.accept_inaccurate and solution.status == OPTIMAL_INACCURATE
             )
             if not (accepted and solution.has_solution):
+                message = solution.message or (
+                    f"solver {self.solver} returned status {solution.status}, not accepted"
+                )
                 return Estimate.failed(
                     self.name,
-                    f"stage {stage + 1}: {solution.message}",
+                    f"stage {stage + 1}: {message}",
                     **solution.diagnostics(),
                     stage=stage + 1,
+                    stage_statuses=statuses,
                 )
         assert solution is not None
         notes = [solution.message] if solution.message else []
@@ -747,19 +800,26 @@ class SdpCls:
             notes.append("rank-two lift: mirror pair recovered (MATH §5, §11)")
         if self.relaxation == "inequality" and solution.tightness_gap > 1e-6:
             notes.append("inequality relaxation not tight (λ* < 0, MATH §11)")
+        diagnostics = dict(
+            solution.diagnostics(),
+            relaxation=self.relaxation,
+            solver=self.solver,
+            stages=stages,
+            stage_statuses=statuses,
+            n_samples=used.n_samples,
+        )
+        points = frame.to_world(solution.points[:, :2])
+        if not np.all(np.isfinite(points)):
+            return Estimate.failed(
+                self.name, "the recovered minimisers are not finite", **diagnostics
+            )
         return finalize_estimate(
             self.name,
-            frame.to_world(solution.points[:, :2]),
+            points,
             solution.costs,
             used,
             rng=rng,
             side_prior_m=self.side_prior_m,
             message="; ".join(notes),
-            diagnostics=dict(
-                solution.diagnostics(),
-                relaxation=self.relaxation,
-                solver=self.solver,
-                stages=stages,
-                n_samples=used.n_samples,
-            ),
+            diagnostics=diagnostics,
         )

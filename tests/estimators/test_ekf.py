@@ -15,16 +15,22 @@ from scipy.optimize import least_squares
 from scipy.stats import chi2
 
 from comparison.crlb import fisher_information, rmse_bound_m
+from estimators import hypotheses
 from estimators.base import SequentialEstimator
 from estimators.ekf import Ekf, ekf_update
 from estimators.hypotheses import (
+    DECREMENT_TOL,
     DIFFUSE_PRIOR_SCALE,
     FrameModel,
     diffuse_prior_information,
+    first_frame_candidates,
+    hypotheses_estimate,
     iterated_update,
+    map_cost,
 )
+from estimators.registry import make_estimator
 from scenarios import measurement_model as model
-from scenarios.catalog import heading_velocities_mps, paper_scenario
+from scenarios.catalog import get_scenario, heading_velocities_mps, paper_scenario
 from scenarios.simulate import noise_free, simulate, simulate_trials, trial_seeds
 from scenarios.types import FlightPlan, MeasurementSet, Scenario
 
@@ -118,6 +124,32 @@ def test_frame_jacobian_matches_central_differences(frame_index: int) -> None:
         np.testing.assert_array_equal(jacobian, analytic)
 
 
+@pytest.mark.parametrize("frame_index", [3, 4])
+def test_frame_hessian_matches_central_differences(frame_index: int) -> None:
+    """``∂²h/∂s²`` of every row (the curvature Gauss-Newton drops) against differences of the
+    analytic Jacobian, also on the track and per sample."""
+    data = simulate(flight_scenario(EAST_THEN_NORTH), seed=1)
+    frame = FrameModel.from_measurements(list(data.iter_frames())[frame_index])
+    step = 1e-5
+    for point in np.array([[35.0, 15.0], [20.0, 1e-3], [-40.0, 70.0]]):
+        numeric = np.stack(
+            [
+                (frame.jacobian(point + step * axis) - frame.jacobian(point - step * axis))
+                / (2 * step)
+                for axis in np.eye(2)
+            ],
+            axis=-1,
+        )
+        hessian = frame.hessian(point)
+        np.testing.assert_allclose(hessian, numeric, rtol=1e-6, atol=1e-9 * np.abs(hessian).max())
+        per_sample = frame.hessian(np.tile(point, (len(frame.position_m), 1)), per_sample=True)
+        np.testing.assert_allclose(per_sample, hessian, rtol=1e-12)
+        e = frame.whitened_error(point)
+        np.testing.assert_allclose(
+            frame.curvature_terms(point, e), (e / frame.sigma)[:, None, None] * hessian
+        )
+
+
 def test_frame_information_sums_to_the_crlb_fisher_information() -> None:
     """``Σ_frames EᵀE`` is MATH §8's toa+doppler Fisher information."""
     data = noise_free(flight_scenario(EAST_THEN_NORTH))
@@ -143,7 +175,7 @@ def frame_after_turn() -> tuple[FrameModel, np.ndarray, np.ndarray]:
 def test_single_pass_is_the_kalman_update() -> None:
     """``max_iterations=1``: ``s̄ + K(z − h(s̄))``, ``K = P̄Hᵀ(HP̄Hᵀ + R)⁻¹``, ``P = (I − KH)P̄``."""
     frame, prior_mean, prior_covariance = frame_after_turn()
-    mean, covariance, iterations = ekf_update(frame, prior_mean, prior_covariance, max_iterations=1)
+    mean, covariance, report = ekf_update(frame, prior_mean, prior_covariance, max_iterations=1)
     H = frame.jacobian(prior_mean)
     S = H @ prior_covariance @ H.T + np.diag(frame.sigma**2)
     K = prior_covariance @ H.T @ np.linalg.inv(S)
@@ -151,17 +183,18 @@ def test_single_pass_is_the_kalman_update() -> None:
         mean, prior_mean + K @ (frame.measured - frame.predicted(prior_mean)), rtol=1e-12
     )
     np.testing.assert_allclose(covariance, (np.eye(2) - K @ H) @ prior_covariance, rtol=1e-9)
-    assert mean.shape == (2,) and iterations == 1
+    assert mean.shape == (2,) and report.iterations == 1 and report.converged
 
 
 def test_iterated_filterpy_update_is_the_posterior_mode() -> None:
     """The IEKF's filterpy passes converge to the Gauss-Newton mode of the frame's posterior."""
     frame, prior_mean, prior_covariance = frame_after_turn()
-    mean, covariance, iterations = ekf_update(
-        frame, prior_mean, prior_covariance, max_iterations=50
+    mean, covariance, report = ekf_update(frame, prior_mean, prior_covariance, max_iterations=50)
+    mode, information, _, mode_report = iterated_update(
+        frame, prior_mean, np.linalg.inv(prior_covariance)
     )
-    mode, information, _, _ = iterated_update(frame, prior_mean, np.linalg.inv(prior_covariance))
-    assert 1 < iterations < 50
+    assert 1 < report.iterations < 50 and report.converged and mode_report.converged
+    assert report.decrement < 1e-12 and mode_report.decrement < 1e-12
     np.testing.assert_allclose(mean, mode, atol=1e-9)
     np.testing.assert_allclose(np.linalg.inv(covariance), information, rtol=1e-7)
     # the single pass stops short of the mode by far more than the IEKF's tolerance
@@ -353,6 +386,102 @@ def test_diffuse_prior_is_negligible_against_one_frame() -> None:
     prior = diffuse_prior_information(length)
     assert prior[0, 0] == pytest.approx(1.0 / (DIFFUSE_PRIOR_SCALE * length) ** 2)
     assert prior[0, 0] < 1e-9 * np.linalg.eigvalsh(frame.information([35.0, 15.0]))[0]
+
+
+# --------------------------------------------------------------------------------------------
+# convergence: the iterated updates are checked, with documented fallbacks
+# --------------------------------------------------------------------------------------------
+
+
+def near_track_first_frame() -> tuple[MeasurementSet, FrameModel, np.ndarray, np.ndarray]:
+    """Trial 31 of seed 757 at −20 dB: the first frame's minimum lies on the track."""
+    data = simulate(get_scenario("paper-1m-turn"), snr_db=-20.0, seed=trial_seeds(757, 500)[31])
+    first = data.take(data.frame == 0)
+    frame = FrameModel.from_measurements(first)
+    start = first_frame_candidates(first)[0]
+    return first, frame, start, diffuse_prior_information(frame.mean_range_m(start))
+
+
+def test_gauss_newton_stuck_near_the_track_is_finished_by_newton() -> None:
+    """Gauss-Newton creeps along the on-track valley: after its 50 iterations it was 0.17 m
+    short of the first frame's ML (and returned that silently). The report says so, Newton's
+    method finishes the update, and the result is the ML to 1e-3 m."""
+    first, frame, start, prior = near_track_first_frame()
+    mean, _, _, report = iterated_update(frame, start, prior, max_iterations=50)
+    assert report.converged and report.decrement <= DECREMENT_TOL
+    assert report.fallback == "newton"
+    assert "iteration cap (50)" in report.fallback_reason
+    assert report.iterations > 50 and report.max_iterations > 50
+    ml = make_estimator("ml").estimate(first)
+    assert np.min(np.linalg.norm(ml.candidates_m - mean, axis=1)) < 1e-3
+    estimate = Ekf().estimate_state(Ekf().update(Ekf().init(), first))
+    assert estimate.success
+    assert estimate.diagnostics["fallback"] == "newton"
+    assert estimate.diagnostics["fallbacks"] == 1
+    assert "Newton's method finished it" in estimate.message
+
+
+def test_gauss_newton_alone_stops_short_near_the_track(monkeypatch) -> None:
+    """The same update with the Newton fallback disabled is reported not converged."""
+    _, frame, start, prior = near_track_first_frame()
+
+    def no_refinement(frame, prior_mean_m, prior_information, start_m, **_):
+        point = np.asarray(start_m, dtype=float)
+        return point, map_cost(frame, point, prior_mean_m, prior_information), 0, True
+
+    converged, _, _, _ = iterated_update(frame, start, prior, max_iterations=50)
+    monkeypatch.setattr(hypotheses, "newton_refine", no_refinement)
+    stuck, _, _, report = iterated_update(frame, start, prior, max_iterations=50)
+    assert not report.converged and report.decrement > DECREMENT_TOL
+    assert "iteration cap (50)" in report.reason and "stalled" in report.reason
+    assert np.linalg.norm(stuck - converged) > 0.1  # metres short of the minimum
+
+
+def test_iekf_that_does_not_converge_is_a_failed_estimate(monkeypatch) -> None:
+    """Two IEKF passes do not reach the mode at −20 dB; with the fallback disabled the estimate
+    fails from that frame on, naming the frame and the cap: never a silent success."""
+
+    def no_refinement(frame, prior_mean_m, prior_information, start_m, **_):
+        point = np.asarray(start_m, dtype=float)
+        return point, map_cost(frame, point, prior_mean_m, prior_information), 0, True
+
+    monkeypatch.setattr(hypotheses, "newton_refine", no_refinement)
+    data = simulate(get_scenario("paper-1m-turn"), snr_db=-20.0, seed=0)
+    states = streamed_states(Ekf(max_iterations=2), data)
+    assert Ekf().estimate_state(states[0]).success
+    estimate = Ekf(max_iterations=2).estimate_state(states[-1])
+    assert not estimate.success and np.all(np.isnan(estimate.position_m))
+    assert estimate.message.startswith(
+        "frame 1: the iterated EKF update reached its iteration cap (2)"
+    )
+    monkeypatch.undo()
+    rescued = Ekf(max_iterations=2).estimate(data)
+    assert rescued.success and rescued.diagnostics["converged"]
+
+
+def test_converged_update_reports_its_iterations_and_decrement() -> None:
+    data = simulate(flight_scenario(EAST_THEN_NORTH), seed=5)
+    estimate = Ekf().estimate(data)
+    diagnostics = estimate.diagnostics
+    assert diagnostics["converged"] and diagnostics["fallback"] == "none"
+    assert diagnostics["fallbacks"] == 0 and diagnostics["fallback_reason"] == ""
+    assert 1 <= diagnostics["update_iterations"] < diagnostics["max_iterations"] == 20
+    assert diagnostics["decrement"] <= DECREMENT_TOL
+    assert Ekf(max_iterations=1).estimate(data).diagnostics["decrement"] is None
+
+
+def test_non_finite_hypothesis_is_a_failed_estimate() -> None:
+    """``success=True`` only with finite candidates."""
+    estimate = hypotheses_estimate(
+        "ekf",
+        [[np.nan, 1.0], [35.0, 15.0]],
+        [np.eye(2), np.eye(2)],
+        [0.0, -1.0],
+        [np.eye(2), np.eye(2)],
+        straight_track=False,
+        length_scale_m=60.0,
+    )
+    assert not estimate.success and "not finite" in estimate.message
 
 
 # --------------------------------------------------------------------------------------------

@@ -217,6 +217,9 @@ def test_ml_options_are_validated():
         MaximumLikelihood(method="bfgs")
     with pytest.raises(ValueError, match=r"^side_prior_m:"):
         MaximumLikelihood(side_prior_m=(1.0, np.nan))
+    for bad in (0, 2.5, True):
+        with pytest.raises(ValueError, match=r"^max_nfev:"):
+            MaximumLikelihood(max_nfev=bad)
     assert isinstance(make_estimator("ml", frames="last"), MaximumLikelihood)
 
 
@@ -228,6 +231,84 @@ def test_ml_frames_last_on_a_turn_is_ambiguous_again():
     np.testing.assert_allclose(
         _nearest(estimate.candidates_m, scenario.emitter_m), scenario.emitter_m, atol=1e-6
     )
+
+
+# --------------------------------------------------------------------------------------------
+# convergence: success only from starts that converged
+# --------------------------------------------------------------------------------------------
+
+
+def _low_snr_turn():
+    return simulate(get_scenario("paper-1m-turn"), snr_db=-20.0, seed=trial_seeds(757, 500)[0])
+
+
+def test_ml_reports_every_start_converged_by_tolerance():
+    estimate = MaximumLikelihood().estimate(_low_snr_turn())
+    assert estimate.success
+    statuses = estimate.diagnostics["lm_status"]
+    assert len(statuses) == estimate.diagnostics["n_starts"] == estimate.diagnostics["n_converged"]
+    assert all(
+        s in ("converged (gtol)", "converged (ftol)", "converged (xtol)", "converged (ftol+xtol)")
+        for s in statuses
+    )
+    assert estimate.diagnostics["max_nfev"] == 200
+
+
+@pytest.mark.parametrize("max_nfev", [1, 3])
+def test_ml_at_its_iteration_cap_is_a_failed_estimate(max_nfev):
+    """Levenberg-Marquardt stopped by the evaluation cap has not converged: a failed estimate
+    with the status, never the last iterate as a success."""
+    estimate = MaximumLikelihood(max_nfev=max_nfev).estimate(_low_snr_turn())
+    assert not estimate.success and np.all(np.isnan(estimate.position_m))
+    assert "did not converge from any start" in estimate.message
+    assert estimate.diagnostics["lm_status"] == [f"iteration cap (max_nfev={max_nfev})"]
+    assert estimate.diagnostics["n_converged"] == 0
+    assert MaximumLikelihood(max_nfev=8).estimate(_low_snr_turn()).success
+
+
+def test_ml_stalled_away_from_a_minimum_is_not_converged(monkeypatch):
+    """A tolerance met where the gradient is not zero (a collapsed trust region) is a stall:
+    the decrement at the point exceeds ``DECREMENT_TOL`` and the start gives no minimum."""
+    import estimators.ml as ml_module
+
+    real = ml_module.least_squares
+
+    def stalls_at_the_start(fun, x0, **kwargs):
+        result = real(fun, x0, **kwargs)
+        result.x, result.status = np.array(x0, dtype=float), 3
+        result.cost = 0.5 * float(np.sum(fun(result.x) ** 2))
+        return result
+
+    monkeypatch.setattr(ml_module, "least_squares", stalls_at_the_start)
+    estimate = MaximumLikelihood().estimate(_low_snr_turn())
+    assert not estimate.success
+    assert estimate.diagnostics["lm_status"][0].startswith("stalled (xtol, decrement")
+    assert "not at a minimum" in estimate.message
+
+
+def test_ml_fails_when_an_unconverged_start_ends_below_the_minima(monkeypatch):
+    """If a start that hit its cap ended lower than every converged minimum, the reported
+    optimum is not the best the data allow: a failure, not a success."""
+    import estimators.ml as ml_module
+
+    real = ml_module.least_squares
+    calls = []
+
+    def second_start_capped_lower(fun, x0, **kwargs):
+        result = real(fun, x0, **kwargs)
+        calls.append(1)
+        if len(calls) == 2:
+            result.status, result.cost = 0, 0.0
+        return result
+
+    monkeypatch.setattr(ml_module, "least_squares", second_start_capped_lower)
+    data = simulate(get_scenario("turn"), snr_db=0.0, seed=4)
+    estimator = MaximumLikelihood(doppler_start=True)  # the CLS start plus the Doppler pair
+    assert estimator.estimate(data).diagnostics["n_starts"] >= 2
+    calls.clear()
+    estimate = estimator.estimate(data)
+    assert not estimate.success
+    assert "a start that did not converge ended below every converged minimum" in estimate.message
 
 
 # --------------------------------------------------------------------------------------------

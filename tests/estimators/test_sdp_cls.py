@@ -341,3 +341,42 @@ def test_an_inaccurate_tight_solve_is_retried_at_the_default_tolerances(monkeypa
     assert calls == [tight_gap, sdp_cls.CLARABEL_TOLERANCES[1][0]]
     assert sdp.status == "optimal" and sdp.rung == 2
     assert abs(sdp.value - solve_gtrs(A, b).costs.min()) <= 1e-6 * sdp.value
+
+
+def test_success_records_the_status_of_every_stage():
+    estimate = SdpCls().estimate(simulate(get_scenario("turn"), snr_db=10.0, seed=0))
+    assert estimate.success and estimate.diagnostics["status"] == "optimal"
+    assert estimate.diagnostics["stage_statuses"] == ["optimal", "optimal"]
+    assert np.all(np.isfinite(estimate.candidates_m))
+
+
+@pytest.mark.parametrize("status", [cp.OPTIMAL, cp.OPTIMAL_INACCURATE])
+def test_non_finite_lift_with_a_success_status_is_a_failed_estimate(monkeypatch, status):
+    """A solver that claims success but returns NaN in the lift gives a failure with status
+    ``non_finite``, never a success with a NaN position (even when inaccurate is accepted)."""
+    original = sdp_cls._solve_built
+
+    def nan_lift(*args, **kwargs):
+        outcome = original(*args, **kwargs)
+        lift = np.full((4, 4), np.nan)
+        return replace(outcome, status=status, lift=lift)
+
+    monkeypatch.setattr(sdp_cls, "_solve_built", nan_lift)
+    data = simulate(get_scenario("turn"), snr_db=10.0, seed=0)
+    for estimator in (SdpCls(), SdpCls(accept_inaccurate=True)):
+        estimate = estimator.estimate(data)
+        assert not estimate.success and np.all(np.isnan(estimate.position_m))
+        assert estimate.diagnostics["status"] == sdp_cls.NON_FINITE
+        assert "not finite" in estimate.message
+        assert estimate.diagnostics["stage_statuses"] == [sdp_cls.NON_FINITE]
+
+
+def test_user_limit_and_infeasible_statuses_are_failures(monkeypatch):
+    """Every status other than ``optimal`` (or the accepted ``optimal_inaccurate``) fails."""
+    data = simulate(get_scenario("turn"), snr_db=10.0, seed=0)
+    for status in (cp.USER_LIMIT, cp.INFEASIBLE, cp.UNBOUNDED, cp.INFEASIBLE_INACCURATE):
+        monkeypatch.setattr(cp.Problem, "solve", _status_forced(status))
+        estimate = SdpCls(accept_inaccurate=True).estimate(data)
+        assert not estimate.success, status
+        assert estimate.diagnostics["status"] == status
+        assert status in estimate.message
