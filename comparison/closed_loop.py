@@ -28,7 +28,6 @@ Data flows one way: this module imports ``scenarios`` and ``estimators`` and is 
 from __future__ import annotations
 
 import dataclasses
-import inspect
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -37,7 +36,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from estimators.base import Estimate, Estimator, SequentialEstimator
+from estimators.base import Estimate, Estimator, capabilities_of
 from scenarios.planners.base import Plan, Planner
 from scenarios.simulate import SeedLike, noise_free, standard_noise
 from scenarios.types import MODALITIES, FlightPlan, MeasurementSet, Scenario
@@ -120,20 +119,11 @@ def timed_call(method: Callable[..., Any], *args: Any, **kwargs: Any) -> tuple[E
     return estimate, runtime_s
 
 
-def accepts_rng(method: Any) -> bool:
-    """Whether ``method`` takes an ``rng`` keyword (third-party estimators may not)."""
-    try:
-        return "rng" in inspect.signature(method).parameters
-    except (TypeError, ValueError):
-        return False
-
-
 class _Streamer:
     """A sequential estimator fed frame by frame (``init``, ``update``, ``estimate_state``)."""
 
     def __init__(self, estimator: Any) -> None:
         self.estimator = estimator
-        self.takes_rng = accepts_rng(estimator.estimate_state)
         self.failure: Estimate | None = None
         self.carried_s = 0.0
         start = time.perf_counter()
@@ -156,10 +146,7 @@ class _Streamer:
             self.failure = Estimate.failed("", f"{type(error).__name__} in update: {error}")
             return self.failure, carried + time.perf_counter() - start
         update_s = time.perf_counter() - start
-        if self.takes_rng:
-            estimate, estimate_s = timed_call(self.estimator.estimate_state, self.state, rng=rng)
-        else:
-            estimate, estimate_s = timed_call(self.estimator.estimate_state, self.state)
+        estimate, estimate_s = timed_call(self.estimator.estimate_state, self.state, rng=rng)
         return estimate, carried + update_s + estimate_s
 
 
@@ -221,7 +208,7 @@ def fly_closed_loop(
     streamers = {
         label: _Streamer(estimator)
         for label, estimator in estimators
-        if isinstance(estimator, SequentialEstimator)
+        if capabilities_of(estimator).sequential
     }
     results: dict[str, list[tuple[Estimate, float]]] = {label: [] for label in labels}
     plans: list[Plan | None] = [None]

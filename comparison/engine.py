@@ -74,11 +74,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from comparison.closed_loop import ClosedLoopTrial, accepts_rng, fly_closed_loop, timed_call
+from comparison.closed_loop import ClosedLoopTrial, fly_closed_loop, timed_call
 from comparison.crlb import fisher_information_per_frame, rmse_bound_m
-from comparison.experiment import EstimatorSpec, Experiment, PlannerSpec, estimator_modalities
+from comparison.experiment import EstimatorSpec, Experiment, PlannerSpec
 from comparison.metrics import TRIAL_COLUMNS  # the row contract; swept columns follow snr_db
-from estimators.base import BatchEstimator, Estimate, Estimator, SequentialEstimator
+from estimators.base import Estimate, Estimator, capabilities_of
+from scenarios.measurement_model import slant_range_m
 from scenarios.planners import Planner
 from scenarios.simulate import noise_free, simulate_trials
 from scenarios.types import MeasurementBatch, MeasurementSet, Scenario
@@ -112,19 +113,21 @@ _ESTIMATE_COLUMNS = (
     "cov_xy_m2",
     "cov_yy_m2",
     "nees",
+    "nees_side_resolved",
     "runtime_s",
     "message",
     "diagnostics_json",
 )
+_CRLB_AT = _ESTIMATE_COLUMNS.index("runtime_s")  # crlb_rmse_m is stored before runtime_s
 _KEY_COLUMNS = ("scenario", "point", "planner", "estimator", "frame", "trial")
 _TABLE_COLUMNS = (
     *_KEY_COLUMNS,
     "scenario_index",
     "planner_index",
     "estimator_index",
-    *_ESTIMATE_COLUMNS[:13],
+    *_ESTIMATE_COLUMNS[:_CRLB_AT],
     "crlb_rmse_m",
-    *_ESTIMATE_COLUMNS[13:],
+    *_ESTIMATE_COLUMNS[_CRLB_AT:],
 )
 _FLOAT_COLUMNS = frozenset(
     {
@@ -140,8 +143,10 @@ _FLOAT_COLUMNS = frozenset(
         "cov_xy_m2",
         "cov_yy_m2",
         "nees",
+        "nees_side_resolved",
         "crlb_rmse_m",
         "runtime_s",
+        "range_scale_m",
         *POINT_CRLB_SETS,
     }
 )
@@ -281,13 +286,7 @@ def run_closed_loop_task(task: Task) -> TaskResult:
     start = time.perf_counter()
     truth = np.asarray(task.scenario.emitter_m, dtype=float)
     estimators = [(spec.label, _estimator_of(spec)) for spec in task.estimators]
-    crlb_keys = [
-        (
-            _modality_key(estimator_modalities(estimator)),
-            thaw_frames(getattr(estimator, "frames", "all")),
-        )
-        for _, estimator in estimators
-    ]
+    crlb_keys = [_crlb_key(estimator) for _, estimator in estimators]
     rows: list[tuple[Any, ...]] = []
     flights: list[tuple[Any, ...]] = []
     for planner_index, planner_spec in enumerate(task.planners):
@@ -422,20 +421,20 @@ def _run_estimator(
         return [tie_rng(task.seed, task.scenario_index, task.point, t, label) for t in task.trials]
 
     out: dict[tuple[int, int], tuple[Estimate, float]] = {}
-    if task.per_frame and isinstance(estimator, SequentialEstimator):
-        takes_rng = accepts_rng(estimator.estimate_state)
+    capabilities = capabilities_of(estimator)
+    if task.per_frame and capabilities.sequential:
         for position, trial_data in enumerate(data.trials(data.final_frame)):
             trial = task.trials[position]
 
-            def make_rng(trial: int = trial) -> np.random.Generator | None:
-                if not takes_rng:
-                    return None
+            def make_rng(trial: int = trial) -> np.random.Generator:
                 return tie_rng(task.seed, task.scenario_index, task.point, trial, label)
 
             out.update(_stream(estimator, trial_data, eval_frames, position, make_rng))
         return out
     for frame in eval_frames:
-        estimates = _call_batch(estimator, data.batch(frame), rngs())
+        estimates = (
+            _call_batch(estimator, data.batch(frame), rngs()) if capabilities.batch else None
+        )
         if estimates is None:
             estimates = [
                 timed_call(estimator.estimate, trial_data, rng=rng)
@@ -449,9 +448,7 @@ def _run_estimator(
 def _call_batch(
     estimator: Estimator, batch: MeasurementBatch, rngs: list[np.random.Generator]
 ) -> list[tuple[Estimate, float]] | None:
-    """``estimate_batch`` timed and split evenly, or None (no batch method, or it failed)."""
-    if not isinstance(estimator, BatchEstimator):
-        return None
+    """``estimate_batch`` timed and split evenly, or None (it failed)."""
     start = time.perf_counter()
     try:
         estimates = list(estimator.estimate_batch(batch, rngs=rngs))
@@ -472,7 +469,7 @@ def _stream(
 ) -> dict[tuple[int, int], tuple[Estimate, float]]:
     """A sequential estimator fed frame by frame (``init``, then ``update`` per frame).
 
-    ``estimate_state`` gets a fresh tie-breaking ``rng=make_rng()`` when it accepts one. A
+    ``estimate_state`` gets a fresh tie-breaking ``rng=make_rng()``. A
     failed ``update`` fails that frame and every later one (the state is lost); a failed
     ``estimate_state`` fails only its frame. ``init``'s time is counted in the first frame.
     """
@@ -499,11 +496,7 @@ def _stream(
             carried_s = 0.0
             continue
         update_s = time.perf_counter() - start
-        rng = make_rng()
-        if rng is None:
-            estimate, estimate_s = timed_call(estimator.estimate_state, state)
-        else:
-            estimate, estimate_s = timed_call(estimator.estimate_state, state, rng=rng)
+        estimate, estimate_s = timed_call(estimator.estimate_state, state, rng=make_rng())
         out[(frame, position)] = (estimate, carried_s + update_s + estimate_s)
         carried_s = 0.0
     return out
@@ -538,57 +531,89 @@ def estimate_columns(
 ) -> tuple[Any, ...]:
     """The per-estimate columns of a trial row (see the module docstring of the contract).
 
-    ``error_side_resolved_m`` uses the candidate nearest to the truth (MATH §7) and ``nees``
-    that candidate's error; ``wrong_side`` is 1.0 when the returned position and the truth are
-    strictly on opposite sides of the vertical plane through ``track``, NaN when the position
-    lies in that plane (on neither side). Every error column is NaN for a failed estimate.
+    ``error_side_resolved_m`` uses the candidate nearest to the truth (MATH §7). ``nees`` is
+    the returned position's error against the estimator's covariance; ``nees_side_resolved``
+    the nearest candidate's error against *that candidate's* covariance: the covariance
+    reflected across ``track`` when the candidate lies on the other side of it than the
+    returned position (its mirror image, MATH §7), else the covariance as given.
+    ``wrong_side`` is 1.0 when the returned position and the truth are strictly on opposite
+    sides of the vertical plane through ``track``, NaN when the position lies in that plane (on
+    neither side). Every error column is NaN for a failed estimate.
     """
     nan = math.nan
     success = bool(estimate.success)
-    truth_x, truth_y = float(truth_m[0]), float(truth_m[1])
-    x, y = (float(v) for v in estimate.position_m) if success else (nan, nan)
-    candidates = np.asarray(estimate.candidates_m, dtype=float).reshape(-1, 2).tolist()
-    error_m = math.hypot(x - truth_x, y - truth_y)
-    side_resolved_m, resolved = nan, (nan, nan)
+    truth = np.asarray(truth_m, dtype=float)[:2]
+    position = np.asarray(estimate.position_m, dtype=float) if success else np.full(2, nan)
+    candidates = np.asarray(estimate.candidates_m, dtype=float).reshape(-1, 2)
+    error_m = float(np.hypot(*(position - truth)))
+    side_resolved_m, nearest = nan, position
     if success:
-        for cx, cy in candidates or [[x, y]]:
-            distance = math.hypot(cx - truth_x, cy - truth_y)
-            if math.isfinite(distance) and not distance >= side_resolved_m:  # NaN at first
-                side_resolved_m, resolved = distance, (cx - truth_x, cy - truth_y)
+        pool = candidates if len(candidates) else position[None, :]
+        distances = np.hypot(*(pool - truth).T)
+        if np.isfinite(distances).any():
+            nearest = pool[int(np.nanargmin(distances))]
+            side_resolved_m = float(np.nanmin(distances))
+    side_of = _signed_cross_track(track)
     wrong_side = nan
-    if success and track is not None and math.isfinite(x) and math.isfinite(y):
-        (ox, oy), (dx, dy) = track
-        side_estimate = dx * (y - oy) - dy * (x - ox)  # signed cross-track distance
-        side_truth = dx * (truth_y - oy) - dy * (truth_x - ox)
-        on_plane = abs(side_estimate) <= 1e-9 * max(abs(side_truth), math.hypot(x - ox, y - oy))
+    if success and track is not None and np.isfinite(position).all():
+        side_estimate, side_truth = side_of(position), side_of(truth)
+        scale = max(abs(side_truth), float(np.hypot(*(position - track[0]))))
+        on_plane = abs(side_estimate) <= 1e-9 * scale
         # an estimate in the track's vertical plane is on neither side: NaN, not a lucky 0
         wrong_side = nan if on_plane else (1.0 if side_estimate * side_truth < 0.0 else 0.0)
     cov = (nan, nan, nan)
-    nees = nan
+    nees = nees_side_resolved = nan
     if estimate.covariance_m2 is not None:
-        (a, b), (c, d) = np.asarray(estimate.covariance_m2, dtype=float).tolist()
-        cov = (a, b, d)
-        det = a * d - b * c
-        ex, ey = resolved
-        if math.isfinite(det) and det != 0.0:
-            # eᵀ P⁻¹ e with the 2×2 inverse [[d, −b], [−c, a]] / det
-            nees = (ex * (d * ex - b * ey) + ey * (a * ey - c * ex)) / det
+        covariance = np.asarray(estimate.covariance_m2, dtype=float)
+        cov = (float(covariance[0, 0]), float(covariance[0, 1]), float(covariance[1, 1]))
+        nees = normalized_error_squared(position - truth, covariance)
+        if track is not None and side_of(nearest) * side_of(position) < 0.0:
+            covariance = mirrored_covariance(covariance, track[1])
+        nees_side_resolved = normalized_error_squared(nearest - truth, covariance)
     return (
-        x,
-        y,
+        float(position[0]),
+        float(position[1]),
         error_m,
         side_resolved_m,
         wrong_side,
         bool(estimate.ambiguous),
         success,
         len(candidates),
-        json.dumps(_jsonable(candidates)),
+        json.dumps(_jsonable(candidates.tolist())),
         *cov,
         nees,
+        nees_side_resolved,
         float(runtime_s),
         str(estimate.message),
         json.dumps(_jsonable(dict(estimate.diagnostics)), sort_keys=True),
     )
+
+
+def _signed_cross_track(track: tuple[np.ndarray, np.ndarray] | None) -> Any:
+    """``point ↦`` signed distance from the vertical plane through ``track`` (0 without one)."""
+    if track is None:
+        return lambda point: 0.0
+    (ox, oy), (dx, dy) = track
+    return lambda point: float(dx * (point[1] - oy) - dy * (point[0] - ox))
+
+
+def mirrored_covariance(covariance_m2: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """``R P Rᵀ`` with ``R = 2 d dᵀ − I`` the reflection across a line of unit direction ``d``:
+    the covariance of the mirror image of an estimate (MATH §7)."""
+    d = np.asarray(direction, dtype=float).reshape(2)
+    reflection = 2.0 * np.outer(d, d) - np.eye(2)
+    return reflection @ covariance_m2 @ reflection.T
+
+
+def normalized_error_squared(error_m: np.ndarray, covariance_m2: np.ndarray) -> float:
+    """``eᵀ P⁻¹ e`` (NEES, 2 degrees of freedom); NaN when ``P`` is singular or not finite."""
+    (a, b), (c, d) = covariance_m2
+    det = a * d - b * c
+    if not (math.isfinite(det) and det != 0.0) or not np.isfinite(error_m).all():
+        return math.nan
+    ex, ey = (float(v) for v in error_m)
+    # eᵀ P⁻¹ e with the 2×2 inverse [[d, −b], [−c, a]] / det
+    return float((ex * (d * ex - b * ey) + ey * (a * ey - c * ex)) / det)
 
 
 def _jsonable(value: Any) -> Any:
@@ -655,11 +680,17 @@ def _modality_key(modalities: Iterable[str]) -> tuple[str, ...]:
     return tuple(m for m in ("toa", "doppler", "rss") if m in set(modalities))
 
 
+def _crlb_key(estimator: Estimator) -> tuple[tuple[str, ...], Any]:
+    """The modalities and frames an estimator declares it uses: its bound's key (MATH §8)."""
+    capabilities = capabilities_of(estimator)
+    return _modality_key(capabilities.modalities), capabilities.frames
+
+
 def _point_infos(experiment: Experiment) -> dict[tuple[int, int], _PointInfo]:
     """Fisher information per frame at the truth, for every modality set needed (MATH §8)."""
     needed = {_modality_key(m) for m in POINT_CRLB_SETS.values()}
     for spec in experiment.estimators:
-        needed.add(_modality_key(estimator_modalities(_estimator_of(spec))))
+        needed.add(_crlb_key(_estimator_of(spec))[0])
     infos = {}
     for i in range(len(experiment.scenarios)):
         for p, settings in enumerate(experiment.sweep.points()):
@@ -697,7 +728,8 @@ def _connect(path: Path) -> sqlite3.Connection:
 
 def _create_tables(connection: sqlite3.Connection, experiment: Experiment) -> None:
     real = {"x_m", "y_m", "error_m", "error_side_resolved_m", "wrong_side"}
-    real |= {"cov_xx_m2", "cov_xy_m2", "cov_yy_m2", "nees", "crlb_rmse_m", "runtime_s"}
+    real |= {"cov_xx_m2", "cov_xy_m2", "cov_yy_m2", "nees", "nees_side_resolved"}
+    real |= {"crlb_rmse_m", "runtime_s"}
     types = {
         "scenario": "TEXT",
         "planner": "TEXT NOT NULL DEFAULT ''",
@@ -719,7 +751,7 @@ def _create_tables(connection: sqlite3.Connection, experiment: Experiment) -> No
         connection.execute(
             "CREATE TABLE IF NOT EXISTS points (scenario TEXT, point INTEGER, frame INTEGER, "
             f"scenario_index INTEGER, snr_db REAL, {swept}truth_x_m REAL, truth_y_m REAL, "
-            f"{crlb}, PRIMARY KEY (scenario, point, frame)) WITHOUT ROWID"
+            f"range_scale_m REAL, {crlb}, PRIMARY KEY (scenario, point, frame)) WITHOUT ROWID"
         )
         connection.execute(
             "CREATE TABLE IF NOT EXISTS tasks (scenario TEXT, point INTEGER, "
@@ -733,11 +765,14 @@ def _create_tables(connection: sqlite3.Connection, experiment: Experiment) -> No
             "vz_mps REAL, message TEXT, diagnostics_json TEXT, "
             "PRIMARY KEY (scenario, point, planner, trial, frame)) WITHOUT ROWID"
         )
-        # a results file written before planners existed: add the (empty) planner columns
+        # a results file written before planners or the side-resolved NEES existed
         present = {row[1] for row in connection.execute("PRAGMA table_info(trials)")}
-        for column in ("planner", "planner_index"):
+        for column in ("planner", "planner_index", "nees_side_resolved"):
             if column not in present:
                 connection.execute(f"ALTER TABLE trials ADD COLUMN {column} {types[column]}")
+        present = {row[1] for row in connection.execute("PRAGMA table_info(points)")}
+        if "range_scale_m" not in present:
+            connection.execute("ALTER TABLE points ADD COLUMN range_scale_m REAL")
 
 
 def _write_points(
@@ -754,16 +789,22 @@ def _write_points(
         *experiment.swept_columns,
         "truth_x_m",
         "truth_y_m",
+        "range_scale_m",
         *POINT_CRLB_SETS,
     ]
     rows = []
     for (i, p), info in infos.items():
         swept = [info.settings[c] for c in experiment.swept_columns]
         truth = [float(v) for v in info.scenario.emitter_m]
+        flight = info.scenario.flight
+        squared_range = (
+            slant_range_m(flight.sample_positions_m(), truth, info.scenario.emitter_height_m) ** 2
+        )
         for frame in range(info.n_frames):
             bounds = [info.rmse_bound_m(_modality_key(m), frame) for m in POINT_CRLB_SETS.values()]
+            scale = math.sqrt(float(np.mean(squared_range[flight.sample_frames() <= frame])))
             rows.append(
-                (experiment.scenarios[i], p, frame, i, info.snr_db, *swept, *truth, *bounds)
+                (experiment.scenarios[i], p, frame, i, info.snr_db, *swept, *truth, scale, *bounds)
             )
     marks = ", ".join("?" * len(columns))
     with connection:
@@ -824,9 +865,9 @@ def _write_task(
                 result.scenario_index,
                 planner_index,
                 estimator_index,
-                *values[:13],
+                *values[:_CRLB_AT],
                 bound,
-                *values[13:],
+                *values[_CRLB_AT:],
             )
         )
     flights = [
@@ -1147,13 +1188,7 @@ def run_experiment(
         _write_run_info(out, session)
         start = time.perf_counter()
         infos = _point_infos(experiment)
-        crlb_frames = [
-            (
-                _modality_key(estimator_modalities(estimator)),
-                thaw_frames(getattr(estimator, "frames", "all")),
-            )
-            for estimator in (_estimator_of(spec) for spec in experiment.estimators)
-        ]
+        crlb_frames = [_crlb_key(_estimator_of(spec)) for spec in experiment.estimators]
         connection = stack.enter_context(closing(_connect(out / RESULTS_FILE)))
         _create_tables(connection, experiment)
         _write_points(connection, experiment, infos)
@@ -1208,15 +1243,6 @@ def _session_info(
         "versions": _versions(),
         "code_digest": code_digest(),
     }
-
-
-def thaw_frames(frames: Any) -> Any:
-    """An estimator's ``frames`` option as ``"all"``, ``"last"`` or a tuple of frame indices."""
-    if isinstance(frames, str):
-        return frames
-    if isinstance(frames, Sequence | np.ndarray):
-        return tuple(int(f) for f in frames)
-    return "all"
 
 
 # --------------------------------------------------------------------------------------------
@@ -1282,7 +1308,9 @@ def read_trials(out_dir: str | os.PathLike[str]) -> pd.DataFrame:
 
 
 def read_points(out_dir: str | os.PathLike[str]) -> pd.DataFrame:
-    """One row per scenario × point × frame: truth and the accumulated CRLB (MATH §8)."""
+    """One row per scenario × point × frame: truth, the accumulated CRLB (MATH §8) and
+    ``range_scale_m``, the root mean square slant range of the samples flown so far (the size
+    of the geometry a bound is compared with)."""
     out = Path(out_dir)
     experiment = read_experiment(out)
     swept = list(experiment.swept_columns)
@@ -1294,6 +1322,7 @@ def read_points(out_dir: str | os.PathLike[str]) -> pd.DataFrame:
         "frame",
         "truth_x_m",
         "truth_y_m",
+        "range_scale_m",
         *POINT_CRLB_SETS,
     ]
     query = (

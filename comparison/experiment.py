@@ -68,6 +68,7 @@ Built-in experiments (:data:`BUILTIN_EXPERIMENTS`) are written in the same forma
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
 import tomllib
@@ -78,7 +79,7 @@ from typing import Any
 
 import numpy as np
 
-from estimators.base import Estimator
+from estimators.base import Estimator, capabilities_of
 from estimators.registry import estimator_class, make_estimator
 from scenarios.catalog import CATALOG, get_scenario
 from scenarios.planners import Planner, get_planner, planner_class
@@ -627,8 +628,15 @@ class Experiment:
         for path, spec, estimator in _built_specs(
             specs, "estimators", EstimatorSpec, estimator_class
         ):
+            capabilities = capabilities_of(estimator)
+            absent = [m for m in capabilities.modules if importlib.util.find_spec(m) is None]
+            if absent:
+                raise ValueError(
+                    f"{path}: {spec.label!r} needs the module(s) {', '.join(absent)}, which "
+                    "are not installed; install them or drop the estimator"
+                )
             for name, scenario in scenarios.items():
-                missing = sorted(set(estimator_modalities(estimator)) - set(scenario.modalities))
+                missing = sorted(capabilities.modalities - set(scenario.modalities))
                 if missing:
                     raise ValueError(
                         f"{path}: {spec.label!r} needs {', '.join(missing)} measurements, "
@@ -820,14 +828,6 @@ def _built_specs(
         except ValueError as error:
             raise ValueError(f"{path}.options: {error}") from None
         yield path, spec, built
-
-
-def estimator_modalities(estimator: Estimator) -> frozenset[str]:
-    """The modalities an estimator uses: its ``requires``, plus RSS when ``use_rss`` is set."""
-    used = set(getattr(estimator, "requires", frozenset()))
-    if getattr(estimator, "use_rss", False):
-        used.add("rss")
-    return frozenset(used)
 
 
 def build_scenario(

@@ -8,30 +8,45 @@ figure as PNG and SVG.
 
 Conventions shared by all figures:
 
-- one colour per estimator, the same in every figure (:func:`estimator_colors`);
+- one colour and one marker per estimator, the same in every figure (:func:`estimator_colors`,
+  :func:`estimator_markers`, both from the order of the colour mapping);
 - the swept parameter on the x axis (SNR by default; every σ is scaled by
   :math:`10^{-\mathrm{SNR}/20}`, MATH §2), one panel per scenario;
+- panels in one order everywhere: scenarios in their order of first appearance in the frame
+  drawn (the experiment's order, :func:`scenario_order`), then the other varying parameters
+  ascending;
 - the bound :math:`\sqrt{\operatorname{tr}\,\mathrm{CRLB}}` for ToA+Doppler as a solid black
   line, the bound of an estimator that uses other modalities dashed in its colour (MATH §8);
+- curves that agree within :data:`COINCIDENCE_RTOL` at every point of a panel are named in
+  the legend ("coincides with …") and drawn interleaved: alternating dash segments and
+  markers, so that each stays visible;
+- a rate or a mean backed by fewer than :data:`MIN_COUNT_FOR_RATE` values is not drawn
+  (:data:`WRONG_SIDE_COUNT_NOTE`, :data:`NEES_COUNT_NOTE`);
+- log axes label decades only (1-2-5 steps when the view spans less than two decades), as
+  plain numbers from 0.001 to 10000 and as powers of ten beyond; minor ticks are unlabelled;
 - per-frame runs are drawn at their last frame except in the figures against the frame.
 """
 
 from __future__ import annotations
 
+import math
+import textwrap
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import matplotlib as mpl
 import numpy as np
 import pandas as pd
+from matplotlib.artist import Artist
 from matplotlib.axes import Axes
 from matplotlib.axis import Axis
 from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
-from matplotlib.ticker import LogFormatter
+from matplotlib.lines import Line2D
+from matplotlib.ticker import Formatter, Locator, LogLocator, MaxNLocator, NullFormatter
 
 from comparison.metrics import (
-    judged_rmse,
     parameter_label,
     summary_swept_columns,
     swept_columns_of,
@@ -61,6 +76,40 @@ PANEL_SIZE_IN = (4.6, 3.4)
 LEGEND_WIDTH_IN = 3.4
 MAX_PANELS = 12
 
+MIN_COUNT_FOR_RATE = 20
+"""Fewest values behind a drawn point of a rate or a mean.
+
+A wrong-side rate is drawn only where its count ``n_side_judged`` (the successful estimates
+off the track plane) is at least this, a mean NEES only where ``n_nees`` is: below it, a rate
+of 0 or 1 from a handful of estimates says nothing. Nothing is drawn at such a point (the line
+breaks there, its interval too), and the legend counts the points left out."""
+
+WRONG_SIDE_COUNT_NOTE = (
+    f"points backed by fewer than {MIN_COUNT_FOR_RATE} estimates off the track are not drawn"
+)
+"""What the caption of a wrong-side figure says about :data:`MIN_COUNT_FOR_RATE`."""
+
+NEES_COUNT_NOTE = f"points backed by fewer than {MIN_COUNT_FOR_RATE} NEES values are not drawn"
+"""What the caption of the NEES figure says about :data:`MIN_COUNT_FOR_RATE`."""
+
+COINCIDENCE_RTOL = 0.02
+"""Two curves of a panel coincide when they are drawn at the same x values and agree there
+within this relative tolerance, ``|a − b| ≤ COINCIDENCE_RTOL · max(|a|, |b|)``, at every
+point."""
+
+COINCIDENCE_NOTE = "coincides with"
+"""The legend note of a curve hidden by another: ``label (coincides with X, Y)``."""
+
+ESTIMATOR_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">", "h")
+"""Marker of the i-th estimator of the colour mapping (:func:`estimator_markers`)."""
+
+MAX_LOG_LABELS = 6
+"""Most labelled ticks on a log axis (decades are thinned to every second, third, … one)."""
+
+PLAIN_NUMBER_RANGE = (1e-3, 1e5)
+"""Log-axis labels are plain numbers when every labelled tick lies in this range, else powers
+of ten."""
+
 
 def estimator_label(name: str) -> str:
     """The legend label of an estimator (:data:`ESTIMATOR_LABELS`, else its name)."""
@@ -72,6 +121,28 @@ def estimator_colors(names: Iterable[str]) -> dict[str, tuple[float, float, floa
     unique = list(dict.fromkeys(names))
     palette = mpl.colormaps["tab10" if len(unique) <= 10 else "tab20"]
     return {name: palette(i % palette.N) for i, name in enumerate(unique)}
+
+
+def estimator_markers(names: Iterable[str]) -> dict[str, str]:
+    """One marker per estimator, in the given order (:data:`ESTIMATOR_MARKERS`).
+
+    The figures take the order of their colour mapping, so that an estimator keeps its colour
+    and its marker in every figure given the same mapping.
+    """
+    unique = list(dict.fromkeys(str(n) for n in names))
+    return {name: ESTIMATOR_MARKERS[i % len(ESTIMATOR_MARKERS)] for i, name in enumerate(unique)}
+
+
+def scenario_order(frame: pd.DataFrame) -> list[str]:
+    """The scenarios of ``frame`` in their order of first appearance: the panel order."""
+    return list(dict.fromkeys(frame["scenario"].astype(str)))
+
+
+def _scenario_rank(frame: pd.DataFrame, order: Sequence[str] | None = None) -> pd.Series:
+    """Position of each row's scenario in ``order`` (default :func:`scenario_order`)."""
+    order = list(order) if order is not None else scenario_order(frame)
+    rank = {name: i for i, name in enumerate(order)}
+    return frame["scenario"].astype(str).map(lambda name: rank.get(name, len(rank)))
 
 
 def save_figure(figure: Figure, directory: str | Path, stem: str, *, dpi: int = 150) -> list[Path]:
@@ -155,13 +226,19 @@ def _panel_title(scenario: str, values: Mapping[str, float]) -> str:
 
 
 def _panels(frame: pd.DataFrame, by: Sequence[str]) -> list[tuple[str, pd.DataFrame]]:
-    """Split rows into panels: one per scenario and value of the other varying columns."""
-    panels = []
+    """Split rows into panels: one per scenario and value of the other varying columns.
+
+    Scenarios in their order of first appearance (:func:`scenario_order`), then the values
+    of ``by`` ascending.
+    """
+    rank = _scenario_rank(frame)
+    keyed = []
     for key, rows in frame.groupby(["scenario", *by], sort=False):
         key = key if isinstance(key, tuple) else (key,)
         title = _panel_title(str(key[0]), dict(zip(by, key[1:], strict=True)))
-        panels.append((title, rows))
-    return panels[:MAX_PANELS]
+        keyed.append(((int(rank.loc[rows.index[0]]), *key[1:]), title, rows))
+    keyed.sort(key=lambda item: item[0])
+    return [(title, rows) for _, title, rows in keyed][:MAX_PANELS]
 
 
 def _figure_grid(
@@ -177,36 +254,368 @@ def _figure_grid(
     return figure, list(axes[:n_panels])
 
 
-def _legend(figure: Figure, axes: Sequence[Axes]) -> None:
-    """One legend for all panels, outside the data on the right."""
-    entries: dict[str, object] = {}
+def _legend(
+    figure: Figure, axes: Sequence[Axes], curves: _Curves | None = None, *, wrap: int = 44
+) -> None:
+    """One legend for all panels, outside the data on the right.
+
+    With ``curves``, the labels carry their coincidence notes and a curve restyled to be seen
+    under another gets a handle in its own style; its extra entries (a style, the points left
+    out) come last. Labels are wrapped to ``wrap`` characters.
+    """
+    entries: dict[str, Artist] = {}
     for ax in axes:
         for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
             entries.setdefault(label, handle)
-    if entries:
+    labels = list(entries)
+    handles = list(entries.values())
+    if curves is not None:
+        curves.interleave()
+        handles = [curves.handles.get(label, handle) for label, handle in entries.items()]
+        labels = [curves.legend_label(label) for label in labels]
+        for handle, label in curves.extra:
+            handles.append(handle if handle is not None else Line2D([], [], linestyle="none"))
+            labels.append(label)
+    if labels:
+        labels = [_wrap(label, wrap) for label in labels]
+        # Columns enough for the legend to fit the figure's height (small font: 8.3 pt lines,
+        # half a line between entries).
+        height_pt = sum(1.2 * 8.3 * (label.count("\n") + 1) + 0.5 * 8.3 for label in labels)
+        ncols = max(1, math.ceil(height_pt / (0.92 * 72 * figure.get_figheight())))
         figure.legend(
-            list(entries.values()),
-            list(entries),
+            handles,
+            labels,
             loc="outside right center",
             fontsize="small",
             frameon=False,
+            ncols=ncols,
         )
 
 
-class PlainLogFormatter(LogFormatter):
-    """Matplotlib's choice of labelled log ticks, written as plain numbers (``20``, ``0.3``)."""
+def _wrap(text: str, width: int) -> str:
+    """Fill each line of ``text`` to ``width``; lines after the first are indented."""
+    first, *rest = text.split("\n")
+    parts = [textwrap.fill(first, width, subsequent_indent="  ")]
+    parts += [
+        textwrap.fill(part, width, initial_indent="  ", subsequent_indent="  ") for part in rest
+    ]
+    return "\n".join(parts)
+
+
+# --------------------------------------------------------------------------------------------
+# coincident curves and counts
+# --------------------------------------------------------------------------------------------
+
+DASH_LENGTH = 4.0
+"""Length of one dash segment, in line widths, where overlapping curves are interleaved."""
+
+OVERLAP_IN = 0.04
+"""Two lines of a panel overlap on the page when they are drawn at the same x values and lie
+within this distance (inches, at the panel's nominal size) of each other at every point: they
+are then interleaved, whatever :data:`COINCIDENCE_RTOL` says (on a log axis spanning several
+decades, curves a few percent apart look like one)."""
+
+
+@dataclass
+class _Curve:
+    """One curve of a panel, as drawn: its legend label, the short name that notes call it
+    by, its points (sorted along ``grid``), and the line to interleave when it overlaps another
+    (None: left as drawn). ``grid`` is the axis of the points both curves must share to be
+    compared: ``"x"`` for a curve against the swept parameter, ``"y"`` for a CDF (compared as
+    quantiles: the errors at the same fractions of trials)."""
+
+    label: str
+    name: str
+    x: np.ndarray
+    y: np.ndarray
+    line: Line2D | None = None
+    grid: str = "x"
+
+    def grid_and_values(self) -> tuple[np.ndarray, np.ndarray]:
+        x, y = np.asarray(self.x, dtype=float), np.asarray(self.y, dtype=float)
+        return (x, y) if self.grid == "x" else (y, x)
+
+
+def _shared_grid(first: _Curve, second: _Curve) -> tuple[np.ndarray, np.ndarray] | None:
+    """The values of both curves where both are drawn, if they share the grid and the points
+    drawn (else None)."""
+    grid1, values1 = first.grid_and_values()
+    grid2, values2 = second.grid_and_values()
+    if first.grid != second.grid or grid1.shape != grid2.shape:
+        return None
+    if not np.allclose(grid1, grid2, rtol=1e-9, atol=0.0, equal_nan=True):
+        return None
+    drawn = np.isfinite(values1)
+    if not drawn.any() or not np.array_equal(drawn, np.isfinite(values2)):
+        return None
+    return values1[drawn], values2[drawn]
+
+
+def _coincide(first: _Curve, second: _Curve, rtol: float = COINCIDENCE_RTOL) -> bool:
+    """Drawn at the same x values and within ``rtol`` of each other at every one of them."""
+    shared = _shared_grid(first, second)
+    if shared is None:
+        return False
+    a, b = shared
+    return bool(np.all(np.abs(a - b) <= rtol * np.maximum(np.abs(a), np.abs(b))))
+
+
+def _overlap(ax: Axes, first: _Curve, second: _Curve, size_in: tuple[float, float]) -> bool:
+    """Drawn at the same x values and within :data:`OVERLAP_IN` on the page at every one."""
+    if _shared_grid(first, second) is None:
+        return False
+    to_axes = ax.transScale + ax.transLimits
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a = to_axes.transform(np.column_stack([first.x, first.y]).astype(float))
+        b = to_axes.transform(np.column_stack([second.x, second.y]).astype(float))
+    column = 1 if first.grid == "x" else 0
+    gap = np.abs(a[:, column] - b[:, column]) * size_in[column]
+    gap = gap[np.isfinite(a[:, column]) | np.isfinite(b[:, column])]
+    return bool(gap.size) and bool(np.all(gap <= OVERLAP_IN))
+
+
+def _proxy(line: Line2D) -> Line2D:
+    """A legend handle in the style ``line`` has before it is interleaved."""
+    return Line2D(
+        [],
+        [],
+        color=line.get_color(),
+        linestyle=line.get_linestyle(),
+        linewidth=line.get_linewidth(),
+        marker=line.get_marker(),
+        markersize=line.get_markersize(),
+        markerfacecolor=line.get_markerfacecolor(),
+        markeredgecolor=line.get_markeredgecolor(),
+    )
+
+
+def _has_marker(line: Line2D) -> bool:
+    return line.get_marker() not in (None, "", " ", "None", "none")
+
+
+def _is_solid(line: Line2D | None) -> bool:
+    return line is not None and line.get_linestyle() in ("-", "solid")
+
+
+@dataclass
+class _Curves:
+    """The curves of a figure, panel by panel: which coincide, and what the legend says.
+
+    :meth:`panel` records a panel's curves and the pairs that coincide in the data
+    (:func:`_coincide`, :data:`COINCIDENCE_RTOL`): :meth:`legend_label` names them in the
+    legend. :meth:`interleave`, once the axes limits are final, interleaves each group of
+    solid lines that overlap on the page (:func:`_overlap`): the first stays solid, the k-th
+    of n draws only every n-th dash segment, shifted by k segments, and every n-th marker from
+    the k-th on, so that every colour and marker of the group stays visible along the shared
+    path.
+    """
+
+    partners: dict[str, dict[str, list[str]]] = field(default_factory=dict)
+    drawn: dict[str, list[str]] = field(default_factory=dict)
+    seen: set[str] = field(default_factory=set)
+    handles: dict[str, Artist] = field(default_factory=dict)
+    extra: list[tuple[Artist | None, str]] = field(default_factory=list)
+    panels: list[tuple[Axes, list[_Curve]]] = field(default_factory=list)
+    notes: bool = True
+
+    def panel(self, title: str, curves: Sequence[_Curve], ax: Axes | None = None) -> None:
+        """Record the curves of one panel and the pairs that coincide in the data."""
+        for curve in curves:
+            self.seen.add(curve.label)
+            if np.isfinite(np.asarray(curve.y, dtype=float)).any():
+                self.drawn.setdefault(curve.label, []).append(title)
+        for i, first in enumerate(curves):
+            for second in curves[i + 1 :]:
+                if not self.notes or first.label == second.label:
+                    continue
+                if not _coincide(first, second):
+                    continue
+                self.partners.setdefault(first.label, {}).setdefault(title, []).append(second.name)
+                self.partners.setdefault(second.label, {}).setdefault(title, []).append(first.name)
+        if ax is not None:
+            self.panels.append((ax, list(curves)))
+
+    def interleave(self) -> None:
+        """Interleave the solid lines that overlap on the page, panel by panel (once the
+        axes limits are final: :func:`_legend` calls it)."""
+        for ax, curves in self.panels:
+            lines = [c for c in curves if _is_solid(c.line)]
+            box = ax.get_position()
+            size_in = (box.width * ax.figure.get_figwidth(), box.height * ax.figure.get_figheight())
+            parent = list(range(len(lines)))
+
+            def root(i: int, parent: list[int] = parent) -> int:
+                while parent[i] != i:
+                    i = parent[i]
+                return i
+
+            for i, first in enumerate(lines):
+                for j in range(i + 1, len(lines)):
+                    if first.label != lines[j].label and _overlap(ax, first, lines[j], size_in):
+                        parent[root(j)] = root(i)
+            groups: dict[int, list[_Curve]] = {}
+            for i, curve in enumerate(lines):
+                groups.setdefault(root(i), []).append(curve)
+            for together in groups.values():
+                if len(together) > 1:
+                    self._interleave(together)
+        self.panels.clear()
+
+    def _interleave(self, together: Sequence[_Curve]) -> None:
+        n = len(together)
+        for k, curve in enumerate(together):
+            line = curve.line
+            assert line is not None
+            self.handles.setdefault(curve.label, _proxy(line))
+            if _has_marker(line) and len(curve.x) >= n:
+                line.set_markevery((k, n))
+            if k:
+                line.set_linestyle(((n - k) * DASH_LENGTH, (DASH_LENGTH, (n - 1) * DASH_LENGTH)))
+
+    def legend_label(self, label: str) -> str:
+        """``label``, with "(no point drawn)" or "(coincides with …)" where it applies.
+
+        The panels are named when the partners differ between panels, or when the curve does
+        not coincide in every panel where it is drawn.
+        """
+        if label in self.seen and label not in self.drawn:
+            return f"{label}\n(no point drawn)"
+        notes = self.partners.get(label)
+        if not notes:
+            return label
+        by_partners: dict[tuple[str, ...], list[str]] = {}
+        for title, names in notes.items():
+            by_partners.setdefault(tuple(dict.fromkeys(names)), []).append(title)
+        if len(by_partners) == 1:
+            names, titles = next(iter(by_partners.items()))
+            if set(titles) >= set(self.drawn.get(label, [])):
+                return f"{label}\n({COINCIDENCE_NOTE} {', '.join(names)})"
+        where = "; ".join(
+            f"{', '.join(names)} in {', '.join(titles)}" for names, titles in by_partners.items()
+        )
+        return f"{label}\n({COINCIDENCE_NOTE} {where})"
+
+
+def _counted(
+    values: pd.Series | np.ndarray, counts: pd.Series | np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``values`` as floats with NaN where ``counts`` is below :data:`MIN_COUNT_FOR_RATE`, and
+    the mask of the finite values so left out."""
+    shown = np.asarray(values, dtype=float).copy()
+    few = np.asarray(counts, dtype=float) < MIN_COUNT_FOR_RATE
+    left_out = few & np.isfinite(shown)
+    shown[few] = np.nan
+    return shown, left_out
+
+
+def _left_out_note(n_left_out: int, what: str) -> str:
+    """The legend entry counting the points not drawn (:data:`MIN_COUNT_FOR_RATE`)."""
+    points = "point" if n_left_out == 1 else "points"
+    return f"{n_left_out} {points} not drawn: fewer than {MIN_COUNT_FOR_RATE} {what}"
+
+
+def _side_counts(rows: pd.DataFrame) -> pd.Series:
+    """The wrong-side rate's count: ``n_side_judged`` (``n_successes`` in older summaries)."""
+    return rows["n_side_judged"] if "n_side_judged" in rows else rows["n_successes"]
+
+
+# --------------------------------------------------------------------------------------------
+# log axes
+# --------------------------------------------------------------------------------------------
+
+
+class SparseLogLocator(Locator):
+    """Major ticks of a log axis: few, and never crowded.
+
+    Decades when three or more fall in the view, thinned to every second, third, … one
+    beyond :data:`MAX_LOG_LABELS`; else 1-2-5 steps when they give at most that many; else
+    the decades in view; else 1-2-5 or 1…9 mantissas, thinned; else a few linear steps. An
+    axis so gets at least two labelled ticks, and no more than :data:`MAX_LOG_LABELS`.
+    """
+
+    def __init__(self, max_ticks: int = MAX_LOG_LABELS) -> None:
+        self.max_ticks = max_ticks
+
+    def __call__(self) -> np.ndarray:
+        vmin, vmax = self.axis.get_view_interval()
+        return self.tick_values(vmin, vmax)
+
+    def tick_values(self, vmin: float, vmax: float) -> np.ndarray:
+        vmin, vmax = sorted((float(vmin), float(vmax)))
+        if not np.isfinite(vmax) or vmax <= 0:
+            return np.array([])
+        if not np.isfinite(vmin) or vmin <= 0:
+            vmin = vmax * 1e-6
+        low, high = math.floor(math.log10(vmin)), math.ceil(math.log10(vmax))
+
+        def inside(mantissas: Sequence[float]) -> np.ndarray:
+            ticks = np.array([m * 10.0**e for e in range(low, high + 1) for m in mantissas])
+            return ticks[(ticks >= vmin * (1 - 1e-9)) & (ticks <= vmax * (1 + 1e-9))]
+
+        decades = inside((1.0,))
+        if decades.size >= 3:
+            step = -(-decades.size // self.max_ticks)
+            exponents = np.round(np.log10(decades)).astype(int)
+            return decades[exponents % step == 0]
+        steps = inside((1.0, 2.0, 5.0))
+        if 2 <= steps.size <= self.max_ticks:
+            return steps
+        if decades.size == 2:
+            return decades
+        for ticks in (steps, inside(tuple(float(m) for m in range(1, 10)))):
+            if ticks.size >= 2:
+                return ticks[:: -(-ticks.size // self.max_ticks)]
+        linear = MaxNLocator(nbins=3, steps=[1, 2, 2.5, 5, 10]).tick_values(vmin, vmax)
+        return linear[(linear >= vmin) & (linear <= vmax) & (linear > 0)]
+
+
+class PlainLogFormatter(Formatter):
+    """Labels of a log axis: plain numbers (``20``, ``0.3``) when every labelled tick lies in
+    :data:`PLAIN_NUMBER_RANGE`, else powers of ten (``10⁻⁶``, ``2×10⁵``)."""
+
+    shown: Sequence[float] = ()
+
+    def set_locs(self, locs: Sequence[float]) -> None:
+        """Keep the ticks being labelled: plain numbers or powers of ten depends on them all."""
+        super().set_locs(locs)
+        self.shown = [float(v) for v in locs]
 
     def __call__(self, x: float, pos: int | None = None) -> str:
-        return f"{x:g}" if super().__call__(x, pos) else ""
+        if not np.isfinite(x) or x <= 0:
+            return ""
+        shown = [v for v in self.shown if v > 0] or [x]
+        low, high = PLAIN_NUMBER_RANGE
+        if all(low <= v < high for v in shown):
+            return f"{x:g}"
+        exponent = math.floor(math.log10(x) + 1e-9)
+        mantissa = x / 10.0**exponent
+        if abs(mantissa - round(mantissa)) < 1e-6:
+            mantissa = round(mantissa)
+        if mantissa == 1:
+            return f"$10^{{{exponent}}}$"
+        return f"${mantissa:g}\\times10^{{{exponent}}}$"
 
 
 def plain_log_ticks(axis: Axis) -> None:
-    """Label a log axis with plain numbers, minor ticks too when it spans little."""
+    """Label a log axis sparsely: :class:`SparseLogLocator` and :class:`PlainLogFormatter`
+    for the major ticks, unlabelled minor ticks (every mantissa 2…9 where they fit)."""
+    axis.set_major_locator(SparseLogLocator())
     axis.set_major_formatter(PlainLogFormatter())
-    axis.set_minor_formatter(PlainLogFormatter(labelOnlyBase=False, minor_thresholds=(2, 0.5)))
+    axis.set_minor_locator(LogLocator(base=10.0, subs="auto", numticks=12))
+    axis.set_minor_formatter(NullFormatter())
+
+
+def _grid(ax: Axes) -> None:
+    """Major grid lines, and faint minor ones (log axes)."""
+    ax.grid(True, which="major", alpha=0.3)
+    ax.grid(True, which="minor", alpha=0.08)
 
 
 def _set_x_scale(ax: Axes, column: str, values: np.ndarray) -> None:
+    """Log x axis for a positive parameter spanning a decade or more; SNR ticks on whole
+    steps of 1, 2, 5 or 10 dB."""
+    if column == "snr_db":
+        ax.xaxis.set_major_locator(MaxNLocator(nbins="auto", steps=[1, 2, 5, 10]))
     positive = values[np.isfinite(values)]
     if column != "snr_db" and positive.size and positive.min() > 0:
         if positive.max() / positive.min() >= 10:
@@ -248,8 +657,13 @@ def _draw_bounds(
     point_rows: pd.DataFrame | None,
     x: str,
     colors: Mapping[str, tuple[float, ...]],
-) -> None:
-    """Solid black √CRLB for ToA+Doppler; dashed estimator-coloured bounds that differ."""
+) -> list[_Curve]:
+    """Solid black √CRLB for ToA+Doppler; dashed estimator-coloured bounds that differ.
+
+    Returns the curves drawn (never interleaved: the black bound lies under the estimators,
+    wider than their lines, and stays visible at their edges).
+    """
+    curves: list[_Curve] = []
     reference = None
     if point_rows is not None and REFERENCE_BOUND in point_rows:
         reference = point_rows[REFERENCE_BOUND].to_numpy(float)
@@ -261,6 +675,9 @@ def _draw_bounds(
             label="√CRLB, ToA+Doppler",
             zorder=1.9,
         )
+        curves.append(
+            _Curve("√CRLB, ToA+Doppler", "√CRLB", point_rows[x].to_numpy(float), reference)
+        )
     # Bounds that differ from the reference, each drawn once for all estimators sharing it.
     groups: list[tuple[pd.Series, np.ndarray, list[str]]] = []
     for estimator, own in rows.groupby("estimator", sort=False):
@@ -270,14 +687,9 @@ def _draw_bounds(
             continue
         if reference is None:
             reference = bound
-            ax.plot(
-                own[x],
-                bound,
-                color="black",
-                linewidth=2.4,
-                label=f"√CRLB, {estimator}'s modalities",
-                zorder=1.9,
-            )
+            label = f"√CRLB, {estimator}'s modalities"
+            ax.plot(own[x], bound, color="black", linewidth=2.4, label=label, zorder=1.9)
+            curves.append(_Curve(label, "√CRLB", own[x].to_numpy(float), bound))
             continue
         if _same_bound(bound, reference):
             continue
@@ -290,15 +702,18 @@ def _draw_bounds(
     for x_values, bound, names in groups:
         name = _bound_name(bound, point_rows)
         who = ", ".join(names)
+        label = f"√CRLB, {name} ({who})" if name else f"√CRLB of {who}"
         ax.plot(
             x_values,
             bound,
             color=colors[names[0]],
             linestyle="--",
             linewidth=1.2,
-            label=f"√CRLB, {name} ({who})" if name else f"√CRLB of {who}",
+            label=label,
             zorder=3,
         )
+        curves.append(_Curve(label, f"√CRLB of {who}", x_values.to_numpy(float), bound))
+    return curves
 
 
 def _same_bound(first: np.ndarray, second: np.ndarray) -> bool:
@@ -309,6 +724,24 @@ def _default_colors(
     frame: pd.DataFrame, colors: Mapping[str, tuple[float, ...]] | None
 ) -> Mapping[str, tuple[float, ...]]:
     return colors if colors is not None else estimator_colors(frame["estimator"].unique())
+
+
+def _estimator_line(
+    ax: Axes,
+    x_values: pd.Series | np.ndarray,
+    y_values: pd.Series | np.ndarray,
+    estimator: str,
+    colors: Mapping[str, tuple[float, ...]],
+    **style: object,
+) -> _Curve:
+    """Draw one estimator's line in its colour and marker (:func:`estimator_markers` of the
+    colour mapping's order); return it as a curve for :class:`_Curves`."""
+    markers = estimator_markers(colors)
+    label = estimator_label(estimator)
+    style = {"marker": markers.get(estimator, "o"), "markersize": 4.0, **style}
+    (line,) = ax.plot(x_values, y_values, color=colors[estimator], label=label, **style)
+    x = np.asarray(x_values, dtype=float)
+    return _Curve(label, estimator, x, np.asarray(y_values, dtype=float), line)
 
 
 # --------------------------------------------------------------------------------------------
@@ -354,33 +787,29 @@ def rmse_figure(
         if side_resolved
         else ("rmse_m", "rmse_ci_low_m", "rmse_ci_high_m")
     )
+    curves = _Curves()
     for ax, (title, panel) in zip(axes, panels, strict=True):
+        drawn = []
         for estimator, own in panel.groupby("estimator", sort=False):
             own = own.sort_values(x)
             color = colors[str(estimator)]
-            ax.plot(
-                own[x],
-                own[value],
-                marker="o",
-                markersize=3.5,
-                color=color,
-                label=estimator_label(str(estimator)),
-            )
+            drawn.append(_estimator_line(ax, own[x], own[value], str(estimator), colors))
             ax.fill_between(own[x], own[low], own[high], color=color, alpha=0.2, linewidth=0)
-        _draw_bounds(ax, panel, _point_bounds(panel, points, x, columns), x, colors)
+        drawn += _draw_bounds(ax, panel, _point_bounds(panel, points, x, columns), x, colors)
+        curves.panel(title, drawn, ax)
         ax.set_yscale("log")
         plain_log_ticks(ax.yaxis)
         _set_x_scale(ax, x, panel[x].to_numpy(float))
         ax.set_ylabel("side-resolved RMSE (m)" if side_resolved else "RMSE (m)")
         ax.set_title(title, fontsize="medium")
-        ax.grid(True, which="both", alpha=0.3)
+        _grid(ax)
     what = (
         "Side-resolved RMSE (nearest candidate, MATH §7)"
         if side_resolved
         else "RMSE of the returned position"
     )
     figure.suptitle(f"{what}; shaded: 95% bootstrap interval", fontsize="medium")
-    _legend(figure, axes)
+    _legend(figure, axes, curves)
     return figure
 
 
@@ -404,7 +833,9 @@ def wrong_side_figure(
     """Wrong-side rate against the swept parameter, with a 95% Wilson interval (MATH §7).
 
     0.5 is a coin toss: what an estimator that cannot tell the side of a straight track
-    achieves at best.
+    achieves at best. The rate and its interval are over the ``n_side_judged`` estimates off
+    the track plane; where fewer than :data:`MIN_COUNT_FOR_RATE` back a point, nothing is
+    drawn there (:data:`WRONG_SIDE_COUNT_NOTE`) and the legend counts such points.
     """
     colors = _default_colors(summary, colors)
     columns = parameter_columns(summary)
@@ -413,15 +844,21 @@ def wrong_side_figure(
     others = [c for c in varying_columns(rows, columns) if c != x]
     panels = _panels(rows, others)
     figure, axes = _figure_grid(len(panels), sharey=True)
+    curves = _Curves()
+    left_out = 0
     for ax, (title, panel) in zip(axes, panels, strict=True):
-        _plot_wrong_side(ax, panel, x, colors)
+        drawn, n_left_out = _plot_wrong_side(ax, panel, x, colors)
+        curves.panel(title, drawn, ax)
+        left_out += n_left_out
         _set_x_scale(ax, x, panel[x].to_numpy(float))
         ax.set_title(title, fontsize="medium")
+    if left_out:
+        curves.extra.append((None, _left_out_note(left_out, "estimates off the track")))
     figure.suptitle(
         "Estimates on the wrong side of the last frame's track; shaded: 95% Wilson interval",
         fontsize="medium",
     )
-    _legend(figure, axes)
+    _legend(figure, axes, curves)
     return figure
 
 
@@ -431,43 +868,56 @@ def wrong_side_vs_frame_figure(
     n_points: int = 3,
     colors: Mapping[str, tuple[float, ...]] | None = None,
 ) -> Figure:
-    """Wrong-side rate against the last frame used (MATH §7): a turn should drive it to 0."""
+    """Wrong-side rate against the last frame used (MATH §7): a turn should drive it to 0.
+
+    Points backed by fewer than :data:`MIN_COUNT_FOR_RATE` estimates off the track are not
+    drawn, as in :func:`wrong_side_figure`.
+    """
     colors = _default_colors(summary, colors)
     panels = _frame_panels(summary, n_points)
     figure, axes = _figure_grid(len(panels), sharey=True)
+    curves = _Curves()
+    left_out = 0
     for ax, (title, panel) in zip(axes, panels, strict=True):
-        _plot_wrong_side(ax, panel, "frame", colors)
+        drawn, n_left_out = _plot_wrong_side(ax, panel, "frame", colors)
+        curves.panel(title, drawn, ax)
+        left_out += n_left_out
         ax.set_xlabel("last frame used (index)")
         ax.xaxis.get_major_locator().set_params(integer=True)
         ax.set_title(title, fontsize="medium")
+    if left_out:
+        curves.extra.append((None, _left_out_note(left_out, "estimates off the track")))
     figure.suptitle(
         "Wrong-side rate as frames accumulate; shaded: 95% Wilson interval", fontsize="medium"
     )
-    _legend(figure, axes)
+    _legend(figure, axes, curves)
     return figure
 
 
 def _plot_wrong_side(
     ax: Axes, panel: pd.DataFrame, x: str, colors: Mapping[str, tuple[float, ...]]
-) -> None:
-    """One panel of wrong-side rate against ``x``, a line per estimator, 0.5 marked."""
+) -> tuple[list[_Curve], int]:
+    """One panel of wrong-side rate against ``x``, a line per estimator, 0.5 marked.
+
+    Returns the curves and how many points were left out for their count
+    (:data:`MIN_COUNT_FOR_RATE`).
+    """
+    curves = []
+    left_out = 0
     for estimator, own in panel.groupby("estimator", sort=False):
         own = own.sort_values(x)
-        low, high = wilson_interval(own["wrong_side_rate"], own["n_successes"])
+        counts = _side_counts(own)
+        rate, few = _counted(own["wrong_side_rate"], counts)
+        left_out += int(few.sum())
+        low, high = wilson_interval(rate, counts)
         color = colors[str(estimator)]
-        ax.plot(
-            own[x],
-            own["wrong_side_rate"],
-            marker="o",
-            markersize=3.5,
-            color=color,
-            label=estimator_label(str(estimator)),
-        )
+        curves.append(_estimator_line(ax, own[x], rate, str(estimator), colors))
         ax.fill_between(own[x], low, high, color=color, alpha=0.15, linewidth=0)
     ax.axhline(0.5, color="grey", linestyle=":", linewidth=1, label="0.5 (a coin toss)")
     ax.set_ylim(-0.03, 1.03)
     ax.set_ylabel("wrong-side rate")
     ax.grid(True, alpha=0.3)
+    return curves, left_out
 
 
 def wilson_interval(rate: pd.Series, n: pd.Series, z: float = 1.96) -> tuple[np.ndarray, ...]:
@@ -491,12 +941,14 @@ def _chosen_points(
     """Up to ``n_points`` sweep points per scenario: lowest, middle and highest ``x``.
 
     Without ``x`` (a grid), the points of smallest, median and largest mean √CRLB: the
-    easiest, a middle and the hardest geometry.
+    easiest, a middle and the hardest geometry. Scenarios in :func:`scenario_order`.
     """
     keys = trials.groupby(["scenario", "point"], sort=False).agg(
         **{c: (c, "first") for c in columns}, bound=("crlb_rmse_m", "mean")
     )
-    keys = keys.reset_index().sort_values(["scenario", x or "bound", "point"])
+    keys = keys.reset_index()
+    keys["scenario_rank"] = _scenario_rank(keys, scenario_order(trials))
+    keys = keys.sort_values(["scenario_rank", x or "bound", "point"], kind="stable")
     chosen = []
     for _, rows in keys.groupby("scenario", sort=False):
         index = np.unique(np.linspace(0, len(rows) - 1, min(n_points, len(rows))).round())
@@ -514,8 +966,10 @@ def error_cdf_figure(
     """Empirical CDFs of the distance error at a few sweep points (lowest, middle, highest).
 
     Solid: error of the returned position; dashed: side-resolved error (MATH §7), drawn for
-    estimators that flag ambiguous answers. The CDF is over all trials: failed estimates
-    count as infinite errors, so a curve that stays below 1 shows the failure rate.
+    estimators that flag ambiguous answers (one legend entry per estimator, and one for the
+    dashed style). The CDF is over all trials: failed estimates count as infinite errors, so a
+    curve that stays below 1 shows the failure rate. CDFs that overlap on the page are
+    interleaved like the lines of the other figures; no "coincides with" notes here.
 
     Parameters
     ----------
@@ -534,8 +988,13 @@ def error_cdf_figure(
     varying = varying_columns(rows, columns)
     chosen = _chosen_points(rows, x, n_points, columns)
     figure, axes = _figure_grid(len(chosen), ncols=min(len(chosen), n_points), sharey=True)
+    curves = _Curves(notes=False)  # CDFs of one estimator family coincide by the dozen
+    dashed = False
     for ax, (_, where) in zip(axes, chosen.iterrows(), strict=True):
         at = rows[(rows["scenario"] == where["scenario"]) & (rows["point"] == where["point"])]
+        values = {c: float(where[c]) for c in (varying or ["snr_db"])}
+        title = _panel_title(str(where["scenario"]), values)
+        drawn = []
         for estimator, own in at.groupby("estimator", sort=False):
             color = colors[str(estimator)]
             n = len(own)
@@ -550,26 +1009,34 @@ def error_cdf_figure(
                 errors = errors[np.isfinite(errors)]
                 if errors.size == 0:
                     continue
-                ax.step(
+                fraction = np.arange(1, errors.size + 1) / n
+                label = estimator_label(str(estimator)) + suffix
+                dashed |= bool(suffix)
+                (line,) = ax.step(
                     errors,
-                    np.arange(1, errors.size + 1) / n,
+                    fraction,
                     where="post",
                     color=color,
                     linestyle=style,
-                    label=estimator_label(str(estimator)) + suffix,
+                    label=f"_{label}" if suffix else label,  # one legend entry per estimator
                 )
+                name = f"{estimator}{suffix.replace(',', '')}"
+                drawn.append(_Curve(label, name, errors, fraction, line, grid="y"))
+        curves.panel(title, drawn, ax)
         ax.set_xscale("log")
         plain_log_ticks(ax.xaxis)
         ax.set_ylim(0, 1.02)
         ax.set_xlabel("distance error (m)")
         ax.set_ylabel("fraction of trials")
-        values = {c: float(where[c]) for c in (varying or ["snr_db"])}
-        ax.set_title(_panel_title(str(where["scenario"]), values), fontsize="medium")
-        ax.grid(True, which="both", alpha=0.3)
+        ax.set_title(title, fontsize="medium")
+        _grid(ax)
     figure.suptitle(
         "Distribution of the distance error (failed estimates count as infinite)", fontsize="medium"
     )
-    _legend(figure, axes)
+    if dashed:
+        style = Line2D([], [], color="0.35", linestyle="--")
+        curves.extra.append((style, "dashed: side-resolved error (nearest candidate, MATH §7)"))
+    _legend(figure, axes, curves)
     return figure
 
 
@@ -616,11 +1083,13 @@ def runtime_figure(
     ax.set_xlim(left, float(table["p95"].max()) * 8)
     ax.set_yticks(positions, labels)
     ax.set_xscale("log")
+    plain_log_ticks(ax.xaxis)
     ax.set_xlabel("wall time per estimate (s)")
     ax.set_title(
         "Run time per estimate (median; whiskers: 5th to 95th percentile)", fontsize="medium"
     )
-    ax.grid(True, axis="x", which="both", alpha=0.3)
+    ax.grid(True, axis="x", which="major", alpha=0.3)
+    ax.grid(True, axis="x", which="minor", alpha=0.08)
     return figure
 
 
@@ -650,8 +1119,8 @@ def geometry_heatmap_figure(
 ) -> Figure:
     """Efficiency over an emitter grid, one panel per estimator (log colour scale).
 
-    The efficiency is the judged one of :func:`comparison.metrics.judged_rmse` (side-resolved
-    where the estimator flags ambiguous answers, MATH §7) divided by the estimator's √CRLB.
+    The efficiency is the summary's ``efficiency_judged`` (side-resolved where the estimator
+    flags ambiguous answers, MATH §7): the judged RMSE divided by the estimator's √CRLB.
     A first panel shows the ToA+Doppler √CRLB in metres when ``points`` is given. One row of
     panels per scenario (and per value of any other varying parameter).
 
@@ -671,7 +1140,7 @@ def geometry_heatmap_figure(
         )
     columns = parameter_columns(summary)
     rows = last_frame(summary, columns).copy()
-    rows["judged_efficiency"] = judged_rmse(rows)["efficiency"].to_numpy()
+    rows["judged_efficiency"] = rows["efficiency_judged"].to_numpy(float)
     others = [c for c in varying_columns(rows, columns) if c not in ("emitter_x_m", "emitter_y_m")]
     panels = _panels(rows, others)
     estimators = list(rows["estimator"].unique())
@@ -780,12 +1249,18 @@ def geometry_heatmap_figure(
 # --------------------------------------------------------------------------------------------
 
 
-def _frame_panels(summary: pd.DataFrame, n_points: int) -> list[tuple[str, pd.DataFrame]]:
+def _frame_panels(
+    summary: pd.DataFrame, n_points: int, order: Sequence[str] | None = None
+) -> list[tuple[str, pd.DataFrame]]:
+    """One panel per scenario and sweep point (up to ``n_points`` per scenario: lowest, middle,
+    highest), scenarios in ``order`` (default :func:`scenario_order` of ``summary``)."""
     columns = parameter_columns(summary)
     varying = varying_columns(summary, columns)
     keys = summary[["scenario", *columns]].drop_duplicates()
+    keys = keys.assign(scenario_rank=_scenario_rank(keys, order or scenario_order(summary)))
+    keys = keys.sort_values("scenario_rank", kind="stable")
     panels = []
-    for _, rows in keys.groupby("scenario", sort=False):
+    for _, rows in keys.groupby("scenario_rank", sort=True):
         order = rows.sort_values(varying or ["snr_db"])
         index = np.unique(np.linspace(0, len(order) - 1, min(n_points, len(order))).round())
         for _, key in order.iloc[index.astype(int)].iterrows():
@@ -814,18 +1289,13 @@ def rmse_vs_frame_figure(
     columns = parameter_columns(summary)
     panels = _frame_panels(summary, n_points)
     figure, axes = _figure_grid(len(panels))
+    curves = _Curves()
     for ax, (title, panel) in zip(axes, panels, strict=True):
+        drawn = []
         for estimator, own in panel.groupby("estimator", sort=False):
             own = own.sort_values("frame")
             color = colors[str(estimator)]
-            ax.plot(
-                own["frame"],
-                own["rmse_m"],
-                marker="o",
-                markersize=3.5,
-                color=color,
-                label=estimator_label(str(estimator)),
-            )
+            drawn.append(_estimator_line(ax, own["frame"], own["rmse_m"], str(estimator), colors))
             ax.fill_between(
                 own["frame"],
                 own["rmse_ci_low_m"],
@@ -835,28 +1305,40 @@ def rmse_vs_frame_figure(
                 linewidth=0,
             )
             if not np.allclose(own["rmse_side_resolved_m"], own["rmse_m"], equal_nan=True):
-                ax.plot(
+                label = f"{estimator_label(str(estimator))}, side-resolved"
+                (line,) = ax.plot(
                     own["frame"],
                     own["rmse_side_resolved_m"],
                     linestyle=":",
+                    linewidth=1.8,
                     color=color,
-                    label=f"{estimator_label(str(estimator))}, side-resolved",
+                    label=label,
+                )
+                drawn.append(
+                    _Curve(
+                        label,
+                        f"{estimator} side-resolved",
+                        own["frame"].to_numpy(float),
+                        own["rmse_side_resolved_m"].to_numpy(float),
+                        line,
+                    )
                 )
         bounds = None
         if points is not None:
             keys = ["scenario", *columns, "frame"]
             if all(c in points.columns for c in keys):
                 bounds = panel[keys].drop_duplicates().merge(points, on=keys).sort_values("frame")
-        _draw_bounds(ax, panel, bounds, "frame", colors)
+        drawn += _draw_bounds(ax, panel, bounds, "frame", colors)
+        curves.panel(title, drawn, ax)
         ax.set_yscale("log")
         plain_log_ticks(ax.yaxis)
         ax.set_xlabel("last frame used (index)")
         ax.set_ylabel("RMSE (m)")
         ax.set_title(title, fontsize="medium")
         ax.xaxis.get_major_locator().set_params(integer=True)
-        ax.grid(True, which="both", alpha=0.3)
+        _grid(ax)
     figure.suptitle("RMSE as frames accumulate, with the accumulated √CRLB", fontsize="medium")
-    _legend(figure, axes)
+    _legend(figure, axes, curves)
     return figure
 
 
@@ -866,39 +1348,43 @@ def nees_vs_frame_figure(
     n_points: int = 3,
     colors: Mapping[str, tuple[float, ...]] | None = None,
 ) -> Figure:
-    """Mean NEES against the frame, for the estimators that report a covariance.
+    """Mean side-resolved NEES against the frame, for the estimators that report a covariance.
 
-    A consistent covariance gives a mean NEES of 2 (two dof), inside the 95% band of
+    Each trial's nearest candidate is scored against its own covariance (mirrored with the
+    candidate, MATH §7): for an unambiguous estimate that is the returned position, so the
+    curve shows covariance consistency rather than the mirror ambiguity. A consistent covariance gives a mean NEES of 2 (two dof), inside the 95% band of
     :func:`comparison.metrics.nees_band` (shaded grey: the widest band among the estimators
-    of the panel, from their smallest count).
+    of the panel, from their smallest count). A mean of fewer than :data:`MIN_COUNT_FOR_RATE`
+    NEES values (``n_nees``) is not drawn (:data:`NEES_COUNT_NOTE`), and gives no band.
     """
     with_nees = summary[summary["n_nees"] > 0]
     if with_nees.empty:
         raise ValueError("summary: no estimator reports a covariance (n_nees is 0 everywhere)")
     colors = _default_colors(summary, colors)
-    panels = _frame_panels(with_nees, n_points)
+    panels = _frame_panels(with_nees, n_points, scenario_order(summary))
     figure, axes = _figure_grid(len(panels))
+    curves = _Curves()
+    left_out = 0
     for ax, (title, panel) in zip(axes, panels, strict=True):
-        band = panel.loc[panel.groupby("frame")["n_nees"].idxmin()].sort_values("frame")
-        ax.fill_between(
-            band["frame"],
-            band["nees_band_low"],
-            band["nees_band_high"],
-            color="0.8",
-            label="95% band of a consistent mean NEES",
-        )
+        counted = panel[panel["n_nees"] >= MIN_COUNT_FOR_RATE]
+        band = counted.loc[counted.groupby("frame")["n_nees"].idxmin()].sort_values("frame")
+        if not band.empty:
+            ax.fill_between(
+                band["frame"],
+                band["nees_band_low"],
+                band["nees_band_high"],
+                color="0.8",
+                label="95% band of a consistent mean NEES",
+            )
         ax.axhline(2.0, color="black", linewidth=1, label="2 (consistent)")
+        drawn = []
         for estimator, own in panel.groupby("estimator", sort=False):
             own = own.sort_values("frame")
-            ax.plot(
-                own["frame"],
-                own["nees_mean"],
-                marker="o",
-                markersize=3.5,
-                color=colors[str(estimator)],
-                label=estimator_label(str(estimator)),
-            )
-        values = np.concatenate([panel["nees_mean"], band["nees_band_high"]])
+            nees, few = _counted(own["nees_side_resolved_mean"], own["n_nees"])
+            left_out += int(few.sum())
+            drawn.append(_estimator_line(ax, own["frame"], nees, str(estimator), colors))
+        curves.panel(title, drawn, ax)
+        values = np.concatenate([*(c.y for c in drawn), band["nees_band_high"].to_numpy(float)])
         values = values[np.isfinite(values) & (values > 0)]
         if values.size and values.max() / values.min() > 20:
             ax.set_yscale("log")
@@ -907,11 +1393,13 @@ def nees_vs_frame_figure(
         ax.set_ylabel("mean NEES")
         ax.set_title(title, fontsize="medium")
         ax.xaxis.get_major_locator().set_params(integer=True)
-        ax.grid(True, which="both", alpha=0.3)
+        _grid(ax)
+    if left_out:
+        curves.extra.append((None, _left_out_note(left_out, "NEES values")))
     figure.suptitle(
         "Covariance consistency: mean NEES (2 dof) as frames accumulate", fontsize="medium"
     )
-    _legend(figure, axes)
+    _legend(figure, axes, curves)
     return figure
 
 
@@ -937,15 +1425,20 @@ def _planner_marker(summary: pd.DataFrame, planner: object) -> str:
 
 
 def _planner_panels(summary: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
-    """One panel per (scenario, sweep point, estimator), in the summary's order."""
+    """One panel per (scenario, sweep point, estimator): scenarios in :func:`scenario_order`,
+    then sweep points ascending, then estimators in their order of first appearance."""
     columns = parameter_columns(summary)
     varying = varying_columns(summary, columns)
-    panels = []
+    rank = _scenario_rank(summary)
+    estimators = {name: i for i, name in enumerate(dict.fromkeys(summary["estimator"]))}
+    keyed = []
     for key, rows in summary.groupby(["scenario", *varying, "estimator"], sort=False):
         key = key if isinstance(key, tuple) else (key,)
         values = dict(zip(varying, key[1:-1], strict=True))
-        panels.append((f"{_panel_title(str(key[0]), values)}: {key[-1]}", rows))
-    return panels[:MAX_PANELS]
+        order = (int(rank.loc[rows.index[0]]), *key[1:-1], estimators[key[-1]])
+        keyed.append((order, f"{_panel_title(str(key[0]), values)}: {key[-1]}", rows))
+    keyed.sort(key=lambda item: item[0])
+    return [(title, rows) for _, title, rows in keyed][:MAX_PANELS]
 
 
 def planner_rmse_vs_frame_figure(
@@ -972,41 +1465,50 @@ def planner_rmse_vs_frame_figure(
     panels = _planner_panels(summary)
     n_estimators = summary["estimator"].nunique()
     figure, axes = _figure_grid(len(panels), ncols=min(max(n_estimators, 1), 3))
+    curves = _Curves()
     for ax, (title, panel) in zip(axes, panels, strict=True):
+        drawn = []
         for planner, own in panel.groupby("planner", sort=False):
             own = own.sort_values("frame")
             color = colors[str(planner)]
-            ax.plot(
+            frames = own["frame"].to_numpy(float)
+            label = f"{planner}: RMSE"
+            (line,) = ax.plot(
                 own["frame"],
                 own[value],
                 marker=_planner_marker(summary, planner),
                 markersize=4,
                 color=color,
-                label=f"{planner}: RMSE",
+                label=label,
             )
+            drawn.append(_Curve(label, f"{planner}", frames, own[value].to_numpy(float), line))
             ax.fill_between(own["frame"], own[low], own[high], color=color, alpha=0.2, linewidth=0)
+            label = f"{planner}: √CRLB of the flown paths"
             ax.plot(
                 own["frame"],
                 own["crlb_rmse_m"],
                 linestyle="--",
                 linewidth=1.2,
                 color=color,
-                label=f"{planner}: √CRLB of the flown paths",
+                label=label,
             )
+            bound = own["crlb_rmse_m"].to_numpy(float)
+            drawn.append(_Curve(label, f"{planner}'s √CRLB", frames, bound))
+        curves.panel(title, drawn, ax)
         ax.set_yscale("log")
         plain_log_ticks(ax.yaxis)
         ax.set_xlabel("last frame used (index)")
         ax.set_ylabel("side-resolved RMSE (m)" if side_resolved else "RMSE (m)")
         ax.set_title(title, fontsize="medium")
         ax.xaxis.get_major_locator().set_params(integer=True)
-        ax.grid(True, which="both", alpha=0.3)
+        _grid(ax)
     what = "Side-resolved RMSE (MATH §7)" if side_resolved else "RMSE of the returned position"
     figure.suptitle(
         f"Closed loop: {what} per planner as frames accumulate; dashed: RMS over trials of "
         "√CRLB of each flown trajectory",
         fontsize="medium",
     )
-    _legend(figure, axes)
+    _legend(figure, axes, curves)
     return figure
 
 
@@ -1016,7 +1518,8 @@ def planner_wrong_side_vs_frame_figure(
     """Wrong-side rate against the frame, one line per planner (95% Wilson interval, MATH §7).
 
     The rows judge the side against the first track an estimator uses, in each trial's own
-    flight (:mod:`comparison.engine`).
+    flight (:mod:`comparison.engine`). Points backed by fewer than :data:`MIN_COUNT_FOR_RATE`
+    estimates off the track are not drawn (:data:`WRONG_SIDE_COUNT_NOTE`).
     """
     if "planner" not in summary.columns:
         raise ValueError("summary: no planner column; this figure is for closed-loop runs")
@@ -1024,21 +1527,31 @@ def planner_wrong_side_vs_frame_figure(
     panels = _planner_panels(summary)
     n_estimators = summary["estimator"].nunique()
     figure, axes = _figure_grid(len(panels), sharey=True, ncols=min(max(n_estimators, 1), 3))
+    curves = _Curves()
+    left_out = 0
     for ax, (title, panel) in zip(axes, panels, strict=True):
+        drawn = []
         for planner, own in panel.groupby("planner", sort=False):
             own = own.sort_values("frame")
-            low, high = wilson_interval(own["wrong_side_rate"], own["n_successes"])
+            counts = _side_counts(own)
+            rate, few = _counted(own["wrong_side_rate"], counts)
+            left_out += int(few.sum())
+            low, high = wilson_interval(rate, counts)
             color = colors[str(planner)]
-            ax.plot(
+            (line,) = ax.plot(
                 own["frame"],
-                own["wrong_side_rate"],
+                rate,
                 marker=_planner_marker(summary, planner),
                 markersize=5,
                 markerfacecolor="none",
                 color=color,
                 label=str(planner),
             )
+            drawn.append(
+                _Curve(str(planner), str(planner), own["frame"].to_numpy(float), rate, line)
+            )
             ax.fill_between(own["frame"], low, high, color=color, alpha=0.15, linewidth=0)
+        curves.panel(title, drawn, ax)
         ax.axhline(0.5, color="grey", linestyle=":", linewidth=1, label="0.5 (a coin toss)")
         ax.set_ylim(-0.03, 1.03)
         ax.set_ylabel("wrong-side rate")
@@ -1051,7 +1564,9 @@ def planner_wrong_side_vs_frame_figure(
         "uses); shaded: 95% Wilson interval",
         fontsize="medium",
     )
-    _legend(figure, axes)
+    if left_out:
+        curves.extra.append((None, _left_out_note(left_out, "estimates off the track")))
+    _legend(figure, axes, curves)
     return figure
 
 

@@ -1,11 +1,12 @@
-r"""Summary metrics of Monte Carlo trials, and statements of where the CRLB is attained.
+r"""Summary metrics of Monte Carlo trials.
 
 :func:`summarize` turns the tidy trial rows of :func:`comparison.engine.read_trials` (one row
 per estimator × scenario × point × frame × trial, and planner in a closed loop) into one row per
 (scenario, point, frame, estimator), and planner when the rows have planners:
 
 - ``rmse_m`` :math:`= \sqrt{\tfrac1n\sum_i e_i^2}` over the successful trials, with a 95%
-  percentile-bootstrap interval (``rmse_ci_low_m``, ``rmse_ci_high_m``);
+  studentized-bootstrap interval (``rmse_ci_low_m``, ``rmse_ci_high_m``;
+  :mod:`comparison.verdicts` says why that method);
 - ``rmse_side_resolved_m``: the same with the error of the candidate nearest to the truth
   (MATH §7), i.e. the error once the mirror ambiguity is resolved, and its interval;
 - ``mean_error_m`` (the paper's "accuracy", MATH §14), ``median_error_m``, ``cep50_m``,
@@ -14,8 +15,12 @@ per estimator × scenario × point × frame × trial, and planner in a closed lo
   loop, where every trial flies its own trajectory, the root mean square of the trials'
   bounds) and the efficiencies ``rmse_m / crlb_rmse_m`` and
   ``rmse_side_resolved_m / crlb_rmse_m``;
-- ``wrong_side_rate``, ``ambiguous_rate``, ``success_rate``, ``nees_mean`` with its 95%
-  chi-square band, ``runtime_median_s``.
+- rates with their counts beside them: ``wrong_side_rate`` over ``n_side_judged`` estimates
+  off the track, ``success_rate`` over ``n_trials``, ``nees_mean`` and
+  ``nees_side_resolved_mean`` over ``n_nees`` with the 95% chi-square band;
+- the verdicts of :mod:`comparison.verdicts`: ``verdict`` (``attains``, ``above``, ``below``,
+  ``inconclusive``) with ``verdict_reason``, judged on ``efficiency_judged`` and its interval,
+  and ``nees_verdict``.
 
 The SNR axis scales every reference σ by :math:`10^{-\mathrm{SNR}/20}` (MATH §2).
 """
@@ -27,8 +32,16 @@ from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
-from numpy.typing import ArrayLike, NDArray
-from scipy import stats
+from numpy.typing import NDArray
+
+from comparison.verdicts import (
+    DEFAULT_N_BOOTSTRAP,
+    efficiency_verdicts,
+    nees_band,
+    nees_verdicts,
+    studentized_bootstrap_interval,
+    tail_share,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -56,6 +69,7 @@ TRIAL_COLUMNS: tuple[str, ...] = (
     "cov_xy_m2",
     "cov_yy_m2",
     "nees",
+    "nees_side_resolved",
     "crlb_rmse_m",
     "runtime_s",
     "message",
@@ -80,6 +94,7 @@ REQUIRED_TRIAL_COLUMNS: tuple[str, ...] = (
     "ambiguous",
     "success",
     "nees",
+    "nees_side_resolved",
     "crlb_rmse_m",
     "runtime_s",
 )
@@ -112,11 +127,27 @@ EXTRA_METRIC_NAMES: tuple[str, ...] = (
     "n_successes",
     "rmse_side_resolved_ci_low_m",
     "rmse_side_resolved_ci_high_m",
+    "n_side_judged",
     "n_nees",
     "nees_band_low",
     "nees_band_high",
+    "nees_side_resolved_mean",
+    "crlb_rmse_median_m",
+    "verdict_basis",
+    "efficiency_judged",
+    "efficiency_judged_ci_low",
+    "efficiency_judged_ci_high",
+    "tail_share",
+    "verdict",
+    "verdict_reason",
+    "nees_verdict",
 )
-"""Metric columns that follow the contracted ones (counts and the intervals they need)."""
+"""Columns that follow the contracted ones: counts beside the rates, intervals, verdicts."""
+
+TEXT_METRIC_NAMES: frozenset[str] = frozenset(
+    {"verdict_basis", "verdict", "verdict_reason", "nees_verdict"}
+)
+"""The metric columns that hold words, not numbers."""
 
 METRIC_NAMES: tuple[str, ...] = CONTRACT_METRIC_NAMES + EXTRA_METRIC_NAMES
 """Every metric column of :func:`summarize`'s result, in order (from ``n_trials`` on)."""
@@ -125,11 +156,11 @@ METRIC_DESCRIPTIONS: dict[str, str] = {
     "n_trials": "trials run (successful or not)",
     "n_successes": "trials whose estimator returned a position",
     "rmse_m": "root mean square error of the returned position, successful trials",
-    "rmse_ci_low_m": "lower end of the 95% percentile-bootstrap interval of rmse_m",
-    "rmse_ci_high_m": "upper end of the 95% percentile-bootstrap interval of rmse_m",
+    "rmse_ci_low_m": "lower end of the 95% studentized-bootstrap interval of rmse_m",
+    "rmse_ci_high_m": "upper end of the 95% studentized-bootstrap interval of rmse_m",
     "rmse_side_resolved_m": "RMSE of the candidate nearest to the truth (MATH §7)",
-    "rmse_side_resolved_ci_low_m": "lower end of the bootstrap interval of the side-resolved RMSE",
-    "rmse_side_resolved_ci_high_m": "upper end of the bootstrap interval of the side-resolved RMSE",
+    "rmse_side_resolved_ci_low_m": "lower end of the interval of the side-resolved RMSE",
+    "rmse_side_resolved_ci_high_m": "upper end of the interval of the side-resolved RMSE",
     "mean_error_m": "mean distance error, the paper's 'accuracy' (MATH §14)",
     "median_error_m": "median distance error",
     "cep50_m": "circular error probable: radius about the truth holding 50% of the estimates "
@@ -142,26 +173,34 @@ METRIC_DESCRIPTIONS: dict[str, str] = {
     "efficiency": "rmse_m / crlb_rmse_m (1 attains the bound)",
     "efficiency_side_resolved": "rmse_side_resolved_m / crlb_rmse_m",
     "wrong_side_rate": (
-        "fraction of successful estimates off the track plane that lie on the wrong side (MATH §7)"
+        "fraction of the n_side_judged estimates off the track plane that lie on the other side "
+        "of the track from the truth (MATH §7)"
     ),
+    "n_side_judged": "successful estimates off the track plane: the wrong-side rate's count",
     "ambiguous_rate": "fraction of successful estimates flagged ambiguous (MATH §7)",
-    "success_rate": "fraction of trials with a returned position",
-    "n_nees": "successful trials with a covariance",
-    "nees_mean": "mean NEES eᵀP⁻¹e, e from the side-resolved candidate (2 when consistent)",
+    "success_rate": "fraction of the n_trials trials with a returned position",
+    "n_nees": "successful trials with a covariance: the count of both NEES means",
+    "nees_mean": "mean NEES eᵀP⁻¹e of the returned position against its covariance (2 when "
+    "consistent; wrong-side estimates make it large)",
+    "nees_side_resolved_mean": "mean NEES of the candidate nearest to the truth against that "
+    "candidate's covariance (the returned one reflected across the track for the mirror image)",
     "nees_band_low": "2.5% point of the mean of n_nees consistent 2-dof NEES values",
     "nees_band_high": "97.5% point of the mean of n_nees consistent 2-dof NEES values",
+    "crlb_rmse_median_m": "median over trials of √trace(CRLB); equals crlb_rmse_m in an open "
+    "loop, and shows how skewed the per-trial bounds of a closed loop are",
+    "verdict_basis": "side-resolved where the estimator flagged any estimate of the row as "
+    "ambiguous, else returned: the error the verdicts judge",
+    "efficiency_judged": "the efficiency of verdict_basis",
+    "efficiency_judged_ci_low": "lower end of its 95% interval",
+    "efficiency_judged_ci_high": "upper end of its 95% interval",
+    "tail_share": "share of the judged squared error carried by the largest 1% of the trials",
+    "verdict": "attains, above, below or inconclusive (comparison.verdicts)",
+    "verdict_reason": "the numbers behind the verdict",
+    "nees_verdict": "consistent, optimistic (covariance too small), pessimistic or inconclusive "
+    "for the judged NEES against its chi-square band; 'no covariance' when there is none",
     "runtime_median_s": "median wall time of one estimate",
 }
 """One line per metric column, for captions and the report."""
-
-DEFAULT_N_BOOTSTRAP = 1000
-"""Bootstrap resamples per group for the RMSE intervals."""
-
-ATTAINMENT_TOLERANCE = 0.10
-"""Relative distance to √CRLB within which the bound counts as attained."""
-
-MIN_SUCCESS_RATE = 0.99
-"""Smallest success rate at which an estimator can be said to attain the bound."""
 
 
 def has_planners(frame: pd.DataFrame) -> bool:
@@ -170,131 +209,6 @@ def has_planners(frame: pd.DataFrame) -> bool:
         return False
     labels = frame["planner"]
     return bool((labels.notna() & (labels.astype(str) != "")).any())
-
-
-def attainment_criterion(
-    tolerance: float = ATTAINMENT_TOLERANCE, min_success_rate: float = MIN_SUCCESS_RATE
-) -> str:
-    """The attainment criterion of :func:`crlb_attainment`, in words (for reports)."""
-    return (
-        "An estimator attains the CRLB at a sweep point when the 95% bootstrap interval of "
-        "its RMSE overlaps the band from "
-        f"{1 - tolerance:g}·√CRLB to {1 + tolerance:g}·√CRLB and at least "
-        f"{100 * min_success_rate:g}% of its estimates succeed. The RMSE is the "
-        "side-resolved one (error of the candidate nearest to the truth, MATH §7) for an "
-        "estimator that flags any estimate at that point as ambiguous, and the RMSE of the "
-        "returned position otherwise; √CRLB is the bound for the modalities and frames that "
-        "estimator uses (MATH §8). An interval wholly below the band is reported as "
-        "'below the bound' (a biased estimate, which the unbiased bound does not cover); "
-        "per-frame runs are judged on their last frame."
-    )
-
-
-def nees_band(n: ArrayLike, confidence: float = 0.95) -> tuple[FloatArray, FloatArray]:
-    """Two-sided interval for the mean of ``n`` independent 2-dof NEES values.
-
-    If the estimator's covariance is consistent, each NEES is χ²(2) and ``n`` times their mean
-    is χ²(2n) (Bar-Shalom, Li & Kirubarajan 2001, §5.4.2), so the mean lies in
-    ``chi2.ppf([α/2, 1 − α/2], 2n) / n`` with probability ``confidence``.
-
-    Parameters
-    ----------
-    n : int or array of int
-        Number of NEES values averaged; 0 gives NaN.
-    confidence : float
-        Coverage of the band, in (0, 1).
-
-    Returns
-    -------
-    low, high : arrays shaped like ``n``
-    """
-    if not 0.0 < confidence < 1.0:
-        raise ValueError(f"confidence: must lie in (0, 1), got {confidence!r}")
-    count = np.asarray(n, dtype=float)
-    if np.any(count < 0):
-        raise ValueError("n: counts of NEES values must be >= 0")
-    alpha = 1.0 - confidence
-    with np.errstate(divide="ignore", invalid="ignore"):
-        dof = np.where(count > 0, 2.0 * count, np.nan)
-        low = stats.chi2.ppf(alpha / 2, dof) / count
-        high = stats.chi2.ppf(1 - alpha / 2, dof) / count
-    return np.asarray(low, dtype=float), np.asarray(high, dtype=float)
-
-
-def bootstrap_rmse_interval(
-    squared_errors_m2: ArrayLike,
-    groups: ArrayLike,
-    n_groups: int,
-    *,
-    n_bootstrap: int = DEFAULT_N_BOOTSTRAP,
-    rng: np.random.Generator,
-    confidence: float = 0.95,
-    max_draws: int = 2**22,
-) -> tuple[FloatArray, FloatArray]:
-    """Percentile-bootstrap interval of the RMSE of every group, vectorised over groups.
-
-    Each group's squared errors are resampled with replacement ``n_bootstrap`` times;
-    the interval is the ``(1 ± confidence)/2`` quantiles of the resampled RMSEs (Efron &
-    Tibshirani 1993, §13.3). Groups are processed in blocks of at most about ``max_draws``
-    random indices, so memory stays bounded; there is no loop over trials.
-
-    Parameters
-    ----------
-    squared_errors_m2 : (n,)
-        Squared errors; NaN entries (failed trials) are left out.
-    groups : (n,) int
-        Group index of each entry, in ``0 .. n_groups - 1``.
-    n_groups : int
-    n_bootstrap : int
-        Resamples per group.
-    rng : numpy.random.Generator
-        Source of the resampling indices (seeded by the caller).
-    confidence : float
-    max_draws : int
-        Memory bound: random indices drawn at once.
-
-    Returns
-    -------
-    low, high : (n_groups,)
-        NaN for a group without finite errors.
-    """
-    if int(n_bootstrap) != n_bootstrap or n_bootstrap < 1:
-        raise ValueError(f"n_bootstrap: must be a whole number >= 1, got {n_bootstrap!r}")
-    if not 0.0 < confidence < 1.0:
-        raise ValueError(f"confidence: must lie in (0, 1), got {confidence!r}")
-    values = np.asarray(squared_errors_m2, dtype=float)
-    codes = np.asarray(groups, dtype=np.int64)
-    keep = np.isfinite(values)
-    values, codes = values[keep], codes[keep]
-    order = np.argsort(codes, kind="stable")
-    values, codes = values[order], codes[order]
-    counts = np.bincount(codes, minlength=n_groups)
-    starts = np.cumsum(counts) - counts
-    low = np.full(n_groups, np.nan)
-    high = np.full(n_groups, np.nan)
-    filled = np.flatnonzero(counts)
-    if filled.size == 0:
-        return low, high
-    # Consecutive non-empty groups are contiguous in `values`; cut them into blocks of about
-    # `budget` entries each (a group larger than the budget forms its own block).
-    budget = max(max_draws // int(n_bootstrap), 1)
-    offsets = np.cumsum(counts[filled]) - counts[filled]
-    block_of = offsets // budget
-    block_edges = np.flatnonzero(np.diff(block_of, prepend=-1))
-    quantiles = [(1 - confidence) / 2, (1 + confidence) / 2]
-    for first, last in zip(block_edges, [*block_edges[1:], filled.size], strict=True):
-        block = filled[first:last]
-        size = counts[block]
-        begin = starts[block[0]]
-        segment = values[begin : starts[block[-1]] + size[-1]]
-        owner = np.repeat(np.arange(block.size), size)
-        local_start = starts[block] - begin
-        draws = rng.integers(0, size[owner], size=(int(n_bootstrap), owner.size))
-        draws += local_start[owner]
-        sums = np.add.reduceat(segment[draws], local_start, axis=1)
-        resampled_rmse = np.sqrt(sums / size)
-        low[block], high[block] = np.quantile(resampled_rmse, quantiles, axis=0)
-    return low, high
 
 
 def swept_columns_of(trials: pd.DataFrame) -> list[str]:
@@ -340,7 +254,8 @@ def summarize(
     """One row of metrics per (scenario, point, frame, estimator), and planner in a closed loop.
 
     ``n_trials`` counts every trial; the error metrics, the wrong-side and ambiguous rates and
-    the NEES use the successful trials only; ``success_rate`` and ``runtime_median_s`` use
+    the NEES use the successful trials only (with their counts ``n_successes``,
+    ``n_side_judged``, ``n_nees``); ``success_rate`` and ``runtime_median_s`` use
     every trial. ``crlb_rmse_m`` is the rows' ``crlb_rmse_m`` when it is constant within a
     group (one flight for all trials), else their root mean square: each closed-loop trial
     flies its own trajectory, and ``E[e²] ≥ E[tr CRLB(trajectory)]`` makes the RMS of the
@@ -354,7 +269,8 @@ def summarize(
     trials : pandas.DataFrame
         The rows of :func:`comparison.engine.read_trials`.
     n_bootstrap : int
-        Resamples for the RMSE intervals (:func:`bootstrap_rmse_interval`).
+        Resamples for the RMSE intervals
+        (:func:`comparison.verdicts.studentized_bootstrap_interval`).
     seed : int or numpy.random.SeedSequence
         Seed of the bootstrap's generator: the same trials and seed give the same intervals.
     confidence : float
@@ -407,6 +323,7 @@ def summarize(
             "ambiguous": np.where(success, trials["ambiguous"].to_numpy(dtype=float), np.nan),
             "success": success.astype(float),
             "nees": successful("nees"),
+            "nees_side": successful("nees_side_resolved"),
             "runtime": trials["runtime_s"].to_numpy(dtype=float),
             "crlb": trials["crlb_rmse_m"].to_numpy(dtype=float),
             "crlb_squared": trials["crlb_rmse_m"].to_numpy(dtype=float) ** 2,
@@ -426,34 +343,40 @@ def summarize(
         crlb_low=("crlb", "min"),
         crlb_high=("crlb", "max"),
         crlb_mean_squared=("crlb_squared", "mean"),
+        crlb_median=("crlb", "median"),
         wrong_side_rate=("wrong_side", "mean"),
+        n_side_judged=("wrong_side", "count"),
         ambiguous_rate=("ambiguous", "mean"),
         success_rate=("success", "mean"),
         n_nees=("nees", "count"),
+        n_nees_side=("nees_side", "count"),
         nees_mean=("nees", "mean"),
+        nees_side_mean=("nees_side", "mean"),
         runtime_median_s=("runtime", "median"),
     )
     stats_frame["p95_error_m"] = by_group["error"].quantile(0.95)
 
     rng = np.random.default_rng(seed)
-    rmse_low, rmse_high = bootstrap_rmse_interval(
-        work["squared_error"],
-        group,
-        n_groups,
-        n_bootstrap=n_bootstrap,
-        rng=rng,
-        confidence=confidence,
-    )
-    side_low, side_high = bootstrap_rmse_interval(
-        work["squared_side_error"],
-        group,
-        n_groups,
-        n_bootstrap=n_bootstrap,
-        rng=rng,
-        confidence=confidence,
-    )
-    band_low, band_high = nees_band(stats_frame["n_nees"].to_numpy(), confidence)
+    # Estimators (and planners) that saw the same trials are resampled on the same trials.
+    first_of_group = np.unique(group, return_index=True)[1]
+    trial_set = group_frame.groupby(["scenario", "point", "frame"], sort=True).ngroup()
+    pairs = trial_set.to_numpy(np.int64)[first_of_group]
+    in_trial_order = np.lexsort((trials["trial"].to_numpy(), group))
 
+    def interval_m(squared: pd.Series) -> tuple[FloatArray, FloatArray]:
+        low, high = studentized_bootstrap_interval(
+            squared.to_numpy()[in_trial_order],
+            group[in_trial_order],
+            n_groups,
+            pairs=pairs,
+            n_bootstrap=n_bootstrap,
+            rng=rng,
+            confidence=confidence,
+        )
+        return np.sqrt(low), np.sqrt(high)
+
+    rmse_low, rmse_high = interval_m(work["squared_error"])
+    side_low, side_high = interval_m(work["squared_side_error"])
     rmse = np.sqrt(stats_frame["mean_squared"].to_numpy())
     rmse_side = np.sqrt(stats_frame["mean_squared_side"].to_numpy())
     # one flight for every trial: the common bound; one per trial (closed loop): their RMS
@@ -462,9 +385,36 @@ def summarize(
         stats_frame["crlb_rmse_m"].to_numpy(),
         np.sqrt(stats_frame["crlb_mean_squared"].to_numpy()),
     )
-    with np.errstate(divide="ignore", invalid="ignore"):
-        efficiency = np.where(crlb > 0, rmse / crlb, np.nan)
-        efficiency_side = np.where(crlb > 0, rmse_side / crlb, np.nan)
+
+    def per_bound(value: FloatArray) -> FloatArray:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(crlb > 0, value / crlb, np.nan)
+
+    # The verdicts judge the side-resolved error where any estimate is flagged ambiguous.
+    side = stats_frame["ambiguous_rate"].fillna(0.0).to_numpy() > 0
+
+    def judged(resolved: FloatArray, returned: FloatArray) -> FloatArray:
+        return np.where(side, resolved, returned)
+
+    judged_squared = np.where(
+        side[group], work["squared_side_error"].to_numpy(), work["squared_error"].to_numpy()
+    )
+    n_judged = np.bincount(group[np.isfinite(judged_squared)], minlength=n_groups)
+    efficiency_judged = per_bound(judged(rmse_side, rmse))
+    judged_low = per_bound(judged(side_low, rmse_low))
+    judged_high = per_bound(judged(side_high, rmse_high))
+    tail = tail_share(judged_squared, group, n_groups)
+    verdict, verdict_reason = efficiency_verdicts(
+        n_judged=n_judged,
+        n_trials=stats_frame["n_trials"].to_numpy(),
+        efficiency=efficiency_judged,
+        low=judged_low,
+        high=judged_high,
+        tail=tail,
+    )
+    n_nees = judged(stats_frame["n_nees_side"].to_numpy(), stats_frame["n_nees"].to_numpy())
+    band_low, band_high = nees_band(n_nees, confidence)
+    nees_judged = judged(stats_frame["nees_side_mean"].to_numpy(), stats_frame["nees_mean"])
     metrics = pd.DataFrame(
         {
             "n_trials": stats_frame["n_trials"].to_numpy(dtype=np.int64),
@@ -479,8 +429,8 @@ def summarize(
             "bias_x_m": stats_frame["bias_x_m"].to_numpy(),
             "bias_y_m": stats_frame["bias_y_m"].to_numpy(),
             "crlb_rmse_m": crlb,
-            "efficiency": efficiency,
-            "efficiency_side_resolved": efficiency_side,
+            "efficiency": per_bound(rmse),
+            "efficiency_side_resolved": per_bound(rmse_side),
             "wrong_side_rate": stats_frame["wrong_side_rate"].to_numpy(),
             "ambiguous_rate": stats_frame["ambiguous_rate"].to_numpy(),
             "success_rate": stats_frame["success_rate"].to_numpy(),
@@ -489,9 +439,20 @@ def summarize(
             "n_successes": stats_frame["n_successes"].to_numpy(dtype=np.int64),
             "rmse_side_resolved_ci_low_m": side_low,
             "rmse_side_resolved_ci_high_m": side_high,
-            "n_nees": stats_frame["n_nees"].to_numpy(dtype=np.int64),
+            "n_side_judged": stats_frame["n_side_judged"].to_numpy(dtype=np.int64),
+            "n_nees": n_nees.astype(np.int64),
             "nees_band_low": band_low,
             "nees_band_high": band_high,
+            "nees_side_resolved_mean": stats_frame["nees_side_mean"].to_numpy(),
+            "crlb_rmse_median_m": stats_frame["crlb_median"].to_numpy(),
+            "verdict_basis": np.where(side, "side-resolved", "returned"),
+            "efficiency_judged": efficiency_judged,
+            "efficiency_judged_ci_low": judged_low,
+            "efficiency_judged_ci_high": judged_high,
+            "tail_share": tail,
+            "verdict": verdict,
+            "verdict_reason": verdict_reason,
+            "nees_verdict": nees_verdicts(nees_judged, n_nees, band_low, band_high),
         }
     )
     # The key columns of each group: its first row (they are constant within a group).
@@ -504,7 +465,7 @@ def summarize(
 
 
 # --------------------------------------------------------------------------------------------
-# where the bound is attained
+# reading a summary
 # --------------------------------------------------------------------------------------------
 
 
@@ -519,69 +480,6 @@ def summary_swept_columns(summary: pd.DataFrame) -> list[str]:
     return columns[columns.index("snr_db") + 1 : columns.index("frame")]
 
 
-def judged_rmse(summary: pd.DataFrame) -> pd.DataFrame:
-    """The RMSE each row is judged on, with its interval and efficiency.
-
-    The side-resolved RMSE (MATH §7) where the estimator flagged any estimate of the row as
-    ambiguous, the RMSE of the returned position otherwise.
-
-    Returns
-    -------
-    pandas.DataFrame
-        Columns ``side_resolved`` (bool), ``rmse_m``, ``low_m``, ``high_m``, ``efficiency``,
-        indexed like ``summary``.
-    """
-    side = summary["ambiguous_rate"].fillna(0.0).to_numpy() > 0
-
-    def pick(resolved: str, returned: str) -> FloatArray:
-        return np.where(side, summary[resolved].to_numpy(float), summary[returned].to_numpy(float))
-
-    return pd.DataFrame(
-        {
-            "side_resolved": side,
-            "rmse_m": pick("rmse_side_resolved_m", "rmse_m"),
-            "low_m": pick("rmse_side_resolved_ci_low_m", "rmse_ci_low_m"),
-            "high_m": pick("rmse_side_resolved_ci_high_m", "rmse_ci_high_m"),
-            "efficiency": pick("efficiency_side_resolved", "efficiency"),
-        },
-        index=summary.index,
-    )
-
-
-def attainment_status(
-    summary: pd.DataFrame,
-    *,
-    tolerance: float = ATTAINMENT_TOLERANCE,
-    min_success_rate: float = MIN_SUCCESS_RATE,
-) -> pd.Series:
-    """Classify every summary row against the bound (:func:`attainment_criterion`).
-
-    Returns
-    -------
-    pandas.Series of str
-        ``"attains"``, ``"above"`` (interval wholly above ``(1 + tolerance)·√CRLB``),
-        ``"below"`` (wholly below ``(1 − tolerance)·√CRLB``), ``"failures"`` (interval in the
-        band but fewer than ``min_success_rate`` successes) or ``"undefined"`` (no finite
-        bound, or no successful estimate).
-    """
-    if not tolerance > 0:
-        raise ValueError(f"tolerance: must be > 0, got {tolerance!r}")
-    judged = judged_rmse(summary)
-    bound = summary["crlb_rmse_m"].to_numpy(float)
-    low, high = judged["low_m"].to_numpy(), judged["high_m"].to_numpy()
-    defined = np.isfinite(bound) & (bound > 0) & np.isfinite(low) & np.isfinite(high)
-    with np.errstate(invalid="ignore"):
-        above = low > (1 + tolerance) * bound
-        below = high < (1 - tolerance) * bound
-        enough = summary["success_rate"].to_numpy(float) >= min_success_rate
-    status = np.select(
-        [~defined, above, below, ~enough],
-        ["undefined", "above", "below", "failures"],
-        default="attains",
-    )
-    return pd.Series(status, index=summary.index, name="attainment")
-
-
 _UNITS = {"_db": "dB", "_m": "m", "_s": "s", "_hz": "Hz", "_mps": "m/s", "_m2": "m²"}
 
 
@@ -593,178 +491,6 @@ def parameter_label(column: str) -> tuple[str, str]:
         if column.endswith(suffix):
             return column, _UNITS[suffix]
     return column, ""
-
-
-def _number(value: float) -> str:
-    return f"{value:.4g}"
-
-
-def _ratio(value: float) -> str:
-    return f"{value:.3g}"
-
-
-def _with_unit(text: str, unit: str) -> str:
-    return f"{text} {unit}" if unit else text
-
-
-def _ranges(chosen: Sequence[float], every: Sequence[float]) -> list[tuple[float, float]]:
-    """Runs of consecutive values of ``every`` (sorted) that are all in ``chosen``."""
-    chosen_set = set(chosen)
-    runs: list[tuple[float, float]] = []
-    current: list[float] = []
-    for value in sorted(set(every)):
-        if value in chosen_set:
-            current.append(value)
-        elif current:
-            runs.append((current[0], current[-1]))
-            current = []
-    if current:
-        runs.append((current[0], current[-1]))
-    return runs
-
-
-def _describe_points(rows: pd.DataFrame, all_rows: pd.DataFrame, varying: list[str]) -> str:
-    """Words for where ``rows`` lie among ``all_rows`` ("SNR from −10 to 30 dB")."""
-    if len(varying) == 1:
-        column = varying[0]
-        name, unit = parameter_label(column)
-        runs = _ranges(rows[column].tolist(), all_rows[column].tolist())
-        parts = [_number(a) if a == b else f"{_number(a)} to {_number(b)}" for a, b in runs]
-        lead = "from " if len(runs) == 1 and runs[0][0] != runs[0][1] else ""
-        return _with_unit(f"{name} {lead}" + ", ".join(parts), unit)
-    if not varying:
-        name, unit = parameter_label("snr_db")
-        return _with_unit(f"{name} {_number(float(rows['snr_db'].iloc[0]))}", unit)
-    counted = f"{len(rows)} of {len(all_rows)} points"
-    if len(rows) <= 3:
-        listed = "; ".join(_describe_point(row, varying) for _, row in rows.iterrows())
-        return f"{counted} ({listed})"
-    return counted
-
-
-def _describe_point(row: pd.Series, varying: list[str]) -> str:
-    columns = varying or ["snr_db"]
-    return ", ".join(
-        _with_unit(f"{parameter_label(c)[0]} {_number(float(row[c]))}", parameter_label(c)[1])
-        for c in columns
-    )
-
-
-def crlb_attainment(
-    summary: pd.DataFrame,
-    *,
-    tolerance: float = ATTAINMENT_TOLERANCE,
-    min_success_rate: float = MIN_SUCCESS_RATE,
-) -> list[str]:
-    """Sentences stating, per scenario and estimator, where the CRLB is attained.
-
-    The criterion (:func:`attainment_criterion`): at a sweep point an estimator attains the
-    bound when the 95% bootstrap interval of its judged RMSE (side-resolved, MATH §7, if any
-    estimate at the point is flagged ambiguous; of the returned position otherwise) overlaps
-    ``[(1 − tolerance)·√CRLB, (1 + tolerance)·√CRLB]`` and at least ``min_success_rate`` of its
-    estimates succeed. A point is therefore declared not attained only when the data exclude
-    the band at 95% confidence (or too many estimates fail), not because the point estimate of
-    the RMSE strayed outside it. Per-frame runs are judged on the last frame of each point.
-    Every number comes from ``summary``.
-
-    Parameters
-    ----------
-    summary : pandas.DataFrame
-        The result of :func:`summarize` (or its CSV, read back).
-    tolerance : float
-        Relative half-width of the band around √CRLB.
-    min_success_rate : float
-
-    Returns
-    -------
-    list of str
-        One sentence per (scenario, estimator), in the summary's order.
-    """
-    swept = summary_swept_columns(summary)
-    missing = [c for c in METRIC_NAMES if c not in summary.columns]
-    if missing:
-        raise ValueError(f"summary: missing columns {missing}; pass the frame from summarize")
-    planners = has_planners(summary)
-    point_keys = ["scenario", "snr_db", *swept, *(["planner"] if planners else []), "estimator"]
-    last = summary["frame"] == summary.groupby(point_keys, sort=False)["frame"].transform("max")
-    rows = summary[last].copy()
-    rows["status"] = attainment_status(rows, tolerance=tolerance, min_success_rate=min_success_rate)
-    judged = judged_rmse(rows)
-    rows["judged_efficiency"] = judged["efficiency"]
-    rows["side_resolved"] = judged["side_resolved"]
-    sentences: list[str] = []
-    for scenario, in_scenario in rows.groupby("scenario", sort=False):
-        varying = [c for c in ("snr_db", *swept) if in_scenario[c].nunique() > 1]
-        by = ["planner", "estimator"] if planners else ["estimator"]
-        for key, own in in_scenario.groupby(by, sort=False):
-            key = key if isinstance(key, tuple) else (key,)
-            who = f"{key[1]} (planner {key[0]})" if planners else str(key[0])
-            sentences.append(_attainment_sentence(who, str(scenario), own, varying, tolerance))
-    return sentences
-
-
-def _attainment_sentence(
-    estimator: str, scenario: str, own: pd.DataFrame, varying: list[str], tolerance: float
-) -> str:
-    which = (
-        " (side-resolved RMSE)"
-        if own["side_resolved"].all()
-        else " (side-resolved RMSE where ambiguous)"
-        if own["side_resolved"].any()
-        else ""
-    )
-    status = own["status"]
-    attains = own[status == "attains"]
-    defined = own[status != "undefined"]
-    if defined.empty:
-        return f"{estimator}: the bound is undefined on {scenario} (singular Fisher information)."
-    if len(attains) == len(own):
-        where = "at every point" if len(own) > 1 else "at its single point"
-        return (
-            f"{estimator} attains the CRLB{which} on {scenario} {where} "
-            f"({_describe_points(attains, own, varying)}; efficiency "
-            f"{_ratio(own['judged_efficiency'].min())} to "
-            f"{_ratio(own['judged_efficiency'].max())})."
-        )
-    clauses = []
-    if attains.empty:
-        finite = defined[np.isfinite(defined["judged_efficiency"])]
-        best = finite.loc[(finite["judged_efficiency"] - 1).abs().idxmin()]
-        head = (
-            f"{estimator} does not attain the CRLB{which} on {scenario} at any point "
-            f"(efficiency closest to 1: {_ratio(best['judged_efficiency'])} at "
-            f"{_describe_point(best, varying)})"
-        )
-    else:
-        head = (
-            f"{estimator} attains the CRLB{which} on {scenario} at "
-            f"{_describe_points(attains, own, varying)}"
-        )
-    above = own[status == "above"]
-    if not above.empty and not (attains.empty and (status == "below").sum() == 0):
-        worst = above.loc[above["judged_efficiency"].idxmax()]
-        clauses.append(
-            f"{'not' if len(attains) else 'above the band'} at "
-            f"{_describe_points(above, own, varying)} (efficiency up to "
-            f"{_ratio(worst['judged_efficiency'])} at {_describe_point(worst, varying)})"
-        )
-    below = own[status == "below"]
-    if not below.empty:
-        clauses.append(
-            f"its RMSE is more than {100 * tolerance:g}% below √CRLB at "
-            f"{_describe_points(below, own, varying)} (a biased estimate, which the bound "
-            "does not cover)"
-        )
-    failures = own[status == "failures"]
-    if not failures.empty:
-        clauses.append(
-            f"too many estimates fail at {_describe_points(failures, own, varying)} "
-            f"(success rate down to {_ratio(failures['success_rate'].min())})"
-        )
-    undefined = own[status == "undefined"]
-    if not undefined.empty:
-        clauses.append(f"the bound is undefined at {_describe_points(undefined, own, varying)}")
-    return "; ".join([head, *clauses]) + "."
 
 
 def format_number(value: object, digits: int = 4) -> str:

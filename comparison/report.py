@@ -11,10 +11,13 @@
   (:func:`comparison.engine.read_flights`);
 - ``figures/<name>.png`` (150 dpi) and ``figures/<name>.svg`` for every figure of
   :mod:`comparison.figures` that applies to the sweep;
+- ``thresholds.csv``: per scenario and estimator of an SNR sweep, the threshold SNR from
+  which every higher point attains the CRLB (:mod:`comparison.verdict_table`);
 - ``report.html``: one self-contained file (figures embedded as base64 PNG, styles inline, no
-  external resource) with the CRLB-attainment statements, the figures, the summary tables,
-  the metric definitions, the experiment definition and the run's provenance. The markup is
-  XHTML-compatible, so any XML parser reads it.
+  external resource). Its first screen is one verdict table (estimators × scenarios) with the
+  notes the table cannot say (:mod:`comparison.verdict_table`); then the figures, the summary
+  tables, the metric definitions, the experiment definition and the run's provenance. The
+  markup is XHTML-compatible, so any XML parser reads it.
 
 The tables print every number with :func:`comparison.metrics.format_number` (4 significant
 digits) from the same frame that is written to ``summary.csv``.
@@ -33,17 +36,15 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from comparison import figures
+from comparison import figures, verdict_table
 from comparison.metrics import (
-    DEFAULT_N_BOOTSTRAP,
     METRIC_DESCRIPTIONS,
     METRIC_NAMES,
-    attainment_criterion,
-    crlb_attainment,
     format_number,
     summarize,
     summary_swept_columns,
 )
+from comparison.verdicts import DEFAULT_N_BOOTSTRAP
 
 BOOTSTRAP_STREAM = 2**31 + 7
 """Spawn key of the bootstrap's seed sequence under the experiment seed (no trial uses it)."""
@@ -74,11 +75,15 @@ COMPACT_COLUMNS: tuple[str, ...] = (
     "crlb_rmse_m",
     "efficiency",
     "efficiency_side_resolved",
+    "verdict",
     "mean_error_m",
     "cep50_m",
     "wrong_side_rate",
+    "n_side_judged",
     "success_rate",
-    "nees_mean",
+    "nees_side_resolved_mean",
+    "n_nees",
+    "nees_verdict",
     "runtime_median_s",
 )
 """Metric columns of the compact per-scenario tables unless the experiment lists its own
@@ -89,6 +94,23 @@ SNR_CAPTION = (
     "(σ_f for Doppler, σ_τ for ToA, σ_P for RSS) at 0 dB; at a given SNR every one of them is "
     "multiplied by 10^(−SNR/20). The SNR is therefore a common scale of all noise levels, not "
     "the signal-to-noise ratio of a receiver."
+)
+
+COUNT_CAPTION = (
+    f"Points backed by fewer than {figures.MIN_COUNT_FOR_RATE} estimates off the track are not "
+    "drawn (the legend counts them)."
+)
+
+OVERLAP_CAPTION = (
+    "Curves that overlap alternate their dash segments and markers; the legend says which "
+    f"agree within {100 * figures.COINCIDENCE_RTOL:g}% at every point "
+    '("coincides with ...").'
+)
+
+MATH_CAPTION = (
+    "MATH §N everywhere in this report is section §N of docs/math.md, emitterbench's account "
+    "of the corrected mathematics of the paper (the model, the closed form and its errata, "
+    "the CRLB); its last section explains the verdicts and their intervals."
 )
 
 CLOSED_LOOP_CAPTION = (
@@ -116,7 +138,8 @@ SIDE_CAPTION = (
     "over the samples and modalities an estimator uses (MATH §8)."
 )
 
-_STYLE = """
+_STYLE = (
+    """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px;
        padding: 0 1em; color: #222; line-height: 1.45; }
 h1 { font-size: 1.6em; } h2 { border-bottom: 1px solid #ccc; margin-top: 2em; }
@@ -130,7 +153,10 @@ td:nth-child(1), th:nth-child(1) { text-align: left; }
 pre { background: #f7f7f7; padding: 0.8em; overflow-x: auto; font-size: 0.85em; }
 .criterion { background: #f4f8ff; border-left: 4px solid #4a78c2; padding: 0.5em 0.8em; }
 dt { font-family: monospace; font-weight: bold; } dd { margin: 0 0 0.4em 1.5em; }
+.notes li { margin-bottom: 0.3em; }
 """
+    + verdict_table.STYLE
+)
 
 
 def _read_json(path: Path) -> dict[str, Any]:
@@ -213,8 +239,9 @@ def closed_loop_figures(
         (
             "planner_rmse_vs_frame",
             "RMSE of the returned position per planner as frames accumulate, one panel per "
-            "scenario and estimator; shaded: 95% bootstrap interval; dashed, same colour: the "
-            "root mean square over trials of √CRLB of each trial's flown trajectory (MATH §8).",
+            "scenario and estimator; shaded: 95% studentized-bootstrap interval; dashed, same "
+            "colour: the root mean square over trials of √CRLB of each trial's flown "
+            f"trajectory (MATH §8). {OVERLAP_CAPTION}",
             figures.planner_rmse_vs_frame_figure(summary, colors=colors),
         ),
         (
@@ -225,10 +252,11 @@ def closed_loop_figures(
         ),
         (
             "planner_wrong_side_vs_frame",
-            "Wrong-side rate per planner as frames accumulate: the fraction of successful "
-            "estimates on the other side from the truth of the first track the estimator uses "
-            "(frame 0 for a cumulative estimator, the current frame for a per-frame one); 0.5 "
-            "is a coin toss, and a turn should drive it to 0 (MATH §7).",
+            "Wrong-side rate per planner as frames accumulate: the fraction of the successful "
+            "estimates off the track plane that lie on the other side from the truth of the "
+            "first track the estimator uses (frame 0 for a cumulative estimator, the current "
+            "frame for a per-frame one); 0.5 is a coin toss, and a turn should drive it to 0 "
+            f"(MATH §7). {COUNT_CAPTION}",
             figures.planner_wrong_side_vs_frame_figure(summary, colors=colors),
         ),
     ]
@@ -283,8 +311,9 @@ def report_figures(
             (
                 "rmse",
                 f"RMSE of the returned position against {what}, one panel per scenario; "
-                "shaded: 95% percentile-bootstrap interval; solid black: √CRLB for "
-                "ToA+Doppler; dashed: the bound of an estimator that uses other modalities.",
+                "shaded: 95% studentized-bootstrap interval; solid black: √CRLB for "
+                "ToA+Doppler; dashed: the bound of an estimator that uses other modalities. "
+                f"{OVERLAP_CAPTION}",
                 figures.rmse_figure(summary, points=points, x=x, colors=colors),
             )
         )
@@ -302,8 +331,9 @@ def report_figures(
         made.append(
             (
                 "wrong_side",
-                f"Wrong-side rate against {what}: the fraction of successful estimates on "
-                "the other side of the last frame's track from the truth; 0.5 is a coin toss.",
+                f"Wrong-side rate against {what}: the fraction of the successful estimates off "
+                "the track plane that lie on the other side of the last frame's track from the "
+                f"truth; 0.5 is a coin toss. {COUNT_CAPTION}",
                 figures.wrong_side_figure(summary, x=x, colors=colors),
             )
         )
@@ -338,16 +368,17 @@ def report_figures(
             (
                 "rmse_vs_frame",
                 "RMSE as frames accumulate, with the √CRLB accumulated over the same frames "
-                "(MATH §8); dotted: side-resolved RMSE where it differs.",
+                f"(MATH §8); dotted: side-resolved RMSE where it differs. {OVERLAP_CAPTION}",
                 figures.rmse_vs_frame_figure(summary, points=points, colors=colors),
             )
         )
         made.append(
             (
                 "wrong_side_vs_frame",
-                "Wrong-side rate as frames accumulate: the fraction of successful estimates on "
-                "the other side of the last frame's track from the truth; 0.5 is a coin toss, "
-                "and a turn should drive it to 0 (MATH §7).",
+                "Wrong-side rate as frames accumulate: the fraction of the successful estimates "
+                "off the track plane that lie on the other side of the last frame's track from "
+                "the truth; 0.5 is a coin toss, and a turn should drive it to 0 (MATH §7). "
+                f"{COUNT_CAPTION}",
                 figures.wrong_side_vs_frame_figure(summary, colors=colors),
             )
         )
@@ -355,8 +386,12 @@ def report_figures(
             made.append(
                 (
                     "nees_vs_frame",
-                    "Mean NEES against the frame for estimators with a covariance; grey: the "
-                    "95% chi-square band of the mean of n consistent 2-dof NEES values.",
+                    "Mean side-resolved NEES against the frame for estimators with a "
+                    "covariance (each trial's nearest candidate against its own, mirrored "
+                    "covariance); grey: the 95% chi-square band of the mean of n consistent "
+                    "2-dof NEES values. Points backed by fewer than "
+                    f"{figures.MIN_COUNT_FOR_RATE} NEES values are not drawn (the legend "
+                    "counts them).",
                     figures.nees_vs_frame_figure(summary, colors=colors),
                 )
             )
@@ -525,10 +560,11 @@ def render_html(
     experiment: Mapping[str, Any],
     run_info: Mapping[str, Any],
     figure_entries: list[tuple[str, str, str]],
-    sentences: list[str],
+    notes: list[str],
     experiment_text: str | None = None,
 ) -> str:
-    """The report page; ``figure_entries`` are ``(stem, caption, data URI)``.
+    """The report page; ``figure_entries`` are ``(stem, caption, data URI)``, ``notes`` the
+    sentences of :func:`comparison.verdict_table.first_screen_notes`.
 
     ``experiment_text`` is the text of experiment.json, shown verbatim (default: ``experiment``
     as JSON).
@@ -542,7 +578,7 @@ def render_html(
         f"{_escape(stem)}.svg in figures/): {_escape(caption)}</figcaption></figure>"
         for stem, caption, uri in figure_entries
     )
-    statements = "".join(f"<li>{_escape(sentence)}</li>" for sentence in sentences)
+    statements = "".join(f"<li>{_escape(note)}</li>" for note in notes)
     return (
         "<!DOCTYPE html>\n"
         '<html lang="en"><head><meta charset="utf-8"/>'
@@ -554,11 +590,13 @@ def render_html(
         f"<p>Seed {_escape(seed)}; {int(summary['n_trials'].sum())} estimates in "
         f"{len(summary)} summary rows (estimators: {summary['estimator'].nunique()}, "
         f"scenarios: {summary['scenario'].nunique()}).</p>"
-        '<section id="attainment"><h2>Where the CRLB is attained</h2>'
-        f"<ul>{statements}</ul>"
-        f'<p class="criterion">{_escape(attainment_criterion())}</p></section>'
+        '<section id="verdicts"><h2>Verdicts</h2>'
+        f"{verdict_table.verdict_table_html(summary)}"
+        + (f'<ul class="notes">{statements}</ul>' if statements else "")
+        + "</section>"
         '<section id="reading"><h2>How to read this report</h2>'
-        f"<p>{_escape(SNR_CAPTION)}</p><p>{_escape(SIDE_CAPTION)}</p></section>"
+        f"<p>{_escape(SNR_CAPTION)}</p><p>{_escape(SIDE_CAPTION)}</p>"
+        f"<p>{_escape(MATH_CAPTION)}</p></section>"
         f"{_closed_loop_section(summary, experiment)}"
         f'<section id="figures"><h2>Figures</h2>{figures_html}</section>'
         '<section id="tables"><h2>Summary tables</h2>'
@@ -627,6 +665,7 @@ def write_report(
         swept_columns=None if swept is None else list(swept),
     )
     summary.to_csv(folder / "summary.csv", index=False)
+    verdict_table.thresholds(summary).to_csv(folder / "thresholds.csv", index=False)
     trials.to_csv(folder / "trials.csv", index=False)
     steering = None
     if "planner" in summary.columns:
@@ -660,7 +699,7 @@ def write_report(
         experiment=experiment,
         run_info=run_info,
         figure_entries=entries,
-        sentences=crlb_attainment(summary),
+        notes=verdict_table.first_screen_notes(summary, points),
         experiment_text=definition_path.read_text(encoding="utf-8")
         if definition_path.is_file()
         else None,

@@ -23,6 +23,7 @@ import pytest
 from comparison.crlb import fisher_information, rmse_bound_m
 from comparison.engine import (
     TRIAL_COLUMNS,
+    estimate_columns,
     read_experiment,
     read_points,
     read_trials,
@@ -31,9 +32,13 @@ from comparison.engine import (
     trial_seed,
 )
 from comparison.experiment import Experiment, load_experiment
-from estimators.base import Estimate
+from comparison.verdicts import nees_band
+from estimators.base import Capabilities, Estimate
 from estimators.cls import Cls
-from scenarios.simulate import noise_free, simulate_trials
+from estimators.ml import MaximumLikelihood
+from estimators.registry import make_estimator
+from scenarios.catalog import get_scenario
+from scenarios.simulate import noise_free, simulate_trials, trial_seeds
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 HERE = "tests.comparison.test_engine"
@@ -126,6 +131,26 @@ class StreamedCls:
     def estimate_state(self, state, *, rng=None):
         estimate = Cls().estimate(concatenate(state), rng=rng)
         return dataclasses.replace(estimate, diagnostics={"frames_seen": len(state)})
+
+
+@dataclass_frozen
+class RenamedOptions:
+    """A plug-in whose options say nothing to the engine: ``with_power`` adds RSS, ``window``
+    picks the frames; only ``capabilities()`` tells which bound applies (MATH §8)."""
+
+    name: ClassVar[str] = "renamed-options"
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+    with_power: bool = False
+    window: str = "all"
+
+    def capabilities(self) -> Capabilities:
+        modalities = self.requires | ({"rss"} if self.with_power else set())
+        return Capabilities(modalities=modalities, frames=self.window)
+
+    def estimate(self, data, *, rng=None):
+        return MaximumLikelihood(use_rss=self.with_power, frames=self.window).estimate(
+            data, rng=rng
+        )
 
 
 @dataclass_frozen
@@ -353,6 +378,38 @@ def test_crlb_columns_equal_comparison_crlb(tmp_path):
     assert trials.truth_x_m.eq(35.0).all() and trials.truth_y_m.eq(15.0).all()
 
 
+def test_a_plugin_is_scored_against_the_bound_it_declares(tmp_path):
+    """The engine reads the modalities and frames from ``capabilities()``, never from option
+    names: ToA+Doppler+RSS over the last frame for ``with_power=True, window="last"``."""
+    experiment = smoke(
+        scenarios=["turn"],
+        trials=2,
+        estimators=[
+            {"name": f"{HERE}:RenamedOptions", "label": "plain"},
+            {
+                "name": f"{HERE}:RenamedOptions",
+                "label": "power-last",
+                "options": {"with_power": True, "window": "last"},
+            },
+        ],
+    )
+    trials = read_trials(run_experiment(experiment, tmp_path / "run", workers=1))
+    for point in (0, 1):
+        scenario, snr_db = experiment.point_scenario(0, point)
+        data = noise_free(scenario, snr_db=snr_db)
+        last = data.take(data.frame == data.frame[-1])
+
+        def bound(subset, modalities, truth=scenario.emitter_m):
+            return float(rmse_bound_m(fisher_information(subset, truth, modalities)))
+
+        at = trials[trials.point == point]
+        plain = at[at.estimator == "plain"].crlb_rmse_m
+        power = at[at.estimator == "power-last"].crlb_rmse_m
+        assert plain.to_list() == pytest.approx([bound(data, "toa+doppler")] * 2, rel=1e-12)
+        assert power.to_list() == pytest.approx([bound(last, "toa+doppler+rss")] * 2, rel=1e-12)
+        assert power.iloc[0] != pytest.approx(plain.iloc[0], rel=1e-3)
+
+
 def test_side_resolved_error_and_wrong_side(tmp_path):
     trials = read_trials(run_experiment(smoke(), tmp_path / "run", workers=1))
     for row in trials.itertuples():
@@ -370,18 +427,31 @@ def test_side_resolved_error_and_wrong_side(tmp_path):
     assert (cls.error_side_resolved_m <= cls.error_m).all()
 
 
-def test_nees_uses_the_side_resolved_candidate(tmp_path):
+def test_nees_scores_each_error_against_its_own_candidate_covariance(tmp_path):
+    """``nees``: the returned position's error against the returned covariance P.
+    ``nees_side_resolved``: the nearest candidate's error against that candidate's covariance,
+    P reflected across the track (y = 0, east: R = diag(1, −1)) when the nearest candidate is
+    the mirror image of the returned position (MATH §7)."""
     experiment = smoke(
-        estimators=[{"name": "ml"}], trials=4, sweep={"parameter": "snr_db", "values": [20]}
+        estimators=[{"name": "ml"}], trials=12, sweep={"parameter": "snr_db", "values": [20]}
     )
     trials = read_trials(run_experiment(experiment, tmp_path / "run", workers=1))
     assert trials.cov_xx_m2.notna().all()
+    truth = np.array([35.0, 15.0])
+    mirrored = 0
     for row in trials.itertuples():
         candidates = np.asarray(json.loads(row.candidates_json))
-        nearest = candidates[np.argmin(np.hypot(*(candidates - [35.0, 15.0]).T))]
-        error = nearest - [35.0, 15.0]
+        nearest = candidates[np.argmin(np.hypot(*(candidates - truth).T))]
         P = np.array([[row.cov_xx_m2, row.cov_xy_m2], [row.cov_xy_m2, row.cov_yy_m2]])
-        assert row.nees == pytest.approx(error @ np.linalg.solve(P, error), rel=1e-9)
+        returned = np.array([row.x_m, row.y_m]) - truth
+        assert row.nees == pytest.approx(returned @ np.linalg.solve(P, returned), rel=1e-9)
+        if np.sign(nearest[1]) != np.sign(row.y_m):
+            P = np.diag([1.0, -1.0]) @ P @ np.diag([1.0, -1.0])
+            mirrored += 1
+        error = nearest - truth
+        assert row.nees_side_resolved == pytest.approx(error @ np.linalg.solve(P, error), rel=1e-9)
+    assert 0 < mirrored < len(trials)  # both cases are exercised
+    assert trials.nees_side_resolved.max() < 30.0  # 20 dB, a consistent covariance
 
 
 def test_grid_rows_carry_the_swept_columns(tmp_path):
@@ -534,3 +604,39 @@ def test_a_dask_cluster_gives_the_same_rows(tmp_path):
     pd.testing.assert_frame_equal(rows(out), reference)
     info = json.loads((out / "run.json").read_text())
     assert info["backend"] == "dask" and info["scheduler"] == cluster.scheduler_address
+
+
+def side_resolved_nees(scenario_name: str, snr_db: float, n: int = 500) -> np.ndarray:
+    """``nees_side_resolved`` of ml's estimates, as the engine scores them."""
+    scenario = get_scenario(scenario_name)
+    batch = simulate_trials(scenario, snr_db=snr_db, seeds=trial_seeds(31, n))
+    track = ((0.0, 0.0), (1.0, 0.0))  # the paper's track runs east along y = 0
+    ml = make_estimator("ml")
+    column = TRIAL_COLUMNS.index("nees_side_resolved") - TRIAL_COLUMNS.index("x_m")
+    return np.array(
+        [estimate_columns(ml.estimate(d), scenario.emitter_m, track, 0.0)[column] for d in batch]
+    )
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("scenario", "snr_db"), [("paper-1m", 20.0), ("paper", 50.0)])
+def test_ml_side_resolved_nees_lies_in_the_chi_square_band(scenario: str, snr_db: float) -> None:
+    """With the covariance mirrored with its candidate, ml's mean NEES over 500 trials lies in
+    the 95% band of the mean of 500 χ²(2) values (about [1.83, 2.18]); unmirrored, the
+    wrong-side half of the trials scored a mirror error against the returned covariance."""
+    nees = side_resolved_nees(scenario, snr_db)
+    low, high = nees_band(len(nees))
+    assert low <= nees.mean() <= high
+
+
+@pytest.mark.slow
+def test_ml_nees_on_paper_at_30_db_is_optimistic_for_a_stated_reason() -> None:
+    """On `paper` (ToA useless, Doppler only) at 30 dB the mean NEES is outside the band, and
+    the suite says so ('optimistic'): the bulk of the trials is χ²(2) (median 2 ln 2), but the
+    error distribution is curved (a banana along the Doppler valley), so the error's variance
+    along the CRLB's thin axis is over twice the bound's. No 2×2 covariance at the CRLB can
+    be consistent there; the linearisation holds from about 50 dB on (previous test)."""
+    nees = side_resolved_nees("paper", 30.0)
+    assert nees.mean() > nees_band(len(nees))[1]
+    assert np.median(nees) == pytest.approx(2 * np.log(2), rel=0.15)
+    assert nees.mean() < 10.0  # before the mirrored covariance: hundreds

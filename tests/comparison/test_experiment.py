@@ -212,12 +212,43 @@ def test_range_sigma_sweep_columns():
         ({"per_frame": "yes"}, "per_frame: expected true or false"),
         ({"metrics": ["rmse_m", "rmse"]}, "metrics[1]: unknown metric 'rmse'"),
         ({"swept_columns": ["snr_db"]}, "swept_columns:"),
+        (
+            {"estimators": [{"name": f"{__name__}:NoRng"}]},
+            "estimators[0].options: estimator 'tests.comparison.test_experiment:NoRng': NoRng "
+            "lacks the Estimator interface: estimate must take the keyword rng",
+        ),
+        (
+            {"estimators": [{"name": f"{__name__}:NeedsGhost"}]},
+            "estimators[0]: 'tests.comparison.test_experiment:NeedsGhost' needs the module(s) "
+            "no_such_backend",
+        ),
     ],
 )
 def test_malformed_experiments_name_the_key_path(changes, prefix):
     with pytest.raises(ValueError) as info:
         Experiment.from_dict(modified(**changes))
     assert str(info.value).startswith(prefix), str(info.value)
+
+
+class NoRng:
+    """An estimator whose ``estimate`` takes no ``rng``: the runner could not break ties."""
+
+    name = "no-rng"
+    requires = frozenset({"toa"})
+
+    def estimate(self, data):
+        raise AssertionError("never called")
+
+
+class NeedsGhost:
+    """Declares a module that is not installed."""
+
+    name = "needs-ghost"
+    requires = frozenset({"toa"})
+    required_modules = ("no_such_backend",)
+
+    def estimate(self, data, *, rng=None):
+        raise AssertionError("never called")
 
 
 def test_missing_required_key():

@@ -12,13 +12,10 @@ from scipy import stats
 from comparison.metrics import (
     CONTRACT_METRIC_NAMES,
     METRIC_NAMES,
-    attainment_status,
-    bootstrap_rmse_interval,
-    crlb_attainment,
     format_number,
-    nees_band,
     summarize,
 )
+from comparison.verdicts import nees_band, studentized_bootstrap_interval
 
 TRUTH_M = np.array([35.0, 15.0])
 
@@ -79,6 +76,7 @@ def trial_rows(
             "cov_xy_m2": masked(cov[:, 1]),
             "cov_yy_m2": masked(cov[:, 2]),
             "nees": masked(nees),
+            "nees_side_resolved": masked(nees),
             "crlb_rmse_m": crlb_rmse_m,
             "runtime_s": np.linspace(1e-3, 3e-3, n),
             "message": "",
@@ -154,6 +152,7 @@ def test_rates_are_exact_on_constructed_rows():
     assert row["n_successes"] == 8
     assert row["success_rate"] == 0.8
     assert row["wrong_side_rate"] == 3 / 8
+    assert row["n_side_judged"] == 8
     assert row["ambiguous_rate"] == 1.0
     # Returned errors: 30 m three times and 1 m five times; side-resolved: 0 and 1 m.
     assert row["rmse_m"] == pytest.approx(math.sqrt((3 * 900 + 5) / 8))
@@ -163,6 +162,11 @@ def test_rates_are_exact_on_constructed_rows():
     assert row["efficiency_side_resolved"] == pytest.approx(math.sqrt(5 / 8) / 0.5)
     assert row["nees_mean"] != row["nees_mean"]  # NaN: no covariance given
     assert row["n_nees"] == 0
+    assert row["nees_verdict"] == "no covariance"
+    # ten trials, eight successes: no verdict, and the reason says why
+    assert row["verdict_basis"] == "side-resolved"
+    assert row["verdict"] == "inconclusive"
+    assert row["verdict_reason"].startswith("too few trials: 8 < 30")
 
 
 def test_bootstrap_interval_covers_the_true_rmse_about_95_percent_of_the_time():
@@ -186,17 +190,17 @@ def test_bootstrap_interval_covers_the_true_rmse_about_95_percent_of_the_time():
 
 
 def test_bootstrap_blocks_skip_failed_groups_and_keep_constant_ones_exact():
-    # Groups: 0 all failed (NaN), 1 constant errors of 2 m, 2 empty, 3 spread errors.
+    # Groups: 0 all failed (NaN), 1 constant squared errors of 4 m², 2 empty, 3 spread.
     squared = np.array([np.nan, np.nan, 4.0, 4.0, 4.0, 1.0, 9.0, 25.0, 1.0])
     groups = np.array([0, 0, 1, 1, 1, 3, 3, 3, 3])
     for max_draws in (8, 2**22):  # several blocks, or one
-        low, high = bootstrap_rmse_interval(
+        low, high = studentized_bootstrap_interval(
             squared, groups, 4, n_bootstrap=400, rng=np.random.default_rng(0), max_draws=max_draws
         )
         assert np.isnan(low[[0, 2]]).all() and np.isnan(high[[0, 2]]).all()
-        assert (low[1], high[1]) == (2.0, 2.0)
-        # Resampled RMSEs of {1, 3, 5, 1} m lie in [1, 5] m and the interval brackets √9.
-        assert 1.0 <= low[3] < 3.0 < high[3] <= 5.0
+        assert (low[1], high[1]) == (4.0, 4.0)
+        # the mean 9 m² of {1, 9, 25, 1} is bracketed; the lower end is clipped at 0
+        assert 0.0 <= low[3] < 9.0 < high[3]
 
 
 def test_bootstrap_is_seeded():
@@ -229,6 +233,7 @@ def test_nees_mean_of_a_consistent_covariance_lies_in_the_band():
     summary = summary.set_index("estimator")
     good, bad = summary.loc["consistent"], summary.loc["optimistic"]
     assert good["n_nees"] == 400
+    assert (good["nees_verdict"], bad["nees_verdict"]) == ("consistent", "optimistic")
     assert good["nees_band_low"] <= good["nees_mean"] <= good["nees_band_high"]
     assert good["nees_mean"] == pytest.approx(2.0, abs=0.25)
     assert bad["nees_mean"] == pytest.approx(2 * good["nees_mean"])
@@ -243,78 +248,6 @@ def test_bad_input_names_the_field():
         summarize(rows, n_bootstrap=0)
     with pytest.raises(ValueError, match=r"^trials: the frame has no rows"):
         summarize(rows.iloc[:0])
-
-
-# --------------------------------------------------------------------------------------------
-# attainment
-# --------------------------------------------------------------------------------------------
-
-
-def summary_rows(estimator: str, efficiencies, *, half_width=0.02, side_resolved=None, **extra):
-    """Summary rows at SNR -10, 0, 10, 20, 30 dB with √CRLB 1 m and the given RMSE/√CRLB."""
-    efficiency = np.asarray(efficiencies, dtype=float)
-    side = efficiency if side_resolved is None else np.asarray(side_resolved, dtype=float)
-    frame = pd.DataFrame(
-        {
-            "scenario": "paper-1m",
-            "snr_db": [-10.0, 0.0, 10.0, 20.0, 30.0],
-            "frame": 0,
-            "estimator": estimator,
-        }
-    )
-    for name in METRIC_NAMES:
-        frame[name] = np.nan
-    frame["crlb_rmse_m"] = 1.0
-    frame["success_rate"] = 1.0
-    frame["ambiguous_rate"] = 0.0 if side_resolved is None else 1.0
-    frame["rmse_m"] = efficiency
-    frame["rmse_ci_low_m"] = efficiency * (1 - half_width)
-    frame["rmse_ci_high_m"] = efficiency * (1 + half_width)
-    frame["efficiency"] = efficiency
-    frame["rmse_side_resolved_m"] = side
-    frame["rmse_side_resolved_ci_low_m"] = side * (1 - half_width)
-    frame["rmse_side_resolved_ci_high_m"] = side * (1 + half_width)
-    frame["efficiency_side_resolved"] = side
-    for name, value in extra.items():
-        frame[name] = value
-    return frame
-
-
-def test_attainment_sentences_are_computed_from_the_rows():
-    summary = pd.concat(
-        [
-            summary_rows("cls", [3.0, 2.9, 2.8, 2.9, 3.0], side_resolved=[1.02, 1.0, 0.99, 1, 1]),
-            summary_rows("cls-paper", [3.2, 4.0, 5.0, 6.0, 7.0]),
-            summary_rows("lls-toa", [1.01, 1.05, 1.3, 1.5, 1.02]),
-            summary_rows("ml", [1.0] * 5, success_rate=[0.9, 1, 1, 1, 1]),
-            summary_rows("lls-rss", [0.5, 0.6, 1.3, 1.5, 2.0]),
-        ],
-        ignore_index=True,
-    )
-    assert crlb_attainment(summary) == [
-        "cls attains the CRLB (side-resolved RMSE) on paper-1m at every point "
-        "(SNR from -10 to 30 dB; efficiency 0.99 to 1.02).",
-        "cls-paper does not attain the CRLB on paper-1m at any point "
-        "(efficiency closest to 1: 3.2 at SNR -10 dB).",
-        "lls-toa attains the CRLB on paper-1m at SNR -10 to 0, 30 dB; "
-        "not at SNR from 10 to 20 dB (efficiency up to 1.5 at SNR 20 dB).",
-        "ml attains the CRLB on paper-1m at SNR from 0 to 30 dB; "
-        "too many estimates fail at SNR -10 dB (success rate down to 0.9).",
-        "lls-rss does not attain the CRLB on paper-1m at any point "
-        "(efficiency closest to 1: 1.3 at SNR 10 dB); above the band at SNR from 10 to 30 dB "
-        "(efficiency up to 2 at SNR 30 dB); its RMSE is more than 10% below √CRLB at SNR "
-        "from -10 to 0 dB (a biased estimate, which the bound does not cover).",
-    ]
-
-
-def test_monte_carlo_noise_does_not_decide_attainment():
-    # Point estimate 1.12 (outside ±10%) but interval [1.05, 1.19] overlaps the band: attains.
-    noisy = summary_rows("noisy", [1.12] * 5, half_width=0.0625)
-    # Interval [1.12, 1.28] wholly above 1.1: does not. Interval below 0.9: "below".
-    above = summary_rows("above", [1.2] * 5, half_width=0.0625)
-    below = summary_rows("below", [0.8] * 5, half_width=0.05)
-    status = attainment_status(pd.concat([noisy, above, below], ignore_index=True))
-    assert status.tolist() == ["attains"] * 5 + ["above"] * 5 + ["below"] * 5
 
 
 def test_format_number_prints_four_significant_digits():
@@ -338,8 +271,7 @@ def test_planners_are_grouped_and_their_bounds_averaged_as_rms():
     assert summary["rmse_m"].iloc[1] == pytest.approx(
         math.sqrt(np.mean(second["error_m"] ** 2)), rel=1e-12
     )
-    sentences = crlb_attainment(summary)
-    assert sentences[0].startswith("est (planner constant) attains the CRLB on paper-1m")
+    assert summary["verdict"].tolist() == ["attains", "above"]  # RMSE 2√2 m against √5 m
     # empty planner labels (an open-loop run) leave the summary as it was
     first["planner"] = ""
     plain = summarize(first, n_bootstrap=10)

@@ -15,14 +15,10 @@ import pandas as pd
 import pytest
 
 import comparison
-from comparison.metrics import (
-    CONTRACT_METRIC_NAMES,
-    crlb_attainment,
-    format_number,
-    nees_band,
-    summarize,
-)
+from comparison.metrics import CONTRACT_METRIC_NAMES, format_number, summarize
 from comparison.report import render_html, report_figures, scenario_tracks_m, write_report
+from comparison.verdict_table import first_screen_notes
+from comparison.verdicts import nees_band
 
 # name: (RMSE / √CRLB, ambiguous on one straight frame, has a covariance, bound factor)
 ESTIMATORS = {
@@ -129,6 +125,7 @@ def synthetic_run(
         cov_xy_m2=ok(np.where(has_cov.astype(bool), 0.0, np.nan)),
         cov_yy_m2=ok(variance),
         nees=ok(nees),
+        nees_side_resolved=ok(nees),
         crlb_rmse_m=bound,
         runtime_s=1e-4 * np.where(has_cov.astype(bool), 30.0, 1.0) * (1 + rng.random(len(point))),
         message=np.where(success, "", "rank deficient"),
@@ -251,27 +248,67 @@ def test_every_table_number_equals_summary_csv(snr_run):
                     expected = value if isinstance(value, str) else format_number(value)
                     assert text == expected, (key, column)
                     checked += 1
-    # compact (20 rows × 17 columns) and full (20 rows × 29 columns) tables
-    assert checked == 20 * 17 + 20 * (len(summary.columns) - 1)
+    # compact (20 rows × (3 keys + the compact metrics)) and full tables
+    from comparison.report import COMPACT_COLUMNS
+
+    assert checked == 20 * (3 + len(COMPACT_COLUMNS)) + 20 * (len(summary.columns) - 1)
 
 
-def test_html_states_attainment_definitions_and_provenance(snr_run):
+def own_verdicts(summary: pd.DataFrame, estimator: str) -> list[str]:
+    return summary[summary["estimator"] == estimator].sort_values("snr_db")["verdict"].tolist()
+
+
+def test_first_screen_is_the_verdict_table_with_computed_notes(snr_run):
     folder, html_path, _ = snr_run
     root = parse_html(html_path)
-    section = next(s for s in root.iter("section") if s.get("id") == "attainment")
-    shown = [li.text for li in section.iter("li")]
-    assert shown == crlb_attainment(pd.read_csv(folder / "summary.csv"))
-    assert shown[1].startswith(
-        "cls-as-printed does not attain the CRLB (side-resolved RMSE) on paper-1m at any point"
-    )
-    assert shown[3].startswith("ml attains the CRLB on paper-1m at every point")
+    section = next(s for s in root.iter("section") if s.get("id") == "verdicts")
+    assert section is next(s for s in root.iter("section"))  # the first section of the page
+    summary = pd.read_csv(folder / "summary.csv")
+    table = next(t for t in section.iter("table") if t.get("class") == "verdicts")
+    rows = {tr.find("th").text: tr.findall("td") for tr in table.find("tbody").iter("tr")}
+    assert list(rows) == ["cls", "cls-as-printed", "lls-toa", "ml"]
+    for estimator, (cell,) in rows.items():
+        spans = [span for span in cell.iter("span") if span.get("class", "").startswith("v ")]
+        squares = [span for span in cell.iter("span") if span.get("class", "").startswith("sq ")]
+        # one square per SNR point, lowest first, coloured by its verdict
+        assert [sq.get("class") for sq in squares] == [
+            f"sq v-{verdict}" for verdict in own_verdicts(summary, estimator)
+        ]
+        own = summary[summary["estimator"] == estimator].set_index("snr_db")
+        # efficiency at −10, 10 and 30 dB, each coloured by its own verdict
+        for span, snr in zip(spans, (-10.0, 10.0, 30.0), strict=True):
+            assert span.text == f"{own.loc[snr, 'efficiency_judged']:.3g}"
+            assert span.get("class") == f"v v-{own.loc[snr, 'verdict']}"
+    # cls-as-printed is 3× its bound everywhere: above at every point, threshold "never"
+    assert "never" in "".join(rows["cls-as-printed"][0].itertext())
+    assert (summary.loc[summary["estimator"] == "cls-as-printed", "verdict"] == "above").all()
+    notes = [li.text for li in section.iter("li")]
+    assert notes == first_screen_notes(summary, None)
+    thresholds = pd.read_csv(folder / "thresholds.csv")
+    assert list(thresholds["estimator"]) == ["cls", "cls-as-printed", "lls-toa", "ml"]
+    assert math.isnan(thresholds["threshold_snr_db"].iloc[1])
     text = "".join(root.itertext())
     assert "multiplied by 10^(−SNR/20)" in text and "MATH §2" in text and "MATH §7" in text
-    assert "overlaps the band from 0.9·√CRLB to 1.1·√CRLB" in text
+    assert "docs/math.md" in text
+    assert "lies inside [0.9, 1.1]" in text and "studentized bootstrap" in text
     for fragment in ("synthetic-comparison", "20240611", "synthetic-cpu", "3.0.0"):
         assert fragment in text
     run_section = next(s for s in root.iter("section") if s.get("id") == "run")
     assert "workers" in "".join(run_section.itertext())
+
+
+def test_notes_name_an_uninformative_modality_and_too_few_trials():
+    trials, points, _ = synthetic_run([{"snr_db": s} for s in (0.0, 10.0)], n_trials=12)
+    summary = summarize(trials, n_bootstrap=50)
+    points = points.assign(range_scale_m=62.0, crlb_rmse_toa_m=3e5)
+    notes = first_screen_notes(summary, points)
+    assert notes[0].startswith("On paper-1m, ToA alone bounds the error at 3e+05 m")
+    assert "4.84e+03 times the size of the geometry" in notes[0]
+    assert notes[1].startswith("8 of 8 verdicts are inconclusive for too few trials")
+    # a modality within 100× the geometry gets no note
+    assert not first_screen_notes(summary, points.assign(crlb_rmse_toa_m=600.0))[0].startswith(
+        "On paper-1m"
+    )
 
 
 def test_geometry_sweep_draws_the_efficiency_heatmap_with_the_track():
@@ -319,7 +356,7 @@ def test_per_frame_run_draws_rmse_and_nees_against_the_frame():
     assert bound.get_ydata() == pytest.approx([1, 1 / math.sqrt(2), 1 / math.sqrt(3)])
     nees_axes = made["nees_vs_frame"].axes[0]
     line = next(ln for ln in nees_axes.get_lines() if ln.get_label() == "ml")
-    assert line.get_ydata() == pytest.approx(ml["nees_mean"].to_numpy())
+    assert line.get_ydata() == pytest.approx(ml["nees_side_resolved_mean"].to_numpy())
     low, high = nees_band(40)
     band = nees_axes.collections[0].get_paths()[0].vertices[:, 1]
     assert band.min() == pytest.approx(low) and band.max() == pytest.approx(high)
@@ -333,7 +370,7 @@ def test_experiment_metrics_choose_the_compact_columns(snr_run):
         experiment={"metrics": ["efficiency", "rmse_m"]},
         run_info={},
         figure_entries=[],
-        sentences=[],
+        notes=[],
     )
     table = ET.fromstring(page.split("\n", 1)[1]).find(".//table[@id='summary-0-compact']")
     header = [th.text for th in table.find("thead").iter("th")]
@@ -344,7 +381,7 @@ def test_experiment_metrics_choose_the_compact_columns(snr_run):
             experiment={"metrics": ["rmse"]},
             run_info={},
             figure_entries=[],
-            sentences=[],
+            notes=[],
         )
 
 

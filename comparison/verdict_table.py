@@ -1,0 +1,360 @@
+"""The report's first screen: one verdict table, and notes for what the table cannot say.
+
+The table has a row per estimator (per planner and estimator in a closed loop) and a column
+per scenario. A cell of an SNR sweep holds the threshold SNR (the lowest SNR from which every
+higher point attains the CRLB, :func:`comparison.verdicts.threshold_snr`) and the judged
+efficiency at up to three SNRs, each coloured by its verdict; a cell of another sweep holds
+how many points attain and the range of the efficiency. Per-frame runs are judged at the last
+frame. The notes (:func:`first_screen_notes`) are computed from the summary and the points
+table: a modality that carries no information, verdicts that rest on too few trials or on a few
+trials far away, failures, covariance consistency, and which errors were judged side-resolved.
+"""
+
+from __future__ import annotations
+
+import html
+import math
+
+import numpy as np
+import pandas as pd
+
+from comparison.metrics import has_planners, parameter_label, summary_swept_columns
+from comparison.verdicts import (
+    MIN_SUCCESS_RATE,
+    MIN_TRIALS,
+    TAIL_SHARE_LIMIT,
+    threshold_snr,
+    verdict_criterion,
+)
+
+UNINFORMATIVE_RATIO = 100.0
+"""A modality whose bound alone exceeds this many times the geometry's size carries no
+usable information (the note says so)."""
+
+VERDICT_COLOURS = {
+    "attains": "#cdebc8",
+    "above": "#f4c9c4",
+    "below": "#d4d0f2",
+    "inconclusive": "#e6e6e6",
+}
+
+STYLE = """
+table.verdicts { border-collapse: collapse; font-size: 0.9em; margin: 0.5em 0; }
+table.verdicts th, table.verdicts td { border: 1px solid #ccc; padding: 3px 8px;
+  text-align: left; vertical-align: top; white-space: nowrap; }
+table.verdicts th small { font-weight: normal; color: #555; }
+.threshold { font-weight: bold; }
+.v { display: inline-block; padding: 0 4px; margin-right: 2px; border-radius: 3px; }
+.strip { display: inline-block; margin-left: 6px; }
+.strip .sq { display: inline-block; width: 8px; height: 11px; margin-right: 1px;
+  border: 1px solid #999; }
+""" + "".join(
+    f".v-{name} {{ background: {colour}; }}\n" for name, colour in VERDICT_COLOURS.items()
+)
+
+
+def _escape(value: object) -> str:
+    return html.escape(str(value), quote=True)
+
+
+def judged_points(summary: pd.DataFrame) -> pd.DataFrame:
+    """The summary at the last frame of every point, with a ``row`` label per table row."""
+    swept = summary_swept_columns(summary)
+    planners = has_planners(summary)
+    keys = ["scenario", "snr_db", *swept, *(["planner"] if planners else []), "estimator"]
+    latest = summary.groupby(keys, sort=False)["frame"].transform("max")
+    rows = summary[summary["frame"] == latest].copy()
+    if planners:
+        rows["row"] = rows["planner"].astype(str) + " · " + rows["estimator"].astype(str)
+    else:
+        rows["row"] = rows["estimator"].astype(str)
+    return rows
+
+
+def _is_snr_sweep(rows: pd.DataFrame, swept: list[str]) -> bool:
+    return rows["snr_db"].nunique() > 1 and all(rows[c].nunique() <= 1 for c in swept)
+
+
+def thresholds(summary: pd.DataFrame) -> pd.DataFrame:
+    """Threshold SNR per scenario and row (NaN threshold outside an SNR sweep).
+
+    Columns ``scenario``, ``planner`` (closed loop only), ``estimator``,
+    ``threshold_snr_db``, ``n_points``, ``n_attains``.
+    """
+    rows = judged_points(summary)
+    swept = summary_swept_columns(summary)
+    by = ["scenario", *(["planner"] if has_planners(summary) else []), "estimator"]
+    parts = []
+    for _, own in rows.groupby("scenario", sort=False):
+        table = threshold_snr(own, by)
+        if not _is_snr_sweep(own, swept):
+            table["threshold_snr_db"] = math.nan
+        parts.append(table)
+    return pd.concat(parts, ignore_index=True)
+
+
+def _shown_snrs(values: np.ndarray) -> list[float]:
+    ordered = sorted(set(float(v) for v in values))
+    if len(ordered) <= 3:
+        return ordered
+    return [ordered[0], ordered[(len(ordered) - 1) // 2], ordered[-1]]
+
+
+def _span(value: float, verdict: str, reason: str) -> str:
+    text = "–" if not math.isfinite(value) else f"{value:.3g}"
+    return f'<span class="v v-{_escape(verdict)}" title="{_escape(verdict + ": " + reason)}">{text}</span>'
+
+
+def verdict_table_html(summary: pd.DataFrame) -> str:
+    """The first screen's table (module docstring), XHTML-compatible."""
+    rows = judged_points(summary)
+    swept = summary_swept_columns(summary)
+    threshold = thresholds(summary)
+    scenarios = list(rows["scenario"].unique())
+    labels = list(rows["row"].unique())
+    header = ["<th>estimator</th>"]
+    shown: dict[str, list[float] | None] = {}
+    for scenario in scenarios:
+        own = rows[rows["scenario"] == scenario]
+        if _is_snr_sweep(own, swept):
+            shown[scenario] = _shown_snrs(own["snr_db"].to_numpy())
+            axis = " / ".join(f"{v:g}" for v in shown[scenario]) + " dB"
+            sub = f"threshold; efficiency at {axis}"
+        elif len(own.groupby(["snr_db", *swept])) == 1:
+            shown[scenario] = None
+            last = int(own["frame"].max())
+            sub = "efficiency" + (f" after frame {last}" if summary["frame"].nunique() > 1 else "")
+        else:
+            shown[scenario] = None
+            varying = [c for c in ("snr_db", *swept) if own[c].nunique() > 1]
+            sub = "points attaining; efficiency range over " + ", ".join(
+                parameter_label(c)[0] for c in varying
+            )
+        header.append(f"<th>{_escape(scenario)}<br/><small>{_escape(sub)}</small></th>")
+    body = []
+    for label in labels:
+        cells = [f"<th>{_escape(label)}</th>"]
+        for scenario in scenarios:
+            own = rows[(rows["scenario"] == scenario) & (rows["row"] == label)]
+            cells.append(f"<td>{_cell(own, shown[scenario], threshold, scenario)}</td>")
+        body.append("<tr>" + "".join(cells) + "</tr>")
+    legend = " ".join(f'<span class="v v-{name}">{name}</span>' for name in VERDICT_COLOURS)
+    threshold_text = (
+        "'from X dB': the bound is attained at every SNR from X dB up (the threshold SNR); "
+        "'never': not at the highest SNR; the squares beside it are the verdicts at every SNR "
+        "point, lowest first. "
+        if any(snrs is not None for snrs in shown.values())
+        else ""
+    )
+    return (
+        f'<table class="verdicts"><thead><tr>{"".join(header)}</tr></thead>'
+        f"<tbody>{''.join(body)}</tbody></table>"
+        f"<p>Efficiency = RMSE/√CRLB. {threshold_text}"
+        f"Colours: {legend}. {_escape(verdict_criterion())} "
+        "Hover a number for its interval and reason; every verdict and its reason are in "
+        "summary.csv (columns verdict, verdict_reason), the thresholds in thresholds.csv.</p>"
+    )
+
+
+def _cell(
+    own: pd.DataFrame, snrs: list[float] | None, threshold: pd.DataFrame, scenario: str
+) -> str:
+    if own.empty:
+        return ""
+    if snrs is not None:
+        estimator = own["estimator"].iloc[0]
+        match = (threshold["scenario"] == scenario) & (threshold["estimator"] == estimator)
+        if "planner" in threshold.columns:
+            match &= threshold["planner"] == own["planner"].iloc[0]
+        value = float(threshold.loc[match, "threshold_snr_db"].iloc[0])
+        head = "never" if math.isnan(value) else f"from {value:g} dB"
+        if not math.isnan(value) and value == own["snr_db"].min():
+            head = f"all (from {value:g} dB)"
+        spans = []
+        for snr in snrs:
+            row = own[own["snr_db"] == snr].iloc[0]
+            spans.append(_span(row["efficiency_judged"], row["verdict"], row["verdict_reason"]))
+        return f'<div class="threshold">{_escape(head)}{_strip(own)}</div>' + "".join(spans)
+    if len(own) == 1:
+        row = own.iloc[0]
+        return _span(row["efficiency_judged"], row["verdict"], row["verdict_reason"])
+    counts = own["verdict"].value_counts()
+    efficiency = own["efficiency_judged"].to_numpy(float)
+    finite = efficiency[np.isfinite(efficiency)]
+    spread = f"{finite.min():.3g}–{finite.max():.3g}" if finite.size else "–"
+    common = str(counts.index[0])
+    return (
+        f'<div class="threshold">{int(counts.get("attains", 0))} of {len(own)} attain</div>'
+        f'<span class="v v-{_escape(common)}" title="most points: {_escape(common)}">'
+        f"{_escape(spread)}</span>"
+    )
+
+
+def _strip(own: pd.DataFrame) -> str:
+    """One small square per SNR point, lowest first, coloured by its verdict."""
+    squares = "".join(
+        f'<span class="sq v-{_escape(row["verdict"])}" '
+        f'title="{row["snr_db"]:g} dB: {_escape(row["verdict"] + ", " + row["verdict_reason"])}">'
+        "</span>"
+        for _, row in own.sort_values("snr_db").iterrows()
+    )
+    return f'<span class="strip" title="every SNR point, lowest first">{squares}</span>'
+
+
+def _listing(values: list[float]) -> str:
+    return ", ".join(f"{v:g}" for v in sorted(values))
+
+
+def first_screen_notes(summary: pd.DataFrame, points: pd.DataFrame | None) -> list[str]:
+    """Sentences for what the verdict table cannot say, each computed from the data."""
+    rows = judged_points(summary)
+    swept = summary_swept_columns(summary)
+    notes = _uninformative_modalities(rows, points)
+    few = rows[rows["verdict_reason"].str.startswith("too few trials")]
+    if not few.empty:
+        notes.append(
+            f"{len(few)} of {len(rows)} verdicts are inconclusive for too few trials (fewer "
+            f"than {MIN_TRIALS} successful ones at a point; the smallest count is "
+            f"{int(few['n_successes'].min())}): rerun with more trials (--trials); an interval "
+            "within ±5% of an efficient estimator's RMSE takes about 400."
+        )
+    wide = rows[rows["verdict_reason"].str.contains("straddles", regex=False)]
+    if len(wide) >= max(3, len(rows) // 4):
+        half = (wide["efficiency_judged_ci_high"] - wide["efficiency_judged_ci_low"]) / (
+            2 * wide["efficiency_judged"]
+        )
+        notes.append(
+            f"{len(wide)} of {len(rows)} verdicts are inconclusive because the 95% interval is "
+            f"too wide to lie inside the band: its half-width is ±{100 * half.median():.0f}% "
+            f"(median) with {int(wide['n_successes'].median())} trials per point, while the "
+            "band allows ±10%; about 400 trials per point narrow it to ±5% (--trials)."
+        )
+    heavy = rows[rows["tail_share"] > TAIL_SHARE_LIMIT]
+    if not heavy.empty:
+        parts = [
+            f"{label} on {scenario} at {_where(own, swept)}"
+            for (label, scenario), own in heavy.groupby(["row", "scenario"], sort=False)
+        ]
+        notes.append(
+            "Heavy tails (the largest 1% of the trials carry more than "
+            f"{100 * TAIL_SHARE_LIMIT:g}% of the squared error, so a few estimates far away "
+            f"set the RMSE): {'; '.join(parts)}."
+        )
+    failing = rows[rows["success_rate"] < MIN_SUCCESS_RATE]
+    if not failing.empty:
+        parts = [
+            f"{label} on {scenario} at {_where(own, swept)} (success rate down to "
+            f"{own['success_rate'].min():.3g}, {int(own['n_successes'].min())} of "
+            f"{int(own.loc[own['success_rate'].idxmin(), 'n_trials'])})"
+            for (label, scenario), own in failing.groupby(["row", "scenario"], sort=False)
+        ]
+        notes.append(f"Failed estimates: {'; '.join(parts)}.")
+    notes.extend(_skewed_references(rows))
+    notes.extend(_nees_notes(rows, swept))
+    side = rows[rows["verdict_basis"] == "side-resolved"]
+    if not side.empty:
+        parts = [
+            f"on {scenario}: {', '.join(own['row'].unique())}"
+            for scenario, own in side.groupby("scenario", sort=False)
+        ]
+        rate = side["wrong_side_rate"].to_numpy(float)
+        rate = rate[np.isfinite(rate)]
+        spread = f" (wrong-side rate {rate.min():.2f} to {rate.max():.2f})" if rate.size else ""
+        notes.append(
+            "Judged on the side-resolved error (the candidate nearest to the truth, MATH §7), "
+            "because they flag the mirror ambiguity of a straight track: "
+            f"{'; '.join(parts)}. Their returned position is a coin toss between the mirror "
+            f"candidates{spread}."
+        )
+    return notes
+
+
+def _where(own: pd.DataFrame, swept: list[str]) -> str:
+    """Words for the points of ``own``: SNRs in an SNR sweep, else the swept values."""
+    if not swept:
+        return f"SNR {_listing(own['snr_db'].unique().tolist())} dB"
+    if len(own) > 3:
+        return f"{len(own)} points"
+    columns = [*(["snr_db"] if own["snr_db"].nunique() > 1 else []), *swept]
+    return "; ".join(
+        ", ".join(f"{parameter_label(c)[0]} {row[c]:g}" for c in columns)
+        for _, row in own.iterrows()
+    )
+
+
+def _skewed_references(rows: pd.DataFrame) -> list[str]:
+    """Closed loops whose reference (the RMS of per-trial bounds) a few trials dominate."""
+    skewed = rows[rows["crlb_rmse_m"] > 3.0 * rows["crlb_rmse_median_m"]]
+    if skewed.empty:
+        return []
+    parts = [
+        f"{label} on {scenario} (RMS {own['crlb_rmse_m'].max():.3g} m, median "
+        f"{own['crlb_rmse_median_m'].min():.3g} m)"
+        for (label, scenario), own in skewed.groupby(["row", "scenario"], sort=False)
+    ]
+    return [
+        "Each closed-loop trial flies its own path, and the reference is the root mean square "
+        "of the trials' bounds; for these a few flown paths are nearly singular (a frame flown "
+        "straight at the emitter) and set it, so a 'below' says more about those paths than "
+        f"about the estimator: {'; '.join(parts)}."
+    ]
+
+
+def _nees_notes(rows: pd.DataFrame, swept: list[str]) -> list[str]:
+    """One sentence on covariance consistency for the estimators that report a covariance."""
+    with_cov = rows[~rows["nees_verdict"].fillna("no covariance").isin(["no covariance", ""])]
+    if with_cov.empty:
+        return []
+    parts = []
+    for label, own in with_cov.groupby("row", sort=False):
+        counts = own["nees_verdict"].value_counts()
+        text = f"{label} consistent at {int(counts.get('consistent', 0))} of {len(own)} points"
+        for kind in ("optimistic", "pessimistic", "inconclusive"):
+            bad = own[own["nees_verdict"] == kind]
+            if not bad.empty:
+                places = "; ".join(
+                    f"{scenario} {_where(at, swept)}"
+                    for scenario, at in bad.groupby("scenario", sort=False)
+                )
+                text += f", {kind} at {places}"
+        parts.append(text)
+    return [
+        "Covariance (mean NEES against its 95% chi-square band, judged like the efficiency; "
+        "optimistic: the reported covariance is too small): " + "; ".join(parts) + "."
+    ]
+
+
+def _uninformative_modalities(rows: pd.DataFrame, points: pd.DataFrame | None) -> list[str]:
+    """Scenarios where one modality's bound alone dwarfs the geometry at every point."""
+    if points is None or "range_scale_m" not in points.columns:
+        return []
+    notes = []
+    modalities = {
+        "ToA": "crlb_rmse_toa_m",
+        "Doppler": "crlb_rmse_doppler_m",
+        "RSS": "crlb_rmse_rss_m",
+    }
+    latest = points.groupby(["scenario", "point"], sort=False)["frame"].transform("max")
+    last = points[points["frame"] == latest]
+    for scenario, own in last.groupby("scenario", sort=False):
+        scale = own["range_scale_m"].to_numpy(float)
+        for name, column in modalities.items():
+            bound = own[column].to_numpy(float)
+            if not np.isfinite(bound).any():
+                continue
+            ratio = bound / scale
+            if not (np.isfinite(ratio).all() and ratio.min() > UNINFORMATIVE_RATIO):
+                continue
+            best = int(np.argmin(ratio))
+            text = (
+                f"On {scenario}, {name} alone bounds the error at {bound[best]:.3g} m even at "
+                f"its best point, {ratio[best]:.3g} times the size of the geometry (RMS range "
+                f"{scale[best]:.3g} m): {name} carries no usable information there, and the "
+                "bound of an estimator that uses it with other modalities is the bound of those."
+            )
+            above = rows[rows["scenario"] == scenario].groupby("row", sort=False)["verdict"]
+            always = [label for label, verdicts in above if (verdicts == "above").all()]
+            if always:
+                text += f" Above the bound at every point there: {', '.join(always)}."
+            notes.append(text)
+    return notes
