@@ -40,7 +40,7 @@ app = typer.Typer(
 
 @app.callback()
 def emitterbench() -> None:
-    """Locate a radio emitter from one UAV's Doppler and ToA measurements (see MATH.md)."""
+    """Locate a radio emitter from one UAV's Doppler and ToA measurements (see docs/math.md)."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -671,20 +671,15 @@ def _print_plan(result: dict[str, Any], file: Path) -> None:
 @command("list")
 def list_command() -> None:
     """The built-in experiments, named scenarios and estimators, one line each."""
-    import importlib.util
 
     from estimators.registry import all_entries
     from scenarios.catalog import CATALOG
 
     def unavailable(entry: Any) -> str:
-        missing = [m for m in entry.required_modules if importlib.util.find_spec(m) is None]
-        module = entry.target.partition(":")[0]
         try:
-            found = importlib.util.find_spec(module) is not None
-        except (ImportError, ValueError):
-            found = False
-        if not found:
-            missing.append(module)
+            missing = entry.missing_modules()
+        except ValueError as error:  # a plug-in that fails on import
+            return f"  [unavailable: {error}]"
         return f"  [unavailable: needs {', '.join(missing)}]" if missing else ""
 
     from comparison.experiment import BUILTIN_EXPERIMENTS
@@ -783,21 +778,54 @@ def validate_command(
         int | None,
         typer.Option("--replay", help="Re-run one instance verbosely (give one --families)."),
     ] = None,
+    estimator: Annotated[
+        str | None,
+        typer.Option(
+            "--estimator",
+            "-e",
+            help=(
+                "Validate this estimator's own closed form instead of the built-in one: a name "
+                "(see `emitterbench list`) or module:Class with a constrained_ls(data) method "
+                "(docs/writing-an-estimator.md)."
+            ),
+        ),
+    ] = None,
+    option: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--option",
+            help="Estimator option key=value, repeatable (with --estimator); JSON values.",
+        ),
+    ] = None,
 ) -> None:
     """Check the closed-form CLS against its SDP relaxation on seeded random instances.
 
-    Exit status 1 when any instance disagrees beyond tolerance (MATH §5, §11).
+    With --estimator, the estimator runs on each instance's measurements and is judged on the
+    rows it exposes (constrained_ls): every candidate must attain the exact optimum, both mirror
+    minimisers are due in the hard case, and the SDP value must equal the optimum. Exit status
+    1 when any instance disagrees beyond tolerance or its SDP is not optimal (MATH §5, §11).
     """
-    from comparison.validate import FAMILIES, replay, run_validation
+    from comparison.validate import FAMILIES, check_protocol, replay_with_verdict, run_validation
 
     chosen = tuple(families) if families else FAMILIES
     unknown = sorted(set(chosen) - set(FAMILIES))
     if unknown:
         raise ValueError(f"--families: unknown {unknown}; choose from {', '.join(FAMILIES)}")
+    validated = None
+    if estimator is not None:
+        from estimators.registry import make_estimator
+
+        validated = make_estimator(estimator, **parse_estimator_options(option or []))
+        check_protocol(validated)
+    elif option:
+        raise ValueError("--option: estimator options need --estimator NAME")
     if replay_seed is not None:
         if len(chosen) != 1:
             raise ValueError("--families: --replay needs exactly one family")
-        typer.echo(replay(replay_seed, chosen[0]))
+        text, agrees = replay_with_verdict(replay_seed, chosen[0], estimator=validated)
+        typer.echo(text)
+        if not agrees:
+            raise typer.Exit(1)
         return
     if output is None:
         raise ValueError("--output: give the folder for validate.json (-o DIR)")
@@ -815,18 +843,43 @@ def validate_command(
             progress=lambda done, total, family: bar.update(
                 task, completed=done, total=total, description=family
             ),
+            estimator=validated,
         )
+    if result.estimator is not None:
+        typer.echo(f"estimator {result.estimator}: its own rows (constrained_ls) on each instance")
     for name, summary in result.families.items():
-        typer.echo(
-            f"{name:<14} n={summary.n:<5} hard={summary.n_hard:<5} "
-            f"max rel. gap {summary.max_rel_objective_gap:.1e}  "
-            f"max argmin dist. {summary.max_argmin_distance_rel:.1e}  "
-            f"max pair dist. {summary.max_candidate_pair_distance_rel:.1e} (of the length scale)  "
-            f"disagreements {summary.n_disagreements}"
-        )
+        if result.estimator is None:
+            typer.echo(
+                f"{name:<14} n={summary.n:<5} hard={summary.n_hard:<5} "
+                f"max rel. gap {summary.max_rel_objective_gap:.1e}  "
+                f"max argmin dist. {summary.max_argmin_distance_rel:.1e}  "
+                f"max pair dist. {summary.max_candidate_pair_distance_rel:.1e} "
+                "(of the length scale)  "
+                f"disagreements {summary.n_disagreements}"
+            )
+        else:
+            typer.echo(
+                f"{name:<14} n={summary.n:<5} hard={summary.n_hard:<5} "
+                f"max rel. cost gap {summary.max_estimator_rel_cost_gap:.1e}  "
+                f"max dist. {summary.max_estimator_distance_m:.1e} m "
+                f"({summary.max_estimator_distance_rel:.1e} of the length scale)  "
+                f"missing {summary.n_estimator_missing}  extra {summary.n_estimator_extra}  "
+                f"SDP: max rel. gap {summary.max_rel_objective_gap:.1e}, "
+                f"failed {summary.n_sdp_failed}  "
+                f"disagreements {summary.n_disagreements}"
+            )
     typer.echo(f"report: {output / 'validate.html'}")
     if not result.ok:
-        typer.echo(f"{len(result.disagreements)} instance(s) disagree; see {output}", err=True)
+        shown = result.disagreements[:10]
+        for r in shown:
+            typer.echo(
+                f"{r.family} seed {r.seed}: replay with {result.replay_command(r)}", err=True
+            )
+        more = len(result.disagreements) - len(shown)
+        tail = f" ({more} more not shown)" if more else ""
+        typer.echo(
+            f"{len(result.disagreements)} instance(s) disagree{tail}; see {output}", err=True
+        )
         raise typer.Exit(1)
 
 

@@ -22,6 +22,17 @@ Families of instances (each drawn from its own ``SeedSequence``):
 
 Length scale: every distance is also given relative to the problem's length scale, the
 :class:`~estimators.cls_rows.LocalFrame` scale (RMS of the track spread and the ranges).
+
+Another closed form (``run_validation(estimator=...)``, ``emitterbench validate --estimator
+NAME``). An estimator that exposes the constrained least squares it minimises,
+``constrained_ls(data) -> ConstrainedLS`` (:mod:`estimators.constrained_ls`), is run on every
+instance's measurements (the same geometry and noise draws). Its own rows replace the family's:
+the closed form and the SDP are compared on them as above, and every candidate the estimator
+returns is lifted onto the paraboloid and must attain the closed-form optimum (relative cost
+gap ``<= rtol_objective``, within ``rtol_argmin`` of the length scale of a closed-form
+minimiser), and every closed-form minimiser must be among its candidates (both mirror images in
+the hard case, MATH §5). A disagreement is replayed with ``--replay SEED --families F
+--estimator NAME``.
 """
 
 from __future__ import annotations
@@ -30,20 +41,23 @@ import base64
 import io
 import json
 import math
+import shlex
 import time
 import zlib
 from collections import Counter
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from estimators.base import Estimate, params_of
 from estimators.cls import Rows, cls_rows
 from estimators.cls_rows import LocalFrame
-from estimators.gtrs import GtrsSolution, solve_gtrs
+from estimators.constrained_ls import PROTOCOL_METHOD, ConstrainedLS
+from estimators.gtrs import GtrsSolution, constrained_cost, solve_gtrs
 from estimators.sdp_cls import SdpSolution, solve_sdp_relaxation
 from scenarios.catalog import heading_velocities_mps, paper_scenario
 from scenarios.simulate import simulate
@@ -182,12 +196,55 @@ def make_instance(family: str, seed: int) -> ValidationInstance:
 # --------------------------------------------------------------------------------------------
 
 
+NOT_RUN = "not_run"
+"""Status of an instance on which the estimator raised: no rows, no SDP."""
+
+
+@dataclass(frozen=True, slots=True)
+class CandidateCheck:
+    """An estimator's candidates on its own rows against the closed-form minimisers.
+
+    Attributes
+    ----------
+    estimate_success : bool
+        The estimate succeeded (a failed estimate has no candidates).
+    n_candidates : int
+        Candidates the estimator returned.
+    n_minimisers : int
+        Global minimisers of the closed form (2 in the hard case).
+    max_rel_cost_gap : float
+        Largest ``|cost − f*| / f*`` over the candidates, each lifted onto the paraboloid;
+        NaN without candidates.
+    max_distance_m, max_distance_rel : float
+        Hausdorff distance between the candidates and the closed-form minimisers, in metres
+        and of the length scale (inf without candidates).
+    n_missing : int
+        Closed-form minimisers with no candidate within the distance tolerance.
+    n_extra : int
+        Candidates that are not global minimisers (cost above the optimum beyond the
+        tolerance, or away from every minimiser).
+    n_below : int
+        Candidates whose cost is below the closed-form optimum beyond the tolerance.
+    """
+
+    estimate_success: bool
+    n_candidates: int
+    n_minimisers: int
+    max_rel_cost_gap: float
+    max_distance_m: float
+    max_distance_rel: float
+    n_missing: int
+    n_extra: int
+    n_below: int = 0
+
+
 @dataclass(frozen=True, slots=True)
 class InstanceResult:
     """The closed form and the SDP on one instance, and where they disagree.
 
     Distances are in metres; ``*_rel`` divides by the length scale. ``argmin_distance_m`` is
-    NaN on hard instances, ``pair_distance_m`` NaN on unique-minimiser ones.
+    NaN on hard instances, ``pair_distance_m`` NaN on unique-minimiser ones. ``candidates``
+    is set when an estimator was validated (:func:`check_candidates`).
     """
 
     family: str
@@ -211,6 +268,11 @@ class InstanceResult:
     reasons: tuple[str, ...] = ()
     multiplier_rel: float = float("nan")
     inequality_rel_gap: float = float("nan")
+    candidates: CandidateCheck | None = None
+
+    @property
+    def sdp_failed(self) -> bool:
+        return self.status not in ("optimal", NOT_RUN)
 
     @property
     def agrees(self) -> bool:
@@ -247,7 +309,7 @@ def compare_solutions(
     reasons: list[str] = []
     gap = argmin = pair = float("nan")
     if not sdp.optimal:
-        reasons.append(f"solver status {sdp.status}: {sdp.message}")
+        reasons.append(f"SDP failed: solver status {sdp.status}: {sdp.message}")
     if sdp.has_solution:
         gap = relative_objective_gap(sdp.value, value)
         if not gap <= rtol_objective:
@@ -332,13 +394,287 @@ def validate_instance(
 
 
 # --------------------------------------------------------------------------------------------
+# an estimator's own closed form
+# --------------------------------------------------------------------------------------------
+
+
+def estimator_label(estimator: Any) -> str:
+    """The estimator's ``name``, else its class name."""
+    name = getattr(estimator, "name", None)
+    return name if isinstance(name, str) else type(estimator).__name__
+
+
+def check_protocol(estimator: Any) -> None:
+    """Raise ``ValueError`` naming the method to add when ``estimator`` cannot be validated."""
+    kind = type(estimator)
+    where = f"{kind.__module__}:{kind.__qualname__}"
+    if not callable(getattr(estimator, "estimate", None)):
+        raise ValueError(f"estimator: {where} has no estimate(data) method; it is not an estimator")
+    if not callable(getattr(estimator, PROTOCOL_METHOD, None)):
+        raise ValueError(
+            f"estimator: {estimator_label(estimator)!r} ({where}) does not expose the constrained "
+            f"least squares it minimises; add a method {PROTOCOL_METHOD}(self, data) returning "
+            "an estimators.constrained_ls.ConstrainedLS (the rows A, b and their local frame "
+            "whose minimisers estimate(data) returns; see docs/writing-an-estimator.md)"
+        )
+    requires = frozenset(getattr(estimator, "requires", ()))
+    extra = sorted(requires - {"doppler", "toa"})
+    if extra:
+        raise ValueError(
+            f"estimator: {estimator_label(estimator)!r} requires {', '.join(extra)}; the "
+            "validation instances carry Doppler and ToA measurements only"
+        )
+
+
+def _option_text(value: Any) -> str:
+    """A value as ``--option key=<text>`` parses it back (JSON where it must be)."""
+    if isinstance(value, str):
+        try:
+            json.loads(value)
+        except json.JSONDecodeError:
+            return value
+        return json.dumps(value)
+    try:
+        return json.dumps(_json_clean(value), separators=(",", ":"))
+    except TypeError:
+        return repr(value)
+
+
+def _changed_options(estimator: Any) -> dict[str, Any]:
+    """Constructor parameters that differ from their defaults (all of them if unknown)."""
+    if not is_dataclass(estimator):
+        return params_of(estimator)
+    changed = {}
+    for item in fields(estimator):
+        if not item.init:
+            continue
+        value = getattr(estimator, item.name)
+        if item.default is not MISSING:
+            default = item.default
+        elif item.default_factory is not MISSING:
+            default = item.default_factory()
+        else:
+            changed[item.name] = value
+            continue
+        try:
+            same = bool(value == default)
+        except Exception:  # an array option: compare as arrays
+            same = bool(np.array_equal(value, default))
+        if not same:
+            changed[item.name] = value
+    return changed
+
+
+def estimator_cli_args(estimator: Any) -> str:
+    """``--estimator NAME [--option key=value ...]`` that rebuilds ``estimator`` on the CLI.
+
+    ``NAME`` is the registered name when it resolves to the estimator's class, else
+    ``module:Class``; the options are the constructor parameters that differ from the defaults.
+    """
+    from estimators.registry import estimator_class
+
+    kind = type(estimator)
+    target = f"{kind.__module__}:{kind.__qualname__}"
+    name = getattr(kind, "name", None)
+    if isinstance(name, str):
+        try:
+            if estimator_class(name) is kind:
+                target = name
+        except ValueError:
+            pass
+    parts = ["--estimator", target]
+    for key, value in _changed_options(estimator).items():
+        parts += ["--option", f"{key}={_option_text(value)}"]
+    return " ".join(shlex.quote(part) for part in parts)
+
+
+def replay_command(result: InstanceResult, estimator_args: str = "") -> str:
+    """The command line that re-runs ``result``'s instance verbosely."""
+    command = f"emitterbench validate --replay {result.seed} --families {result.family}"
+    return f"{command} {estimator_args}" if estimator_args else command
+
+
+def check_candidates(
+    problem: ConstrainedLS,
+    estimate: Estimate,
+    closed_form: GtrsSolution,
+    *,
+    rtol_objective: float = 1e-6,
+    rtol_argmin: float = 1e-3,
+) -> tuple[CandidateCheck, tuple[str, ...]]:
+    """Judge the estimator's candidates on its own rows ``problem`` (MATH §5).
+
+    Each candidate ``(x, y)`` is lifted to ``r = (x, y, x² + y²)`` in the rows' frame, so it
+    lies on the constraint surface, and its cost is compared with the closed-form optimum
+    ``f*``. A candidate is a global minimiser when ``|cost − f*| <= rtol_objective · f*`` and it
+    lies within ``rtol_argmin`` (of the length scale) of a closed-form minimiser; every
+    closed-form minimiser must have such a candidate (both mirror images in the hard case).
+    Returns the check and the reasons it fails (empty when it passes).
+    """
+    minimisers = closed_form.points[:, :2]
+    optimum = float(np.min(closed_form.costs))
+    if not estimate.success or len(estimate.candidates_m) == 0:
+        check = CandidateCheck(
+            estimate_success=bool(estimate.success),
+            n_candidates=0,
+            n_minimisers=len(minimisers),
+            max_rel_cost_gap=float("nan"),
+            max_distance_m=float("inf"),
+            max_distance_rel=float("inf"),
+            n_missing=len(minimisers),
+            n_extra=0,
+        )
+        why = estimate.message or "no candidates"
+        return check, (f"estimate failed: {why}",)
+    local = problem.to_local(estimate.candidates_m)
+    costs = constrained_cost(problem.A, problem.b, local)
+    gaps = (costs - optimum) / max(abs(optimum), np.finfo(float).tiny)
+    distances = np.linalg.norm(local[:, None, :] - minimisers[None, :, :], axis=-1)
+    near = distances <= rtol_argmin
+    below = gaps < -rtol_objective
+    extra = ~below & ((gaps > rtol_objective) | ~near.any(axis=1))
+    missing = ~near.any(axis=0)
+    hausdorff = point_set_distance(local, minimisers)
+    check = CandidateCheck(
+        estimate_success=True,
+        n_candidates=len(local),
+        n_minimisers=len(minimisers),
+        max_rel_cost_gap=float(np.max(np.abs(gaps))),
+        max_distance_m=hausdorff * problem.scale_m,
+        max_distance_rel=hausdorff,
+        n_missing=int(missing.sum()),
+        n_extra=int(extra.sum()),
+        n_below=int(below.sum()),
+    )
+    reasons = []
+    if extra.any():
+        reasons.append(
+            f"{check.n_extra} of {check.n_candidates} candidate(s) not a global minimiser: "
+            f"relative cost gap up to {float(np.max(gaps[extra])):.3g} (tolerance "
+            f"{rtol_objective:g}), {float(np.max(distances[extra].min(axis=1))):.3g} of the "
+            "length scale from the nearest closed-form minimiser"
+        )
+    if missing.any():
+        kind = (
+            "hard case: both mirror minimisers must be returned"
+            if closed_form.hard_case
+            else "unique minimiser"
+        )
+        reasons.append(
+            f"{check.n_missing} of {check.n_minimisers} closed-form minimiser(s) not among the "
+            f"candidates ({kind}; the nearest candidate is "
+            f"{float(np.max(distances[:, missing].min(axis=0))):.3g} of the length scale away)"
+        )
+    if below.any():
+        reasons.append(
+            f"{check.n_below} candidate(s) below the closed-form optimum by up to "
+            f"{float(-np.min(gaps)):.3g} (relative): the closed form missed the global minimum"
+        )
+    return check, tuple(reasons)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class EstimatorRun:
+    """Everything computed on one instance for an estimator (what :func:`replay` prints)."""
+
+    instance: ValidationInstance
+    estimate: Estimate | None
+    problem: ConstrainedLS | None
+    closed_form: GtrsSolution | None
+    sdp: SdpSolution | None
+    error: str = ""
+
+
+def _not_run_result(instance: ValidationInstance, reason: str) -> InstanceResult:
+    nan = float("nan")
+    return InstanceResult(
+        family=instance.family,
+        seed=instance.seed,
+        status=NOT_RUN,
+        hard_case=False,
+        sdp_rank=0,
+        multiplier=nan,
+        sdp_multiplier=nan,
+        closed_form_value=nan,
+        sdp_value=nan,
+        rel_objective_gap=nan,
+        argmin_distance_m=nan,
+        argmin_distance_rel=nan,
+        pair_distance_m=nan,
+        pair_distance_rel=nan,
+        length_scale_m=nan,
+        closed_form_time_s=nan,
+        sdp_time_s=nan,
+        reasons=(reason,),
+    )
+
+
+def validate_estimator_instance(
+    instance: ValidationInstance,
+    estimator: Any,
+    *,
+    rtol_objective: float = 1e-6,
+    rtol_argmin: float = 1e-3,
+    solver: str = "CLARABEL",
+) -> tuple[InstanceResult, EstimatorRun]:
+    """Run ``estimator`` on the instance's measurements and judge it on its own rows.
+
+    ``estimate(data)`` and ``constrained_ls(data)`` see the measurements without the truth.
+    The closed form and the SDP are compared on the returned rows as in
+    :func:`validate_instance`, and the candidates as in :func:`check_candidates`. An exception
+    raised by the estimator is recorded as a disagreement; ``constrained_ls`` returning
+    anything but a :class:`~estimators.constrained_ls.ConstrainedLS` raises ``ValueError``.
+    """
+    data = instance.data.without_truth()
+    try:
+        estimate = estimator.estimate(data)
+        problem = getattr(estimator, PROTOCOL_METHOD)(data)
+    except Exception as error:
+        reason = f"estimator raised {type(error).__name__}: {error}"
+        return _not_run_result(instance, reason), EstimatorRun(
+            instance, None, None, None, None, error=reason
+        )
+    if not isinstance(problem, ConstrainedLS):
+        raise ValueError(
+            f"estimator: {estimator_label(estimator)!r}.{PROTOCOL_METHOD}(data) returned "
+            f"{type(problem).__name__}; return an estimators.constrained_ls.ConstrainedLS"
+        )
+    on_rows = replace(
+        instance,
+        frame=problem.frame,
+        rows=f"{estimator_label(estimator)}.{PROTOCOL_METHOD}",
+        A=problem.A,
+        b=problem.b,
+        parameters=dict(
+            instance.parameters,
+            rows=f"{estimator_label(estimator)}.{PROTOCOL_METHOD}",
+            n_rows=len(problem.b),
+        ),
+    )
+    result, closed_form, sdp = validate_instance(
+        on_rows, rtol_objective=rtol_objective, rtol_argmin=rtol_argmin, solver=solver
+    )
+    check, reasons = check_candidates(
+        problem, estimate, closed_form, rtol_objective=rtol_objective, rtol_argmin=rtol_argmin
+    )
+    result = replace(result, candidates=check, reasons=reasons + result.reasons)
+    return result, EstimatorRun(on_rows, estimate, problem, closed_form, sdp)
+
+
+# --------------------------------------------------------------------------------------------
 # a run over families
 # --------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True, slots=True)
 class FamilySummary:
-    """Aggregates of one family (the per-family block of ``validate.json``)."""
+    """Aggregates of one family (the per-family block of ``validate.json``).
+
+    ``n_sdp_failed`` counts instances whose SDP did not end with status ``optimal`` (each is a
+    disagreement). The ``*estimator*`` fields are set when an estimator was validated: instances
+    where it failed or raised, the largest relative cost gap and distance of its candidates,
+    and the total of missing and extra candidates (:class:`CandidateCheck`).
+    """
 
     family: str
     n: int
@@ -360,11 +696,23 @@ class FamilySummary:
     n_multiplier_negative: int = 0
     n_inequality_loose_when_negative: int = 0
     min_inequality_gap_when_negative: float = float("nan")
+    n_sdp_failed: int = 0
+    n_estimator_failed: int = 0
+    max_estimator_rel_cost_gap: float = float("nan")
+    max_estimator_distance_m: float = float("nan")
+    max_estimator_distance_rel: float = float("nan")
+    n_estimator_missing: int = 0
+    n_estimator_extra: int = 0
 
 
 @dataclass(frozen=True, slots=True, eq=False)
 class ValidationResult:
-    """What :func:`run_validation` found; ``ok`` is false when any instance disagrees."""
+    """What :func:`run_validation` found; ``ok`` is false when any instance disagrees.
+
+    ``estimator`` is the validated estimator's name (None: the built-in closed form on the
+    families' rows) and ``estimator_args`` the ``--estimator ... --option ...`` arguments that
+    rebuild it in a replay command.
+    """
 
     seed: int
     rtol_objective: float
@@ -372,6 +720,12 @@ class ValidationResult:
     families: dict[str, FamilySummary]
     results: tuple[InstanceResult, ...]
     files: dict[str, Path] = field(default_factory=dict)
+    estimator: str | None = None
+    estimator_args: str = ""
+
+    def replay_command(self, result: InstanceResult) -> str:
+        """The command line that re-runs one instance of this validation verbosely."""
+        return replay_command(result, self.estimator_args)
 
     @property
     def disagreements(self) -> tuple[InstanceResult, ...]:
@@ -395,6 +749,9 @@ class ValidationResult:
             {
                 "ok": self.ok,
                 "seed": self.seed,
+                "estimator": None
+                if self.estimator is None
+                else {"name": self.estimator, "args": self.estimator_args},
                 "tolerances": {
                     "rel_objective_gap": self.rtol_objective,
                     "argmin_distance_rel": self.rtol_argmin,
@@ -412,7 +769,8 @@ class ValidationResult:
                         "rel_objective_gap": r.rel_objective_gap,
                         "argmin_distance_m": r.argmin_distance_m,
                         "pair_distance_m": r.pair_distance_m,
-                        "replay": f"emitterbench validate --replay {r.seed} --families {r.family}",
+                        "candidates": None if r.candidates is None else asdict(r.candidates),
+                        "replay": self.replay_command(r),
                     }
                     for r in self.disagreements
                 ],
@@ -451,6 +809,7 @@ def summarise_family(
     """
     hard = [r for r in results if r.hard_case]
     unique = [r for r in results if not r.hard_case]
+    checks = [r.candidates for r in results if r.candidates is not None]
     nonnegative = [r for r in results if r.multiplier_rel >= -MULTIPLIER_ZERO_RTOL]
     negative = [r for r in results if r.multiplier_rel < -MULTIPLIER_ZERO_RTOL]
     return FamilySummary(
@@ -485,6 +844,14 @@ def summarise_family(
             r.inequality_rel_gap > rtol_objective for r in negative
         ),
         min_inequality_gap_when_negative=-_nanmax([-r.inequality_rel_gap for r in negative]),
+        n_sdp_failed=sum(r.sdp_failed for r in results),
+        n_estimator_failed=sum(r.status == NOT_RUN for r in results)
+        + sum(not c.estimate_success for c in checks),
+        max_estimator_rel_cost_gap=_nanmax([c.max_rel_cost_gap for c in checks]),
+        max_estimator_distance_m=_nanmax([c.max_distance_m for c in checks]),
+        max_estimator_distance_rel=_nanmax([c.max_distance_rel for c in checks]),
+        n_estimator_missing=sum(c.n_missing for c in checks),
+        n_estimator_extra=sum(c.n_extra for c in checks),
     )
 
 
@@ -497,6 +864,7 @@ def run_validation(
     rtol_objective: float = 1e-6,
     rtol_argmin: float = 1e-3,
     progress: Progress | None = None,
+    estimator: Any = None,
 ) -> ValidationResult:
     """Validate the closed form against the SDP on ``instances`` seeded instances per family.
 
@@ -519,12 +887,22 @@ def run_validation(
         the problem's length scale.
     progress : callable or None
         ``progress(done, total, family)`` after each instance.
+    estimator : estimator, str or None
+        None: the built-in closed form on the families' rows. Otherwise an estimator (or a
+        name for :func:`estimators.registry.make_estimator`) with ``constrained_ls(data)``
+        (:mod:`estimators.constrained_ls`): it is run on each instance's measurements and
+        judged on its own rows (:func:`validate_estimator_instance`).
 
     Returns
     -------
     ValidationResult
         ``ok`` is false when any instance disagrees beyond tolerance or the solver did not
         reach status ``optimal``.
+
+    Raises
+    ------
+    ValueError
+        A bad option, or an estimator without ``constrained_ls`` (the message names it).
     """
     if int(instances) != instances or instances < 1:
         raise ValueError(f"instances: expected a whole number >= 1, got {instances!r}")
@@ -536,6 +914,12 @@ def run_validation(
     for name, value in (("rtol_objective", rtol_objective), ("rtol_argmin", rtol_argmin)):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"{name}: expected a positive tolerance, got {value!r}")
+    if isinstance(estimator, str):
+        from estimators.registry import make_estimator
+
+        estimator = make_estimator(estimator)
+    if estimator is not None:
+        check_protocol(estimator)
     total = instances * len(families)
     done = 0
     results: list[InstanceResult] = []
@@ -544,9 +928,14 @@ def run_validation(
         family_results = []
         for instance_seed in instance_seeds(seed, family, int(instances)):
             instance = make_instance(family, instance_seed)
-            result, _, _ = validate_instance(
-                instance, rtol_objective=rtol_objective, rtol_argmin=rtol_argmin
-            )
+            if estimator is None:
+                result, _, _ = validate_instance(
+                    instance, rtol_objective=rtol_objective, rtol_argmin=rtol_argmin
+                )
+            else:
+                result, _ = validate_estimator_instance(
+                    instance, estimator, rtol_objective=rtol_objective, rtol_argmin=rtol_argmin
+                )
             family_results.append(result)
             done += 1
             if progress is not None:
@@ -559,18 +948,12 @@ def run_validation(
         rtol_argmin=rtol_argmin,
         families=summaries,
         results=tuple(results),
+        estimator=None if estimator is None else estimator_label(estimator),
+        estimator_args="" if estimator is None else estimator_cli_args(estimator),
     )
     if out_dir is None:
         return validation
-    files = write_reports(validation, Path(out_dir))
-    return ValidationResult(
-        seed=validation.seed,
-        rtol_objective=rtol_objective,
-        rtol_argmin=rtol_argmin,
-        families=summaries,
-        results=validation.results,
-        files=files,
-    )
+    return replace(validation, files=write_reports(validation, Path(out_dir)))
 
 
 # --------------------------------------------------------------------------------------------
@@ -592,6 +975,34 @@ _COLUMNS = (
     ("median_closed_form_time_s", "median closed-form time (ms)"),
     ("n_disagreements", "disagreements"),
 )
+
+
+_ESTIMATOR_COLUMNS = (
+    ("family", "family"),
+    ("n", "n"),
+    ("n_hard", "hard"),
+    ("n_sdp_failed", "SDP failed"),
+    ("n_estimator_failed", "estimate failed"),
+    ("max_estimator_rel_cost_gap", "max rel. cost gap of candidates"),
+    ("max_estimator_distance_m", "max dist. to the minimisers (m)"),
+    ("max_estimator_distance_rel", "(rel.)"),
+    ("n_estimator_missing", "missing"),
+    ("n_estimator_extra", "extra"),
+    ("n_disagreements", "disagreements"),
+)
+
+
+def _estimator_caption(result: ValidationResult) -> str:
+    return (
+        f"The candidates of {result.estimator} ({result.estimator_args}) on its own constrained "
+        "least squares, constrained_ls(data), for each instance's measurements: each candidate "
+        "lifted onto the paraboloid and compared with the exact optimum of the same rows (MATH "
+        f"§5). Tolerances: relative cost gap {result.rtol_objective:g}; distance to a "
+        f"closed-form minimiser {result.rtol_argmin:g} of the length scale. Missing: "
+        "closed-form minimisers not returned (both mirror images are due in the hard case); "
+        "extra: candidates that are not global minimisers. The table above compares the closed "
+        "form and the SDP on the same rows."
+    )
 
 
 _INEQUALITY_COLUMNS = (
@@ -632,10 +1043,21 @@ def _table_rows(
     ]
 
 
+def _title(result: ValidationResult) -> str:
+    if result.estimator is None:
+        return "Closed form vs SDP relaxation"
+    return f"{result.estimator}: closed form vs SDP relaxation"
+
+
 def _caption(result: ValidationResult) -> str:
+    rows = (
+        "the same stacked rows"
+        if result.estimator is None
+        else f"the rows of {result.estimator}.constrained_ls(data)"
+    )
     return (
         f"Closed-form CLS (MATH §5) against its Shor SDP relaxation (MATH §11, cvxpy + "
-        f"Clarabel) on the same stacked rows; root seed {result.seed}. Tolerances: relative "
+        f"Clarabel) on {rows}; root seed {result.seed}. Tolerances: relative "
         f"objective gap {result.rtol_objective:g}; argmin distance (unique minimiser) and "
         f"mirror-pair distance (hard case) {result.rtol_argmin:g} of the length scale (RMS of "
         "the track spread and the ranges). Noise levels follow the SNR axis of MATH §2. "
@@ -665,8 +1087,7 @@ def _disagreement_lines(result: ValidationResult, limit: int = 200) -> list[str]
     lines = []
     for r in result.disagreements[:limit]:
         lines.append(
-            f"{r.family} seed {r.seed}: {'; '.join(r.reasons)} "
-            f"(replay: emitterbench validate --replay {r.seed} --families {r.family})"
+            f"{r.family} seed {r.seed}: {'; '.join(r.reasons)} (replay: {result.replay_command(r)})"
         )
     if len(result.disagreements) > limit:
         lines.append(f"... and {len(result.disagreements) - limit} more (see validate.json)")
@@ -677,7 +1098,7 @@ def markdown_report(result: ValidationResult) -> str:
     """A short Markdown summary: verdict, the per-family table, every disagreement."""
     headers = [title for _, title in _COLUMNS]
     lines = [
-        "# Closed form vs SDP relaxation",
+        f"# {_title(result)}",
         "",
         f"**{'PASS' if result.ok else 'FAIL'}**: {len(result.results)} instances, "
         f"{len(result.disagreements)} disagreements.",
@@ -688,6 +1109,18 @@ def markdown_report(result: ValidationResult) -> str:
         "|" + "|".join("---" for _ in headers) + "|",
     ]
     lines += ["| " + " | ".join(row) + " |" for row in _table_rows(result)]
+    if result.estimator is not None:
+        estimator_headers = [title for _, title in _ESTIMATOR_COLUMNS]
+        lines += [
+            "",
+            "## The estimator's candidates",
+            "",
+            _estimator_caption(result),
+            "",
+            "| " + " | ".join(estimator_headers) + " |",
+            "|" + "|".join("---" for _ in estimator_headers) + "|",
+        ]
+        lines += ["| " + " | ".join(row) + " |" for row in _table_rows(result, _ESTIMATOR_COLUMNS)]
     inequality_headers = [title for _, title in _INEQUALITY_COLUMNS]
     lines += [
         "",
@@ -720,20 +1153,33 @@ def html_report(result: ValidationResult, png: bytes) -> str:
         "<tr>" + "".join(f"<td>{escape(cell)}</td>" for cell in row) + "</tr>"
         for row in _table_rows(result, _INEQUALITY_COLUMNS)
     )
+    estimator_block = ""
+    if result.estimator is not None:
+        estimator_head = "".join(f"<th>{escape(title)}</th>" for _, title in _ESTIMATOR_COLUMNS)
+        estimator_body = "".join(
+            "<tr>" + "".join(f"<td>{escape(cell)}</td>" for cell in row) + "</tr>"
+            for row in _table_rows(result, _ESTIMATOR_COLUMNS)
+        )
+        estimator_block = (
+            "<h2>The estimator's candidates</h2>\n"
+            f"<p>{escape(_estimator_caption(result))}</p>\n"
+            f"<table><tr>{estimator_head}</tr>{estimator_body}</table>\n"
+        )
     found = _disagreement_lines(result)
     items = "".join(f"<li>{escape(line)}</li>" for line in found) or "<li>None.</li>"
     image = base64.b64encode(png).decode("ascii")
     verdict = "PASS" if result.ok else "FAIL"
     return (
         "<!DOCTYPE html>\n<html><head><meta charset='utf-8'>"
-        "<title>Closed form vs SDP relaxation</title>"
+        f"<title>{escape(_title(result))}</title>"
         "<style>body{font-family:sans-serif;max-width:70em;margin:2em auto}"
         "table{border-collapse:collapse}td,th{border:1px solid #999;padding:.2em .5em}"
         "</style></head><body>\n"
-        f"<h1>Closed form vs SDP relaxation: {verdict}</h1>\n"
+        f"<h1>{escape(_title(result))}: {verdict}</h1>\n"
         f"<p>{len(result.results)} instances, {len(result.disagreements)} disagreements.</p>\n"
         f"<p>{escape(_caption(result))}</p>\n"
         f"<table><tr>{head}</tr>{body}</table>\n"
+        f"{estimator_block}"
         "<h2>The inequality relaxation</h2>\n"
         f"<p>{escape(_INEQUALITY_CAPTION)}</p>\n"
         f"<table><tr>{inequality_head}</tr>{inequality_body}</table>\n"
@@ -801,17 +1247,61 @@ def replay(
     *,
     rtol_objective: float = 1e-6,
     rtol_argmin: float = 1e-3,
+    estimator: Any = None,
 ) -> str:
-    """Re-run one instance verbosely: the draw, the closed form, the SDP and the verdict."""
-    instance = make_instance(family, instance_seed)
-    result, closed_form, sdp = validate_instance(
-        instance, rtol_objective=rtol_objective, rtol_argmin=rtol_argmin
+    """Re-run one instance verbosely: the draw, the closed form, the SDP and the verdict.
+
+    With an ``estimator`` (an object or a registry name), the rows are its
+    ``constrained_ls(data)`` and its candidates are listed with their costs and gaps.
+    """
+    text, _ = replay_with_verdict(
+        instance_seed,
+        family,
+        rtol_objective=rtol_objective,
+        rtol_argmin=rtol_argmin,
+        estimator=estimator,
     )
-    frame = instance.frame
+    return text
+
+
+def replay_with_verdict(
+    instance_seed: int,
+    family: str,
+    *,
+    rtol_objective: float = 1e-6,
+    rtol_argmin: float = 1e-3,
+    estimator: Any = None,
+) -> tuple[str, bool]:
+    """:func:`replay`'s text and whether the instance agrees."""
+    if isinstance(estimator, str):
+        from estimators.registry import make_estimator
+
+        estimator = make_estimator(estimator)
+    if estimator is not None:
+        check_protocol(estimator)
+    instance = make_instance(family, instance_seed)
     lines = [
         f"instance {family} seed {instance_seed}",
         f"  parameters: {json.dumps(_json_clean(instance.parameters))}",
         f"  truth emitter (m): {_matrix_text(instance.data.truth_emitter_m)}",
+    ]
+    run: EstimatorRun | None = None
+    if estimator is None:
+        result, closed_form, sdp = validate_instance(
+            instance, rtol_objective=rtol_objective, rtol_argmin=rtol_argmin
+        )
+    else:
+        result, run = validate_estimator_instance(
+            instance, estimator, rtol_objective=rtol_objective, rtol_argmin=rtol_argmin
+        )
+        lines.append(f"estimator {estimator_label(estimator)} ({estimator_cli_args(estimator)})")
+        if run.error:
+            lines += ["verdict", f"  DISAGREE: {run.error}"]
+            return "\n".join(lines) + "\n", False
+        assert run.closed_form is not None and run.sdp is not None
+        instance, closed_form, sdp = run.instance, run.closed_form, run.sdp
+    frame = instance.frame
+    lines += [
         f"  local frame: origin {_matrix_text(frame.origin_m)} m, "
         f"length scale {frame.scale_m:.6g} m",
         f"  rows: {instance.rows}, A {instance.A.shape}, numerical rank {closed_form.rank}",
@@ -839,6 +1329,8 @@ def replay(
             lines.append(
                 f"  recovered point (m) {_matrix_text(frame.to_world(point[:2]))}  cost {cost:.12g}"
             )
+    if run is not None:
+        lines += _estimate_lines(run, float(np.min(closed_form.costs)))
     lines += [
         "verdict",
         f"  relative objective gap {result.rel_objective_gap:.3e} (tolerance {rtol_objective:g})",
@@ -853,5 +1345,32 @@ def replay(
             f"  argmin distance {result.argmin_distance_m:.3e} m "
             f"({result.argmin_distance_rel:.3e} of the length scale; tolerance {rtol_argmin:g})"
         )
+    if result.candidates is not None:
+        check = result.candidates
+        lines.append(
+            f"  candidates: {check.n_candidates} for {check.n_minimisers} minimiser(s), "
+            f"max relative cost gap {check.max_rel_cost_gap:.3e}, max distance "
+            f"{check.max_distance_m:.3e} m ({check.max_distance_rel:.3e} of the length scale), "
+            f"missing {check.n_missing}, extra {check.n_extra}"
+        )
     lines.append("  AGREE" if result.agrees else "  DISAGREE: " + "; ".join(result.reasons))
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines) + "\n", result.agrees
+
+
+def _estimate_lines(run: EstimatorRun, optimum: float) -> list[str]:
+    """The estimator's answer on one instance, each candidate with its lifted cost and gap."""
+    estimate, problem = run.estimate, run.problem
+    assert estimate is not None and problem is not None
+    lines = [
+        f"estimate ({estimate.estimator})",
+        f"  success {estimate.success}, ambiguous {estimate.ambiguous}"
+        + (f", message: {estimate.message}" if estimate.message else ""),
+    ]
+    tiny = np.finfo(float).tiny
+    for point in estimate.candidates_m:
+        cost = float(problem.cost(point))
+        lines.append(
+            f"  candidate (m) {_matrix_text(point)}  cost {cost:.12g}  "
+            f"relative gap {(cost - optimum) / max(abs(optimum), tiny):.3e}"
+        )
+    return lines

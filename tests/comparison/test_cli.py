@@ -225,16 +225,26 @@ def test_list_names_every_scenario_and_estimator() -> None:
     assert lines.index("scenarios:") < lines.index("estimators:")
 
 
+class NeedsBackend:
+    """An estimator class that declares a back-end which is not installed."""
+
+    name = "needy"
+    requires = frozenset({"toa"})
+    required_modules = ("no_such_backend",)
+
+
 def test_list_marks_unavailable_estimators(monkeypatch) -> None:
     from estimators import registry
 
-    ghost = registry.RegistryEntry(
-        "ghost", "no_such_package.module:Ghost", "a ghost", required_modules=("no_such_backend",)
-    )
+    ghost = registry.RegistryEntry("ghost", "no_such_package.module:Ghost", "a ghost")
+    needy = registry.RegistryEntry("needy", f"{__name__}:NeedsBackend", "declares a back-end")
     monkeypatch.setitem(registry.BUILTIN, "ghost", ghost)
+    monkeypatch.setitem(registry.BUILTIN, "needy", needy)
     lines = invoke("list").stdout.splitlines()
     (line,) = [line for line in lines if line.split()[:1] == ["ghost"]]
-    assert line.endswith("[unavailable: needs no_such_backend, no_such_package.module]")
+    assert line.endswith("[unavailable: needs no_such_package.module]")
+    (line,) = [line for line in lines if line.split()[:1] == ["needy"]]
+    assert line.endswith("[unavailable: needs no_such_backend]")
     (cls_line,) = [line for line in lines if line.split()[:1] == ["cls"]]
     assert "unavailable" not in cls_line
 
@@ -426,3 +436,21 @@ def test_list_names_every_planner() -> None:
     )
     for name, summary in PLANNER_SUMMARIES.items():
         assert any(line.split()[:1] == [name] and summary in line for line in lines), name
+
+
+def test_validate_bad_input_exits_2_naming_the_field(tmp_path: Path) -> None:
+    out = tmp_path / "v"
+    assert_clean_error(invoke("validate", "--estimator", "no-such", "-o", out), "estimator")
+    refused = invoke("validate", "--estimator", "sdp-cls", "-o", out)
+    assert_clean_error(refused, "estimator")
+    assert "add a method constrained_ls(self, data)" in refused.stderr
+    assert_clean_error(
+        invoke("validate", "--estimator", "cls", "--option", "bogus=1", "-o", out), "bogus"
+    )
+    assert_clean_error(invoke("validate", "--option", "frames=all", "-o", out), "--option")
+    assert_clean_error(
+        invoke("validate", "-e", "cls", "--families", "spiral", "-o", out), "--families"
+    )
+    assert_clean_error(invoke("validate", "--estimator", "cls", "--replay", "1"), "--families")
+    assert_clean_error(invoke("validate", "--estimator", "cls"), "--output")
+    assert not out.exists()

@@ -1,24 +1,32 @@
-"""Validation of the closed-form CLS against its SDP relaxation (MATH §5, §11)."""
+"""Validation of a closed-form CLS against its SDP relaxation (MATH §5, §11)."""
 
 from __future__ import annotations
 
 import base64
 import json
+from dataclasses import dataclass
+from typing import ClassVar
 
 import cvxpy as cp
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
+from comparison.cli import app
 from comparison.validate import (
     FAMILIES,
     instance_seeds,
     make_instance,
     point_set_distance,
     replay,
+    replay_with_verdict,
     run_validation,
     validate_instance,
 )
+from estimators.base import finalize_estimate, require_modalities
+from estimators.cls import Cls, ClsAsPrinted, ClsPaper
 from estimators.gtrs import solve_gtrs
+from estimators.registry import make_estimator
 
 
 @pytest.mark.parametrize("family", FAMILIES)
@@ -212,3 +220,223 @@ def test_inequality_relaxation_is_tight_exactly_when_the_multiplier_is_nonnegati
     assert straight.n_inequality_tight_when_nonnegative == straight.n
     assert "## The inequality relaxation" in (tmp_path / "validate.md").read_text()
     assert "The inequality relaxation</h2>" in (tmp_path / "validate.html").read_text()
+
+
+# --------------------------------------------------------------------------------------------
+# another closed form: run_validation(estimator=...) and `emitterbench validate --estimator`
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, kw_only=True)
+class MidpointCls(Cls):
+    """Wrong on purpose: λ → 0⁺ in the hard case, the midpoint of the mirror pair (MATH §5)."""
+
+    name: ClassVar[str] = "midpoint-cls"
+
+    def estimate(self, data, *, rng=None):
+        require_modalities(self, data)
+        problem = self.constrained_ls(data)
+        solution = solve_gtrs(problem.A, problem.b)
+        xy = solution.points[:, :2]
+        if solution.hard_case:
+            M, q = problem.A.T @ problem.A, problem.A.T @ problem.b
+            lam = 1e-9 * np.trace(M)
+            r = np.linalg.solve(M + lam * np.diag([1.0, 1.0, 0.0]), q + lam * np.array([0, 0, 0.5]))
+            xy = r[None, :2]
+        points = problem.to_world(xy)
+        used = data.select_frames(self.frames)
+        return finalize_estimate(self.name, points, problem.cost(points), used, rng=rng)
+
+
+@dataclass(frozen=True, kw_only=True)
+class RowsThatRaise(Cls):
+    name: ClassVar[str] = "rows-that-raise"
+
+    def constrained_ls(self, data):
+        raise RuntimeError("no rows today")
+
+
+@dataclass(frozen=True, kw_only=True)
+class RowsOfTheWrongType(Cls):
+    name: ClassVar[str] = "rows-of-the-wrong-type"
+
+    def constrained_ls(self, data):
+        return super().constrained_ls(data).A
+
+
+@pytest.mark.parametrize("name", ["cls-paper", "cls"])
+def test_the_builtin_closed_forms_pass_on_every_family(name):
+    """Every candidate attains the exact optimum of the estimator's own rows; both mirror
+    minimisers in the hard case; the SDP value equals the optimum; every status optimal."""
+    result = run_validation(instances=40, families=FAMILIES, seed=11, estimator=name)
+    assert result.ok, [(r.family, r.seed, r.reasons) for r in result.disagreements]
+    assert result.estimator == name and result.estimator_args == f"--estimator {name}"
+    for summary in result.families.values():
+        assert summary.n == 40 and summary.statuses == {"optimal": 40}
+        assert summary.n_sdp_failed == summary.n_estimator_failed == 0
+        assert summary.max_estimator_rel_cost_gap <= 1e-9
+        assert summary.max_estimator_distance_rel <= 1e-9
+        assert summary.n_estimator_missing == summary.n_estimator_extra == 0
+        assert summary.max_rel_objective_gap <= 1e-6
+    for r in result.results:
+        assert r.candidates.n_minimisers == (2 if r.hard_case else 1)
+        assert r.candidates.n_candidates >= r.candidates.n_minimisers
+    hard = {family: summary.n_hard for family, summary in result.families.items()}
+    assert hard["straight"] > 30 and hard["paper"] > 30
+    if name == "cls-paper":  # frames="last": one straight frame of the turn, mostly hard
+        assert hard["turn"] > 30 and hard["turn-weighted"] > 30
+    else:  # every frame: two headings, a unique minimiser
+        assert hard["turn"] == hard["turn-weighted"] == 0
+
+
+def test_an_estimator_with_the_familys_rows_reproduces_the_builtin_check():
+    """On ``turn`` the family's rows are cls(weighting="none")'s: the SDP side is identical."""
+    builtin = run_validation(instances=6, families=["turn"], seed=2)
+    mine = run_validation(instances=6, families=["turn"], seed=2, estimator=Cls(weighting="none"))
+    assert mine.ok and builtin.ok
+    assert mine.estimator_args == "--estimator cls --option weighting=none"
+    for ours, theirs in zip(mine.results, builtin.results, strict=True):
+        assert ours.seed == theirs.seed
+        assert ours.closed_form_value == theirs.closed_form_value
+        assert ours.hard_case == theirs.hard_case and ours.status == theirs.status
+        assert ours.rel_objective_gap == pytest.approx(theirs.rel_objective_gap, abs=1e-12)
+        assert theirs.candidates is None and ours.candidates.n_missing == 0
+
+
+def test_cls_exposes_the_rows_its_estimate_minimises():
+    instance = make_instance("turn-weighted", instance_seeds(4, "turn-weighted", 1)[0])
+    for estimator in (Cls(), Cls(frames="last"), ClsPaper(), ClsAsPrinted()):
+        problem = estimator.constrained_ls(instance.data)
+        estimate = estimator.estimate(instance.data)
+        optimum = solve_gtrs(problem.A, problem.b).costs.min()
+        np.testing.assert_allclose(problem.cost(estimate.candidates_m), optimum, rtol=1e-10)
+        assert not problem.A.flags.writeable
+
+
+def test_the_midpoint_closed_form_is_caught_with_a_replay_seed(tmp_path):
+    """λ → 0⁺ returns the midpoint of the mirror pair in the hard case: every hard instance
+    disagrees (both minimisers missing, the midpoint far above the optimum), the others agree,
+    and the listed seed replays the disagreement."""
+    result = run_validation(
+        instances=12,
+        families=("straight", "paper"),
+        seed=0,
+        out_dir=tmp_path,
+        estimator=MidpointCls(),
+    )
+    assert not result.ok
+    hard = [r for r in result.results if r.hard_case]
+    assert len(hard) >= 18  # one straight frame: mostly the hard case
+    assert {(r.family, r.seed) for r in result.disagreements} == {(r.family, r.seed) for r in hard}
+    for r in result.results:
+        if r.hard_case:
+            assert r.candidates.n_missing == 2 and r.candidates.n_extra >= 1
+            assert r.candidates.max_rel_cost_gap > 0.1  # the tolerance is 1e-6
+            assert "not among the candidates" in "; ".join(r.reasons)
+        else:
+            assert r.agrees and r.candidates.max_rel_cost_gap <= 1e-9
+    for summary in result.families.values():
+        assert summary.n_disagreements == summary.n_hard > 0
+        assert summary.n_estimator_missing == 2 * summary.n_hard
+    payload = json.loads((tmp_path / "validate.json").read_text())
+    assert payload["estimator"]["name"] == "midpoint-cls"
+    entry = payload["disagreements"][0]
+    assert entry["replay"] == (
+        f"emitterbench validate --replay {entry['seed']} --families {entry['family']} "
+        "--estimator tests.comparison.test_validate:MidpointCls"
+    )
+    assert entry["candidates"]["n_missing"] == 2
+    assert "## The estimator's candidates" in (tmp_path / "validate.md").read_text()
+    # the seed reproduces it; the correct closed form agrees on the same instance
+    text, agrees = replay_with_verdict(entry["seed"], entry["family"], estimator=MidpointCls())
+    assert not agrees and "DISAGREE" in text and "hard case True" in text
+    assert "estimate (midpoint-cls)" in text and "missing 2" in text
+    text, agrees = replay_with_verdict(entry["seed"], entry["family"], estimator="cls")
+    assert agrees and text.rstrip().endswith("AGREE")
+
+
+def test_an_estimator_without_the_protocol_is_refused_naming_the_method():
+    for estimator in ("lls-toa", make_estimator("ml")):
+        with pytest.raises(ValueError, match=r"^estimator: .*add a method constrained_ls\(self"):
+            run_validation(instances=1, families=["straight"], estimator=estimator)
+    with pytest.raises(ValueError, match=r"^estimator: .*constrained_ls\(self"):
+        replay(1, "straight", estimator="lls-rss")
+    with pytest.raises(ValueError, match=r"^estimator: .* returned ndarray; return an estim"):
+        run_validation(instances=1, families=["straight"], estimator=RowsOfTheWrongType())
+
+
+def test_an_estimator_that_raises_is_a_listed_disagreement():
+    result = run_validation(instances=2, families=["turn"], seed=0, estimator=RowsThatRaise())
+    assert not result.ok and len(result.disagreements) == 2
+    assert result.families["turn"].n_estimator_failed == 2
+    assert all(r.status == "not_run" and not r.sdp_failed for r in result.results)
+    assert result.disagreements[0].reasons == ("estimator raised RuntimeError: no rows today",)
+
+
+def test_a_failing_sdp_is_reported_as_sdp_failed_not_agreement(monkeypatch):
+    def broken_solve(self, *args, **kwargs):
+        raise cp.error.SolverError("numerical trouble")
+
+    monkeypatch.setattr(cp.Problem, "solve", broken_solve)
+    result = run_validation(instances=2, families=["paper"], seed=0, estimator="cls")
+    summary = result.families["paper"]
+    assert not result.ok and summary.n_sdp_failed == summary.n_disagreements == 2
+    assert summary.n_estimator_missing == summary.n_estimator_extra == 0  # the candidates are fine
+    assert all(r.reasons[0].startswith("SDP failed: solver status") for r in result.disagreements)
+
+
+def test_cli_validate_exit_codes(tmp_path):
+    runner = CliRunner()
+    ok = runner.invoke(
+        app,
+        [
+            "validate",
+            "--estimator",
+            "cls-paper",
+            "--option",
+            "frames=all",
+            "--instances",
+            "3",
+            "-o",
+            str(tmp_path / "paper"),
+        ],
+    )
+    assert ok.exit_code == 0, ok.output
+    assert "estimator cls-paper" in ok.stdout and ok.stdout.count("missing 0  extra 0") == 4
+    payload = json.loads((tmp_path / "paper" / "validate.json").read_text())
+    assert (
+        payload["ok"]
+        and payload["estimator"]["args"] == "--estimator cls-paper --option frames=all"
+    )
+
+    wrong = "tests.comparison.test_validate:MidpointCls"
+    caught = runner.invoke(
+        app,
+        [
+            "validate",
+            "--estimator",
+            wrong,
+            "--families",
+            "straight",
+            "--instances",
+            "4",
+            "-o",
+            str(tmp_path / "wrong"),
+        ],
+    )
+    assert caught.exit_code == 1, caught.output
+    replay_lines = [line for line in caught.stderr.splitlines() if "replay with" in line]
+    assert replay_lines and "instance(s) disagree" in caught.stderr
+    command = replay_lines[0].split("replay with emitterbench ")[1].split()
+    assert command[:2] == ["validate", "--replay"] and command[-2:] == ["--estimator", wrong]
+    replayed = runner.invoke(app, command)
+    assert replayed.exit_code == 1 and "DISAGREE" in replayed.stdout
+    seed = command[2]
+    fine = runner.invoke(app, ["validate", "--replay", seed, "--families", "straight", "-e", "cls"])
+    assert fine.exit_code == 0 and fine.stdout.rstrip().endswith("AGREE")
+
+    refused = runner.invoke(app, ["validate", "--estimator", "lls-toa", "-o", str(tmp_path / "x")])
+    assert refused.exit_code == 2 and refused.stdout == ""
+    (line,) = refused.stderr.strip().splitlines()
+    assert line.startswith("error: estimator: 'lls-toa'") and "constrained_ls(self, data)" in line
+    assert not (tmp_path / "x").exists()

@@ -7,7 +7,14 @@ import pytest
 from emitterbench_gridsearch import DopplerGridSearch
 
 from comparison.crlb import crlb_m2, fisher_information
-from estimators.checks import check_estimator, parametrize_with_checks, reference_data
+from estimators.base import capabilities_of
+from estimators.checks import (
+    EXACT_TOLERANCE_M,
+    check_estimator,
+    noise_free_tolerance_m,
+    parametrize_with_checks,
+    reference_data,
+)
 
 
 @parametrize_with_checks([DopplerGridSearch(), DopplerGridSearch(grid_points=21, n_starts=1)])
@@ -21,7 +28,20 @@ def test_check_estimator_passes() -> None:
     assert all(outcome.passed for outcome in outcomes)
 
 
-@pytest.mark.parametrize("scenario", ["turn", "orbit"])
+def test_capabilities_are_declared() -> None:
+    """Doppler only, batch, and a looser noise-free tolerance with its reason; the old class
+    attribute is gone (the suite no longer reads it)."""
+    declared = capabilities_of(DopplerGridSearch())
+    assert declared.modalities == {"doppler"}
+    assert declared.frames == "all" and declared.batch and not declared.sequential
+    assert not declared.unit_invariant  # search_radius_m is in metres
+    assert declared.noise_free_tolerance_m == 1e-5 > EXACT_TOLERANCE_M
+    assert "stops" in declared.tolerance_reason
+    assert noise_free_tolerance_m(DopplerGridSearch()) == 1e-5
+    assert not hasattr(DopplerGridSearch, "noise_free_tolerance_m")
+
+
+@pytest.mark.parametrize("scenario", ["turn", "orbit", "far-turn", "climb"])
 def test_noise_free_two_headings_give_the_emitter_and_its_crlb(scenario: str) -> None:
     data, truth = reference_data(scenario)
     estimate = DopplerGridSearch().estimate(data)

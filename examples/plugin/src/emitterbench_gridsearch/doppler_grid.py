@@ -35,7 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from estimators.base import Estimate, finalize_estimate, require_modalities
+from estimators.base import Capabilities, Estimate, finalize_estimate, require_modalities
 from scenarios import measurement_model as model
 from scenarios.geometry import cross_track_m, mirror_across_line, straight_track_line
 from scenarios.types import MeasurementBatch, MeasurementSet
@@ -62,14 +62,13 @@ class DopplerGridSearch:
 
     Notes
     -----
-    ``noise_free_tolerance_m`` is 1e-5 m: the refinement stops when a step is shorter than
-    ``1e-8`` times the search radius, so a noise-free candidate lies within a few micrometres
-    of the emitter, not within the 1e-6 m of an exact closed form.
+    :meth:`capabilities` declares a noise-free tolerance of 1e-5 m: the refinement stops when
+    a step is shorter than ``1e-8`` times the search radius, so a noise-free candidate lies
+    within a few micrometres of the emitter, not within the 1e-6 m of an exact closed form.
     """
 
     name: ClassVar[str] = "doppler-grid"
     requires: ClassVar[frozenset[str]] = frozenset({"doppler"})
-    noise_free_tolerance_m: ClassVar[float] = 1e-5
 
     search_radius_m: float = 200.0
     grid_points: int = 61
@@ -91,6 +90,19 @@ class DopplerGridSearch:
             raise ValueError(f"cost_rtol: expected a finite number >= 0, got {rtol!r}")
 
     # -- the Estimator interface ---------------------------------------------------------------
+
+    def capabilities(self) -> Capabilities:
+        """Doppler only, every frame, batch-capable; exact to 1e-5 m (see Notes)."""
+        return Capabilities(
+            modalities=frozenset({"doppler"}),
+            frames="all",
+            batch=True,
+            noise_free_tolerance_m=1e-5,
+            tolerance_reason=(
+                "Levenberg-Marquardt stops when a step is shorter than 1e-8 of the search "
+                "radius (2e-6 m by default)"
+            ),
+        )
 
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         """Locate the emitter from ``data``'s Doppler; ``rng`` breaks a mirror tie."""
