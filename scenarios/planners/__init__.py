@@ -6,7 +6,7 @@ optional covariance) and the measurements, and return a :class:`Plan`. The close
 calls estimators lives in :mod:`comparison.closed_loop`.
 
 =============  =========================================================  ==========
-name           what it does                                               MATH.md
+name           what it does                                               docs/math.md
 =============  =========================================================  ==========
 ``constant``   the last velocity again (no design)                        -
 ``paper``      the paper's zero-residual rule, corrected                  §12
