@@ -7,10 +7,10 @@ r"""Fisher information and the Cramér-Rao lower bound for the emitter's ``(x_s,
         + \frac{\nabla P_k \nabla P_k^\top}{\sigma_P^2} \Big),
     \qquad \mathrm{CRLB} = J^{-1},\qquad \text{RMSE bound} = \sqrt{\operatorname{tr} J^{-1}}
 
-over the samples and the modalities used, with the gradients of
-:mod:`scenarios.measurement_model`. Vectorised: ``emitter_m`` of shape ``(..., 2)`` evaluates
-many emitter positions (a geometry map) in one call; per-frame and accumulated information
-come from :func:`fisher_information_per_frame`.
+over the samples and the modalities used. The comparison's names for what
+:mod:`scenarios.fisher` computes (the one implementation, which planners and estimators use
+too): ``emitter_m`` of shape ``(..., 2)`` evaluates many emitter positions (a geometry map) in
+one call; per-frame and accumulated information come from :func:`fisher_information_per_frame`.
 
 Doppler alone gives a nonsingular ``J``: the paper's claim that one UAV cannot localise from
 Doppler alone is false (MATH §8).
@@ -18,110 +18,68 @@ Doppler alone is false (MATH §8).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+import math
+from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-from scenarios import measurement_model as model
-from scenarios.types import MODALITIES, MeasurementSet
+from scenarios.fisher import (
+    MODALITY_SETS,
+    FloatArray,
+    fisher_information,
+    fisher_information_per_frame,
+    inverse_2x2,
+    rmse_bound_m,
+    whitened_jacobian,
+)
+from scenarios.types import MeasurementSet
 
-FloatArray = NDArray[np.float64]
-
-MODALITY_SETS: dict[str, tuple[str, ...]] = {
-    "toa": ("toa",),
-    "doppler": ("doppler",),
-    "rss": ("rss",),
-    "toa+doppler": ("toa", "doppler"),
-}
-"""The modality subsets reported by ``emitterbench crlb``."""
-
-
-def _modalities(modalities: str | Iterable[str]) -> tuple[str, ...]:
-    if isinstance(modalities, str):
-        modalities = MODALITY_SETS.get(modalities, tuple(modalities.split("+")))
-    chosen = tuple(modalities)
-    unknown = sorted(set(chosen) - set(MODALITIES))
-    if unknown or not chosen:
-        raise ValueError(f"modalities: expected a subset of {MODALITIES}, got {chosen!r}")
-    return chosen
-
-
-def whitened_jacobian(
-    data: MeasurementSet, emitter_m: ArrayLike, modalities: str | Iterable[str]
-) -> FloatArray:
-    """Rows ``∇h_k / σ`` of every sample and modality, shape ``(..., n_rows, 2)`` (MATH §8).
-
-    The σ's and the RSS model come from ``data``; a modality absent from the data may still be
-    used here if its σ is known (the bound does not need the measured values).
-    """
-    emitter = np.asarray(emitter_m, dtype=float)
-    blocks = []
-    for modality in _modalities(modalities):
-        sigma = data.noise.for_modality(modality)
-        if sigma is None:
-            field = {"doppler": "doppler_hz", "toa": "toa_s", "rss": "rss_db"}[modality]
-            raise ValueError(f"noise.{field}: needed for the {modality} bound but not given")
-        if modality == "toa":
-            gradient = model.toa_jacobian(
-                data.position_m, emitter, data.speed_of_light_mps, data.emitter_height_m
-            )
-        elif modality == "doppler":
-            gradient = model.doppler_jacobian(
-                data.position_m,
-                data.velocity_mps,
-                emitter,
-                data.gamma_per_m,
-                data.emitter_height_m,
-            )
-        else:
-            if data.rss_model is None:
-                raise ValueError("rss_model: needed for the RSS bound but not given")
-            gradient = model.rss_jacobian(
-                data.position_m, emitter, data.rss_model, data.emitter_height_m
-            )
-        blocks.append(gradient / sigma)
-    return np.concatenate(blocks, axis=-2)
-
-
-def fisher_information(
-    data: MeasurementSet, emitter_m: ArrayLike, modalities: str | Iterable[str] = "toa+doppler"
-) -> FloatArray:
-    """``J`` of MATH §8 over all samples of ``data``, shape ``(..., 2, 2)``."""
-    rows = whitened_jacobian(data, emitter_m, modalities)
-    return np.einsum("...ki,...kj->...ij", rows, rows)
-
-
-def fisher_information_per_frame(
-    data: MeasurementSet, emitter_m: ArrayLike, modalities: str | Iterable[str] = "toa+doppler"
-) -> tuple[FloatArray, FloatArray]:
-    """Information of each frame and accumulated up to each frame.
-
-    Returns ``(per_frame, accumulated)``, each of shape ``(n_frames, ..., 2, 2)``, frames in the
-    order of ``data.frames``.
-    """
-    per_frame = np.stack(
-        [fisher_information(frame, emitter_m, modalities) for frame in data.iter_frames()]
-    )
-    return per_frame, np.cumsum(per_frame, axis=0)
+__all__ = [
+    "MODALITY_SETS",
+    "crlb_m2",
+    "crlb_table",
+    "fisher_information",
+    "fisher_information_per_frame",
+    "rmse_bound_m",
+    "whitened_jacobian",
+]
 
 
 def crlb_m2(information: ArrayLike) -> FloatArray:
-    """``J⁻¹``; NaN where ``J`` is singular (an unobservable geometry), shape ``(..., 2, 2)``."""
-    J = np.asarray(information, dtype=float)
-    a, b, d = J[..., 0, 0], J[..., 0, 1], J[..., 1, 1]
-    det = a * d - b * b
-    scale = np.maximum(np.abs(a * d), np.finfo(float).tiny)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inverse = (
-            np.stack([np.stack([d, -b], -1), np.stack([-b, a], -1)], -2) / det[..., None, None]
-        )
-    singular = ~(det > 1e-12 * scale)
-    inverse[singular] = np.nan
-    return inverse
+    """``J⁻¹``; NaN where ``J`` is singular (an unobservable geometry), shape ``(..., 2, 2)``.
+
+    :func:`scenarios.fisher.inverse_2x2` of the information (MATH §8).
+    """
+    return inverse_2x2(information)
 
 
-def rmse_bound_m(information: ArrayLike) -> FloatArray:
-    """``√trace(J⁻¹)``: the RMSE bound in metres (MATH §8); NaN where ``J`` is singular."""
-    covariance = crlb_m2(information)
-    return np.sqrt(covariance[..., 0, 0] + covariance[..., 1, 1])
+def crlb_table(data: MeasurementSet, at_m: Any) -> dict[str, Any]:
+    """RMSE bound and CRLB matrix at ``at_m`` for each of ``MODALITY_SETS`` (MATH §8).
+
+    A set whose σ (or RSS model) is missing, or whose information is singular, is ``None``
+    with a note saying why.
+    """
+    table: dict[str, Any] = {
+        "at_m": [float(v) for v in at_m],
+        "n_samples": data.n_samples,
+        "rmse_bound_m": {},
+        "crlb_m2": {},
+        "notes": {},
+    }
+    for name, modalities in MODALITY_SETS.items():
+        try:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                information = fisher_information(data, at_m, modalities)
+        except ValueError as error:
+            table["rmse_bound_m"][name] = table["crlb_m2"][name] = None
+            table["notes"][name] = str(error)
+            continue
+        bound = float(rmse_bound_m(information))
+        if not math.isfinite(bound):
+            table["rmse_bound_m"][name] = table["crlb_m2"][name] = None
+            table["notes"][name] = "singular Fisher information: unobservable from these samples"
+            continue
+        table["rmse_bound_m"][name] = bound
+        table["crlb_m2"][name] = crlb_m2(information).tolist()
+    return table

@@ -9,9 +9,9 @@ heading ``ψ`` and fixed speed ``A``, ``J_next(ψ)``, both at the current estima
     \psi^* = \arg\min_\psi\ \operatorname{tr} J(\psi)^{-1}\ \ \text{(A-optimal)}
     \quad\text{or}\quad -\log\det J(\psi)\ \ \text{(D-optimal)}.
 
-``J = Σ_k ∇h_k∇h_kᵀ/σ²`` over the samples and modalities (ToA and Doppler by default), the
-gradients from :mod:`scenarios.measurement_model`, the σ's from the data. The next frame's
-samples are ``p_{K+1} + jΔ u(ψ)``, ``j = 0 … K−1``, ``u(ψ) = A(cos ψ, sin ψ, 0)``, starting at
+``J = Σ_k ∇h_k∇h_kᵀ/σ²`` over the samples and modalities (ToA and Doppler by default), from
+:mod:`scenarios.fisher` with the σ's of the data. The next frame's samples are
+``p_{K+1} + jΔ u(ψ)``, ``j = 0 … K−1``, ``u(ψ) = A(cos ψ, sin ψ, 0)``, starting at
 ``p_{K+1} = p_K + Δ v_old`` (the flight's kinematics).
 
 With two mirror candidates (MATH §7) the criterion is evaluated at each and the worst
@@ -36,6 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from scenarios import measurement_model as model
+from scenarios.fisher import fisher_information, information_at_samples, regular_2x2
 from scenarios.planners.base import (
     DEFAULT_MAX_SPEED_MPS,
     Plan,
@@ -60,60 +61,6 @@ Past = Literal["frames", "covariance"]
 REFINE_POINTS = 21
 """Headings per refinement round (spanning ±1 step of the previous round)."""
 
-_SIGMA_FIELD = {"doppler": "doppler_hz", "toa": "toa_s", "rss": "rss_db"}
-
-
-def fisher_information_m2(
-    position_m: ArrayLike,
-    velocity_mps: ArrayLike,
-    emitter_m: ArrayLike,
-    data: MeasurementSet,
-    modalities: Sequence[str] = ("toa", "doppler"),
-) -> FloatArray:
-    """``J = Σ_k ∇h_k∇h_kᵀ/σ²`` in ``(x_s, y_s)`` (MATH §8), vectorised, units 1/m².
-
-    Parameters
-    ----------
-    position_m, velocity_mps : (..., N, 3)
-        Sample positions and velocities (leading axes broadcast with ``emitter_m``'s).
-    emitter_m : (..., 2)
-        Where the information is evaluated.
-    data : MeasurementSet
-        Supplies the constants: σ's, γ, c, the emitter height and the RSS model.
-    modalities : sequence of str
-
-    Returns
-    -------
-    (..., 2, 2)
-    """
-    blocks = []
-    for modality in modalities:
-        if modality not in MODALITIES:
-            raise ValueError(f"modalities: unknown {modality!r}; choose from {MODALITIES}")
-        sigma = data.noise.for_modality(modality)
-        if sigma is None:
-            raise ValueError(
-                f"noise.{_SIGMA_FIELD[modality]}: needed for the {modality} information; "
-                "give the σ or drop the modality"
-            )
-        if modality == "toa":
-            gradient = model.toa_jacobian(
-                position_m, emitter_m, data.speed_of_light_mps, data.emitter_height_m
-            )
-        elif modality == "doppler":
-            gradient = model.doppler_jacobian(
-                position_m, velocity_mps, emitter_m, data.gamma_per_m, data.emitter_height_m
-            )
-        else:
-            if data.rss_model is None:
-                raise ValueError("rss_model: needed for the RSS information but not given")
-            gradient = model.rss_jacobian(
-                position_m, emitter_m, data.rss_model, data.emitter_height_m
-            )
-        blocks.append(gradient / sigma)
-    rows = np.concatenate(blocks, axis=-2)
-    return np.einsum("...ki,...kj->...ij", rows, rows)
-
 
 def next_frame_geometry(
     start_m: ArrayLike,
@@ -135,12 +82,13 @@ def next_frame_geometry(
 def design_criterion(information: ArrayLike, criterion: Criterion = "A") -> FloatArray:
     """``tr J⁻¹`` (``"A"``, m²) or ``−log det J`` (``"D"``) of 2×2 matrices ``(..., 2, 2)``.
 
-    +inf where ``J`` is singular (not positive definite to a relative 1e-12).
+    +inf where ``J`` is singular (not positive definite: :func:`scenarios.fisher.regular_2x2`
+    and ``J₁₁ > 0``).
     """
     J = np.asarray(information, dtype=float)
     a, b, d = J[..., 0, 0], J[..., 0, 1], J[..., 1, 1]
     det = a * d - b * b
-    regular = (det > 1e-12 * np.maximum(np.abs(a * d), np.finfo(float).tiny)) & (a > 0)
+    regular = regular_2x2(J) & (a > 0)
     safe = np.where(regular, det, 1.0)
     value = (a + d) / safe if criterion == "A" else -np.log(safe)
     return np.where(regular, value, np.inf)
@@ -170,7 +118,7 @@ def heading_objective(
         start_m, headings_rad, speed_mps, samples_per_frame, sample_interval_s
     )
     # (n_c, 1, 2) against (n_ψ, K, 3) broadcasts to (n_c, n_ψ, ...)
-    upcoming = fisher_information_m2(position, velocity, candidates[:, None, :], data, modalities)
+    upcoming = information_at_samples(position, velocity, candidates[:, None, :], data, modalities)
     values = design_criterion(past[:, None] + upcoming, criterion)
     if aggregate == "worst":
         return values.max(axis=0)
@@ -313,9 +261,7 @@ class FisherPlanner:
             past = np.broadcast_to(np.linalg.inv(covariance), (len(candidates), 2, 2))
             source = "covariance"
         else:
-            past = fisher_information_m2(
-                data.position_m, data.velocity_mps, candidates[:, None, :], data, self.modalities
-            )
+            past = fisher_information(data, candidates, self.modalities)
             source = "frames"
 
         def objective(headings: FloatArray) -> FloatArray:

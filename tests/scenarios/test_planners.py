@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from scenarios import measurement_model as model
 from scenarios.catalog import get_scenario, heading_velocities_mps
+from scenarios.fisher import information_at_samples as fisher_information_m2
 from scenarios.planners import (
     PLANNERS,
     ConstantPlanner,
@@ -21,7 +22,7 @@ from scenarios.planners import (
     flight_from_measurements,
     get_planner,
 )
-from scenarios.planners.fisher import fisher_information_m2, heading_objective
+from scenarios.planners.fisher import heading_objective
 from scenarios.planners.paper import (
     choose_root,
     circle_roots_mps,

@@ -1,0 +1,362 @@
+"""scenarios.fisher: the Fisher information of MATH §8 and its 2×2 inverse.
+
+Checked against an independent construction (every gradient by central differences of the
+measurement functions), across its layers (per sample, per frame, accumulated), vectorised
+against a loop, and the 2×2 inverse against ``numpy.linalg.inv``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from scenarios import measurement_model as model
+from scenarios.catalog import get_scenario, heading_velocities_mps
+from scenarios.fisher import (
+    MODALITY_SETS,
+    fisher_information,
+    fisher_information_per_frame,
+    gram_information,
+    information_at_samples,
+    inverse_2x2,
+    parse_modalities,
+    per_sample_information,
+    regular_2x2,
+    rmse_bound_m,
+    whitened_gradients,
+    whitened_jacobian,
+)
+from scenarios.simulate import noise_free
+from scenarios.types import FlightPlan, MeasurementSet, NoiseSigmas, RssModel, Scenario
+
+MODALITY_CHOICES = ["toa", "doppler", "rss", "toa+doppler", ("doppler", "toa", "rss")]
+
+
+def random_data(seed: int, n_frames: int = 3) -> MeasurementSet:
+    """Noise-free data of a random flight of ``n_frames`` headings, all three modalities."""
+    rng = np.random.default_rng(seed)
+    heading = rng.uniform(0.0, 360.0)
+    headings = heading + np.cumsum(np.r_[0.0, rng.uniform(30.0, 150.0, n_frames - 1)])
+    scenario = Scenario(
+        name="random",
+        emitter_m=rng.uniform(-300.0, 300.0, 2),
+        flight=FlightPlan(
+            start_position_m=[*rng.uniform(-300.0, 300.0, 2), rng.uniform(20.0, 200.0)],
+            frame_velocities_mps=heading_velocities_mps(rng.uniform(5.0, 30.0), list(headings)),
+            samples_per_frame=int(rng.integers(3, 12)),
+            sample_interval_s=rng.uniform(0.05, 1.0),
+        ),
+        carrier_hz=rng.uniform(1e8, 5e9),
+        emitter_height_m=rng.uniform(-5.0, 5.0),
+        noise=NoiseSigmas(
+            doppler_hz=rng.uniform(0.01, 2.0),
+            toa_s=rng.uniform(0.3, 30.0) / 299_792_458.0,
+            rss_db=rng.uniform(1.0, 8.0),
+        ),
+        rss_model=RssModel(
+            reference_power_dbm=-20.0, reference_distance_m=1.0, path_loss_exponent=2.5
+        ),
+    )
+    return noise_free(scenario)
+
+
+def differenced_gradients(
+    position: np.ndarray, velocity: np.ndarray, emitter: np.ndarray, data: MeasurementSet
+) -> dict[str, np.ndarray]:
+    """``∇h_k`` of every modality, shape (N, 2), by central differences of the model."""
+    height = data.emitter_height_m
+    functions = {
+        "toa": lambda s: model.toa_s(position, s, data.speed_of_light_mps, height),
+        "doppler": lambda s: model.doppler_hz(position, velocity, s, data.gamma_per_m, height),
+        "rss": lambda s: model.rss_dbm(position, s, data.rss_model, height),
+    }
+    step = 1e-4 * model.slant_range_m(position, emitter, height).min()
+    return {
+        name: np.stack(
+            [
+                (h(emitter + step * unit) - h(emitter - step * unit)) / (2.0 * step)
+                for unit in np.eye(2)
+            ],
+            axis=-1,
+        )
+        for name, h in functions.items()
+    }
+
+
+def differenced_per_sample(
+    position: np.ndarray,
+    velocity: np.ndarray,
+    emitter: np.ndarray,
+    data: MeasurementSet,
+    modalities: tuple[str, ...],
+) -> np.ndarray:
+    """``J_k = Σ_m ∇h_k∇h_kᵀ/σ_m²`` from differenced gradients, shape (N, 2, 2)."""
+    gradients = differenced_gradients(position, velocity, emitter, data)
+    return sum(
+        np.einsum("ki,kj->kij", gradients[m], gradients[m]) / data.noise.for_modality(m) ** 2
+        for m in modalities
+    )
+
+
+def assert_matrices_close(actual: np.ndarray, expected: np.ndarray, rtol: float) -> None:
+    """Entry-wise, relative to each matrix's largest entry (off-diagonals may be ~0)."""
+    scale = np.abs(expected).max(axis=(-2, -1), keepdims=True)
+    error = np.abs(np.asarray(actual) - expected)
+    np.testing.assert_array_less(error, np.broadcast_to(rtol * scale + 1e-300, error.shape))
+
+
+# --------------------------------------------------------------------------------------------
+# against finite differences
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("modalities", MODALITY_CHOICES)
+def test_information_equals_the_finite_difference_fisher_matrix(seed, modalities) -> None:
+    data = random_data(seed)
+    emitter = data.truth_emitter_m
+    used = parse_modalities(modalities)
+    expected_per_sample = differenced_per_sample(
+        data.position_m, data.velocity_mps, emitter, data, used
+    )
+    per_sample = per_sample_information(
+        data.position_m, data.velocity_mps, emitter, data, modalities
+    )
+    assert per_sample.shape == (data.n_samples, 2, 2)
+    assert_matrices_close(per_sample, expected_per_sample, rtol=1e-6)
+    expected = expected_per_sample.sum(axis=0)
+    assert_matrices_close(fisher_information(data, emitter, modalities), expected, rtol=1e-6)
+    assert_matrices_close(
+        information_at_samples(data.position_m, data.velocity_mps, emitter, data, modalities),
+        expected,
+        rtol=1e-6,
+    )
+    assert rmse_bound_m(fisher_information(data, emitter, modalities)) == pytest.approx(
+        np.sqrt(np.trace(np.linalg.inv(expected))), rel=1e-5
+    )
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_information_of_planned_samples_equals_the_finite_difference_fisher(seed) -> None:
+    """Samples that are not the data's (a planned frame): only the constants come from data."""
+    data = random_data(seed)
+    rng = np.random.default_rng(100 + seed)
+    position = data.position_m + rng.normal(0.0, 40.0, data.position_m.shape)
+    velocity = rng.normal(0.0, 10.0, data.velocity_mps.shape)
+    emitter = data.truth_emitter_m + rng.normal(0.0, 20.0, 2)
+    for modalities in MODALITY_CHOICES:
+        used = parse_modalities(modalities)
+        expected = differenced_per_sample(position, velocity, emitter, data, used).sum(axis=0)
+        got = information_at_samples(position, velocity, emitter, data, modalities)
+        assert_matrices_close(got, expected, rtol=1e-6)
+
+
+# --------------------------------------------------------------------------------------------
+# the layers agree
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("modalities", MODALITY_CHOICES)
+def test_per_frame_information_sums_to_the_accumulated_one(seed, modalities) -> None:
+    data = random_data(seed, n_frames=4)
+    emitter = data.truth_emitter_m
+    per_frame, accumulated = fisher_information_per_frame(data, emitter, modalities)
+    assert per_frame.shape == accumulated.shape == (4, 2, 2)
+    per_sample = per_sample_information(
+        data.position_m, data.velocity_mps, emitter, data, modalities
+    )
+    for index, frame in enumerate(data.frames):
+        one = fisher_information(data.select_frames([frame]), emitter, modalities)
+        np.testing.assert_allclose(per_frame[index], one, rtol=1e-13)
+        assert_matrices_close(per_frame[index], per_sample[data.frame == frame].sum(0), 1e-12)
+        assert_matrices_close(
+            accumulated[index],
+            fisher_information(data.up_to_frame(frame), emitter, modalities),
+            1e-12,
+        )
+        assert_matrices_close(accumulated[index], per_frame[: index + 1].sum(axis=0), 1e-12)
+    assert_matrices_close(accumulated[-1], fisher_information(data, emitter, modalities), 1e-12)
+    assert_matrices_close(per_sample.sum(axis=0), accumulated[-1], 1e-12)
+
+
+def test_whitened_rows_are_modality_blocks_and_their_gram_is_the_information() -> None:
+    data = random_data(7)
+    emitter = data.truth_emitter_m
+    n = data.n_samples
+    rows = whitened_jacobian(data, emitter, ("rss", "doppler", "toa"))
+    assert rows.shape == (3 * n, 2)
+    height = data.emitter_height_m
+    np.testing.assert_array_equal(
+        rows[:n],
+        model.rss_jacobian(data.position_m, emitter, data.rss_model, height) / data.noise.rss_db,
+    )
+    np.testing.assert_array_equal(
+        rows[n : 2 * n],
+        model.doppler_jacobian(
+            data.position_m, data.velocity_mps, emitter, data.gamma_per_m, height
+        )
+        / data.noise.doppler_hz,
+    )
+    np.testing.assert_array_equal(
+        rows[2 * n :],
+        model.toa_jacobian(data.position_m, emitter, data.speed_of_light_mps, height)
+        / data.noise.toa_s,
+    )
+    np.testing.assert_array_equal(
+        rows,
+        whitened_gradients(data.position_m, data.velocity_mps, emitter, data, "rss+doppler+toa"),
+    )
+    np.testing.assert_allclose(gram_information(rows), rows.T @ rows, rtol=1e-13)
+    np.testing.assert_array_equal(
+        gram_information(rows), fisher_information(data, emitter, ("rss", "doppler", "toa"))
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# vectorised equals a loop
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("modalities", MODALITY_CHOICES)
+def test_vectorised_over_emitter_positions_equals_a_loop(modalities) -> None:
+    data = random_data(3)
+    centre = data.truth_emitter_m
+    xs, ys = centre[0] + np.linspace(-80.0, 120.0, 5), centre[1] + np.linspace(-60.0, 90.0, 4)
+    grid = np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1)  # (5, 4, 2)
+    J = fisher_information(data, grid, modalities)
+    per_frame, accumulated = fisher_information_per_frame(data, grid, modalities)
+    per_sample = per_sample_information(data.position_m, data.velocity_mps, grid, data, modalities)
+    bound = rmse_bound_m(J)
+    inverse = inverse_2x2(J)
+    assert J.shape == inverse.shape == (5, 4, 2, 2)
+    assert per_frame.shape == accumulated.shape == (3, 5, 4, 2, 2)
+    assert per_sample.shape == (5, 4, data.n_samples, 2, 2)
+    assert bound.shape == regular_2x2(J).shape == (5, 4)
+    for i in range(5):
+        for j in range(4):
+            one = fisher_information(data, grid[i, j], modalities)
+            np.testing.assert_allclose(J[i, j], one, rtol=1e-13)
+            frames_one, accumulated_one = fisher_information_per_frame(data, grid[i, j], modalities)
+            np.testing.assert_allclose(per_frame[:, i, j], frames_one, rtol=1e-13)
+            np.testing.assert_allclose(accumulated[:, i, j], accumulated_one, rtol=1e-13)
+            np.testing.assert_allclose(
+                per_sample[i, j],
+                per_sample_information(
+                    data.position_m, data.velocity_mps, grid[i, j], data, modalities
+                ),
+                rtol=1e-13,
+            )
+            np.testing.assert_allclose(inverse[i, j], inverse_2x2(one), rtol=1e-13)
+            np.testing.assert_allclose(bound[i, j], rmse_bound_m(one), rtol=1e-13)
+
+
+def test_vectorised_over_planned_frames_and_candidates_equals_a_loop() -> None:
+    """A planner's call: (n_ψ, K, 3) samples against (n_c, 1, 2) candidates."""
+    data = noise_free(get_scenario("paper-1m"))
+    headings = np.radians([0.0, 37.0, 90.0, 200.0])
+    velocity = 10.0 * np.stack([np.cos(headings), np.sin(headings), 0.0 * headings], axis=-1)
+    steps = 0.05 * np.arange(10)
+    position = data.position_m[-1] + steps[None, :, None] * velocity[:, None, :]
+    velocity = np.broadcast_to(velocity[:, None, :], position.shape)
+    candidates = np.array([[35.0, 15.0], [35.0, -15.0], [20.0, 40.0]])
+    J = information_at_samples(position, velocity, candidates[:, None, :], data, ("toa", "doppler"))
+    assert J.shape == (3, 4, 2, 2)
+    for c in range(3):
+        for h in range(4):
+            one = information_at_samples(position[h], velocity[h], candidates[c], data)
+            np.testing.assert_allclose(J[c, h], one, rtol=1e-13)
+
+
+# --------------------------------------------------------------------------------------------
+# the 2×2 algebra
+# --------------------------------------------------------------------------------------------
+
+
+def test_inverse_2x2_equals_numpy_inverse() -> None:
+    rng = np.random.default_rng(11)
+    factor = rng.normal(size=(6, 5, 2, 2))
+    matrices = factor @ np.swapaxes(factor, -1, -2) + 0.1 * np.eye(2)  # symmetric positive definite
+    matrices *= 10.0 ** rng.uniform(-8.0, 8.0, (6, 5, 1, 1))
+    inverse = inverse_2x2(matrices)
+    assert inverse.shape == (6, 5, 2, 2)
+    assert np.all(regular_2x2(matrices))
+    assert_matrices_close(inverse, np.linalg.inv(matrices), rtol=1e-12)
+    np.testing.assert_allclose(
+        rmse_bound_m(matrices),
+        np.sqrt(np.trace(np.linalg.inv(matrices), axis1=-2, axis2=-1)),
+        rtol=1e-12,
+    )
+    for index in np.ndindex(6, 5):
+        np.testing.assert_allclose(inverse[index], inverse_2x2(matrices[index]), rtol=1e-15)
+    J = np.array([[4.0, 1.0], [1.0, 3.0]])
+    np.testing.assert_allclose(inverse_2x2(J), np.linalg.inv(J), rtol=1e-15)
+    assert rmse_bound_m(J) == pytest.approx(np.sqrt(7.0 / 11.0), rel=1e-15)
+
+
+def test_inverse_2x2_is_nan_where_singular() -> None:
+    u = np.array([0.6, 0.8])
+    singular = np.array(
+        [
+            np.zeros((2, 2)),
+            1e12 * np.ones((2, 2)),
+            np.outer(u, u),  # rank one
+            np.outer(u, u) + 1e-14 * np.eye(2),  # rank one to a relative 1e-12
+            [[1.0, 2.0], [2.0, 1.0]],  # indefinite: not an information
+            [[np.nan, 0.0], [0.0, 1.0]],
+        ]
+    )
+    regular = np.array([[[2.0, 0.5], [0.5, 1.0]], np.outer(u, u) + 1e-6 * np.eye(2)])
+    stacked = np.concatenate([singular, regular])
+    flags = regular_2x2(stacked)
+    assert flags.tolist() == [False] * len(singular) + [True] * len(regular)
+    inverse = inverse_2x2(stacked)
+    assert np.all(np.isnan(inverse[: len(singular)]))
+    assert np.all(np.isnan(rmse_bound_m(stacked)[: len(singular)]))
+    assert_matrices_close(inverse[len(singular) :], np.linalg.inv(regular), rtol=1e-9)
+
+
+def test_singular_geometry_gives_a_nan_bound() -> None:
+    """ToA only with the emitter in the track's vertical plane: J has rank one."""
+    data = noise_free(get_scenario("paper-1m"))
+    J = fisher_information(data, np.array([[35.0, 0.0], [35.0, 15.0]]), "toa")
+    assert regular_2x2(J).tolist() == [False, True]
+    bound = rmse_bound_m(J)
+    assert np.isnan(bound[0]) and np.isfinite(bound[1])
+
+
+# --------------------------------------------------------------------------------------------
+# modalities and errors
+# --------------------------------------------------------------------------------------------
+
+
+def test_modalities_are_parsed_in_the_order_given() -> None:
+    assert {name: parse_modalities(name) for name in MODALITY_SETS} == MODALITY_SETS
+    assert parse_modalities("doppler+toa+rss") == ("doppler", "toa", "rss")
+    assert parse_modalities(["rss", "toa"]) == ("rss", "toa")
+    for bad in ("toa+aoa", "", (), ["toa", "aoa"]):
+        with pytest.raises(ValueError, match=r"^modalities: expected a subset of"):
+            parse_modalities(bad)
+
+
+def test_a_missing_sigma_or_rss_model_raises() -> None:
+    data = noise_free(get_scenario("paper-1m"))
+    emitter = data.truth_emitter_m
+    toa_only = data.without("doppler", "rss")
+    no_sigma = dataclasses.replace(toa_only, noise=NoiseSigmas(toa_s=data.noise.toa_s))
+    with pytest.raises(ValueError, match=r"^noise.rss_db: needed for the rss information"):
+        fisher_information(no_sigma, emitter, "rss")
+    with pytest.raises(ValueError, match=r"^noise.doppler_hz: needed for the doppler"):
+        information_at_samples(data.position_m, data.velocity_mps, emitter, no_sigma)
+    no_model = dataclasses.replace(
+        toa_only, rss_model=None, noise=NoiseSigmas(toa_s=data.noise.toa_s, rss_db=1.0)
+    )
+    with pytest.raises(ValueError, match=r"^rss_model: needed for the RSS information"):
+        fisher_information(no_model, emitter, "rss")
+    # a modality absent from the measurements is usable when its σ is given
+    without_toa = data.without("toa")
+    np.testing.assert_array_equal(
+        fisher_information(without_toa, emitter, "toa"), fisher_information(data, emitter, "toa")
+    )
