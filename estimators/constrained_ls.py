@@ -17,7 +17,7 @@ for some rows ``A``, ``b`` (its own weighting, its own frames) in a local frame
 (:class:`HasConstrainedLS`) can be checked against the exact optimum of the same rows
 (:func:`estimators.gtrs.solve_gtrs`) and their Shor SDP relaxation
 (:func:`estimators.sdp_cls.solve_sdp_relaxation`) by ``emitterbench validate --estimator NAME``
-(:func:`comparison.validate.run_validation`): every candidate it returns must attain the
+(:func:`comparison.crosscheck.run_validation`): every candidate it returns must attain the
 optimal cost, and in the hard case (MATH §5) it must return both mirror minimisers.
 
 ``constrained_ls(data)`` returns exactly the system whose minimisers ``estimate(data)`` claims to

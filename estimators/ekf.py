@@ -14,7 +14,7 @@ and ``R = diag(σ_f², …, σ_r², …)``, ``σ_r = c σ_τ``.
 **Initialisation without counting the first frame twice.** The closed form
 (:class:`estimators.cls.Cls`, MATH §5-§6) on the first frame gives the mirror candidates. They
 serve only as *starting points*: the first frame's update runs from each candidate with a
-diffuse prior (:mod:`estimators.hypotheses`), in information form, i.e. Gauss-Newton to the
+diffuse prior (:mod:`estimators.mirror_hypotheses`), in information form, i.e. Gauss-Newton to the
 first frame's maximum likelihood; its covariance is the inverse Fisher information there
 (MATH §8). The first frame's data thus enter once, through that update. Later frames are
 (iterated) EKF updates by filterpy's ``ExtendedKalmanFilter``, or unscented updates
@@ -30,13 +30,13 @@ the turn is metres off and one pass is not enough: over 400 trials the plain EKF
 14 % above the CRLB with a mean NEES of 2.64, the IEKF's 2 % above with 2.12.
 
 **Convergence.** Every iterated update (the first frame's and the IEKF's) reports whether it
-converged (:class:`estimators.hypotheses.SolverReport`: iterations against the cap, the
+converged (:class:`estimators.convergence.SolverReport`: iterations against the cap, the
 decrement of the frame's posterior cost against ``DECREMENT_TOL``, no cost rise). Near the
 track Gauss-Newton creeps along a flat valley and stops short of the on-track minimum (at
 −20 dB on ``paper-1m-turn``, on the first frame of 33 of 500 trials, a median 0.14 m and up to
 0.35 m short, reported as a success); then Newton's method with the exact Hessian finishes the
 update from the last iterate (the documented fallback,
-:func:`estimators.hypotheses.finish_update`). A start on the track's vertical plane (the
+:func:`estimators.convergence.finish_update`). A start on the track's vertical plane (the
 closed form's on-track candidate) stays on it by symmetry after the posterior's minimum has
 moved off the track, so an update that ends at a saddle of the posterior cost restarts off it
 along the negative curvature (the mirror hypothesis covers the other side). On that sweep 140
@@ -50,7 +50,7 @@ wrong update). The last update's figures are in ``diagnostics``
 (``max_iterations=1``) and the UKF make one pass by design and are not checked.
 
 **Mirror hypotheses** (MATH §7). One filter per mirror candidate, weighted by the frames'
-predictive likelihoods (:func:`estimators.hypotheses.laplace_log_likelihood`, the innovation
+predictive likelihoods (:func:`estimators.convergence.laplace_log_likelihood`, the innovation
 likelihood ``N(z; h(s̄), H P̄ Hᵀ + R)`` evaluated at the iterated mode), pruned when one weight
 exceeds ``1 − 1e−9``. While the track is straight the second filter is the exact reflection of
 the first, so the weights stay exactly equal and the estimate ambiguous. After a turn the mirror
@@ -58,7 +58,7 @@ filter is pulled to the true side but held short by its prior, linearised on the
 at −20 dB on ``paper-1m-turn`` 44 % of the trials reported that second candidate, a median
 1.9 m from the first. The two are one answer when their weighted Gaussians form a unimodal
 mixture; they are then merged, the heavier kept with the weights added
-(:func:`estimators.hypotheses.surviving_hypotheses`, ``single_mode``).
+(:func:`estimators.mirror_hypotheses.surviving_hypotheses`, ``single_mode``).
 
 The state (:class:`EkfState`) is a frozen value of plain arrays; filterpy objects live only
 inside one ``update`` call, so the state and the estimator pickle.
@@ -74,25 +74,24 @@ import numpy as np
 from numpy.typing import NDArray
 
 from estimators.base import Capabilities, Estimate, require_modalities
-from estimators.hypotheses import (
+from estimators.convergence import (
     EstimationFailure,
-    FrameModel,
     SolverReport,
+    finish_iterations,
+    iterated_update,
+    laplace_log_likelihood,
+    lower_cost_step,
+    map_cost,
+    symmetric_inverse,
+)
+from estimators.frame_model import FrameModel, read_only
+from estimators.mirror_hypotheses import (
     StraightTrack,
-    convergence_report,
-    cost_derivatives,
     diffuse_prior_information,
-    finish_update,
     first_frame_candidates,
     fisher_rank,
     hypotheses_estimate,
-    iterated_update,
-    laplace_log_likelihood,
-    map_cost,
-    read_only,
-    stationarity_decrement,
     surviving_hypotheses,
-    symmetric_inverse,
 )
 from scenarios.types import MeasurementSet
 
@@ -212,9 +211,9 @@ def ekf_update(
 
     Returns ``(mean_m, covariance_m2, report)``. The report (:class:`SolverReport`) says whether
     the iterate converged: the decrement
-    (:func:`~estimators.hypotheses.stationarity_decrement`) of the frame's posterior cost at
+    (:func:`~estimators.convergence.stationarity_decrement`) of the frame's posterior cost at
     most ``DECREMENT_TOL`` and a cost no higher than at the prior mean. If it did not, Newton's
-    method takes over from the last iterate (:func:`~estimators.hypotheses.finish_update`,
+    method takes over from the last iterate (:func:`~estimators.convergence.finish_update`,
     ``report.fallback == "newton"``) and the covariance is the inverse posterior information
     at its result. ``max_iterations == 1`` is the plain EKF: one pass by design, reported as
     such (it makes no claim to reach the mode).
@@ -246,19 +245,14 @@ def ekf_update(
         mean, covariance = np.array(kf.x, dtype=float), np.array(kf.P, dtype=float)
         if max_iterations == 1:
             break
-        step = mean - point
-        trial, trial_cost = mean, map_cost(frame, mean, prior_mean_m, prior_information)
-        for _ in range(30):
-            if trial_cost <= cost:
-                break
-            step = 0.5 * step
-            trial = point + step
-            trial_cost = map_cost(frame, trial, prior_mean_m, prior_information)
-        else:
+        lower = lower_cost_step(
+            frame, prior_mean_m, prior_information, point, mean - point, cost, first_trial=mean
+        )
+        if lower is None:
             mean = point  # no decrease along the Gauss-Newton direction
             stalled = True
             break
-        point, cost = trial, trial_cost
+        point, cost, step = lower
         mean = point
         if np.linalg.norm(step) <= STEP_RTOL * scale:
             small_step = True
@@ -266,25 +260,20 @@ def ekf_update(
     covariance = 0.5 * (covariance + covariance.T)
     if max_iterations == 1:
         return mean, covariance, SolverReport(1, 1, float("nan"), True)
-    decrement = (
-        stationarity_decrement(*cost_derivatives(frame, prior_mean_m, prior_information, mean))
-        if np.all(np.isfinite(mean))
-        else float("inf")
-    )
-    report = convergence_report(
-        iterations,
-        max_iterations,
-        decrement,
+    # the report, then the documented fallbacks (Newton's method; a restart off a saddle); after
+    # one the covariance is the inverse posterior information (what a last filterpy pass gives)
+    mean, _, information, report = finish_iterations(
+        frame,
+        prior_mean_m,
+        prior_information,
+        mean,
+        cost,
+        start_cost=start_cost,
+        iterations=iterations,
+        max_iterations=max_iterations,
         stalled=stalled,
         small_step=small_step,
-        cost_rose=not cost <= start_cost,
-        cost=cost,
         what="the iterated EKF update",
-    )
-    # the documented fallbacks (Newton's method; a restart off a saddle); after one the
-    # covariance is the inverse posterior information (what a last filterpy pass would give)
-    mean, _, information, report = finish_update(
-        frame, prior_mean_m, prior_information, mean, cost, report
     )
     if report.fallback:
         covariance = symmetric_inverse(information)
@@ -297,7 +286,7 @@ def ukf_update(
     """One unscented update by filterpy's ``UnscentedKalmanFilter`` (identity motion).
 
     Returns ``(mean_m, covariance_m2, log_likelihood)``, the last ``log N(y; 0, S)`` plus
-    ``½ log det R`` (the convention of :func:`estimators.hypotheses.laplace_log_likelihood`).
+    ``½ log det R`` (the convention of :func:`estimators.convergence.laplace_log_likelihood`).
     """
     from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
@@ -509,7 +498,7 @@ class Ekf:
             )
         if track is None:
             # off the line: near-duplicates (one mode reached from both sides) merge by
-            # covariance as well as by position (estimators.hypotheses, "Merging")
+            # covariance as well as by position (estimators.mirror_hypotheses, "Merging")
             kept, log_weights = surviving_hypotheses(
                 [h.mean_m for h in updated],
                 [h.log_weight for h in updated],

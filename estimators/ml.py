@@ -30,7 +30,7 @@ Convergence. How each start's Levenberg-Marquardt run ended is recorded per star
 ``diagnostics["lm_status"]``: ``converged`` (a tolerance met, ``gtol``/``ftol``/``xtol``, *and*
 the point stationary: its decrement, the smaller of the Gauss-Newton ``‖P_J e‖²`` and the
 Newton ``gᵀH⁻¹g`` with the exact Hessian ``H`` where it is positive definite, at most
-``DECREMENT_TOL``, i.e. within 0.01 σ of a minimum, :mod:`estimators.hypotheses`),
+``DECREMENT_TOL``, i.e. within 0.01 σ of a minimum, :mod:`estimators.convergence`),
 ``iteration cap`` (all ``max_nfev`` evaluations used), ``stalled`` (a tolerance met away from
 a stationary point: the trust region collapsed) or ``error``. Only converged starts give minima.
 The estimate fails when no start converged, or when a start that did not converge ended below
@@ -53,9 +53,10 @@ from scipy.optimize import least_squares
 from estimators.base import Capabilities, Estimate, finalize_estimate, require_modalities
 from estimators.cls import solve_doppler_toa_cls
 from estimators.cls_rows import LocalFrame
-from estimators.hypotheses import DECREMENT_TOL, stationarity_decrement
+from estimators.convergence import DECREMENT_TOL, stationarity_decrement
 from estimators.lls import solve_lls_toa
 from scenarios import measurement_model as model
+from scenarios.fisher import fisher_information, inverse_2x2, regular_2x2, whitened_jacobian
 from scenarios.geometry import cross_track_m, mirror_across_line, straight_track_line
 from scenarios.types import MeasurementSet
 
@@ -116,26 +117,21 @@ def whitened_residuals(
     return np.concatenate(blocks, axis=-1)
 
 
+def _modalities(use_rss: bool) -> tuple[str, ...]:
+    """The rows of the residual, in order: Doppler, ToA and (``use_rss``) RSS."""
+    return ("doppler", "toa", "rss") if use_rss else ("doppler", "toa")
+
+
 def whitened_residual_jacobian(
     data: MeasurementSet, emitter_m: ArrayLike, *, use_rss: bool = False
 ) -> FloatArray:
     """``∂e/∂(x_s, y_s) = −[∇f_k/σ_f; ∇τ_k/σ_τ; ∇P_k/σ_P]`` (MATH §8, §10).
 
-    Shape ``(..., n_rows, 2)`` for ``emitter_m`` of shape ``(..., 2)``. Its Gram matrix
-    ``JᵀJ`` is the Fisher information of MATH §8 at ``emitter_m``.
+    Shape ``(..., n_rows, 2)`` for ``emitter_m`` of shape ``(..., 2)``: minus the rows of
+    :func:`scenarios.fisher.whitened_jacobian`, so its Gram matrix ``JᵀJ`` is the Fisher
+    information of MATH §8 at ``emitter_m``.
     """
-    emitter = np.asarray(emitter_m, dtype=float)
-    position, height = data.position_m, data.emitter_height_m
-    blocks = [
-        model.doppler_jacobian(position, data.velocity_mps, emitter, data.gamma_per_m, height)
-        / data.noise.doppler_hz,
-        model.toa_jacobian(position, emitter, data.speed_of_light_mps, height) / data.noise.toa_s,
-    ]
-    if use_rss:
-        blocks.append(
-            model.rss_jacobian(position, emitter, data.rss_model, height) / data.noise.rss_db
-        )
-    return -np.concatenate(blocks, axis=-2)
+    return -whitened_jacobian(data, emitter_m, _modalities(use_rss))
 
 
 # --------------------------------------------------------------------------------------------
@@ -376,14 +372,14 @@ def _merge_flat_ties(
 def fisher_covariance_m2(
     data: MeasurementSet, emitter_m: ArrayLike, *, use_rss: bool = False
 ) -> FloatArray | None:
-    """``(JᵀJ)⁻¹`` with ``J`` the whitened Jacobian at ``emitter_m`` (MATH §8); None if singular."""
-    J = whitened_residual_jacobian(data, emitter_m, use_rss=use_rss)
-    information = J.T @ J
-    a, b, d = information[0, 0], information[0, 1], information[1, 1]
-    determinant = a * d - b * b
-    if not determinant > 1e-12 * abs(a * d):
+    """``J⁻¹``, the CRLB at ``emitter_m`` of the modalities used (MATH §8); None if singular.
+
+    ``J`` is the Gram matrix of :func:`whitened_residual_jacobian`, from :mod:`scenarios.fisher`.
+    """
+    information = fisher_information(data, emitter_m, _modalities(use_rss))
+    if not regular_2x2(information):
         return None
-    return np.array([[d, -b], [-b, a]]) / determinant
+    return inverse_2x2(information)
 
 
 def ranges_uninformative(data: MeasurementSet) -> bool:

@@ -18,10 +18,11 @@ Look them up with :func:`get_planner`.
 """
 
 from scenarios.planners.base import Plan, Planner, flight_from_measurements
+from scenarios.planners.constant import ConstantPlanner
 from scenarios.planners.fisher import FisherPlanner
+from scenarios.planners.orbit import OrbitPlanner
 from scenarios.planners.paper import PaperPlanner
 from scenarios.planners.registry import PLANNER_SUMMARIES, PLANNERS, get_planner, planner_class
-from scenarios.planners.simple import ConstantPlanner, OrbitPlanner
 
 __all__ = [
     "PLANNERS",

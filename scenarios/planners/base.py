@@ -343,8 +343,3 @@ def flight_from_measurements(data: MeasurementSet, *, rtol: float = 1e-6) -> Fli
             "give the positions and velocities of a flight of straight constant-velocity frames"
         )
     return flight
-
-
-def next_flight(flight: FlightPlan, plan: Plan) -> FlightPlan:
-    """The flight with one more frame flown at ``plan.velocity_mps``."""
-    return flight.with_frame(plan.velocity_mps)

@@ -2,11 +2,11 @@
 
 Built-ins (one file per MATH section):
 
-- ``constant``: no design, the last velocity again (:mod:`scenarios.planners.simple`);
+- ``constant``: no design, the last velocity again (:mod:`scenarios.planners.constant`);
 - ``paper``: the paper's zero-residual rule, corrected (MATH §12, :mod:`scenarios.planners.paper`);
 - ``fisher``: the A- or D-optimal heading of the next frame (MATH §13,
   :mod:`scenarios.planners.fisher`);
-- ``orbit``: circle the current estimate at a given radius (:mod:`scenarios.planners.simple`).
+- ``orbit``: circle the current estimate at a given radius (:mod:`scenarios.planners.orbit`).
 """
 
 from __future__ import annotations
@@ -16,9 +16,10 @@ import inspect
 from typing import Any
 
 from scenarios.planners.base import Planner
+from scenarios.planners.constant import ConstantPlanner
 from scenarios.planners.fisher import FisherPlanner
+from scenarios.planners.orbit import OrbitPlanner
 from scenarios.planners.paper import PaperPlanner
-from scenarios.planners.simple import ConstantPlanner, OrbitPlanner
 
 PLANNERS: dict[str, type] = {
     cls.name: cls for cls in (ConstantPlanner, PaperPlanner, FisherPlanner, OrbitPlanner)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from comparison.crlb import fisher_information, rmse_bound_m
-from estimators.hypotheses import single_mode
+from estimators.mirror_hypotheses import single_mode
 from estimators.registry import make_estimator
 from scenarios import get_scenario, simulate, trial_seeds
 

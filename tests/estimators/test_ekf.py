@@ -1,8 +1,4 @@
-"""The frame-by-frame (iterated) EKF and UKF with mirror hypotheses (MATH §1, §7, §8, §10).
-
-Also the shared per-frame model of :mod:`estimators.hypotheses`: its Jacobian against central
-differences and its information against the CRLB's.
-"""
+"""The frame-by-frame (iterated) EKF and UKF with mirror hypotheses (MATH §1, §7, §8, §10)."""
 
 from __future__ import annotations
 
@@ -15,21 +11,18 @@ from scipy.optimize import least_squares
 from scipy.stats import chi2
 
 from comparison.crlb import fisher_information, rmse_bound_m
-from estimators import hypotheses
+from estimators import convergence
 from estimators.base import SequentialEstimator
+from estimators.convergence import DECREMENT_TOL, iterated_update, map_cost
 from estimators.ekf import Ekf, ekf_update
-from estimators.hypotheses import (
-    DECREMENT_TOL,
+from estimators.frame_model import FrameModel
+from estimators.mirror_hypotheses import (
     DIFFUSE_PRIOR_SCALE,
-    FrameModel,
     diffuse_prior_information,
     first_frame_candidates,
     hypotheses_estimate,
-    iterated_update,
-    map_cost,
 )
 from estimators.registry import make_estimator
-from scenarios import measurement_model as model
 from scenarios.catalog import get_scenario, heading_velocities_mps, paper_scenario
 from scenarios.simulate import noise_free, simulate, simulate_trials, trial_seeds
 from scenarios.types import FlightPlan, MeasurementSet, Scenario
@@ -73,90 +66,6 @@ def streamed_states(estimator: Ekf, data: MeasurementSet) -> list:
         state = estimator.update(state, frame)
         states.append(state)
     return states
-
-
-# --------------------------------------------------------------------------------------------
-# the shared frame model
-# --------------------------------------------------------------------------------------------
-
-
-def test_frame_model_is_the_forward_model() -> None:
-    """``h(s)`` stacks MATH §1's Doppler and ``c τ``; the noise-free error is zero at the truth."""
-    data = noise_free(flight_scenario(EAST_THEN_NORTH))
-    frame = next(data.iter_frames())
-    stacked = FrameModel.from_measurements(frame)
-    point = np.array([12.0, -7.0])
-    expected = np.concatenate(
-        [
-            model.doppler_hz(frame.position_m, frame.velocity_mps, point, frame.gamma_per_m),
-            frame.speed_of_light_mps * model.toa_s(frame.position_m, point, 3e8),
-        ]
-    )
-    np.testing.assert_allclose(stacked.predicted(point), expected, rtol=1e-13)
-    np.testing.assert_allclose(stacked.whitened_error([35.0, 15.0]), 0.0, atol=1e-6)
-    assert stacked.n_rows == 20
-    np.testing.assert_array_equal(stacked.sigma, [0.1] * 10 + [1.0] * 10)
-
-
-@pytest.mark.parametrize("frame_index", [0, 5])
-def test_frame_jacobian_matches_central_differences(frame_index: int) -> None:
-    """``E(s)``, the filter's H and the factor's Jacobian, against central differences."""
-    data = noise_free(flight_scenario(EAST_THEN_NORTH))
-    frame = FrameModel.from_measurements(list(data.iter_frames())[frame_index])
-    rng = np.random.default_rng(7)
-    points = np.vstack([[35.0, 15.0], [35.0, -15.0], rng.uniform(-80.0, 80.0, (6, 2))])
-    step = 1e-5
-    for point in points:
-        numeric = np.column_stack(
-            [
-                (
-                    frame.whitened_error(point + step * axis)
-                    - frame.whitened_error(point - step * axis)
-                )
-                / (2 * step)
-                for axis in np.eye(2)
-            ]
-        )
-        analytic = frame.whitened_jacobian(point)
-        np.testing.assert_allclose(analytic, numeric, rtol=1e-6, atol=1e-8)
-        error, jacobian = frame.whitened_error_and_jacobian(point)
-        np.testing.assert_array_equal(error, frame.whitened_error(point))
-        np.testing.assert_array_equal(jacobian, analytic)
-
-
-@pytest.mark.parametrize("frame_index", [3, 4])
-def test_frame_hessian_matches_central_differences(frame_index: int) -> None:
-    """``∂²h/∂s²`` of every row (the curvature Gauss-Newton drops) against differences of the
-    analytic Jacobian, also on the track and per sample."""
-    data = simulate(flight_scenario(EAST_THEN_NORTH), seed=1)
-    frame = FrameModel.from_measurements(list(data.iter_frames())[frame_index])
-    step = 1e-5
-    for point in np.array([[35.0, 15.0], [20.0, 1e-3], [-40.0, 70.0]]):
-        numeric = np.stack(
-            [
-                (frame.jacobian(point + step * axis) - frame.jacobian(point - step * axis))
-                / (2 * step)
-                for axis in np.eye(2)
-            ],
-            axis=-1,
-        )
-        hessian = frame.hessian(point)
-        np.testing.assert_allclose(hessian, numeric, rtol=1e-6, atol=1e-9 * np.abs(hessian).max())
-        per_sample = frame.hessian(np.tile(point, (len(frame.position_m), 1)), per_sample=True)
-        np.testing.assert_allclose(per_sample, hessian, rtol=1e-12)
-        e = frame.whitened_error(point)
-        np.testing.assert_allclose(
-            frame.curvature_terms(point, e), (e / frame.sigma)[:, None, None] * hessian
-        )
-
-
-def test_frame_information_sums_to_the_crlb_fisher_information() -> None:
-    """``Σ_frames EᵀE`` is MATH §8's toa+doppler Fisher information."""
-    data = noise_free(flight_scenario(EAST_THEN_NORTH))
-    frames = [FrameModel.from_measurements(f) for f in data.iter_frames()]
-    truth = np.array([35.0, 15.0])
-    total = sum(frame.information(truth) for frame in frames)
-    np.testing.assert_allclose(total, fisher_information(data, truth, "toa+doppler"), rtol=1e-12)
 
 
 # --------------------------------------------------------------------------------------------
@@ -430,7 +339,7 @@ def test_gauss_newton_alone_stops_short_near_the_track(monkeypatch) -> None:
         return point, map_cost(frame, point, prior_mean_m, prior_information), 0, True
 
     converged, _, _, _ = iterated_update(frame, start, prior, max_iterations=50)
-    monkeypatch.setattr(hypotheses, "newton_refine", no_refinement)
+    monkeypatch.setattr(convergence, "newton_refine", no_refinement)
     stuck, _, _, report = iterated_update(frame, start, prior, max_iterations=50)
     assert not report.converged and report.decrement > DECREMENT_TOL
     assert "iteration cap (50)" in report.reason and "stalled" in report.reason
@@ -445,7 +354,7 @@ def test_iekf_that_does_not_converge_is_a_failed_estimate(monkeypatch) -> None:
         point = np.asarray(start_m, dtype=float)
         return point, map_cost(frame, point, prior_mean_m, prior_information), 0, True
 
-    monkeypatch.setattr(hypotheses, "newton_refine", no_refinement)
+    monkeypatch.setattr(convergence, "newton_refine", no_refinement)
     data = simulate(get_scenario("paper-1m-turn"), snr_db=-20.0, seed=0)
     states = streamed_states(Ekf(max_iterations=2), data)
     assert Ekf().estimate_state(states[0]).success

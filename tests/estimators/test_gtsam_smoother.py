@@ -11,22 +11,12 @@ from scipy.stats import chi2
 
 gtsam = pytest.importorskip("gtsam")
 
-from gtsam.symbol_shorthand import X  # noqa: E402
-
 from comparison.crlb import fisher_information, rmse_bound_m  # noqa: E402
-from estimators import gtsam_smoother  # noqa: E402
+from estimators import gtsam_smoother, smoother_batch, smoother_hypotheses  # noqa: E402
 from estimators.base import SequentialEstimator  # noqa: E402
-from estimators.gtsam_smoother import (  # noqa: E402
-    GtsamSmoother,
-    _block_elimination,
-    chain_fit,
-    chain_log_evidence,
-    frame_factor,
-    graph_part,
-    step_sigmas_m,
-    values_of,
-)
-from estimators.hypotheses import DECREMENT_TOL, FrameModel  # noqa: E402
+from estimators.convergence import DECREMENT_TOL  # noqa: E402
+from estimators.frame_model import FrameModel  # noqa: E402
+from estimators.gtsam_smoother import GtsamSmoother  # noqa: E402
 from estimators.registry import make_estimator  # noqa: E402
 from scenarios.catalog import get_scenario  # noqa: E402
 from scenarios.simulate import noise_free, simulate, simulate_trials, trial_seeds  # noqa: E402
@@ -35,6 +25,7 @@ from tests.estimators.test_ekf import (  # noqa: E402
     flight_scenario,
     frame_ml_m,
 )
+from tests.estimators.test_smoother_graph import frame_models  # noqa: E402
 
 SMOOTHERS = [GtsamSmoother(), GtsamSmoother(process_noise_mps=0.1)]
 SMOOTHER_IDS = ["static", "random-walk"]
@@ -45,159 +36,6 @@ def streamed(estimator: GtsamSmoother, data, *, rng=None):
     for frame in data.iter_frames():
         state = estimator.update(state, frame)
     return state, estimator.estimate_state(state, rng=rng)
-
-
-def frame_models(data) -> tuple[FrameModel, ...]:
-    return tuple(FrameModel.from_measurements(frame) for frame in data.iter_frames())
-
-
-# --------------------------------------------------------------------------------------------
-# the factor and the evidence
-# --------------------------------------------------------------------------------------------
-
-
-@pytest.mark.parametrize("frame_index", [0, 7])
-def test_custom_factor_jacobian_matches_central_differences(frame_index: int) -> None:
-    """``linearize(values).jacobian()`` against central differences of the factor's error."""
-    data = simulate(flight_scenario(EAST_THEN_NORTH), seed=1)
-    frame = frame_models(data)[frame_index]
-    factor = frame_factor(frame, X(0))
-    step = 1e-5
-    rng = np.random.default_rng(3)
-    for point in np.vstack([[35.0, 15.0], [35.0, -15.0], rng.uniform(-60.0, 60.0, (4, 2))]):
-        A, b = factor.linearize(values_of(point)).jacobian()
-        error = factor.unwhitenedError(values_of(point))
-        numeric = np.column_stack(
-            [
-                (
-                    factor.unwhitenedError(values_of(point + step * axis))
-                    - factor.unwhitenedError(values_of(point - step * axis))
-                )
-                / (2 * step)
-                for axis in np.eye(2)
-            ]
-        )
-        assert A.shape == (frame.n_rows, 2)
-        np.testing.assert_allclose(A, numeric, rtol=1e-6, atol=1e-8)
-        np.testing.assert_allclose(b, -error, rtol=1e-12)
-        np.testing.assert_allclose(error, frame.whitened_error(point), rtol=1e-12)
-        assert factor.error(values_of(point)) == pytest.approx(0.5 * error @ error, rel=1e-12)
-
-
-def test_chain_log_evidence_matches_gtsam_elimination() -> None:
-    """``−½χ² − ½ log det Λ`` equals GTSAM's ``−error − logDeterminant`` of the linearised graph."""
-    data = simulate(flight_scenario([0.0, 0.0, 90.0, 90.0]), seed=6)
-    frames = frame_models(data)
-    steps = step_sigmas_m(frames, 0.3)
-    estimates = np.array([[35.2, 15.1], [35.0, 14.8], [34.9, 15.3], [35.1, 15.0]])
-    prior_mean = np.array([34.0, 16.0])
-    graph = graph_part(
-        frames,
-        0,
-        4,
-        random_walk=True,
-        step_sigmas=steps,
-        prior_mean_m=prior_mean,
-        prior_sigma_m=50.0,
-    )
-    values = values_of(estimates)
-    log_evidence, information = chain_log_evidence(
-        frames,
-        estimates,
-        random_walk=True,
-        step_sigmas=steps,
-        prior_mean_m=prior_mean,
-        prior_sigma_m=50.0,
-    )
-    bayes_net = graph.linearize(values).eliminateSequential()
-    assert log_evidence == pytest.approx(
-        -graph.error(values) - bayes_net.logDeterminant(), rel=1e-10
-    )
-    expected = sum(f.information(s) for f, s in zip(frames, estimates, strict=True))
-    np.testing.assert_allclose(information, expected, rtol=1e-12)
-
-
-def test_block_elimination_matches_dense_algebra() -> None:
-    """``log det A`` and ``gᵀA⁻¹g`` of a block tridiagonal ``A`` (off-diagonal ``−w_t I``)."""
-    rng = np.random.default_rng(0)
-    n = 6
-    links = rng.uniform(0.5, 3.0, n - 1)
-    blocks = np.array([m @ m.T + np.eye(2) for m in rng.normal(size=(n, 2, 2))])
-    for t, w in enumerate(links):
-        blocks[t] += w * np.eye(2)
-        blocks[t + 1] += w * np.eye(2)
-    dense = np.zeros((2 * n, 2 * n))
-    for t in range(n):
-        dense[2 * t : 2 * t + 2, 2 * t : 2 * t + 2] = blocks[t]
-    for t, w in enumerate(links):
-        dense[2 * t : 2 * t + 2, 2 * t + 2 : 2 * t + 4] = -w * np.eye(2)
-        dense[2 * t + 2 : 2 * t + 4, 2 * t : 2 * t + 2] = -w * np.eye(2)
-    gradient = rng.normal(size=(n, 2))
-    log_det, decrement, last, solution = _block_elimination(blocks, links, gradient)
-    assert log_det == pytest.approx(np.linalg.slogdet(dense)[1], rel=1e-12)
-    g = gradient.reshape(-1)
-    assert decrement == pytest.approx(g @ np.linalg.solve(dense, g), rel=1e-10)
-    np.testing.assert_allclose(solution.reshape(-1), np.linalg.solve(dense, g), rtol=1e-10)
-    # the last Schur complement is the last variable's marginal information
-    np.testing.assert_allclose(np.linalg.inv(last), np.linalg.inv(dense)[-2:, -2:], rtol=1e-10)
-    # not positive definite: no decrement
-    log_det, decrement, last, _ = _block_elimination(-blocks, links, gradient)
-    assert np.isnan(log_det) and decrement == np.inf and np.all(np.isnan(last))
-
-
-def test_chain_fit_decrements_match_gtsam_and_the_exact_hessian() -> None:
-    """The Gauss-Newton decrement is GTSAM's linearised cost reduction ``2(E(0) − E(δ*))``
-    (random walk: gradient and information assembled over every variable); the Newton one
-    uses the exact Hessian ``Λ + Σ e_k ∇²e_k`` (static emitter, dense check)."""
-    data = simulate(flight_scenario([0.0, 0.0, 90.0, 90.0]), seed=6)
-    frames = frame_models(data)
-    steps = step_sigmas_m(frames, 0.3)
-    estimates = np.array([[35.9, 15.6], [35.0, 14.1], [34.2, 15.3], [35.6, 15.0]])
-    prior_mean = np.array([34.0, 16.0])
-    fit = chain_fit(
-        frames,
-        estimates,
-        random_walk=True,
-        step_sigmas=steps,
-        prior_mean_m=prior_mean,
-        prior_sigma_m=50.0,
-    )
-    graph = graph_part(
-        frames,
-        0,
-        4,
-        random_walk=True,
-        step_sigmas=steps,
-        prior_mean_m=prior_mean,
-        prior_sigma_m=50.0,
-    )
-    linear = graph.linearize(values_of(estimates))
-    step = linear.optimize()
-    reduction = 2.0 * (linear.error(gtsam.VectorValues.Zero(step)) - linear.error(step))
-    assert fit.gauss_newton_decrement == pytest.approx(reduction, rel=1e-8)
-    assert fit.decrement == min(fit.gauss_newton_decrement, fit.newton_decrement)
-    assert fit.chi2 == pytest.approx(2.0 * graph.error(values_of(estimates)), rel=1e-12)
-
-    point = np.array([35.9, 15.6])
-    static = chain_fit(
-        frames,
-        point,
-        random_walk=False,
-        step_sigmas=np.empty(0),
-        prior_mean_m=prior_mean,
-        prior_sigma_m=50.0,
-    )
-    stacked = FrameModel.stacked(frames)
-    e, E = stacked.whitened_error_and_jacobian(point)
-    information = E.T @ E + np.eye(2) / 50.0**2
-    g = E.T @ e + (point - prior_mean) / 50.0**2
-    hessian = information + np.sum(stacked.curvature_terms(point, e), axis=0)
-    assert np.all(np.linalg.eigvalsh(hessian) > 0)
-    assert static.newton_decrement == pytest.approx(g @ np.linalg.solve(hessian, g), rel=1e-9)
-    assert static.gauss_newton_decrement == pytest.approx(
-        g @ np.linalg.solve(information, g), rel=1e-9
-    )
-    np.testing.assert_allclose(static.uniform_hessian, hessian, rtol=1e-12)
 
 
 # --------------------------------------------------------------------------------------------
@@ -302,7 +140,7 @@ def test_replayed_isam2_equals_the_live_one() -> None:
         state = estimator.update(state, frame)
     live = estimator.update(state, frames[6])  # takes the cached ISAM2s
     replayed = estimator.update(state, frames[6])  # the cache no longer holds them: replay
-    gtsam_smoother._LIVE_ISAM2.clear()
+    smoother_hypotheses._LIVE_ISAM2.clear()
     cold = estimator.update(state, frames[6])
     for other in (replayed, cold):
         assert len(other.hypotheses) == len(live.hypotheses)
@@ -322,7 +160,7 @@ def test_estimator_and_state_pickle() -> None:
     copy = pickle.loads(pickle.dumps(state))
     for frame in frames[5:]:
         state = estimator.update(state, frame)
-    gtsam_smoother._LIVE_ISAM2.clear()
+    smoother_hypotheses._LIVE_ISAM2.clear()
     for frame in frames[5:]:
         copy = estimator.update(copy, frame)
     np.testing.assert_allclose(
@@ -368,7 +206,7 @@ def low_snr(trial: int, n_trials: int = 500, snr_db: float = -20.0):
     )
 
 
-def _no_newton(self, frames, estimates_m, prior_mean_m, prior_sigma_m, steps):
+def _no_newton(frames, estimates_m, prior_mean_m, prior_sigma_m, steps, *, random_walk):
     return np.array(estimates_m, dtype=float), 0, True  # stalls at once
 
 
@@ -384,7 +222,7 @@ def test_batch_solve_at_its_iteration_cap_is_finished_by_newton_or_fails(monkeyp
         finished = GtsamSmoother(max_iterations=n).estimate(data)
         assert finished.success and finished.diagnostics["lm_fallback"] == "newton"
         np.testing.assert_allclose(finished.position_m, reference.position_m, atol=1e-6)
-    monkeypatch.setattr(GtsamSmoother, "_newton_polish", _no_newton)
+    monkeypatch.setattr(smoother_batch, "newton_polish", _no_newton)
     for n in (1, 2):
         estimate = GtsamSmoother(max_iterations=n).estimate(data)
         assert not estimate.success and np.all(np.isnan(estimate.position_m))
@@ -395,7 +233,7 @@ def test_batch_solve_at_its_iteration_cap_is_finished_by_newton_or_fails(monkeyp
 def test_isam2_at_its_step_cap_falls_back_to_the_batch_solve(monkeypatch) -> None:
     """One ISAM2 step per frame is not enough on the first frame after the turn (0 dB): that
     update falls back to the batch solve, says so, and the stream still equals the batch."""
-    monkeypatch.setattr(gtsam_smoother, "MAX_ISAM2_STEPS", 1)
+    monkeypatch.setattr(smoother_hypotheses, "MAX_ISAM2_STEPS", 1)
     data = simulate(get_scenario("paper-1m-turn"), snr_db=0.0, seed=3)
     estimator = GtsamSmoother()
     state = estimator.init()
@@ -448,7 +286,7 @@ def test_fallback_that_fails_too_is_a_failed_estimate(monkeypatch) -> None:
     """The diverging first frame of the reproducer, with a batch solve capped at one
     iteration and no Newton fallback: the estimate fails with both reasons (no success after
     a divergence)."""
-    monkeypatch.setattr(GtsamSmoother, "_newton_polish", _no_newton)
+    monkeypatch.setattr(smoother_batch, "newton_polish", _no_newton)
     data = low_snr(330)
     estimator = GtsamSmoother(max_iterations=1)
     estimate = estimator.estimate_state(

@@ -1,7 +1,4 @@
-r"""Two reference planners: no design (``constant``) and a circle about the estimate (``orbit``).
-
-``constant`` repeats the last frame's velocity: the paper's "without trajectory optimization"
-case (Section 5, Figure 3). A straight track never resolves the mirror ambiguity (MATH §7).
+r"""The ``orbit`` planner: circle the current estimate at a given radius.
 
 ``orbit`` circles the current estimate ``ŝ = candidates_m[0]`` at radius ``R`` with the
 Lyapunov guidance vector field of Lawrence, Frew & Pisano (2008), evaluated at the next frame's
@@ -48,48 +45,6 @@ from scenarios.types import FlightPlan, MeasurementSet, positive_finite
 
 FloatArray = NDArray[np.float64]
 Direction = Literal["ccw", "cw"]
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class ConstantPlanner:
-    """No design: the last frame's velocity again (capped at ``max_speed_mps``).
-
-    Parameters
-    ----------
-    max_speed_mps : float
-        V_max (default 20 m/s).
-    max_turn_rate_dps : float or None
-        Accepted for a uniform interface; a constant velocity never turns.
-    """
-
-    name: ClassVar[str] = "constant"
-
-    max_speed_mps: float = DEFAULT_MAX_SPEED_MPS
-    max_turn_rate_dps: float | None = None
-
-    def __post_init__(self) -> None:
-        check_speed_limits(
-            max_speed_mps=self.max_speed_mps, max_turn_rate_dps=self.max_turn_rate_dps
-        )
-
-    def plan(
-        self,
-        flight: FlightPlan,
-        candidates_m: ArrayLike,
-        data: MeasurementSet,
-        *,
-        covariance_m2: ArrayLike | None = None,
-        rng: np.random.Generator | None = None,
-    ) -> Plan:
-        """The last velocity; the estimate is not used (it may even be a failed one)."""
-        check_flight_matches(flight, data)
-        velocity = last_velocity_mps(flight)
-        speed = float(np.hypot(*velocity[:2]))
-        message = "held the last velocity"
-        if speed > self.max_speed_mps:
-            velocity[:2] *= self.max_speed_mps / speed
-            message += ", limited by max_speed"
-        return Plan(planner=self.name, velocity_mps=velocity, message=message)
 
 
 def orbit_direction(offset_m: ArrayLike, radius_m: float, *, clockwise: bool = False) -> FloatArray:

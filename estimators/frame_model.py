@@ -1,0 +1,244 @@
+r"""One frame's stacked, whitened measurement model (MATH §1, §8, §10), shared by the frame-by-frame
+estimators (:mod:`estimators.ekf`, :mod:`estimators.gtsam_smoother`).
+
+A frame of K samples gives ``m = 2K`` measurements ``z = [f_1..f_K, r_1..r_K]``, Doppler in Hz
+(physical sign) and ToA as range ``r_k = c τ_k`` in metres with ``σ_r = c σ_τ``. Its whitened
+error and Jacobian are
+
+.. math::
+
+    e(s) = \frac{h(s) - z}{\sigma},\qquad
+    E(s) = \frac{\partial e}{\partial (x_s, y_s)} = \Big[\frac{\nabla f_k}{\sigma_f};\
+    \frac{c\,\nabla \tau_k}{\sigma_r}\Big]_k ,\qquad J_{\text{frame}}(s) = E^\top E
+
+(predicted minus measured, GTSAM's sign convention), ``J_frame`` being the frame's Fisher
+information of MATH §8. :class:`FrameModel` holds the frame as plain arrays, so it pickles and can
+be rebuilt into filter or factor-graph objects inside any worker process.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from scenarios import measurement_model as model
+from scenarios.fisher import gram_information
+from scenarios.types import MeasurementSet
+
+FloatArray = NDArray[np.float64]
+
+
+def read_only(*arrays: FloatArray) -> None:
+    """Mark arrays read-only: a frozen dataclass alone does not stop in-place writes."""
+    for array in arrays:
+        array.flags.writeable = False
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FrameModel:
+    """One frame's Doppler and range measurements with the forward model of MATH §1.
+
+    Attributes
+    ----------
+    position_m, velocity_mps : (K, 3)
+        UAV position and velocity of each sample.
+    measured : (2K,)
+        ``z = [f_1..f_K (Hz), r_1..r_K (m)]``, ranges ``r_k = c τ_k``.
+    sigma : (2K,)
+        ``[σ_f, …, σ_r, …]``, ``σ_r = c σ_τ``.
+    gamma_per_m, emitter_height_m : float
+        ``γ = f0 / c`` and the known emitter height ``z_s``.
+    time_s : float
+        Mean sample time of the frame (for the random-walk step between frames).
+    """
+
+    position_m: FloatArray
+    velocity_mps: FloatArray
+    measured: FloatArray
+    sigma: FloatArray
+    gamma_per_m: float
+    emitter_height_m: float
+    time_s: float
+
+    @classmethod
+    def from_measurements(cls, frame: MeasurementSet) -> FrameModel:
+        """Stack one frame's Doppler and ToA; raise ``ValueError`` naming a missing field."""
+        missing = [
+            name
+            for name, value in (("doppler_hz", frame.doppler_hz), ("toa_s", frame.toa_s))
+            if value is None
+        ]
+        if missing:
+            raise ValueError(
+                f"{', '.join(missing)}: the frame-by-frame estimators need Doppler and ToA "
+                "in every frame; add them or choose an estimator that works without them"
+            )
+        k = frame.n_samples
+        c = frame.speed_of_light_mps
+        arrays = {
+            "position_m": np.array(frame.position_m, dtype=float),
+            "velocity_mps": np.array(frame.velocity_mps, dtype=float),
+            "measured": np.concatenate([frame.doppler_hz, c * frame.toa_s]),
+            "sigma": np.concatenate(
+                [np.full(k, frame.noise.doppler_hz), np.full(k, c * frame.noise.toa_s)]
+            ),
+        }
+        read_only(*arrays.values())
+        return cls(
+            **arrays,
+            gamma_per_m=frame.gamma_per_m,
+            emitter_height_m=frame.emitter_height_m,
+            time_s=float(np.mean(frame.time_s)),
+        )
+
+    @property
+    def n_rows(self) -> int:
+        """``m = 2K``, the stacked measurements."""
+        return len(self.measured)
+
+    @classmethod
+    def stacked(cls, frames: Sequence[FrameModel]) -> FrameModel:
+        """Several frames as one model: every Doppler row, then every range row."""
+        sizes = [len(frame.position_m) for frame in frames]
+
+        def blocks(name: str, part: int) -> FloatArray:
+            return np.concatenate(
+                [
+                    getattr(frame, name)[part * k : (part + 1) * k]
+                    for frame, k in zip(frames, sizes, strict=True)
+                ]
+            )
+
+        return cls(
+            position_m=np.concatenate([frame.position_m for frame in frames]),
+            velocity_mps=np.concatenate([frame.velocity_mps for frame in frames]),
+            measured=np.concatenate([blocks("measured", 0), blocks("measured", 1)]),
+            sigma=np.concatenate([blocks("sigma", 0), blocks("sigma", 1)]),
+            gamma_per_m=frames[0].gamma_per_m,
+            emitter_height_m=frames[0].emitter_height_m,
+            time_s=float(np.mean([frame.time_s for frame in frames])),
+        )
+
+    def _evaluate(
+        self, emitter_m: ArrayLike, with_jacobian: bool, *, per_sample: bool = False
+    ) -> tuple[FloatArray, FloatArray | None]:
+        """``h(s)`` and, if asked, ``∂h/∂(x_s, y_s)``, sharing one pass over the samples.
+
+        ``per_sample``: ``emitter_m`` has shape (K, 2), one emitter position per sample.
+        """
+        if per_sample:
+            offset = model.emitter_offsets_m(
+                self.position_m[:, None, :], emitter_m, self.emitter_height_m
+            )[:, 0, :]
+        else:
+            offset = model.emitter_offsets_m(self.position_m, emitter_m, self.emitter_height_m)
+        distance = np.linalg.norm(offset, axis=-1)
+        unit = offset / distance[..., None]
+        radial_mps = np.sum(self.velocity_mps * unit, axis=-1)  # v_kᵀ u_k
+        # f_k = −γ v_kᵀu_k, ρ_k = ‖p_k − s‖ (MATH §1)
+        predicted = np.concatenate([-self.gamma_per_m * radial_mps, distance], axis=-1)
+        if not with_jacobian:
+            return predicted, None
+        # ∇f_k = γ (v_k − (v_kᵀu_k) u_k)_xy / ρ_k and ∇ρ_k = c ∇τ_k = −u_k,xy (MATH §8)
+        tangential = self.velocity_mps - radial_mps[..., None] * unit
+        doppler = self.gamma_per_m * tangential[..., :2] / distance[..., None]
+        return predicted, np.concatenate([doppler, -unit[..., :2]], axis=-2)
+
+    def predicted(self, emitter_m: ArrayLike) -> FloatArray:
+        """``h(s) = [f_k(s); ρ_k(s)]`` (MATH §1), shape ``(..., 2K)``."""
+        return self._evaluate(emitter_m, with_jacobian=False)[0]
+
+    def jacobian(self, emitter_m: ArrayLike) -> FloatArray:
+        """``∂h/∂(x_s, y_s) = [∇f_k; c ∇τ_k]`` (MATH §8), shape ``(..., 2K, 2)``."""
+        jacobian = self._evaluate(emitter_m, with_jacobian=True)[1]
+        assert jacobian is not None
+        return jacobian
+
+    def whitened_error(self, emitter_m: ArrayLike) -> FloatArray:
+        """``e(s) = (h(s) − z)/σ`` (MATH §10, predicted minus measured), shape ``(..., 2K)``."""
+        return (self.predicted(emitter_m) - self.measured) / self.sigma
+
+    def whitened_jacobian(self, emitter_m: ArrayLike) -> FloatArray:
+        """``E(s) = ∂e/∂(x_s, y_s)``, shape ``(..., 2K, 2)``."""
+        return self.jacobian(emitter_m) / self.sigma[:, None]
+
+    def whitened_error_and_jacobian(self, emitter_m: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """``(e(s), E(s))`` in one pass (what a factor-graph linearisation needs)."""
+        predicted, jacobian = self._evaluate(emitter_m, with_jacobian=True)
+        assert jacobian is not None
+        return (predicted - self.measured) / self.sigma, jacobian / self.sigma[:, None]
+
+    def whitened_error_and_jacobian_per_sample(
+        self, emitter_per_sample_m: ArrayLike
+    ) -> tuple[FloatArray, FloatArray]:
+        """``(e, E)`` with sample ``k`` evaluated at ``emitter_per_sample_m[k]`` (shape (K, 2)).
+
+        For a :meth:`stacked` model of frames that measure different emitter variables.
+        """
+        emitter = np.asarray(emitter_per_sample_m, dtype=float)
+        predicted, jacobian = self._evaluate(emitter, with_jacobian=True, per_sample=True)
+        assert jacobian is not None
+        return (predicted - self.measured) / self.sigma, jacobian / self.sigma[:, None]
+
+    def hessian(self, emitter_m: ArrayLike, *, per_sample: bool = False) -> FloatArray:
+        r"""``∂²h/∂(x_s, y_s)²`` of every row, shape ``(2K, 2, 2)`` (``per_sample``: ``emitter_m``
+        has shape (K, 2), as in :meth:`whitened_error_and_jacobian_per_sample`).
+
+        With ``w = p_k − s``, ``ρ = ‖w‖``, ``u = w/ρ`` (3-D) and xy parts only:
+
+        .. math::
+
+            \nabla^2 \rho_k = \frac{I - u u^\top}{\rho},\qquad
+            \nabla^2 f_k = \frac{\gamma}{\rho^2}\big(v u^\top + u v^\top
+                + (v^\top u)(I - 3 u u^\top)\big).
+        """
+        emitter = np.asarray(emitter_m, dtype=float)
+        if per_sample:
+            offset = model.emitter_offsets_m(
+                self.position_m[:, None, :], emitter, self.emitter_height_m
+            )[:, 0, :]
+        else:
+            offset = model.emitter_offsets_m(self.position_m, emitter, self.emitter_height_m)
+        distance = np.linalg.norm(offset, axis=-1)
+        unit = offset / distance[:, None]
+        radial = np.sum(self.velocity_mps * unit, axis=-1)  # vᵀu
+        u, v = unit[:, :2], self.velocity_mps[:, :2]
+        uu = u[:, :, None] * u[:, None, :]
+        eye = np.eye(2)
+        doppler = (
+            self.gamma_per_m
+            / distance[:, None, None] ** 2
+            * (
+                v[:, :, None] * u[:, None, :]
+                + u[:, :, None] * v[:, None, :]
+                + radial[:, None, None] * (eye - 3.0 * uu)
+            )
+        )
+        ranges = (eye - uu) / distance[:, None, None]
+        return np.concatenate([doppler, ranges])
+
+    def curvature_terms(
+        self, emitter_m: ArrayLike, error: ArrayLike, *, per_sample: bool = False
+    ) -> FloatArray:
+        """``e_k ∇²e_k`` of every row, shape ``(2K, 2, 2)``: summed, the part of the exact
+        Hessian of ``½‖e‖²`` that Gauss-Newton's ``EᵀE`` leaves out (``error`` is ``e`` at
+        ``emitter_m``)."""
+        e = np.asarray(error, dtype=float)
+        return (e / self.sigma)[:, None, None] * self.hessian(emitter_m, per_sample=per_sample)
+
+    def information(self, emitter_m: ArrayLike) -> FloatArray:
+        """The frame's Fisher information ``EᵀE`` (MATH §8), shape ``(..., 2, 2)``.
+
+        The same quantity as :func:`scenarios.fisher.fisher_information` of the frame's ToA and
+        Doppler: the range rows ``c∇τ_k/(c σ_τ)`` equal ``∇τ_k/σ_τ``. Formed from ``E`` (the
+        rows the filter linearises with) by :func:`scenarios.fisher.gram_information`.
+        """
+        return gram_information(self.whitened_jacobian(emitter_m))
+
+    def mean_range_m(self, emitter_m: ArrayLike) -> float:
+        """Mean slant range to ``emitter_m``: the frame's length scale."""
+        distance = model.slant_range_m(self.position_m, emitter_m, self.emitter_height_m)
+        return float(np.mean(distance))
