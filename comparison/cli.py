@@ -4,13 +4,14 @@ Adding a command is one function registered with ``@command("name")``: its param
 typed ``Annotated`` typer options, it imports the heavy modules it needs inside its body (so
 that ``emitterbench --help`` stays quick), and any ``ValueError`` it raises (the library's
 errors name the field and the fix) becomes the one line ``error: <message>`` on stderr with
-exit status 2, without a traceback. Measurement files are read with :func:`load_measurements`,
-which takes the CSV constants of the ``*Option`` aliases below.
+exit status 2, without a traceback. A command that reads a measurement file takes the options
+of its CSV constants with ``@with_csv_options`` and reads the file with :func:`load_measurements`.
 """
 
 from __future__ import annotations
 
 import functools
+import inspect
 import json
 import math
 from collections.abc import Callable
@@ -20,7 +21,6 @@ from typing import TYPE_CHECKING, Annotated, Any, NoReturn, TypeVar
 import typer
 
 if TYPE_CHECKING:
-    from estimators.base import Estimate
     from scenarios.types import MeasurementSet
 
 USAGE_ERROR_STATUS = 2
@@ -79,54 +79,6 @@ def command(name: str, **typer_options: Any) -> Callable[[Command], Command]:
     return register
 
 
-_CSV_PANEL = "CSV constants (a JSON file carries its own)"
-
-CarrierOption = Annotated[
-    float | None,
-    typer.Option("--carrier-hz", help="Carrier frequency f0, Hz.", rich_help_panel=_CSV_PANEL),
-]
-SpeedOfLightOption = Annotated[
-    float | None,
-    typer.Option(
-        "--speed-of-light-mps",
-        help="Propagation speed c, m/s (default 299792458).",
-        rich_help_panel=_CSV_PANEL,
-    ),
-]
-EmitterHeightOption = Annotated[
-    float | None,
-    typer.Option(
-        "--emitter-height-m",
-        help="Known emitter height z_s, m (default 0).",
-        rich_help_panel=_CSV_PANEL,
-    ),
-]
-SigmaDopplerOption = Annotated[
-    float | None,
-    typer.Option("--sigma-doppler-hz", help="Doppler noise σ, Hz.", rich_help_panel=_CSV_PANEL),
-]
-SigmaToaOption = Annotated[
-    float | None,
-    typer.Option("--sigma-toa-s", help="ToA noise σ, s.", rich_help_panel=_CSV_PANEL),
-]
-SigmaRssOption = Annotated[
-    float | None,
-    typer.Option("--sigma-rss-db", help="RSS noise σ, dB.", rich_help_panel=_CSV_PANEL),
-]
-RssPowerOption = Annotated[
-    float | None,
-    typer.Option(
-        "--rss-reference-power-dbm", help="RSS model P0, dBm.", rich_help_panel=_CSV_PANEL
-    ),
-]
-RssDistanceOption = Annotated[
-    float | None,
-    typer.Option("--rss-reference-distance-m", help="RSS model d0, m.", rich_help_panel=_CSV_PANEL),
-]
-RssExponentOption = Annotated[
-    float | None,
-    typer.Option("--rss-path-loss-exponent", help="RSS model η.", rich_help_panel=_CSV_PANEL),
-]
 JsonFlag = Annotated[
     bool, typer.Option("--json", help="Print exactly one JSON object instead of a summary.")
 ]
@@ -134,86 +86,69 @@ MeasurementFile = Annotated[
     Path, typer.Argument(help="Measurement file, .json or .csv (CSV needs the constants).")
 ]
 
-_OPTION_OF_FIELD = {
-    "carrier_hz": "--carrier-hz",
-    "speed_of_light_mps": "--speed-of-light-mps",
-    "emitter_height_m": "--emitter-height-m",
-    "noise.doppler_hz": "--sigma-doppler-hz",
-    "noise.toa_s": "--sigma-toa-s",
-    "noise.rss_db": "--sigma-rss-db",
-    "rss_model.reference_power_dbm": "--rss-reference-power-dbm",
-    "rss_model.reference_distance_m": "--rss-reference-distance-m",
-    "rss_model.path_loss_exponent": "--rss-path-loss-exponent",
-    "rss_model": "--rss-reference-power-dbm/--rss-reference-distance-m/--rss-path-loss-exponent",
+_CSV_PANEL = "CSV constants (a JSON file carries its own)"
+
+CSV_OPTIONS: dict[str, tuple[str, str]] = {
+    "carrier_hz": ("--carrier-hz", "Carrier frequency f0, Hz."),
+    "speed_of_light_mps": ("--speed-of-light-mps", "Propagation speed c, m/s (default 299792458)."),
+    "emitter_height_m": ("--emitter-height-m", "Known emitter height z_s, m (default 0)."),
+    "noise.doppler_hz": ("--sigma-doppler-hz", "Doppler noise σ, Hz."),
+    "noise.toa_s": ("--sigma-toa-s", "ToA noise σ, s."),
+    "noise.rss_db": ("--sigma-rss-db", "RSS noise σ, dB."),
+    "rss_model.reference_power_dbm": ("--rss-reference-power-dbm", "RSS model P0, dBm."),
+    "rss_model.reference_distance_m": ("--rss-reference-distance-m", "RSS model d0, m."),
+    "rss_model.path_loss_exponent": ("--rss-path-loss-exponent", "RSS model η."),
 }
+"""The options that give a CSV file its constants: field of the file (JSON path) → option, help."""
+
+CsvConstants = dict[str, float | None]
+"""The CSV options a command was given: field of the file → value (None: not given)."""
+
+_CSV_PARAMETERS = {
+    field: inspect.Parameter(
+        option.lstrip("-").replace("-", "_"),
+        inspect.Parameter.KEYWORD_ONLY,
+        default=None,
+        annotation=Annotated[
+            float | None, typer.Option(option, help=text, rich_help_panel=_CSV_PANEL)
+        ],
+    )
+    for field, (option, text) in CSV_OPTIONS.items()
+}
+_OPTION_OF_FIELD = {field: option for field, (option, _) in CSV_OPTIONS.items()}
+_OPTION_OF_FIELD["rss_model"] = "/".join(
+    option for field, option in _OPTION_OF_FIELD.items() if field.startswith("rss_model.")
+)
 
 
-def load_measurements(
-    file: Path,
-    *,
-    carrier_hz: float | None = None,
-    speed_of_light_mps: float | None = None,
-    emitter_height_m: float | None = None,
-    sigma_doppler_hz: float | None = None,
-    sigma_toa_s: float | None = None,
-    sigma_rss_db: float | None = None,
-    rss_reference_power_dbm: float | None = None,
-    rss_reference_distance_m: float | None = None,
-    rss_path_loss_exponent: float | None = None,
-) -> MeasurementSet:
-    """Read a measurement file; for CSV, build the constants from the CLI options.
+def with_csv_options(function: Command) -> Command:
+    """Give a command the options of :data:`CSV_OPTIONS`, after its own.
+
+    ``function`` ends with the keyword-only parameter ``constants: CsvConstants``; typer sees the
+    nine options in its place, and ``function`` receives their values in that one mapping.
+    """
+    signature = inspect.signature(function, eval_str=True)
+    parameters = [p for p in signature.parameters.values() if p.name != "constants"]
+    parameters += _CSV_PARAMETERS.values()
+
+    @functools.wraps(function)
+    def run(*args: Any, **kwargs: Any) -> Any:
+        constants = {field: kwargs.pop(p.name) for field, p in _CSV_PARAMETERS.items()}
+        return function(*args, constants=constants, **kwargs)
+
+    run.__signature__ = signature.replace(parameters=parameters)  # type: ignore[attr-defined]
+    run.__annotations__ = {p.name: p.annotation for p in parameters}
+    return run  # type: ignore[return-value]
+
+
+def load_measurements(file: Path, constants: CsvConstants) -> MeasurementSet:
+    """Read a measurement file; a CSV one with the constants of the CSV options.
 
     Errors about a CSV constant name the command-line option to fix (``--sigma-toa-s``).
     """
-    from scenarios.files import read_measurements
-    from scenarios.types import NoiseSigmas, RssModel
+    from scenarios.files import read_measurements_with
 
-    options = {
-        "carrier_hz": carrier_hz,
-        "speed_of_light_mps": speed_of_light_mps,
-        "emitter_height_m": emitter_height_m,
-        "noise.doppler_hz": sigma_doppler_hz,
-        "noise.toa_s": sigma_toa_s,
-        "noise.rss_db": sigma_rss_db,
-        "rss_model.reference_power_dbm": rss_reference_power_dbm,
-        "rss_model.reference_distance_m": rss_reference_distance_m,
-        "rss_model.path_loss_exponent": rss_path_loss_exponent,
-    }
-    given = [field for field, value in options.items() if value is not None]
-    if file.suffix.lower() != ".csv":
-        if given:
-            raise ValueError(
-                f"{_OPTION_OF_FIELD[given[0]]}: only for CSV files; {file} carries its own "
-                "constants (drop the option or edit the file)"
-            )
-        return read_measurements(file)
-    if carrier_hz is None:
-        raise ValueError(f"--carrier-hz: required to read the CSV file {file}")
-    rss_fields = [field for field in options if field.startswith("rss_model.")]
-    rss_given = [field for field in rss_fields if options[field] is not None]
-    if rss_given and len(rss_given) < len(rss_fields):
-        missing = next(field for field in rss_fields if options[field] is None)
-        raise ValueError(f"{_OPTION_OF_FIELD[missing]}: give all three RSS-model options")
-    try:
-        return read_measurements(
-            file,
-            carrier_hz=carrier_hz,
-            speed_of_light_mps=speed_of_light_mps,
-            emitter_height_m=emitter_height_m,
-            noise=NoiseSigmas(doppler_hz=sigma_doppler_hz, toa_s=sigma_toa_s, rss_db=sigma_rss_db),
-            rss_model=None
-            if not rss_given
-            else RssModel(
-                reference_power_dbm=rss_reference_power_dbm,
-                reference_distance_m=rss_reference_distance_m,
-                path_loss_exponent=rss_path_loss_exponent,
-            ),
-        )
-    except ValueError as error:
-        field, separator, rest = str(error).partition(": ")
-        if separator and field in _OPTION_OF_FIELD:
-            raise ValueError(f"{_OPTION_OF_FIELD[field]}: {rest}") from None
-        raise
+    return read_measurements_with(file, constants, names=_OPTION_OF_FIELD)
 
 
 def parse_estimator_options(pairs: list[str]) -> dict[str, Any]:
@@ -308,27 +243,8 @@ def simulate_command(
     )
 
 
-def estimate_to_dict(estimate: Estimate, truth_emitter_m: Any | None) -> dict[str, Any]:
-    """``Estimate.to_dict()`` plus ``error_m`` and ``error_side_resolved_m`` given a truth.
-
-    ``error_side_resolved_m`` is the distance from the truth to the nearest candidate: the
-    error with the mirror side resolved (MATH §7).
-    """
-    import numpy as np
-
-    result = estimate.to_dict()
-    if truth_emitter_m is not None:
-        truth = np.asarray(truth_emitter_m, dtype=float)
-        error = float(np.linalg.norm(estimate.position_m - truth))
-        candidates = estimate.candidates_m
-        result["error_m"] = error if math.isfinite(error) else None
-        result["error_side_resolved_m"] = (
-            float(np.min(np.linalg.norm(candidates - truth, axis=1))) if len(candidates) else None
-        )
-    return result
-
-
 @command("estimate")
+@with_csv_options
 def estimate_command(
     file: MeasurementFile,
     estimator: Annotated[
@@ -345,35 +261,18 @@ def estimate_command(
         ),
     ] = None,
     as_json: JsonFlag = False,
-    carrier_hz: CarrierOption = None,
-    speed_of_light_mps: SpeedOfLightOption = None,
-    emitter_height_m: EmitterHeightOption = None,
-    sigma_doppler_hz: SigmaDopplerOption = None,
-    sigma_toa_s: SigmaToaOption = None,
-    sigma_rss_db: SigmaRssOption = None,
-    rss_reference_power_dbm: RssPowerOption = None,
-    rss_reference_distance_m: RssDistanceOption = None,
-    rss_path_loss_exponent: RssExponentOption = None,
+    *,
+    constants: CsvConstants,
 ) -> None:
     """Locate the emitter from a measurement file with one estimator (rng seeded with 0)."""
     import numpy as np
 
+    from comparison.scoring import estimate_to_dict
     from estimators.registry import make_estimator
 
     options = parse_estimator_options(option or [])
     chosen = make_estimator(estimator, **options)
-    data = load_measurements(
-        file,
-        carrier_hz=carrier_hz,
-        speed_of_light_mps=speed_of_light_mps,
-        emitter_height_m=emitter_height_m,
-        sigma_doppler_hz=sigma_doppler_hz,
-        sigma_toa_s=sigma_toa_s,
-        sigma_rss_db=sigma_rss_db,
-        rss_reference_power_dbm=rss_reference_power_dbm,
-        rss_reference_distance_m=rss_reference_distance_m,
-        rss_path_loss_exponent=rss_path_loss_exponent,
-    )
+    data = load_measurements(file, constants)
     estimate = chosen.estimate(data.without_truth(), rng=np.random.default_rng(0))
     result = estimate_to_dict(estimate, data.truth_emitter_m)
     if as_json:
@@ -421,42 +320,8 @@ def _number_text(value: float | None) -> str:
     return "-" if value is None else f"{value:.4g}"
 
 
-def crlb_table(data: MeasurementSet, at_m: Any) -> dict[str, Any]:
-    """RMSE bound and CRLB matrix at ``at_m`` for each of ``MODALITY_SETS`` (MATH §8).
-
-    A set whose σ (or RSS model) is missing, or whose information is singular, is ``None``
-    with a note saying why.
-    """
-    import numpy as np
-
-    from comparison.crlb import MODALITY_SETS, crlb_m2, fisher_information, rmse_bound_m
-
-    table: dict[str, Any] = {
-        "at_m": [float(v) for v in at_m],
-        "n_samples": data.n_samples,
-        "rmse_bound_m": {},
-        "crlb_m2": {},
-        "notes": {},
-    }
-    for name, modalities in MODALITY_SETS.items():
-        try:
-            with np.errstate(divide="ignore", invalid="ignore"):
-                information = fisher_information(data, at_m, modalities)
-        except ValueError as error:
-            table["rmse_bound_m"][name] = table["crlb_m2"][name] = None
-            table["notes"][name] = str(error)
-            continue
-        bound = float(rmse_bound_m(information))
-        if not math.isfinite(bound):
-            table["rmse_bound_m"][name] = table["crlb_m2"][name] = None
-            table["notes"][name] = "singular Fisher information: unobservable from these samples"
-            continue
-        table["rmse_bound_m"][name] = bound
-        table["crlb_m2"][name] = crlb_m2(information).tolist()
-    return table
-
-
 @command("crlb")
+@with_csv_options
 def crlb_command(
     file: MeasurementFile,
     at: Annotated[
@@ -464,32 +329,14 @@ def crlb_command(
         typer.Option("--at", help="Emitter position X Y, m (default: the truth in the file)."),
     ] = None,
     as_json: JsonFlag = False,
-    carrier_hz: CarrierOption = None,
-    speed_of_light_mps: SpeedOfLightOption = None,
-    emitter_height_m: EmitterHeightOption = None,
-    sigma_doppler_hz: SigmaDopplerOption = None,
-    sigma_toa_s: SigmaToaOption = None,
-    sigma_rss_db: SigmaRssOption = None,
-    rss_reference_power_dbm: RssPowerOption = None,
-    rss_reference_distance_m: RssDistanceOption = None,
-    rss_path_loss_exponent: RssExponentOption = None,
+    *,
+    constants: CsvConstants,
 ) -> None:
     """Cramér-Rao bound for (x_s, y_s) per modality set: toa, doppler, rss, toa+doppler.
 
     Needs only the geometry and the σ's of the file, not the measured values (MATH §8).
     """
-    data = load_measurements(
-        file,
-        carrier_hz=carrier_hz,
-        speed_of_light_mps=speed_of_light_mps,
-        emitter_height_m=emitter_height_m,
-        sigma_doppler_hz=sigma_doppler_hz,
-        sigma_toa_s=sigma_toa_s,
-        sigma_rss_db=sigma_rss_db,
-        rss_reference_power_dbm=rss_reference_power_dbm,
-        rss_reference_distance_m=rss_reference_distance_m,
-        rss_path_loss_exponent=rss_path_loss_exponent,
-    )
+    data = load_measurements(file, constants)
     if at is not None:
         if not all(math.isfinite(v) for v in at):
             raise ValueError(f"--at: expected two finite numbers X Y, got {at}")
@@ -498,6 +345,8 @@ def crlb_command(
         at_m = data.truth_emitter_m
     else:
         raise ValueError(f"--at: {file} has no truth; give the emitter position as --at X Y")
+    from comparison.crlb import crlb_table
+
     table = crlb_table(data, at_m)
     if as_json:
         print_json(table)
@@ -519,6 +368,7 @@ def crlb_command(
 
 
 @command("fly")
+@with_csv_options
 def fly_command(
     file: MeasurementFile,
     planner: Annotated[
@@ -550,15 +400,8 @@ def fly_command(
         ),
     ] = None,
     as_json: JsonFlag = False,
-    carrier_hz: CarrierOption = None,
-    speed_of_light_mps: SpeedOfLightOption = None,
-    emitter_height_m: EmitterHeightOption = None,
-    sigma_doppler_hz: SigmaDopplerOption = None,
-    sigma_toa_s: SigmaToaOption = None,
-    sigma_rss_db: SigmaRssOption = None,
-    rss_reference_power_dbm: RssPowerOption = None,
-    rss_reference_distance_m: RssDistanceOption = None,
-    rss_path_loss_exponent: RssExponentOption = None,
+    *,
+    constants: CsvConstants,
 ) -> None:
     """The next frame's velocity, from the measurements of the frames flown so far.
 
@@ -568,73 +411,18 @@ def fly_command(
     """
     import numpy as np
 
+    from comparison.closed_loop import next_frame_plan
     from estimators.registry import make_estimator
     from scenarios.planners import get_planner
 
     chosen_planner = get_planner(planner, **parse_estimator_options(option or []))
     chosen_estimator = make_estimator(estimator, **parse_estimator_options(estimator_option or []))
-    data = load_measurements(
-        file,
-        carrier_hz=carrier_hz,
-        speed_of_light_mps=speed_of_light_mps,
-        emitter_height_m=emitter_height_m,
-        sigma_doppler_hz=sigma_doppler_hz,
-        sigma_toa_s=sigma_toa_s,
-        sigma_rss_db=sigma_rss_db,
-        rss_reference_power_dbm=rss_reference_power_dbm,
-        rss_reference_distance_m=rss_reference_distance_m,
-        rss_path_loss_exponent=rss_path_loss_exponent,
-    )
-    plan, estimate, flight = plan_next_velocity(
-        data, chosen_planner, chosen_estimator, rng=np.random.default_rng(0)
-    )
-    result = {
-        **plan.to_dict(),
-        "flight": {
-            "frames": flight.n_frames,
-            "samples_per_frame": flight.samples_per_frame,
-            "sample_interval_s": flight.sample_interval_s,
-            "next_frame_start_m": (
-                flight.sample_positions_m()[-1]
-                + flight.sample_interval_s * flight.frame_velocities_mps[-1]
-            ).tolist(),
-        },
-        "estimate": estimate_to_dict(estimate, data.truth_emitter_m),
-    }
+    data = load_measurements(file, constants)
+    result = next_frame_plan(data, chosen_planner, chosen_estimator, rng=np.random.default_rng(0))
     if as_json:
         print_json(result)
         return
     _print_plan(result, file)
-
-
-def plan_next_velocity(data: MeasurementSet, planner: Any, estimator: Any, *, rng: Any) -> Any:
-    """``(plan, estimate, flight)``: estimate on ``data``, then plan the next frame.
-
-    The flight is :func:`scenarios.planners.flight_from_measurements`; the planner gets the
-    estimate's candidates with the returned position first, and its covariance.
-
-    Raises
-    ------
-    ValueError
-        When the estimator fails (the planner needs a position), or from the planner.
-    """
-    from comparison.closed_loop import steering_candidates_m
-    from scenarios.planners import flight_from_measurements
-
-    flight = flight_from_measurements(data)
-    estimate = estimator.estimate(data.without_truth(), rng=rng)
-    if not estimate.success:
-        raise ValueError(
-            f"estimator: {estimator.name!r} failed ({estimate.message}); the planner needs a "
-            "position: choose another estimator or fly more frames"
-        )
-    plan = planner.plan(
-        flight,
-        steering_candidates_m(estimate),
-        data.without_truth(),
-        covariance_m2=estimate.covariance_m2,
-    )
-    return plan, estimate, flight
 
 
 def _print_plan(result: dict[str, Any], file: Path) -> None:
@@ -682,7 +470,7 @@ def list_command() -> None:
             return f"  [unavailable: {error}]"
         return f"  [unavailable: needs {', '.join(missing)}]" if missing else ""
 
-    from comparison.experiment import BUILTIN_EXPERIMENTS
+    from comparison.experiment_catalog import BUILTIN_EXPERIMENTS
     from scenarios.planners import PLANNER_SUMMARIES
 
     width = max(
@@ -748,8 +536,11 @@ def run_command(
 def report_command(
     run_dir: Annotated[Path, typer.Argument(help="A run folder written by `emitterbench run`.")],
     bootstrap: Annotated[
-        int, typer.Option("--bootstrap", min=100, help="Bootstrap resamples for intervals.")
-    ] = 1000,
+        int | None,
+        typer.Option(
+            "--bootstrap", min=100, help="Bootstrap resamples for intervals (default: as run)."
+        ),
+    ] = None,
 ) -> None:
     """(Re)write summary.csv, trials.csv, figures/ and report.html of a run folder."""
     from comparison.report import write_report
@@ -758,7 +549,8 @@ def report_command(
         raise ValueError(
             f"run_dir: {run_dir} holds no results.sqlite; run `emitterbench run` first"
         )
-    typer.echo(f"report: {write_report(run_dir, n_bootstrap=bootstrap)}")
+    options = {} if bootstrap is None else {"n_bootstrap": bootstrap}
+    typer.echo(f"report: {write_report(run_dir, **options)}")
 
 
 @command("validate")
@@ -805,7 +597,7 @@ def validate_command(
     minimisers are due in the hard case, and the SDP value must equal the optimum. Exit status
     1 when any instance disagrees beyond tolerance or its SDP is not optimal (MATH §5, §11).
     """
-    from comparison.validate import FAMILIES, check_protocol, replay_with_verdict, run_validation
+    from comparison.crosscheck import FAMILIES, check_protocol, replay_with_verdict, run_validation
 
     chosen = tuple(families) if families else FAMILIES
     unknown = sorted(set(chosen) - set(FAMILIES))

@@ -19,16 +19,15 @@ Failures
     A failed steering estimate, or a planner that raises ``ValueError`` (zero speed, an
     estimate directly below the UAV, ...), holds the last velocity for the next frame; the
     reason is recorded in that frame's plan message. An estimator that raises gives a failed
-    estimate (as in :mod:`comparison.engine`).
+    estimate (:mod:`comparison.estimator_calls`).
 
-Data flows one way: this module imports ``scenarios`` and ``estimators`` and is called by
-:mod:`comparison.engine`.
+Data flows one way: this module imports ``scenarios``, ``estimators`` and
+:mod:`comparison.estimator_calls`, and is called by :mod:`comparison.tasks`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -36,6 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from comparison.estimator_calls import Stream, timed_call
 from estimators.base import Estimate, Estimator, capabilities_of
 from scenarios.planners.base import Plan, Planner
 from scenarios.simulate import SeedLike, noise_free, standard_noise
@@ -104,52 +104,6 @@ def steering_candidates_m(estimate: Estimate) -> FloatArray:
     return np.vstack([position, others[keep]])
 
 
-def timed_call(method: Callable[..., Any], *args: Any, **kwargs: Any) -> tuple[Estimate, float]:
-    """Call an estimator method; an exception or a non-Estimate becomes a failed estimate."""
-    start = time.perf_counter()
-    try:
-        estimate = method(*args, **kwargs)
-    except Exception as error:
-        estimate = Estimate.failed("", f"{type(error).__name__}: {error}")
-    runtime_s = time.perf_counter() - start
-    if not isinstance(estimate, Estimate):
-        estimate = Estimate.failed(
-            "", f"TypeError: returned {type(estimate).__name__}, not an Estimate"
-        )
-    return estimate, runtime_s
-
-
-class _Streamer:
-    """A sequential estimator fed frame by frame (``init``, ``update``, ``estimate_state``)."""
-
-    def __init__(self, estimator: Any) -> None:
-        self.estimator = estimator
-        self.failure: Estimate | None = None
-        self.carried_s = 0.0
-        start = time.perf_counter()
-        try:
-            self.state = estimator.init()
-        except Exception as error:
-            self.failure = Estimate.failed("", f"{type(error).__name__} in init: {error}")
-        self.carried_s = time.perf_counter() - start
-
-    def step(
-        self, frame_data: MeasurementSet, rng: np.random.Generator | None
-    ) -> tuple[Estimate, float]:
-        carried, self.carried_s = self.carried_s, 0.0
-        if self.failure is not None:
-            return self.failure, carried
-        start = time.perf_counter()
-        try:
-            self.state = self.estimator.update(self.state, frame_data)
-        except Exception as error:
-            self.failure = Estimate.failed("", f"{type(error).__name__} in update: {error}")
-            return self.failure, carried + time.perf_counter() - start
-        update_s = time.perf_counter() - start
-        estimate, estimate_s = timed_call(self.estimator.estimate_state, self.state, rng=rng)
-        return estimate, carried + update_s + estimate_s
-
-
 def fly_closed_loop(
     scenario: Scenario,
     *,
@@ -205,8 +159,8 @@ def fly_closed_loop(
     def rng_for(label: str) -> np.random.Generator | None:
         return None if estimate_rng is None else estimate_rng(label)
 
-    streamers = {
-        label: _Streamer(estimator)
+    streams = {
+        label: Stream(estimator)
         for label, estimator in estimators
         if capabilities_of(estimator).sequential
     }
@@ -219,9 +173,9 @@ def fly_closed_loop(
             data = measure_flight(scenario, flight, snr_db=snr_db, draws=draws)
         seen = data.without_truth()
         for label, estimator in estimators:
-            if label in streamers:
+            if label in streams:
                 newest = seen.take(seen.frame == frame)
-                results[label].append(streamers[label].step(newest, rng_for(label)))
+                results[label].append(streams[label].step(newest, rng_for(label)))
             else:
                 results[label].append(timed_call(estimator.estimate, seen, rng=rng_for(label)))
         if frame == total - 1:
@@ -263,3 +217,58 @@ def _plan_next(
     if not isinstance(plan, Plan):
         raise TypeError(f"planner {name!r} returned {type(plan).__name__}, not a Plan")
     return plan
+
+
+def plan_next_velocity(data: MeasurementSet, planner: Any, estimator: Any, *, rng: Any) -> Any:
+    """``(plan, estimate, flight)``: estimate on ``data``, then plan the next frame.
+
+    The flight is :func:`scenarios.planners.flight_from_measurements`; the planner gets the
+    estimate's candidates with the returned position first, and its covariance.
+
+    Raises
+    ------
+    ValueError
+        When the estimator fails (the planner needs a position), or from the planner.
+    """
+    from scenarios.planners import flight_from_measurements
+
+    flight = flight_from_measurements(data)
+    estimate = estimator.estimate(data.without_truth(), rng=rng)
+    if not estimate.success:
+        raise ValueError(
+            f"estimator: {estimator.name!r} failed ({estimate.message}); the planner needs a "
+            "position: choose another estimator or fly more frames"
+        )
+    plan = planner.plan(
+        flight,
+        steering_candidates_m(estimate),
+        data.without_truth(),
+        covariance_m2=estimate.covariance_m2,
+    )
+    return plan, estimate, flight
+
+
+def next_frame_plan(
+    data: MeasurementSet, planner: Any, estimator: Any, *, rng: Any
+) -> dict[str, Any]:
+    """What `emitterbench fly` reports: the plan, the flight so far and the estimate.
+
+    ``plan.to_dict()`` plus ``flight`` (frames, K, Δ, where the next frame starts) and
+    ``estimate`` (:func:`comparison.scoring.estimate_to_dict`).
+    """
+    from comparison.scoring import estimate_to_dict
+
+    plan, estimate, flight = plan_next_velocity(data, planner, estimator, rng=rng)
+    return {
+        **plan.to_dict(),
+        "flight": {
+            "frames": flight.n_frames,
+            "samples_per_frame": flight.samples_per_frame,
+            "sample_interval_s": flight.sample_interval_s,
+            "next_frame_start_m": (
+                flight.sample_positions_m()[-1]
+                + flight.sample_interval_s * flight.frame_velocities_mps[-1]
+            ).tolist(),
+        },
+        "estimate": estimate_to_dict(estimate, data.truth_emitter_m),
+    }

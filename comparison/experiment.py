@@ -23,7 +23,7 @@ A complete example (every key; the optional ones show their defaults)::
     chunk_size = 25                         # optional; trials per parallel task
 
     [sweep]                                 # optional; without it: one point at 0 dB
-    parameter = "snr_db"                    # snr_db, a scenarios.sweep.SWEEPABLE name,
+    parameter = "snr_db"                    # snr_db, a scenarios.parameters.SWEEPABLE name,
     values = [-10, 0, 10, 20, 30]           #   or "emitter_m" (then x = [...], y = [...])
 
     [sweep.fixed]                           # optional; parameters held at one value
@@ -60,30 +60,32 @@ The sweep has one parameter with a list of ``values``, or the 2-D grid ``paramet
 ``y[p % len(y)]``, and the result rows get the columns ``emitter_x_m`` and ``emitter_y_m``.
 ``snr_db`` must lie in [-60, 100] dB; it is not a scenario parameter but scales every reference
 σ by ``10^(−snr_db/20)`` (MATH §2), and it is 0 dB unless swept or fixed. The other parameters
-are those of :data:`scenarios.sweep.SWEEPABLE`; :func:`scenarios.sweep.with_parameter` applies
-them after ``frames``.
+are those of :data:`scenarios.parameters.SWEEPABLE`; :func:`scenarios.parameters.with_parameter`
+applies them after ``frames``.
 
-Built-in experiments (:data:`BUILTIN_EXPERIMENTS`) are written in the same format, as dicts.
+The built-in experiments (:mod:`comparison.experiment_catalog`) are written in the same format,
+as dicts; :func:`load_experiment` takes their names as well as files.
 """
 
 from __future__ import annotations
 
 import importlib.util
 import json
-import math
-import tomllib
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from estimators.base import Estimator, capabilities_of
-from estimators.registry import estimator_class, make_estimator
+from comparison.experiment_catalog import builtin_definition, experiment_definition
+from comparison.metrics import METRIC_NAMES
+from comparison.specs import EstimatorSpec, PlannerSpec, built_specs, check_keys, specs_from_list
+from estimators.base import capabilities_of
+from estimators.registry import estimator_class
+from scenarios import fields
 from scenarios.catalog import CATALOG, get_scenario
-from scenarios.planners import Planner, get_planner, planner_class
-from scenarios.sweep import SWEEPABLE, check_parameter_value, with_parameters
+from scenarios.fields import FrozenDict
+from scenarios.parameters import SWEEPABLE, check_parameter_value, with_parameters
+from scenarios.planners import planner_class
 from scenarios.types import Scenario
 
 SNR_RANGE_DB = (-60.0, 100.0)
@@ -113,110 +115,17 @@ _EXPERIMENT_KEYS = (
 )
 _REQUIRED_KEYS = ("name", "scenarios", "estimators", "trials", "seed")
 _SWEEP_KEYS = ("parameter", "values", "x", "y", "fixed")
-_ESTIMATOR_KEYS = ("name", "label", "options")
-_PLANNER_KEYS = ("name", "label", "options", "steering_estimator")
 
 
 # --------------------------------------------------------------------------------------------
-# an immutable mapping (estimator options, fixed sweep values)
+# sweep values (keys: comparison.specs.check_keys; other fields: scenarios.fields); every
+# message starts with the key path
 # --------------------------------------------------------------------------------------------
-
-
-class FrozenDict(Mapping[str, Any]):
-    """A read-only, hashable, picklable ``dict``; nested lists become tuples."""
-
-    __slots__ = ("_data",)
-
-    def __init__(self, data: Mapping[str, Any] | None = None) -> None:
-        object.__setattr__(self, "_data", {k: _freeze(v) for k, v in dict(data or {}).items()})
-
-    def __getitem__(self, key: str) -> Any:
-        return self._data[key]
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._data)
-
-    def __len__(self) -> int:
-        return len(self._data)
-
-    def __hash__(self) -> int:
-        return hash(frozenset(self._data.items()))
-
-    def __eq__(self, other: object) -> bool:
-        if isinstance(other, Mapping):
-            return self._data == dict(other.items())
-        return NotImplemented
-
-    def __setattr__(self, name: str, value: Any) -> None:
-        raise AttributeError("FrozenDict is read-only")
-
-    def __reduce__(self) -> tuple[Any, ...]:
-        return (FrozenDict, (thaw(self),))
-
-    def __repr__(self) -> str:
-        return f"FrozenDict({self._data!r})"
-
-
-def _freeze(value: Any) -> Any:
-    if isinstance(value, Mapping):
-        return value if isinstance(value, FrozenDict) else FrozenDict(value)
-    if isinstance(value, list | tuple):
-        return tuple(_freeze(v) for v in value)
-    return value
-
-
-def thaw(value: Any, *, sequence: type = list) -> Any:
-    """A plain-``dict``/``list`` copy of a frozen value (``sequence=tuple`` keeps tuples)."""
-    if isinstance(value, Mapping):
-        return {k: thaw(v, sequence=sequence) for k, v in value.items()}
-    if isinstance(value, tuple | list):
-        return sequence(thaw(v, sequence=sequence) for v in value)
-    return value
-
-
-# --------------------------------------------------------------------------------------------
-# small validators: every message starts with the key path
-# --------------------------------------------------------------------------------------------
-
-
-def _check_keys(raw: Mapping[str, Any], allowed: Sequence[str], path: str) -> None:
-    if not isinstance(raw, Mapping):
-        raise ValueError(f"{path or 'experiment'}: expected a table, got {type(raw).__name__}")
-    for key in raw:
-        if key not in allowed:
-            where = f"{path}.{key}" if path else str(key)
-            raise ValueError(f"{where}: unknown key; expected one of {', '.join(allowed)}")
-
-
-def _whole(value: Any, path: str, *, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer):
-        if isinstance(value, float) and value.is_integer():
-            value = int(value)
-        else:
-            raise ValueError(f"{path}: expected a whole number >= {minimum}, got {value!r}")
-    if value < minimum:
-        raise ValueError(f"{path}: must be a whole number >= {minimum}, got {value!r}")
-    return int(value)
-
-
-def _number(value: Any, path: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise ValueError(f"{path}: expected a number, got {value!r}")
-    number = float(value)
-    if not math.isfinite(number):
-        raise ValueError(f"{path}: must be finite, got {value!r}")
-    return number
-
-
-def _text(value: Any, path: str, *, allow_empty: bool = False) -> str:
-    if not isinstance(value, str) or (not value and not allow_empty):
-        raise ValueError(f"{path}: expected a non-empty string, got {value!r}")
-    return value
 
 
 def _check_parameter(name: str, value: float, path: str) -> float:
     """One sweep value: SNR range or the scenario parameter's own domain."""
-    number = _number(value, path)
+    number = fields.number(value, path)
     if name == "snr_db":
         low, high = SNR_RANGE_DB
         if not low <= number <= high:
@@ -228,144 +137,9 @@ def _check_parameter(name: str, value: float, path: str) -> float:
         raise ValueError(f"{path}: {error}") from None
 
 
-def _check_option(value: Any, path: str) -> None:
-    """Estimator options: strings, booleans, finite numbers, lists and tables of them."""
-    if isinstance(value, str | bool | int):
-        return
-    if isinstance(value, float):
-        if not math.isfinite(value):
-            raise ValueError(f"{path}: must be finite, got {value!r}")
-        return
-    if isinstance(value, list | tuple):
-        for index, item in enumerate(value):
-            _check_option(item, f"{path}[{index}]")
-        return
-    if isinstance(value, Mapping):
-        for key, item in value.items():
-            _check_option(item, f"{path}.{key}")
-        return
-    raise ValueError(
-        f"{path}: expected a string, boolean, number, list or table, got {type(value).__name__}"
-    )
-
-
 # --------------------------------------------------------------------------------------------
-# the dataclasses
+# the sweep and the experiment (the estimator and planner entries: comparison.specs)
 # --------------------------------------------------------------------------------------------
-
-
-def _check_spec_fields(spec: Any) -> None:
-    """Validate an estimator or planner entry: ``name``, ``label`` (default: the name) and
-    ``options`` (a table of JSON-like values, frozen)."""
-    _text(spec.name, "name")
-    if spec.label is None:
-        object.__setattr__(spec, "label", spec.name)
-    _text(spec.label, "label")
-    if not isinstance(spec.options, Mapping):
-        raise ValueError(f"options: expected a table, got {type(spec.options).__name__}")
-    for key, value in spec.options.items():
-        _text(key, "options")
-        _check_option(value, f"options.{key}")
-    object.__setattr__(spec, "options", FrozenDict(spec.options))
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class EstimatorSpec:
-    """One estimator of an experiment: registry ``name``, a unique ``label`` and its ``options``.
-
-    Parameters
-    ----------
-    name : str
-        A name of :func:`estimators.registry.all_entries` or ``"package.module:Class"``.
-    label : str, optional
-        What the result rows call it (default: ``name``); lets one estimator appear twice with
-        different options.
-    options : mapping
-        Keyword arguments of the estimator's constructor (lists become tuples).
-    """
-
-    name: str
-    label: str | None = None
-    options: Mapping[str, Any] = field(default_factory=FrozenDict)
-
-    def __post_init__(self) -> None:
-        _check_spec_fields(self)
-
-    def build(self) -> Estimator:
-        """A new estimator object (:func:`estimators.registry.make_estimator`)."""
-        return make_estimator(self.name, **thaw(self.options, sequence=tuple))
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "label": self.label, "options": thaw(self.options)}
-
-    @classmethod
-    def from_dict(cls, raw: Mapping[str, Any] | str, *, path: str = "estimator") -> EstimatorSpec:
-        """From a table ``{name, label?, options?}`` or a bare name."""
-        if isinstance(raw, str):
-            raw = {"name": raw}
-        _check_keys(raw, _ESTIMATOR_KEYS, path)
-        if "name" not in raw:
-            raise ValueError(f"{path}.name: missing; give a registry name such as 'cls'")
-        try:
-            return cls(name=raw["name"], label=raw.get("label"), options=raw.get("options", {}))
-        except ValueError as error:
-            raise ValueError(f"{path}.{error}") from None
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class PlannerSpec:
-    """One planner of a closed-loop experiment (:mod:`scenarios.planners`).
-
-    Parameters
-    ----------
-    name : str
-        A name of :data:`scenarios.planners.PLANNERS` or ``"package.module:Class"``.
-    label : str, optional
-        What the result rows call it (column ``planner``; default: ``name``).
-    options : mapping
-        Keyword arguments of the planner's constructor (lists become tuples).
-    steering_estimator : str, optional
-        The label of the estimator whose estimate steers this planner; default: the
-        experiment's ``steering_estimator``.
-    """
-
-    name: str
-    label: str | None = None
-    options: Mapping[str, Any] = field(default_factory=FrozenDict)
-    steering_estimator: str | None = None
-
-    def __post_init__(self) -> None:
-        _check_spec_fields(self)
-        if self.steering_estimator is not None:
-            _text(self.steering_estimator, "steering_estimator")
-
-    def build(self) -> Planner:
-        """A new planner object (:func:`scenarios.planners.get_planner`)."""
-        return get_planner(self.name, **thaw(self.options, sequence=tuple))
-
-    def to_dict(self) -> dict[str, Any]:
-        raw = {"name": self.name, "label": self.label, "options": thaw(self.options)}
-        if self.steering_estimator is not None:
-            raw["steering_estimator"] = self.steering_estimator
-        return raw
-
-    @classmethod
-    def from_dict(cls, raw: Mapping[str, Any] | str, *, path: str = "planner") -> PlannerSpec:
-        """From a table ``{name, label?, options?, steering_estimator?}`` or a bare name."""
-        if isinstance(raw, str):
-            raw = {"name": raw}
-        _check_keys(raw, _PLANNER_KEYS, path)
-        if "name" not in raw:
-            raise ValueError(f"{path}.name: missing; give a planner name such as 'fisher'")
-        try:
-            return cls(
-                name=raw["name"],
-                label=raw.get("label"),
-                options=raw.get("options", {}),
-                steering_estimator=raw.get("steering_estimator"),
-            )
-        except ValueError as error:
-            raise ValueError(f"{path}.{error}") from None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -375,7 +149,7 @@ class Sweep:
     Parameters
     ----------
     parameter : str or None
-        ``"snr_db"``, a name of :data:`scenarios.sweep.SWEEPABLE`, ``"emitter_m"`` (a grid of
+        ``"snr_db"``, a name of :data:`scenarios.parameters.SWEEPABLE`, ``"emitter_m"`` (a grid of
         ``x_m`` × ``y_m``), or None for a single point made of the ``fixed`` values.
     values : sequence of float
         The values of ``parameter`` (not for ``emitter_m``); distinct.
@@ -437,10 +211,9 @@ class Sweep:
 
     @staticmethod
     def _sequence(raw: Any, key: str, parameter: str | None) -> tuple[float, ...]:
-        if isinstance(raw, str | bytes) or not isinstance(raw, Sequence | np.ndarray):
-            raise ValueError(f"{key}: expected a list of numbers, got {raw!r}")
+        raw = fields.number_list(raw, key)
         if parameter is None:
-            return tuple(raw) if len(raw) == 0 else tuple(_number(v, key) for v in raw)
+            return tuple(fields.number(v, key) for v in raw)
         values = tuple(_check_parameter(parameter, v, f"{key}[{i}]") for i, v in enumerate(raw))
         for index, value in enumerate(values):
             if value in values[:index]:
@@ -490,7 +263,7 @@ class Sweep:
 
     @classmethod
     def from_dict(cls, raw: Mapping[str, Any], *, path: str = "sweep") -> Sweep:
-        _check_keys(raw, _SWEEP_KEYS, path)
+        check_keys(raw, _SWEEP_KEYS, path)
         try:
             return cls(
                 parameter=raw.get("parameter"),
@@ -521,7 +294,7 @@ class Experiment:
     trials : int
         Monte Carlo trials per (scenario, point), >= 1.
     seed : int
-        Root of every random draw (>= 0); see :mod:`comparison.engine` for the seed tree.
+        Root of every random draw (>= 0); see :mod:`comparison.tasks` for the seed tree.
     frames : int or None
         Frames flown in every scenario (extended at the last velocity); None keeps each
         scenario's own.
@@ -560,13 +333,13 @@ class Experiment:
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        _text(self.name, "name")
-        _text(self.description, "description", allow_empty=True)
-        set_(self, "trials", _whole(self.trials, "trials", minimum=1))
-        set_(self, "seed", _whole(self.seed, "seed", minimum=0))
-        set_(self, "chunk_size", _whole(self.chunk_size, "chunk_size", minimum=1))
+        fields.text(self.name, "name")
+        fields.text(self.description, "description", allow_empty=True)
+        set_(self, "trials", fields.whole(self.trials, "trials", minimum=1))
+        set_(self, "seed", fields.whole(self.seed, "seed", minimum=0))
+        set_(self, "chunk_size", fields.whole(self.chunk_size, "chunk_size", minimum=1))
         if self.frames is not None:
-            set_(self, "frames", _whole(self.frames, "frames", minimum=1))
+            set_(self, "frames", fields.whole(self.frames, "frames", minimum=1))
         if not isinstance(self.per_frame, bool):
             raise ValueError(f"per_frame: expected true or false, got {self.per_frame!r}")
         if not isinstance(self.sweep, Sweep):
@@ -609,12 +382,12 @@ class Experiment:
         if isinstance(self.metrics, str) or not isinstance(self.metrics, Sequence):
             raise ValueError(f"metrics: expected a list of metric names, got {self.metrics!r}")
         metrics = tuple(self.metrics)
-        known = _known_metrics()
         for index, metric in enumerate(metrics):
-            _text(metric, f"metrics[{index}]")
-            if known is not None and metric not in known:
+            fields.text(metric, f"metrics[{index}]")
+            if metric not in METRIC_NAMES:
                 raise ValueError(
-                    f"metrics[{index}]: unknown metric {metric!r}; choose from {', '.join(known)}"
+                    f"metrics[{index}]: unknown metric {metric!r}; "
+                    f"choose from {', '.join(METRIC_NAMES)}"
                 )
         object.__setattr__(self, "metrics", metrics)
 
@@ -625,7 +398,7 @@ class Experiment:
         if not specs:
             raise ValueError("estimators: give at least one estimator, e.g. name = 'cls'")
         scenarios = {name: get_scenario(name, frames=self.frames) for name in self.scenarios}
-        for path, spec, estimator in _built_specs(
+        for path, spec, estimator in built_specs(
             specs, "estimators", EstimatorSpec, estimator_class
         ):
             capabilities = capabilities_of(estimator)
@@ -650,7 +423,7 @@ class Experiment:
         specs = tuple(self.planners)
         steering = self.steering_estimator
         if steering is not None:
-            _text(steering, "steering_estimator")
+            fields.text(steering, "steering_estimator")
         if not specs:
             if steering is not None:
                 raise ValueError(
@@ -663,7 +436,7 @@ class Experiment:
             raise ValueError(
                 "per_frame: a closed loop estimates after every frame; set per_frame = true"
             )
-        for path, spec, _ in _built_specs(specs, "planners", PlannerSpec, planner_class):
+        for path, spec, _ in built_specs(specs, "planners", PlannerSpec, planner_class):
             own = spec.steering_estimator
             if own is not None and own not in self.labels:
                 raise ValueError(
@@ -758,38 +531,26 @@ class Experiment:
     @classmethod
     def from_dict(cls, raw: Mapping[str, Any]) -> Experiment:
         """Validate a dict in the TOML layout of the module docstring (``None`` = absent)."""
-        _check_keys(raw, _EXPERIMENT_KEYS, "")
+        check_keys(raw, _EXPERIMENT_KEYS, "")
         for key in _REQUIRED_KEYS:
             if key not in raw:
                 raise ValueError(f"{key}: missing; see the example in comparison.experiment")
         sweep = Sweep.from_dict(raw.get("sweep", {}))
-        estimators = raw["estimators"]
-        if isinstance(estimators, str | Mapping) or not isinstance(estimators, Sequence):
-            raise ValueError("estimators: expected a list of [[estimators]] tables or names")
-        specs = tuple(
-            EstimatorSpec.from_dict(entry, path=f"estimators[{index}]")
-            for index, entry in enumerate(estimators)
-        )
-        planners = raw.get("planners") or ()
-        if isinstance(planners, str | Mapping) or not isinstance(planners, Sequence):
-            raise ValueError("planners: expected a list of [[planners]] tables or names")
-        planner_specs = tuple(
-            PlannerSpec.from_dict(entry, path=f"planners[{index}]")
-            for index, entry in enumerate(planners)
-        )
+        estimators = specs_from_list(raw["estimators"], "estimators", EstimatorSpec)
+        planners = specs_from_list(raw.get("planners") or (), "planners", PlannerSpec)
         experiment = cls(
             name=raw["name"],
             description=raw.get("description", ""),
             scenarios=raw["scenarios"],
             sweep=sweep,
-            estimators=specs,
+            estimators=estimators,
             trials=raw["trials"],
             seed=raw["seed"],
             frames=raw.get("frames"),
             per_frame=raw.get("per_frame", False),
             metrics=raw.get("metrics"),
             chunk_size=raw.get("chunk_size", 25),
-            planners=planner_specs,
+            planners=planners,
             steering_estimator=raw.get("steering_estimator"),
         )
         if "swept_columns" in raw and list(raw["swept_columns"]) != list(sweep.columns):
@@ -800,36 +561,6 @@ class Experiment:
         return experiment
 
 
-def _built_specs(
-    specs: Sequence[Any], key: str, spec_type: type, find_class: Any
-) -> Iterator[tuple[str, Any, Any]]:
-    """Check a list of estimator or planner specs; yield ``(key path, spec, built object)``.
-
-    Each entry must be a ``spec_type`` with a label unique in the list, a name that
-    ``find_class`` resolves, and options its class accepts; errors name the key path.
-    """
-    labels: dict[str, int] = {}
-    for index, spec in enumerate(specs):
-        path = f"{key}[{index}]"
-        if not isinstance(spec, spec_type):
-            raise ValueError(f"{path}: expected a {spec_type.__name__}, got {type(spec).__name__}")
-        if spec.label in labels:
-            raise ValueError(
-                f"{path}.label: duplicate label {spec.label!r} (also "
-                f"{key}[{labels[spec.label]}]); give each entry a distinct label"
-            )
-        labels[spec.label] = index
-        try:
-            find_class(spec.name)
-        except ValueError as error:
-            raise ValueError(f"{path}.name: {error}") from None
-        try:
-            built = spec.build()
-        except ValueError as error:
-            raise ValueError(f"{path}.options: {error}") from None
-        yield path, spec, built
-
-
 def build_scenario(
     name: str, settings: Mapping[str, float], *, frames: int | None = None
 ) -> Scenario:
@@ -838,122 +569,14 @@ def build_scenario(
     return with_parameters(scenario, {k: v for k, v in settings.items() if k != "snr_db"})
 
 
-def _known_metrics() -> tuple[str, ...] | None:
-    try:
-        from comparison.metrics import METRIC_NAMES
-    except ImportError:
-        return None
-    return tuple(METRIC_NAMES)
-
-
 # --------------------------------------------------------------------------------------------
-# built-in experiments and loading
+# loading: a built-in by name, or a file
 # --------------------------------------------------------------------------------------------
-
-_BUILTIN_DEFINITIONS: dict[str, dict[str, Any]] = {
-    "paper-fig2": {
-        "name": "paper-fig2",
-        "description": (
-            "accuracy vs SNR on one frame of the paper's track (paper Fig. 2), with the printed "
-            "c*sigma_tau = 300 km and the meaningful 1 m and 10 m (MATH §14)"
-        ),
-        "scenarios": ["paper", "paper-1m", "paper-10m"],
-        "sweep": {"parameter": "snr_db", "values": [-10, -5, 0, 5, 10, 15, 20, 25, 30]},
-        "estimators": ["lls-rss", "lls-toa", "cls-as-printed", "cls-paper", "cls", "sdp-cls", "ml"],
-        "trials": 500,
-        "seed": 20_240_602,
-        "frames": 1,
-    },
-    "geometry-map": {
-        "name": "geometry-map",
-        "description": (
-            "RMSE against the CRLB over a grid of emitter positions beside the paper's track "
-            "(paper-1m at 10 dB, one frame)"
-        ),
-        "scenarios": ["paper-1m"],
-        "sweep": {
-            "parameter": "emitter_m",
-            "x": [-40, -30, -20, -10, 0, 10, 20, 30, 40, 50, 60],
-            "y": [5, 15, 25, 35, 45, 55, 65],
-            "fixed": {"snr_db": 10},
-        },
-        "estimators": ["cls", "ml", "lls-toa"],
-        "trials": 100,
-        "seed": 20_240_603,
-        "frames": 1,
-    },
-    "frames": {
-        "name": "frames",
-        "description": (
-            "10 frames of the paper geometry at c*sigma_tau = 1 m and 0 dB, with a turn after "
-            "frame 3 (paper-1m-turn) and without (paper-1m): per-frame RMSE against the "
-            "accumulated CRLB, NEES and wrong-side rate (MATH §7, §8)"
-        ),
-        "scenarios": ["paper-1m-turn", "paper-1m"],
-        "sweep": {"parameter": "snr_db", "values": [0]},
-        "estimators": [
-            {"name": "cls", "label": "cls-last", "options": {"frames": "last"}},
-            {"name": "cls", "label": "cls-all", "options": {"frames": "all"}},
-            {"name": "ml", "label": "ml-all", "options": {"frames": "all"}},
-            "ekf",
-            "gtsam-smoother",
-        ],
-        "trials": 500,
-        "seed": 20_240_604,
-        "frames": 10,
-        "per_frame": True,
-    },
-    "paper-fig3": {
-        "name": "paper-fig3",
-        "description": (
-            "the paper's Fig. 3 in closed loop: 10 frames of K = 10 on the paper geometry at "
-            "c*sigma_tau = 1 m and 10 m, 0 dB; each frame's velocity chosen by a planner "
-            "(none, the paper's rule corrected MATH §12, Fisher-optimal MATH §13, an orbit) "
-            "from the cumulative ml estimate; RMSE per frame of cumulative ml and of the "
-            "paper's per-frame cls against the CRLB of the flown trajectory"
-        ),
-        "scenarios": ["paper-1m", "paper-10m"],
-        "sweep": {"parameter": "snr_db", "values": [0]},
-        "estimators": [
-            {"name": "ml", "label": "ml", "options": {"frames": "all"}},
-            {"name": "cls", "label": "cls-last", "options": {"frames": "last"}},
-        ],
-        "planners": ["constant", "paper", "fisher", "orbit"],
-        "steering_estimator": "ml",
-        "trials": 300,
-        "seed": 20_240_605,
-        "frames": 10,
-        "per_frame": True,
-    },
-    "smoke": {
-        "name": "smoke",
-        "description": "a tiny run for tests: two SNR points, two CLS variants, 20 trials",
-        "scenarios": ["paper-1m"],
-        "sweep": {"parameter": "snr_db", "values": [0, 20]},
-        "estimators": ["cls", "cls-paper"],
-        "trials": 20,
-        "seed": 7,
-        "chunk_size": 5,
-    },
-}
-
-BUILTIN_EXPERIMENTS: dict[str, str] = {
-    "paper-fig2": "accuracy vs SNR, one frame, paper/paper-1m/paper-10m, 7 estimators, 500 trials",
-    "frames": "per-frame RMSE, NEES, wrong side over 10 frames, with and without a turn",
-    "geometry-map": "RMSE/CRLB of cls, ml, lls-toa over an emitter grid, paper-1m at 10 dB",
-    "paper-fig3": "closed loop: 4 planners x 10 frames, ml and per-frame cls vs flown CRLB",
-    "smoke": "2 SNR points, cls and cls-paper, 20 trials (for tests)",
-}
-"""Built-in experiments by name: one-line summaries (``emitterbench list``)."""
 
 
 def builtin_experiment(name: str) -> Experiment:
-    """The built-in experiment ``name`` (see :data:`BUILTIN_EXPERIMENTS`)."""
-    if name not in _BUILTIN_DEFINITIONS:
-        raise ValueError(
-            f"experiment: unknown built-in {name!r}; built-ins: {', '.join(BUILTIN_EXPERIMENTS)}"
-        )
-    return Experiment.from_dict(_BUILTIN_DEFINITIONS[name])
+    """The built-in experiment ``name`` (:data:`comparison.experiment_catalog.BUILTIN_EXPERIMENTS`)."""
+    return Experiment.from_dict(builtin_definition(name))
 
 
 def load_experiment(name_or_path: str | Path) -> Experiment:
@@ -965,23 +588,4 @@ def load_experiment(name_or_path: str | Path) -> Experiment:
         Unknown name, unreadable file, invalid TOML, or any invalid key (the message starts
         with the key path).
     """
-    text = str(name_or_path)
-    if text in _BUILTIN_DEFINITIONS:
-        return builtin_experiment(text)
-    path = Path(name_or_path)
-    if path.suffix not in (".toml", ".json"):
-        raise ValueError(
-            f"experiment: {text!r} is neither a built-in ({', '.join(BUILTIN_EXPERIMENTS)}) "
-            "nor a .toml file"
-        )
-    try:
-        content = path.read_bytes()
-    except OSError as error:
-        raise ValueError(f"experiment: cannot read {path} ({error.strerror})") from None
-    if path.suffix == ".json":
-        return Experiment.from_json(content.decode())
-    try:
-        raw = tomllib.loads(content.decode())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
-        raise ValueError(f"experiment: {path} is not valid TOML ({error})") from None
-    return Experiment.from_dict(raw)
+    return Experiment.from_dict(experiment_definition(name_or_path))

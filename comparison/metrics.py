@@ -34,6 +34,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from comparison.trial_rows import REQUIRED_TRIAL_COLUMNS, TRIAL_COLUMNS
 from comparison.verdicts import (
     DEFAULT_N_BOOTSTRAP,
     efficiency_verdicts,
@@ -44,61 +45,6 @@ from comparison.verdicts import (
 )
 
 FloatArray = NDArray[np.float64]
-
-TRIAL_COLUMNS: tuple[str, ...] = (
-    "experiment",
-    "scenario",
-    "point",
-    "snr_db",
-    "planner",
-    "estimator",
-    "frame",
-    "trial",
-    "truth_x_m",
-    "truth_y_m",
-    "x_m",
-    "y_m",
-    "error_m",
-    "error_side_resolved_m",
-    "wrong_side",
-    "ambiguous",
-    "success",
-    "n_candidates",
-    "candidates_json",
-    "cov_xx_m2",
-    "cov_xy_m2",
-    "cov_yy_m2",
-    "nees",
-    "nees_side_resolved",
-    "crlb_rmse_m",
-    "runtime_s",
-    "message",
-    "diagnostics_json",
-)
-"""Every fixed column of a trial frame; the swept-parameter columns come on top of these.
-``planner`` is optional (empty in open-loop runs)."""
-
-REQUIRED_TRIAL_COLUMNS: tuple[str, ...] = (
-    "scenario",
-    "point",
-    "snr_db",
-    "estimator",
-    "frame",
-    "truth_x_m",
-    "truth_y_m",
-    "x_m",
-    "y_m",
-    "error_m",
-    "error_side_resolved_m",
-    "wrong_side",
-    "ambiguous",
-    "success",
-    "nees",
-    "nees_side_resolved",
-    "crlb_rmse_m",
-    "runtime_s",
-)
-"""The trial columns :func:`summarize` reads."""
 
 CONTRACT_METRIC_NAMES: tuple[str, ...] = (
     "n_trials",

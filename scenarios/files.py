@@ -22,7 +22,8 @@ type, an unknown schema, no samples, a negative σ or frames out of order are er
 
 CSV has the header ``frame,time_s,x_m,y_m,z_m,vx_mps,vy_mps,vz_mps`` plus any of
 ``doppler_hz,toa_s,rss_dbm``; an empty column means the modality is absent. The constants, σ's,
-RSS model and truth are keyword arguments of :func:`read_measurements_csv`.
+RSS model and truth are keyword arguments of :func:`read_measurements_csv`;
+:func:`read_measurements_with` takes the constants one by one, as command-line options give them.
 
 Every error is a ``ValueError`` whose message starts with the field's path
 (``samples[2].position_m``, ``noise.toa_s``, ``schema``) or, for a CSV cell, its column and
@@ -47,6 +48,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from scenarios import fields
 from scenarios.types import SPEED_OF_LIGHT_MPS, MeasurementSet, NoiseSigmas, RssModel
 
 SCHEMA = "emitterbench.measurements/1"
@@ -64,6 +66,14 @@ CSV_COLUMNS = ("frame", "time_s", "x_m", "y_m", "z_m", "vx_mps", "vy_mps", "vz_m
 """The CSV columns every file must have."""
 CSV_MEASUREMENT_COLUMNS = _MEASUREMENT_FIELDS
 """The optional CSV columns, one per modality."""
+CSV_CONSTANTS = (
+    "carrier_hz",
+    "speed_of_light_mps",
+    "emitter_height_m",
+    *(f"noise.{key}" for key in _NOISE_KEYS),
+    *(f"rss_model.{key}" for key in _RSS_MODEL_KEYS),
+)
+"""The constants a CSV file leaves out, by their JSON path (:func:`read_measurements_with`)."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -125,6 +135,64 @@ def read_measurements(
         f"{path}: unknown file type {path.suffix or '(no extension)'!r}; "
         "name the file .json or .csv"
     )
+
+
+def read_measurements_with(
+    path: str | os.PathLike[str],
+    constants: Mapping[str, float | None],
+    *,
+    names: Mapping[str, str] | None = None,
+) -> MeasurementSet:
+    """Read a ``.json`` or ``.csv`` measurement file, with CSV constants given one by one.
+
+    ``constants`` maps paths of :data:`CSV_CONSTANTS` to values (None: not given), as the
+    options of a command line give them. A CSV file needs ``carrier_hz`` and takes the three
+    ``rss_model`` values together or not at all; a file of another type carries its own
+    constants, and giving one is an error. An error about a constant names it
+    ``names[path]`` when given, e.g. the option ``--sigma-toa-s`` for ``noise.toa_s``
+    (``names["rss_model"]`` names the model as a whole).
+    """
+    path = Path(path)
+    names = names or {}
+    unknown = sorted(set(constants) - set(CSV_CONSTANTS))
+    if unknown:
+        raise ValueError(
+            f"{unknown[0]}: not a CSV constant; expected one of {', '.join(CSV_CONSTANTS)}"
+        )
+    value = {key: constants.get(key) for key in CSV_CONSTANTS}
+    given = [key for key in CSV_CONSTANTS if value[key] is not None]
+    if path.suffix.lower() != ".csv":
+        if given:
+            raise ValueError(
+                f"{names.get(given[0], given[0])}: only for CSV files; {path} carries its own "
+                "constants (drop the option or edit the file)"
+            )
+        return read_measurements(path)
+    if value["carrier_hz"] is None:
+        raise ValueError(
+            f"{names.get('carrier_hz', 'carrier_hz')}: required to read the CSV file {path}"
+        )
+    rss_keys = [key for key in CSV_CONSTANTS if key.startswith("rss_model.")]
+    rss_given = [key for key in rss_keys if key in given]
+    if rss_given and len(rss_given) < len(rss_keys):
+        missing = next(key for key in rss_keys if key not in given)
+        raise ValueError(f"{names.get(missing, missing)}: give all three RSS-model options")
+    try:
+        return read_measurements(
+            path,
+            carrier_hz=value["carrier_hz"],
+            speed_of_light_mps=value["speed_of_light_mps"],
+            emitter_height_m=value["emitter_height_m"],
+            noise=NoiseSigmas(**{key: value[f"noise.{key}"] for key in _NOISE_KEYS}),
+            rss_model=None
+            if not rss_given
+            else RssModel(**{key: value[f"rss_model.{key}"] for key in _RSS_MODEL_KEYS}),
+        )
+    except ValueError as error:
+        field, separator, rest = str(error).partition(": ")
+        if separator and field in names:
+            raise ValueError(f"{names[field]}: {rest}") from None
+        raise
 
 
 def measurements_from_json(text: str, *, source: str = "json") -> MeasurementSet:
@@ -523,15 +591,7 @@ def _check_frame_order(frames: Sequence[int], name_of: Any) -> None:
 
 def _number(value: Any, path: str) -> float:
     """A finite JSON number (not a bool, not a string) as a float."""
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ValueError(f"{path}: expected a number, got {_kind(value)}")
-    try:
-        number = float(value)
-    except OverflowError:
-        raise ValueError(f"{path}: too large for a float (above 1.8e308)") from None
-    if not math.isfinite(number):
-        raise ValueError(f"{path}: must be finite, got {number}; replace it with a number")
-    return number
+    return fields.number(value, path, describe=_kind, fix="; replace it with a number")
 
 
 def _whole_number(value: Any, path: str) -> int:

@@ -10,13 +10,14 @@ Doppler is received minus carrier frequency, positive while closing (MATH §1).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from scenarios.fields import finite, positive_finite, text
 
 SPEED_OF_LIGHT_MPS = 299_792_458.0
 """Speed of light in vacuum, m/s: the default propagation speed (MATH §0)."""
@@ -28,7 +29,8 @@ FloatArray = NDArray[np.float64]
 
 
 # --------------------------------------------------------------------------------------------
-# validation helpers
+# validation helpers: arrays here, numbers and text in scenarios.fields (finite and
+# positive_finite are still imported from this module, e.g. by scenarios.planners)
 # --------------------------------------------------------------------------------------------
 
 
@@ -66,28 +68,6 @@ def frozen_array(
 def _shape_text(shape: tuple[int | None, ...]) -> str:
     names = iter("NMLK")
     return "(" + ", ".join(str(s) if s is not None else next(names) for s in shape) + ")"
-
-
-def positive_finite(value: float, name: str) -> float:
-    """Return ``value`` as a float if it is finite and > 0, else raise naming ``name``."""
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected a positive number, got {value!r}") from None
-    if not math.isfinite(number) or number <= 0.0:
-        raise ValueError(f"{name}: must be finite and > 0, got {value!r}")
-    return number
-
-
-def finite(value: float, name: str) -> float:
-    """Return ``value`` as a float if it is finite, else raise naming ``name``."""
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected a number, got {value!r}") from None
-    if not math.isfinite(number):
-        raise ValueError(f"{name}: must be finite, got {value!r}")
-    return number
 
 
 # --------------------------------------------------------------------------------------------
@@ -278,8 +258,7 @@ class Scenario:
     description: str = ""
 
     def __post_init__(self) -> None:
-        if not isinstance(self.name, str) or not self.name:
-            raise ValueError(f"scenario.name: expected a non-empty string, got {self.name!r}")
+        text(self.name, "scenario.name")
         object.__setattr__(self, "emitter_m", frozen_array(self.emitter_m, "emitter_m", (2,)))
         if not isinstance(self.flight, FlightPlan):
             raise ValueError("flight: expected a FlightPlan")

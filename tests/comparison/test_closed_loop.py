@@ -13,15 +13,12 @@ import pytest
 
 from comparison.closed_loop import HOLD_PREFIX, fly_closed_loop, steering_candidates_m
 from comparison.crlb import fisher_information, rmse_bound_m
-from comparison.engine import (
-    FLIGHT_COLUMNS,
-    read_flights,
-    read_trials,
-    run_experiment,
-    tie_rng,
-)
+from comparison.engine import run_experiment
 from comparison.experiment import Experiment, load_experiment
 from comparison.metrics import summarize
+from comparison.store import read_flights, read_trials
+from comparison.tasks import tie_rng
+from comparison.trial_rows import FLIGHT_COLUMNS
 from estimators.base import Estimate
 from estimators.cls import Cls
 from estimators.registry import make_estimator

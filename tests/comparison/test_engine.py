@@ -21,17 +21,14 @@ import pandas as pd
 import pytest
 
 from comparison.crlb import fisher_information, rmse_bound_m
-from comparison.engine import (
-    TRIAL_COLUMNS,
-    estimate_columns,
-    read_experiment,
-    read_points,
-    read_trials,
-    run_experiment,
-    tie_rng,
-    trial_seed,
-)
+from comparison.engine import run_experiment
+from comparison.estimator_calls import Stream
 from comparison.experiment import Experiment, load_experiment
+from comparison.run_folder import read_experiment
+from comparison.scoring import estimate_columns
+from comparison.store import read_points, read_trials
+from comparison.tasks import tie_rng, trial_seed
+from comparison.trial_rows import TRIAL_COLUMNS
 from comparison.verdicts import nees_band
 from estimators.base import Capabilities, Estimate
 from estimators.cls import Cls
@@ -335,6 +332,55 @@ def test_per_frame_runs_every_frame_and_streams_sequential_estimators(tmp_path):
     pd.testing.assert_frame_equal(trials[columns], per_frame[columns])
     seen = trials[trials.estimator == "cls"].diagnostics_json.map(json.loads)
     assert seen.map(lambda d: d["frames_seen"]).to_list() == ([1] * 4 + [2] * 4) * 2
+
+
+class FailingStream:
+    """A sequential estimator whose ``fail_in`` method (``init``, ``update`` or
+    ``estimate_state``) raises at the second frame; it records the ``rng`` of every
+    ``estimate_state`` call. The state counts the frames seen."""
+
+    def __init__(self, fail_in):
+        self.fail_in, self.rngs = fail_in, []
+
+    def init(self):
+        if self.fail_in == "init":
+            raise RuntimeError("no state")
+        return 0
+
+    def update(self, state, frame):
+        if self.fail_in == "update" and state == 1:
+            raise RuntimeError("lost")
+        return state + 1
+
+    def estimate_state(self, state, *, rng=None):
+        self.rngs.append(rng)
+        if self.fail_in == "estimate_state" and state == 2:
+            raise RuntimeError("no estimate")
+        return Estimate(
+            estimator="s", position_m=[state, 0.0], candidates_m=[[state, 0.0]], ambiguous=False
+        )
+
+
+@pytest.mark.parametrize(
+    ("fail_in", "messages", "n_estimates"),
+    [
+        ("init", ["RuntimeError in init: no state"] * 3, 0),
+        ("update", ["", "RuntimeError in update: lost", "RuntimeError in update: lost"], 1),
+        ("estimate_state", ["", "RuntimeError: no estimate", ""], 3),
+    ],
+)
+def test_a_stream_fails_a_frame_or_every_later_one(fail_in, messages, n_estimates):
+    """The one helper that streams for the per-frame open loop and the closed loop alike: a
+    failed ``init`` or ``update`` fails that frame and every later one (the state is lost), a
+    failed ``estimate_state`` only its frame; ``estimate_state`` always gets the ``rng``."""
+    estimator = FailingStream(fail_in)
+    stream = Stream(estimator)
+    rngs = [np.random.default_rng(k) for k in range(3)]
+    results = [stream.step(None, rng) for rng in rngs]
+    assert [estimate.message for estimate, _ in results] == messages
+    assert [estimate.success for estimate, _ in results] == [not m for m in messages]
+    assert all(runtime_s >= 0.0 for _, runtime_s in results)
+    assert estimator.rngs == rngs[:n_estimates]
 
 
 # --------------------------------------------------------------------------------------------

@@ -8,13 +8,13 @@ import pytest
 
 import comparison.experiment as experiment_module
 from comparison.experiment import (
-    BUILTIN_EXPERIMENTS,
     EstimatorSpec,
     Experiment,
     Sweep,
     builtin_experiment,
     load_experiment,
 )
+from comparison.experiment_catalog import BUILTIN_EXPERIMENTS
 
 BASE = {
     "name": "unit",

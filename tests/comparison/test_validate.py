@@ -13,7 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from comparison.cli import app
-from comparison.validate import (
+from comparison.crosscheck import (
     FAMILIES,
     instance_seeds,
     make_instance,

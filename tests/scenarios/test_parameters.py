@@ -1,11 +1,11 @@
-"""Tests of scenarios.sweep: one named parameter changed, everything else kept."""
+"""Tests of scenarios.parameters: one named parameter changed, everything else kept."""
 
 import numpy as np
 import pytest
 
 from scenarios.catalog import get_scenario
+from scenarios.parameters import SWEEPABLE, check_parameter_value, with_parameter, with_parameters
 from scenarios.simulate import noise_free
-from scenarios.sweep import SWEEPABLE, check_parameter_value, with_parameter, with_parameters
 
 
 def test_sweepable_names_are_the_documented_parameters():

@@ -1,4 +1,4 @@
-"""Scenario parameters that an experiment can sweep, and the scenario at one parameter value.
+"""The scenario parameters an experiment can vary, and the scenario at given parameter values.
 
 :func:`with_parameter` returns a copy of a :class:`~scenarios.types.Scenario` with one named
 parameter changed; :data:`SWEEPABLE` lists the names. The SNR is not a scenario parameter (a
@@ -11,12 +11,12 @@ file with a negative σ or a fractional frame count fails at load, naming the pa
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import replace
 
 import numpy as np
 
+from scenarios import fields
 from scenarios.types import Scenario
 
 SWEEPABLE: dict[str, str] = {
@@ -65,11 +65,7 @@ def check_parameter_value(name: str, value: float) -> float:
             f"{name}: not a sweepable scenario parameter; choose one of {known} "
             "(snr_db is applied at simulation time, not to the scenario)"
         )
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise ValueError(f"{name}: expected a number, got {value!r}")
-    number = float(value)
-    if not math.isfinite(number):
-        raise ValueError(f"{name}: must be finite, got {value!r}")
+    number = fields.number(value, name)
     if name in _POSITIVE and number <= 0.0:
         raise ValueError(f"{name}: must be > 0, got {value!r}")
     if name in _WHOLE and (number != round(number) or number < 1):

@@ -1,0 +1,150 @@
+"""The Cramér-Rao bounds a run scores against (MATH §8), and the rows of the points table.
+
+Every (scenario, point) of an experiment gets a :class:`PointInfo` in the main process
+(:func:`point_infos`): its scenario, SNR, swept settings and the per-frame and accumulated
+Fisher information at the truth for every modality set needed. An estimator's bound
+(``crlb_rmse_m``) uses the modalities and frames it declares (:func:`crlb_key`, from its
+``capabilities()``, never from option names). In a closed loop every trial flies its own
+trajectory, so the worker computes the information of that trial (:func:`information_at_truth`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from comparison.crlb import fisher_information_per_frame, rmse_bound_m
+from comparison.experiment import Experiment
+from comparison.trial_rows import POINT_CRLB_SETS
+from estimators.base import Estimator, capabilities_of
+from scenarios.measurement_model import slant_range_m
+from scenarios.simulate import noise_free
+from scenarios.types import MeasurementSet, Scenario
+
+Information = tuple[np.ndarray, np.ndarray]
+"""``(per_frame, accumulated)`` Fisher information, one 2×2 matrix per frame each."""
+
+CrlbKey = tuple[tuple[str, ...], Any]
+"""The modalities (in a fixed order) and the ``frames`` option an estimator's bound uses."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PointInfo:
+    """One (scenario, point): its scenario, SNR, settings and Fisher information by modality."""
+
+    scenario: Scenario
+    snr_db: float
+    settings: dict[str, float]
+    information: dict[tuple[str, ...], Information | None]
+
+    @property
+    def n_frames(self) -> int:
+        return self.scenario.flight.n_frames
+
+    def rmse_bound_m(self, modalities: tuple[str, ...], frame: int, frames: Any = "all") -> float:
+        """√trace(CRLB) of ``modalities`` over the frames an estimator uses up to ``frame``."""
+        return bound_of(self.information.get(modalities), frame, frames)
+
+
+def bound_of(info: Information | None, frame: int, frames: Any = "all") -> float:
+    """√trace(CRLB) from ``(per_frame, accumulated)`` information over the frames an
+    estimator uses up to ``frame`` (``"all"``, ``"last"`` or listed frames; MATH §8)."""
+    if info is None:
+        return math.nan
+    per_frame, accumulated = info
+    if isinstance(frames, str) and frames == "last":
+        information = per_frame[frame]
+    elif isinstance(frames, Sequence) and not isinstance(frames, str):
+        chosen = [f for f in frames if 0 <= int(f) <= frame]
+        if not chosen:
+            return math.nan
+        information = per_frame[np.asarray(chosen, dtype=int)].sum(axis=0)
+    else:
+        information = accumulated[frame]
+    return float(rmse_bound_m(information))
+
+
+def _modality_key(modalities: Iterable[str]) -> tuple[str, ...]:
+    return tuple(m for m in ("toa", "doppler", "rss") if m in set(modalities))
+
+
+def crlb_key(estimator: Estimator) -> CrlbKey:
+    """The modalities and frames an estimator declares it uses: its bound's key (MATH §8)."""
+    capabilities = capabilities_of(estimator)
+    return _modality_key(capabilities.modalities), capabilities.frames
+
+
+def information_at_truth(
+    data: MeasurementSet, truth: Any, needed: Iterable[tuple[str, ...]]
+) -> dict[tuple[str, ...], Information | None]:
+    """Per-frame and accumulated Fisher information of ``data``'s flight at the truth, per
+    modality set (None where a σ or the RSS model is absent: no bound)."""
+    information: dict[tuple[str, ...], Information | None] = {}
+    for modalities in needed:
+        try:
+            information[modalities] = fisher_information_per_frame(data, truth, modalities)
+        except ValueError:  # a σ or the RSS model is absent: no bound
+            information[modalities] = None
+    return information
+
+
+def point_infos(
+    experiment: Experiment, crlb_keys: Iterable[CrlbKey]
+) -> dict[tuple[int, int], PointInfo]:
+    """Fisher information per frame at the truth, for every modality set needed (MATH §8):
+    those of the points table and those of the estimators' ``crlb_keys``."""
+    needed = {_modality_key(m) for m in POINT_CRLB_SETS.values()}
+    needed.update(modalities for modalities, _ in crlb_keys)
+    infos = {}
+    for i in range(len(experiment.scenarios)):
+        for p, settings in enumerate(experiment.sweep.points()):
+            scenario, snr_db = experiment.point_scenario(i, p)
+            data = noise_free(scenario, snr_db=snr_db)
+            infos[(i, p)] = PointInfo(
+                scenario=scenario,
+                snr_db=snr_db,
+                settings=settings,
+                information=information_at_truth(data, scenario.emitter_m, sorted(needed)),
+            )
+    return infos
+
+
+def point_rows(
+    experiment: Experiment, infos: Mapping[tuple[int, int], PointInfo]
+) -> list[dict[str, Any]]:
+    """The rows of the points table, by column: truth, ``range_scale_m`` (the root mean square
+    slant range of the samples flown so far) and the accumulated bounds of
+    :data:`~comparison.trial_rows.POINT_CRLB_SETS`, per scenario × point × frame."""
+    rows = []
+    for (i, p), info in infos.items():
+        swept = {c: info.settings[c] for c in experiment.swept_columns}
+        truth = [float(v) for v in info.scenario.emitter_m]
+        flight = info.scenario.flight
+        squared_range = (
+            slant_range_m(flight.sample_positions_m(), truth, info.scenario.emitter_height_m) ** 2
+        )
+        for frame in range(info.n_frames):
+            bounds = {
+                column: info.rmse_bound_m(_modality_key(modalities), frame)
+                for column, modalities in POINT_CRLB_SETS.items()
+            }
+            scale = math.sqrt(float(np.mean(squared_range[flight.sample_frames() <= frame])))
+            rows.append(
+                {
+                    "scenario": experiment.scenarios[i],
+                    "point": p,
+                    "frame": frame,
+                    "scenario_index": i,
+                    "snr_db": info.snr_db,
+                    **swept,
+                    "truth_x_m": truth[0],
+                    "truth_y_m": truth[1],
+                    "range_scale_m": scale,
+                    **bounds,
+                }
+            )
+    return rows

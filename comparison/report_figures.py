@@ -1,0 +1,217 @@
+"""The figures of a report: which apply to a run, in what order, each with its caption.
+
+:func:`report_figures` picks them from the summary (an SNR or other sweep, an emitter grid,
+per-frame rows, a closed loop) and draws them with :mod:`comparison.figures`; the report
+writes each as ``figures/<stem>.png`` and ``.svg`` and shows it with its caption.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+from comparison import figures
+
+FIGURE_STEMS: tuple[str, ...] = (
+    "rmse",
+    "rmse_side_resolved",
+    "wrong_side",
+    "geometry",
+    "error_cdf",
+    "runtime",
+    "rmse_vs_frame",
+    "wrong_side_vs_frame",
+    "nees_vs_frame",
+    "planner_rmse_vs_frame",
+    "planner_rmse_side_resolved_vs_frame",
+    "planner_wrong_side_vs_frame",
+    "trajectories",
+)
+"""File names (without suffix) of every figure a report can write under ``figures/``."""
+
+
+def _count_caption(note: str) -> str:
+    """A note of :mod:`comparison.figures` on the points left out, as a caption's sentence."""
+    return f"{note[0].upper()}{note[1:]} (the legend counts them)."
+
+
+COUNT_CAPTION = _count_caption(figures.WRONG_SIDE_COUNT_NOTE)
+
+OVERLAP_CAPTION = (
+    "Curves that overlap alternate their dash segments and markers; the legend says which "
+    f"agree within {100 * figures.COINCIDENCE_RTOL:g}% at every point "
+    '("coincides with ...").'
+)
+
+
+def closed_loop_figures(
+    summary: pd.DataFrame,
+    trials: pd.DataFrame,
+    flights: pd.DataFrame | None,
+    *,
+    estimator: str | None = None,
+) -> list[tuple[str, str, Figure]]:
+    """``(stem, caption, figure)`` of the closed-loop figures (planners against the frame)."""
+    colors = figures.planner_colors(summary["planner"].unique())
+    made = [
+        (
+            "planner_rmse_vs_frame",
+            "RMSE of the returned position per planner as frames accumulate, one panel per "
+            "scenario and estimator; shaded: 95% studentized-bootstrap interval; dashed, same "
+            "colour: the root mean square over trials of √CRLB of each trial's flown "
+            f"trajectory (MATH §8). {OVERLAP_CAPTION}",
+            figures.planner_rmse_vs_frame_figure(summary, colors=colors),
+        ),
+        (
+            "planner_rmse_side_resolved_vs_frame",
+            "Side-resolved RMSE (nearest candidate to the truth, MATH §7) per planner; same "
+            "layout. It shows what the estimates are worth once the mirror side is known.",
+            figures.planner_rmse_vs_frame_figure(summary, side_resolved=True, colors=colors),
+        ),
+        (
+            "planner_wrong_side_vs_frame",
+            "Wrong-side rate per planner as frames accumulate: the fraction of the successful "
+            "estimates off the track plane that lie on the other side from the truth of the "
+            "first track the estimator uses (frame 0 for a cumulative estimator, the current "
+            "frame for a per-frame one); 0.5 is a coin toss, and a turn should drive it to 0 "
+            f"(MATH §7). {COUNT_CAPTION}",
+            figures.planner_wrong_side_vs_frame_figure(summary, colors=colors),
+        ),
+    ]
+    if flights is not None and not flights.empty:
+        label = estimator or str(summary["estimator"].iloc[0])
+        made.append(
+            (
+                "trajectories",
+                f"The paper's Fig. 3 in closed loop: UAV paths of a few trials per planner "
+                f"(one colour per trial, the same trials in every panel), the emitter (star), "
+                f"{label}'s estimate after every frame (dots); below each, a zoom on the truth "
+                "with every trial's last estimate (grey) and, for the drawn trials, the last "
+                "estimate (cross) with its 2σ covariance ellipse and the wrong-side count.",
+                figures.trajectory_figure(flights, trials, estimator=label),
+            )
+        )
+    return made
+
+
+def report_figures(
+    summary: pd.DataFrame,
+    trials: pd.DataFrame,
+    points: pd.DataFrame | None,
+    tracks_m: Mapping[str, np.ndarray] | None,
+    flights: pd.DataFrame | None = None,
+    *,
+    steering_estimator: str | None = None,
+) -> list[tuple[str, str, Figure]]:
+    """``(stem, caption, figure)`` of every figure that applies to this sweep.
+
+    A closed-loop run (a ``planner`` column in the summary) gets :func:`closed_loop_figures`
+    and the run-time figure: the open-loop figures would mix the planners.
+    """
+    if "planner" in summary.columns:
+        made = closed_loop_figures(summary, trials, flights, estimator=steering_estimator)
+        colors = figures.estimator_colors(summary["estimator"].unique())
+        made.append(
+            (
+                "runtime",
+                "Wall time of one estimate per estimator over the whole run, every planner and "
+                "frame (median and 5th to 95th percentiles; log axis).",
+                figures.runtime_figure(trials, colors=colors),
+            )
+        )
+        return made
+    colors = figures.estimator_colors(summary["estimator"].unique())
+    x = figures.sweep_axis(summary)
+    made: list[tuple[str, str, Figure]] = []
+    if x is not None and summary[x].nunique() > 1:  # a one-point sweep has no curve to draw
+        what = figures.axis_label(x).split(":")[0]
+        made.append(
+            (
+                "rmse",
+                f"RMSE of the returned position against {what}, one panel per scenario; "
+                "shaded: 95% studentized-bootstrap interval; solid black: √CRLB for "
+                "ToA+Doppler; dashed: the bound of an estimator that uses other modalities. "
+                f"{OVERLAP_CAPTION}",
+                figures.rmse_figure(summary, points=points, x=x, colors=colors),
+            )
+        )
+        if not np.allclose(
+            summary["rmse_side_resolved_m"], summary["rmse_m"], rtol=1e-12, equal_nan=True
+        ):
+            made.append(
+                (
+                    "rmse_side_resolved",
+                    f"Side-resolved RMSE (nearest candidate to the truth, MATH §7) against "
+                    f"{what}; same layout as the RMSE figure.",
+                    figures.side_resolved_rmse_figure(summary, points=points, x=x, colors=colors),
+                )
+            )
+        made.append(
+            (
+                "wrong_side",
+                f"Wrong-side rate against {what}: the fraction of the successful estimates off "
+                "the track plane that lie on the other side of the last frame's track from the "
+                f"truth; 0.5 is a coin toss. {COUNT_CAPTION}",
+                figures.wrong_side_figure(summary, x=x, colors=colors),
+            )
+        )
+    if figures.is_geometry_sweep(summary):
+        made.append(
+            (
+                "geometry",
+                "Efficiency RMSE/√CRLB over the emitter grid (log colour scale; side-resolved "
+                "RMSE for estimators that flag ambiguous answers), with the UAV track where "
+                "known; the first panel is the ToA+Doppler √CRLB in metres.",
+                figures.geometry_heatmap_figure(summary, points=points, tracks_m=tracks_m),
+            )
+        )
+    made.append(
+        (
+            "error_cdf",
+            "Empirical CDF of the distance error at the lowest, middle and highest sweep "
+            "points; failed estimates count as infinite errors. Dashed: side-resolved error.",
+            figures.error_cdf_figure(trials, x=x, colors=colors),
+        )
+    )
+    made.append(
+        (
+            "runtime",
+            "Wall time of one estimate per estimator over the whole run (median and 5th to "
+            "95th percentiles; log axis). Timings depend on the machine in the run section.",
+            figures.runtime_figure(trials, colors=colors),
+        )
+    )
+    if figures.is_per_frame(summary):
+        made.append(
+            (
+                "rmse_vs_frame",
+                "RMSE as frames accumulate, with the √CRLB accumulated over the same frames "
+                f"(MATH §8); dotted: side-resolved RMSE where it differs. {OVERLAP_CAPTION}",
+                figures.rmse_vs_frame_figure(summary, points=points, colors=colors),
+            )
+        )
+        made.append(
+            (
+                "wrong_side_vs_frame",
+                "Wrong-side rate as frames accumulate: the fraction of the successful estimates "
+                "off the track plane that lie on the other side of the last frame's track from "
+                "the truth; 0.5 is a coin toss, and a turn should drive it to 0 (MATH §7). "
+                f"{COUNT_CAPTION}",
+                figures.wrong_side_vs_frame_figure(summary, colors=colors),
+            )
+        )
+        if (summary["n_nees"] > 0).any():
+            made.append(
+                (
+                    "nees_vs_frame",
+                    "Mean side-resolved NEES against the frame for estimators with a "
+                    "covariance (each trial's nearest candidate against its own, mirrored "
+                    "covariance); grey: the 95% chi-square band of the mean of n consistent "
+                    f"2-dof NEES values. {_count_caption(figures.NEES_COUNT_NOTE)}",
+                    figures.nees_vs_frame_figure(summary, colors=colors),
+                )
+            )
+    return made

@@ -1,0 +1,291 @@
+"""``results.sqlite``: the tables of a run, written by the main process and read back as frames.
+
+Tables, their columns as :mod:`comparison.trial_rows` defines them:
+
+``trials``
+    One row per scenario × point × planner × estimator × frame × trial, primary key in that
+    order (the planner is empty in an open-loop experiment).
+``points``
+    Truth and CRLB per scenario × point × frame (MATH §8) of the scenario's own flight: in a
+    closed loop that of the ``constant`` planner.
+``flights``
+    Closed loop only: the velocity and start of every frame flown, per planner and trial.
+``tasks``
+    Wall time of every task, a log.
+
+The main process writes each task's rows in one SQLite transaction (WAL mode) as the task
+finishes (:func:`write_task`), so a run killed at any moment loses at most the tasks in
+flight; :func:`complete_trials` tells a resume which trials are done. A file written before
+planners, the side-resolved NEES or ``range_scale_m`` existed gets those columns on resume.
+:func:`read_trials`, :func:`read_points` and :func:`read_flights` return the tables as tidy
+pandas frames with the columns of the contract.
+"""
+
+from __future__ import annotations
+
+import os
+import sqlite3
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import closing, contextmanager
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from comparison.bounds import CrlbKey, PointInfo
+from comparison.experiment import Experiment
+from comparison.run_folder import RESULTS_FILE, now_utc, read_experiment
+from comparison.tasks import TaskResult
+from comparison.trial_rows import (
+    BOUND_COLUMN,
+    ESTIMATE_COLUMNS,
+    FLIGHT_VALUE_COLUMNS,
+    FLIGHTS,
+    POINT_COLUMNS,
+    POINTS,
+    TRIALS,
+    Table,
+    with_swept,
+)
+
+_ADDED_LATER: tuple[tuple[Table, tuple[str, ...]], ...] = (
+    (TRIALS, ("planner", "planner_index", "nees_side_resolved")),
+    (POINTS, ("range_scale_m",)),
+)
+"""Columns that files written by earlier versions lack, added when such a run is resumed."""
+
+
+def _quote(name: str) -> str:
+    return '"' + name.replace('"', '""') + '"'
+
+
+def _names(columns: Sequence[str]) -> str:
+    return ", ".join(map(_quote, columns))
+
+
+# --------------------------------------------------------------------------------------------
+# writing (main process)
+# --------------------------------------------------------------------------------------------
+
+
+def connect(path: Path) -> sqlite3.Connection:
+    """A connection for writing, in WAL mode."""
+    connection = sqlite3.connect(path, timeout=60.0)
+    connection.execute("PRAGMA journal_mode=WAL")
+    connection.execute("PRAGMA synchronous=NORMAL")
+    return connection
+
+
+def _create(connection: sqlite3.Connection, table: Table, swept: Sequence[str] = ()) -> None:
+    columns = ", ".join(f"{_quote(name)} {sql}" for name, sql in table.stored(swept))
+    connection.execute(
+        f"CREATE TABLE IF NOT EXISTS {table.name} ({columns}, "
+        f"PRIMARY KEY ({_names(table.keys())})) WITHOUT ROWID"
+    )
+
+
+def create_tables(connection: sqlite3.Connection, experiment: Experiment) -> None:
+    """Create the tables, or add what an older file lacks."""
+    with connection:
+        _create(connection, TRIALS)
+        _create(connection, POINTS, experiment.swept_columns)
+        connection.execute(
+            "CREATE TABLE IF NOT EXISTS tasks (scenario TEXT, point INTEGER, "
+            "first_trial INTEGER, n_trials INTEGER, elapsed_s REAL, finished_utc TEXT)"
+        )
+        _create(connection, FLIGHTS)
+        for table, names in _ADDED_LATER:
+            present = {row[1] for row in connection.execute(f"PRAGMA table_info({table.name})")}
+            types = dict(table.stored())
+            for name in names:
+                if name not in present:
+                    connection.execute(
+                        f"ALTER TABLE {table.name} ADD COLUMN {_quote(name)} {types[name]}"
+                    )
+
+
+def _insert(table: Table, columns: Sequence[str], *, replace: bool = False) -> str:
+    marks = ", ".join("?" * len(columns))
+    verb = "INSERT OR REPLACE" if replace else "INSERT"
+    return f"{verb} INTO {table.name} ({_names(columns)}) VALUES ({marks})"
+
+
+def write_points(
+    connection: sqlite3.Connection, experiment: Experiment, rows: Sequence[Mapping[str, Any]]
+) -> None:
+    """Replace the points table by ``rows`` (:func:`comparison.bounds.point_rows`)."""
+    columns = [name for name, _ in POINTS.stored(experiment.swept_columns)]
+    values = [tuple(row[c] for c in columns) for row in rows]
+    with connection:
+        connection.execute(f"DELETE FROM {POINTS.name}")
+        connection.executemany(_insert(POINTS, columns), values)
+
+
+def complete_trials(
+    connection: sqlite3.Connection,
+    experiment: Experiment,
+    infos: Mapping[tuple[int, int], PointInfo],
+) -> dict[tuple[int, int], set[int]]:
+    """The trials of each (scenario, point) whose rows are all in the database."""
+    n_estimators = len(experiment.estimators) * max(len(experiment.planners), 1)
+    complete: dict[tuple[int, int], set[int]] = {key: set() for key in infos}
+    query = (
+        "SELECT scenario_index, point, trial, COUNT(*) FROM trials "
+        "GROUP BY scenario_index, point, trial"
+    )
+    for i, p, trial, count in connection.execute(query):
+        info = infos.get((i, p))
+        if info is None:
+            continue
+        frames = info.n_frames if experiment.per_frame else 1
+        if count == n_estimators * frames:
+            complete[(i, p)].add(trial)
+    return complete
+
+
+def write_task(
+    connection: sqlite3.Connection,
+    experiment: Experiment,
+    result: TaskResult,
+    info: PointInfo,
+    crlb_keys: Sequence[CrlbKey],
+) -> None:
+    """One task's rows, flights and log entry, in one transaction.
+
+    An open-loop row gets the bound of the common flight here (``info``), by the modalities
+    and frames of its estimator (``crlb_keys``, in the experiment's order).
+    """
+    scenario = experiment.scenarios[result.scenario_index]
+    labels = experiment.labels
+    planners = experiment.planner_labels or ("",)
+    bounds: dict[tuple[int, int], float] = {}
+    trial_columns = [name for name, _ in TRIALS.stored()]
+    rows = []
+    for row in result.rows:
+        bound = row.crlb_rmse_m
+        if bound is None:  # open loop: the same flight in every trial
+            key = (row.estimator_index, row.frame)
+            if key not in bounds:
+                modalities, frames = crlb_keys[row.estimator_index]
+                bounds[key] = info.rmse_bound_m(modalities, row.frame, frames)
+            bound = bounds[key]
+        fields = {
+            "scenario": scenario,
+            "point": result.point,
+            "planner": planners[row.planner_index],
+            "estimator": labels[row.estimator_index],
+            "frame": row.frame,
+            "trial": row.trial,
+            "scenario_index": result.scenario_index,
+            "planner_index": row.planner_index,
+            "estimator_index": row.estimator_index,
+            **dict(zip(ESTIMATE_COLUMNS, row.values, strict=True)),
+            BOUND_COLUMN: bound,
+        }
+        rows.append(tuple(fields[c] for c in trial_columns))
+    flight_columns = [name for name, _ in FLIGHTS.stored()]
+    flights = []
+    for flown in result.flights:
+        fields = {
+            "scenario": scenario,
+            "point": result.point,
+            "planner": planners[flown.planner_index],
+            "trial": flown.trial,
+            "frame": flown.frame,
+            "scenario_index": result.scenario_index,
+            "planner_index": flown.planner_index,
+            **dict(zip(FLIGHT_VALUE_COLUMNS, flown.values, strict=True)),
+        }
+        flights.append(tuple(fields[c] for c in flight_columns))
+    with connection:
+        connection.executemany(_insert(TRIALS, trial_columns, replace=True), rows)
+        if flights:
+            connection.executemany(_insert(FLIGHTS, flight_columns, replace=True), flights)
+        connection.execute(
+            "INSERT INTO tasks VALUES (?, ?, ?, ?, ?, ?)",
+            (
+                scenario,
+                result.point,
+                min(result.trials),
+                len(result.trials),
+                result.elapsed_s,
+                now_utc(),
+            ),
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# reading
+# --------------------------------------------------------------------------------------------
+
+
+@contextmanager
+def _reading(out_dir: Path) -> Iterator[sqlite3.Connection]:
+    path = out_dir / RESULTS_FILE
+    if not path.is_file():
+        raise ValueError(f"out_dir: {path} not found; run the experiment first")
+    # a plain connection (query-only) so that closing it removes the empty WAL files
+    with closing(sqlite3.connect(path, timeout=60.0)) as connection:
+        connection.execute("PRAGMA query_only=ON")
+        yield connection
+
+
+def _order_by(table: Table, alias: str = "") -> str:
+    return ", ".join(alias + column for column in table.sort_order())
+
+
+def read_trials(out_dir: str | os.PathLike[str]) -> pd.DataFrame:
+    """One row per estimator × scenario × point × frame × trial (the contract's columns,
+    :data:`comparison.trial_rows.TRIALS`).
+
+    Sorted by scenario and estimator in the experiment's order, then point, frame and trial
+    (``scenario, point, estimator, frame, trial``). NaN marks what a failed estimate or a
+    missing covariance cannot give.
+    """
+    out = Path(out_dir)
+    experiment = read_experiment(out)
+    swept = list(experiment.swept_columns)
+    stored = [c.name for c in TRIALS.columns if c.stored]
+    joined = with_swept(POINT_COLUMNS, swept)
+    selected = ", ".join([f"t.{_quote(c)}" for c in stored] + [f"p.{_quote(c)}" for c in joined])
+    on = " AND ".join(f"t.{key} = p.{key}" for key in POINTS.keys())
+    query = (
+        f"SELECT {selected} FROM trials t JOIN points p ON {on} ORDER BY {_order_by(TRIALS, 't.')}"
+    )
+    with _reading(out) as connection:
+        frame = pd.read_sql_query(query, connection)
+    frame.insert(0, "experiment", experiment.name)
+    frame = frame[list(TRIALS.names(swept))].astype(TRIALS.dtypes(swept))
+    return frame.reset_index(drop=True)
+
+
+def read_points(out_dir: str | os.PathLike[str]) -> pd.DataFrame:
+    """One row per scenario × point × frame: truth, the accumulated CRLB (MATH §8) and
+    ``range_scale_m``, the root mean square slant range of the samples flown so far (the size
+    of the geometry a bound is compared with)."""
+    out = Path(out_dir)
+    experiment = read_experiment(out)
+    swept = list(experiment.swept_columns)
+    query = f"SELECT {_names(POINTS.names(swept))} FROM points ORDER BY {_order_by(POINTS)}"
+    with _reading(out) as connection:
+        frame = pd.read_sql_query(query, connection)
+    frame.insert(0, "experiment", experiment.name)
+    return frame.astype(POINTS.dtypes(swept)).reset_index(drop=True)
+
+
+def read_flights(out_dir: str | os.PathLike[str]) -> pd.DataFrame:
+    """The frames flown in a closed loop, one row per scenario × point × planner × trial × frame.
+
+    Columns :data:`comparison.trial_rows.FLIGHT_COLUMNS`: the first sample of each frame and
+    its velocity, and the message of the plan that chose it. Empty (with those columns) for an
+    open-loop run, whose flight is the scenario's own.
+    """
+    with _reading(Path(out_dir)) as connection:
+        tables = {row[0] for row in connection.execute("SELECT name FROM sqlite_master")}
+        if FLIGHTS.name not in tables:
+            return pd.DataFrame({column: [] for column in FLIGHTS.names()})
+        frame = pd.read_sql_query(
+            f"SELECT {_names(FLIGHTS.names())} FROM flights ORDER BY {_order_by(FLIGHTS)}",
+            connection,
+        )
+    return frame.astype(FLIGHTS.dtypes()).reset_index(drop=True)

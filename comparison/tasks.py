@@ -1,0 +1,364 @@
+"""Tasks, the unit of work a worker runs, and the seeds that make their rows reproducible.
+
+Seeds
+    The data of (scenario index ``i``, point ``p``, trial ``t``) come from
+    ``SeedSequence(seed, spawn_key=(i, p, t))`` (:func:`trial_seed`): every estimator sees the
+    same data there (common random numbers), and no row depends on the number of workers,
+    their order, the chunking, or the number of trials asked (more trials extend a run, never
+    change it). Estimator ``L`` breaks ties (MATH §7) with
+    ``default_rng(SeedSequence(seed, spawn_key=(i, p, t, 1 + crc32(L))))`` (:func:`tie_rng`), a
+    fresh generator for every estimate (so with ``per_frame`` the last frame's row equals the
+    row of a run without it). In a closed loop the noise block of the trial is drawn the same
+    way (so every planner meets the same noise, and ``constant`` reproduces the open-loop data)
+    and planner ``P`` gets the generator of the label ``"planner:" + P``.
+
+Tasks
+    A task is a chunk of ``chunk_size`` trials of one (scenario, point) (:func:`plan_tasks`).
+    It simulates the chunk once (:func:`scenarios.simulate.simulate_trials`) and runs every
+    estimator on every trial; an estimator with ``estimate_batch`` gets the whole chunk, and
+    falls back to one call per trial if the batch call raises
+    (:mod:`comparison.estimator_calls`). With ``per_frame`` every estimator runs on
+    ``data.up_to_frame(l)`` for every frame ``l``; sequential estimators
+    (``init``/``update``/``estimate_state``) are streamed frame by frame instead. A
+    closed-loop task flies every trial once per planner
+    (:func:`comparison.closed_loop.fly_closed_loop`), and each row carries the CRLB of the
+    trajectory that trial flew; its wrong side is judged against the track of the first frame
+    the estimator uses (:func:`comparison.scoring.ambiguity_track`), the mirror ambiguity a
+    turn must resolve. Each estimate becomes the columns of
+    :func:`comparison.scoring.estimate_columns`; the main process stores them
+    (:func:`comparison.store.write_task`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import time
+import zlib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from comparison.bounds import PointInfo, bound_of, crlb_key, information_at_truth
+from comparison.closed_loop import ClosedLoopTrial, fly_closed_loop
+from comparison.estimator_calls import Stream, call_batch, timed_call
+from comparison.experiment import Experiment
+from comparison.scoring import ambiguity_track, estimate_columns, frame_track, jsonable
+from comparison.specs import EstimatorSpec, PlannerSpec
+from comparison.trial_rows import FLIGHT_VALUE_COLUMNS
+from estimators.base import Estimate, Estimator, capabilities_of
+from scenarios.planners import Planner
+from scenarios.simulate import simulate_trials
+from scenarios.types import MeasurementBatch, MeasurementSet, Scenario
+
+# --------------------------------------------------------------------------------------------
+# seeds
+# --------------------------------------------------------------------------------------------
+
+
+def trial_seed(seed: int, scenario_index: int, point: int, trial: int) -> np.random.SeedSequence:
+    """The seed of the data of one (scenario, point, trial): ``spawn_key=(i, p, t)``."""
+    return np.random.SeedSequence(seed, spawn_key=(scenario_index, point, trial))
+
+
+def tie_rng(
+    seed: int, scenario_index: int, point: int, trial: int, label: str
+) -> np.random.Generator:
+    """The tie-breaking generator of estimator ``label`` at one (scenario, point, trial)."""
+    key = (scenario_index, point, trial, 1 + zlib.crc32(label.encode()))
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
+
+
+# --------------------------------------------------------------------------------------------
+# tasks and their results
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Task:
+    """Trials of one (scenario, point) and everything a worker needs to run them."""
+
+    seed: int
+    scenario_index: int
+    point: int
+    scenario: Scenario
+    snr_db: float
+    trials: tuple[int, ...]
+    estimators: tuple[EstimatorSpec, ...]
+    per_frame: bool
+    planners: tuple[PlannerSpec, ...] = ()
+    steering: tuple[str, ...] = ()
+
+
+class ScoredRow(NamedTuple):
+    """One estimate of a task: its keys, its bound, and its
+    :data:`~comparison.trial_rows.ESTIMATE_COLUMNS`."""
+
+    planner_index: int
+    estimator_index: int
+    frame: int
+    trial: int
+    crlb_rmse_m: float | None  # None in an open loop: the main process adds the common bound
+    values: tuple[Any, ...]
+
+
+class FlightRow(NamedTuple):
+    """One frame flown in a closed loop: its keys and its
+    :data:`~comparison.trial_rows.FLIGHT_VALUE_COLUMNS`."""
+
+    planner_index: int
+    trial: int
+    frame: int
+    values: tuple[Any, ...]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TaskResult:
+    """A task's rows and, in a closed loop, the frames it flew."""
+
+    scenario_index: int
+    point: int
+    trials: tuple[int, ...]
+    rows: list[ScoredRow]
+    elapsed_s: float
+    flights: list[FlightRow] = dataclasses.field(default_factory=list)
+
+
+@functools.lru_cache(maxsize=128)
+def estimator_of(spec: EstimatorSpec) -> Estimator:
+    """One estimator object per spec and process (estimators are immutable)."""
+    return spec.build()
+
+
+@functools.lru_cache(maxsize=32)
+def planner_of(spec: PlannerSpec) -> Planner:
+    """One planner object per spec and process (planners are immutable)."""
+    return spec.build()
+
+
+def plan_tasks(
+    experiment: Experiment,
+    infos: Mapping[tuple[int, int], PointInfo],
+    complete: Mapping[tuple[int, int], set[int]],
+) -> list[Task]:
+    """Chunks of ``chunk_size`` trials per (scenario, point), without the ``complete`` ones."""
+    tasks = []
+    size = experiment.chunk_size
+    steering = tuple(experiment.steering_label(k) for k in range(len(experiment.planners)))
+    for (i, p), info in infos.items():
+        done = complete.get((i, p), set())
+        for first in range(0, experiment.trials, size):
+            trials = tuple(
+                t for t in range(first, min(first + size, experiment.trials)) if t not in done
+            )
+            if trials:
+                tasks.append(
+                    Task(
+                        seed=experiment.seed,
+                        scenario_index=i,
+                        point=p,
+                        scenario=info.scenario,
+                        snr_db=info.snr_db,
+                        trials=trials,
+                        estimators=experiment.estimators,
+                        per_frame=experiment.per_frame,
+                        planners=experiment.planners,
+                        steering=steering,
+                    )
+                )
+    return tasks
+
+
+# --------------------------------------------------------------------------------------------
+# open loop
+# --------------------------------------------------------------------------------------------
+
+
+def run_task(task: Task) -> TaskResult:
+    """Simulate the task's trials and run every estimator on each; never raises for an estimator.
+
+    Returns
+    -------
+    TaskResult
+        Rows without the bound, which the main process adds (a closed-loop task, with
+        planners, is :func:`run_closed_loop_task`: its rows carry their own bounds).
+    """
+    if task.planners:
+        return run_closed_loop_task(task)
+    start = time.perf_counter()
+    seeds = [trial_seed(task.seed, task.scenario_index, task.point, t) for t in task.trials]
+    simulated = simulate_trials(task.scenario, snr_db=task.snr_db, seeds=seeds)
+    # estimators never see the truth
+    batch = dataclasses.replace(simulated, geometry=simulated.geometry.without_truth())
+    truth = np.asarray(task.scenario.emitter_m, dtype=float)
+    frames = [int(f) for f in batch.geometry.frames]
+    eval_frames = frames if task.per_frame else frames[-1:]
+    tracks = {frame: frame_track(batch.geometry, frame) for frame in eval_frames}
+    data = _TaskData(batch)
+    rows: list[ScoredRow] = []
+    for index, spec in enumerate(task.estimators):
+        estimator = estimator_of(spec)
+        results = _run_estimator(estimator, spec.label, task, data, eval_frames)
+        for (frame, position), (estimate, runtime_s) in results.items():
+            values = estimate_columns(estimate, truth, tracks[frame], runtime_s)
+            rows.append(ScoredRow(0, index, frame, task.trials[position], None, values))
+    return TaskResult(
+        scenario_index=task.scenario_index,
+        point=task.point,
+        trials=task.trials,
+        rows=rows,
+        elapsed_s=time.perf_counter() - start,
+    )
+
+
+class _TaskData:
+    """The task's data up to each evaluated frame, as a batch and as per-trial sets (cached)."""
+
+    def __init__(self, batch: MeasurementBatch) -> None:
+        self.full = batch
+        self.final_frame = int(batch.geometry.frames[-1])
+        self._batches: dict[int, MeasurementBatch] = {}
+        self._trials: dict[int, list[MeasurementSet]] = {}
+
+    def batch(self, frame: int) -> MeasurementBatch:
+        if frame not in self._batches:
+            self._batches[frame] = (
+                self.full if frame == self.final_frame else _batch_up_to_frame(self.full, frame)
+            )
+        return self._batches[frame]
+
+    def trials(self, frame: int) -> list[MeasurementSet]:
+        if frame not in self._trials:
+            self._trials[frame] = list(self.batch(frame))
+        return self._trials[frame]
+
+
+def _batch_up_to_frame(batch: MeasurementBatch, frame: int) -> MeasurementBatch:
+    """The samples of frames ``<= frame`` of every trial."""
+    mask = batch.geometry.frame <= frame
+    return MeasurementBatch(
+        geometry=batch.geometry.take(mask),
+        doppler_hz=None if batch.doppler_hz is None else batch.doppler_hz[:, mask],
+        toa_s=None if batch.toa_s is None else batch.toa_s[:, mask],
+        rss_dbm=None if batch.rss_dbm is None else batch.rss_dbm[:, mask],
+    )
+
+
+def _run_estimator(
+    estimator: Estimator,
+    label: str,
+    task: Task,
+    data: _TaskData,
+    eval_frames: list[int],
+) -> dict[tuple[int, int], tuple[Estimate, float]]:
+    """``{(frame, trial position): (estimate, runtime_s)}`` for one estimator on one task."""
+
+    def rng(trial: int) -> np.random.Generator:
+        return tie_rng(task.seed, task.scenario_index, task.point, trial, label)
+
+    def rngs() -> list[np.random.Generator]:
+        return [rng(trial) for trial in task.trials]
+
+    out: dict[tuple[int, int], tuple[Estimate, float]] = {}
+    capabilities = capabilities_of(estimator)
+    if task.per_frame and capabilities.sequential:
+        for position, trial_data in enumerate(data.trials(data.final_frame)):
+            stream = Stream(estimator)
+            for frame in eval_frames:
+                newest = trial_data.take(trial_data.frame == frame)
+                out[(frame, position)] = stream.step(newest, rng(task.trials[position]))
+        return out
+    for frame in eval_frames:
+        estimates = call_batch(estimator, data.batch(frame), rngs()) if capabilities.batch else None
+        if estimates is None:
+            estimates = [
+                timed_call(estimator.estimate, trial_data, rng=trial_rng)
+                for trial_data, trial_rng in zip(data.trials(frame), rngs(), strict=True)
+            ]
+        for position, result in enumerate(estimates):
+            out[(frame, position)] = result
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# closed loop
+# --------------------------------------------------------------------------------------------
+
+
+def run_closed_loop_task(task: Task) -> TaskResult:
+    """Fly the task's trials once per planner (:mod:`comparison.closed_loop`) and score them.
+
+    Every row carries ``crlb_rmse_m`` of the trajectory its trial flew, at the truth, for the
+    estimator's modalities and frames (MATH §8).
+    """
+    start = time.perf_counter()
+    truth = np.asarray(task.scenario.emitter_m, dtype=float)
+    estimators = [(spec.label, estimator_of(spec)) for spec in task.estimators]
+    crlb_keys = [crlb_key(estimator) for _, estimator in estimators]
+    rows: list[ScoredRow] = []
+    flights: list[FlightRow] = []
+    for planner_index, planner_spec in enumerate(task.planners):
+        planner = planner_of(planner_spec)
+        for trial in task.trials:
+            key = (task.scenario_index, task.point, trial)
+            flown = fly_closed_loop(
+                task.scenario,
+                snr_db=task.snr_db,
+                planner=planner,
+                estimators=estimators,
+                steering=task.steering[planner_index],
+                seed=trial_seed(task.seed, *key),
+                estimate_rng=lambda label, key=key: tie_rng(task.seed, *key, label),
+                planner_rng=tie_rng(task.seed, *key, f"planner:{planner_spec.label}"),
+            )
+            information = information_at_truth(flown.data, truth, {m for m, _ in crlb_keys})
+            for frame in range(flown.n_frames):
+                for index, (label, _) in enumerate(estimators):
+                    estimate, runtime_s = flown.estimates[label][frame]
+                    modalities, frames = crlb_keys[index]
+                    track = ambiguity_track(flown.data, frame, frames)
+                    bound = bound_of(information.get(modalities), frame, frames)
+                    values = estimate_columns(estimate, truth, track, runtime_s)
+                    rows.append(ScoredRow(planner_index, index, frame, trial, bound, values))
+            flights.extend(_flight_rows(planner_index, trial, flown))
+    return TaskResult(
+        scenario_index=task.scenario_index,
+        point=task.point,
+        trials=task.trials,
+        rows=rows,
+        elapsed_s=time.perf_counter() - start,
+        flights=flights,
+    )
+
+
+def _flight_rows(planner_index: int, trial: int, flown: ClosedLoopTrial) -> list[FlightRow]:
+    """Every frame flown: its first and last samples, its velocity, and the plan's message."""
+    positions = flown.flight.sample_positions_m()
+    k = flown.flight.samples_per_frame
+    out = []
+    for frame, (begin, end, velocity) in enumerate(
+        zip(positions[::k], positions[k - 1 :: k], flown.flight.frame_velocities_mps, strict=True)
+    ):
+        plan = flown.plans[frame]
+        diagnostics = {} if plan is None else dict(plan.diagnostics)
+        (start_x, start_y, start_z), (end_x, end_y, end_z) = begin, end
+        vx, vy, vz = velocity
+        values = {
+            "start_x_m": float(start_x),
+            "start_y_m": float(start_y),
+            "start_z_m": float(start_z),
+            "end_x_m": float(end_x),
+            "end_y_m": float(end_y),
+            "end_z_m": float(end_z),
+            "vx_mps": float(vx),
+            "vy_mps": float(vy),
+            "vz_mps": float(vz),
+            "message": "the scenario's initial velocity" if plan is None else plan.message,
+            "diagnostics_json": json.dumps(jsonable(diagnostics), sort_keys=True),
+        }
+        row = tuple(values[column] for column in FLIGHT_VALUE_COLUMNS)
+        out.append(FlightRow(planner_index, trial, frame, row))
+    return out

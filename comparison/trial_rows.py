@@ -1,0 +1,240 @@
+"""The row contract of a run: every column once, in order, with its SQLite and pandas types.
+
+:data:`TRIALS` is the trial-row contract: the columns of
+:func:`comparison.store.read_trials` in order (an experiment's swept-parameter columns follow
+``snr_db``), each with its type in ``results.sqlite``, its type in the frame read, and where
+its value comes from. Every other list of trial columns is derived from it: the ``trials``
+table (:meth:`Table.stored`), the columns a worker computes for one estimate
+(:data:`ESTIMATE_COLUMNS`, :func:`comparison.scoring.estimate_columns`), and the columns
+:func:`comparison.metrics.summarize` needs (:data:`REQUIRED_TRIAL_COLUMNS`). :data:`POINTS`
+and :data:`FLIGHTS` do the same for the ``points`` and ``flights`` tables
+(:func:`comparison.store.read_points`, :func:`comparison.store.read_flights`).
+
+A table is stored as its key columns (the primary key, in order), then its index columns
+(``<key>_index``: the position of the scenario, planner or estimator in the experiment, by
+which rows are sorted; never read back), then its other stored columns in contract order.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+SWEPT_AFTER = "snr_db"
+"""An experiment's swept-parameter columns (REAL, float64) follow this column."""
+
+SWEPT_SQL = "REAL"
+SWEPT_DTYPE = "float64"
+
+
+@dataclass(frozen=True, slots=True)
+class Column:
+    """One column.
+
+    Attributes
+    ----------
+    name : str
+    sql : str
+        Its type in ``results.sqlite`` (empty for a column that is not stored).
+    dtype : str or None
+        The pandas dtype the readers give it; None keeps what SQLite returns (text).
+    source : str
+        ``"key"`` (primary key), ``"value"`` (stored), ``"estimate"`` (stored, computed per
+        estimate), ``"bound"`` (stored, the CRLB), ``"points"`` (joined from the points table)
+        or ``"run"`` (the experiment's name, added when read).
+    required : bool
+        Every trial frame must have it (:func:`comparison.metrics.summarize` reads it).
+    """
+
+    name: str
+    sql: str
+    dtype: str | None = None
+    source: str = "value"
+    required: bool = True
+
+    @property
+    def stored(self) -> bool:
+        return self.source in ("key", "value", "estimate", "bound")
+
+
+@dataclass(frozen=True, slots=True)
+class Table:
+    """A table of ``results.sqlite`` and the frame read from it."""
+
+    name: str
+    columns: tuple[Column, ...]
+    """As read, in order (without the swept columns)."""
+    indexes: tuple[Column, ...] = ()
+    """Stored only: the experiment's order of the keys, for sorting."""
+
+    def names(self, swept: Sequence[str] = ()) -> tuple[str, ...]:
+        """The columns read, in order, the swept ones after ``snr_db``."""
+        return with_swept([c.name for c in self.columns], swept)
+
+    def keys(self) -> tuple[str, ...]:
+        """The primary key, in order."""
+        return tuple(c.name for c in self.columns if c.source == "key")
+
+    def stored(self, swept: Sequence[str] = ()) -> tuple[tuple[str, str], ...]:
+        """``(name, SQLite type)`` of the stored columns, in table order."""
+        keys = [c for c in self.columns if c.source == "key"]
+        rest = [c for c in self.columns if c.stored and c.source != "key"]
+        types = {c.name: c.sql for c in (*keys, *self.indexes, *rest)}
+        names = with_swept(list(types), swept)
+        types.update(dict.fromkeys(swept, SWEPT_SQL))
+        return tuple((name, types[name]) for name in names)
+
+    def sort_order(self) -> tuple[str, ...]:
+        """The keys in the experiment's order: a key with an index column gives way to it."""
+        indexed = {c.name for c in self.indexes}
+        return tuple(f"{k}_index" if f"{k}_index" in indexed else k for k in self.keys())
+
+    def dtypes(self, swept: Sequence[str] = ()) -> dict[str, str]:
+        """The pandas dtype of every read column that has one."""
+        types = {c.name: c.dtype for c in self.columns if c.dtype is not None}
+        return {**types, **dict.fromkeys(swept, SWEPT_DTYPE)}
+
+
+def with_swept(names: Sequence[str], swept: Sequence[str]) -> tuple[str, ...]:
+    """``names`` with ``swept`` inserted after ``snr_db`` (unchanged without ``snr_db``)."""
+    out = list(names)
+    if SWEPT_AFTER in out:
+        at = out.index(SWEPT_AFTER) + 1
+        out[at:at] = swept
+    return tuple(out)
+
+
+def _real(name: str, source: str = "value", *, required: bool = True) -> Column:
+    return Column(name, "REAL", "float64", source, required)
+
+
+POINT_CRLB_SETS: dict[str, tuple[str, ...]] = {
+    "crlb_rmse_toa_m": ("toa",),
+    "crlb_rmse_doppler_m": ("doppler",),
+    "crlb_rmse_rss_m": ("rss",),
+    "crlb_rmse_toa_doppler_m": ("toa", "doppler"),
+    "crlb_rmse_all_m": ("toa", "doppler", "rss"),
+}
+"""The CRLB columns of the points table and the modalities of each (MATH §8)."""
+
+_SCENARIO_INDEX = Column("scenario_index", "INTEGER")
+
+POINTS = Table(
+    "points",
+    (
+        Column("scenario", "TEXT", None, "key"),
+        Column("point", "INTEGER", "int64", "key"),
+        _real("snr_db"),
+        Column("frame", "INTEGER", "int64", "key"),
+        _real("truth_x_m"),
+        _real("truth_y_m"),
+        _real("range_scale_m"),
+        *(_real(name) for name in POINT_CRLB_SETS),
+    ),
+    indexes=(_SCENARIO_INDEX,),
+)
+"""One row per scenario × point × frame: truth, accumulated CRLB, the size of the geometry."""
+
+_POINT = {column.name: column for column in POINTS.columns}
+
+
+def _joined(name: str) -> Column:
+    """A trial column taken from the points table."""
+    return dataclasses.replace(_POINT[name], source="points")
+
+
+def _estimate(name: str, sql: str, dtype: str | None, *, required: bool = True) -> Column:
+    return Column(name, sql, dtype, "estimate", required)
+
+
+TRIALS = Table(
+    "trials",
+    (
+        Column("experiment", "", None, "run", required=False),
+        Column("scenario", "TEXT", None, "key"),
+        Column("point", "INTEGER", "int64", "key"),
+        _joined("snr_db"),
+        Column("planner", "TEXT NOT NULL DEFAULT ''", None, "key", required=False),
+        Column("estimator", "TEXT", None, "key"),
+        Column("frame", "INTEGER", "int64", "key"),
+        Column("trial", "INTEGER", "int64", "key", required=False),
+        _joined("truth_x_m"),
+        _joined("truth_y_m"),
+        _real("x_m", "estimate"),
+        _real("y_m", "estimate"),
+        _real("error_m", "estimate"),
+        _real("error_side_resolved_m", "estimate"),
+        _real("wrong_side", "estimate"),
+        _estimate("ambiguous", "INTEGER", "bool"),
+        _estimate("success", "INTEGER", "bool"),
+        _estimate("n_candidates", "INTEGER", "int64", required=False),
+        _estimate("candidates_json", "TEXT", None, required=False),
+        _real("cov_xx_m2", "estimate", required=False),
+        _real("cov_xy_m2", "estimate", required=False),
+        _real("cov_yy_m2", "estimate", required=False),
+        _real("nees", "estimate"),
+        _real("nees_side_resolved", "estimate"),
+        _real("crlb_rmse_m", "bound"),
+        _real("runtime_s", "estimate"),
+        _estimate("message", "TEXT", None, required=False),
+        _estimate("diagnostics_json", "TEXT", None, required=False),
+    ),
+    indexes=(
+        _SCENARIO_INDEX,
+        Column("planner_index", "INTEGER NOT NULL DEFAULT 0"),
+        Column("estimator_index", "INTEGER"),
+    ),
+)
+"""The trial-row contract: one row per scenario × point × planner × estimator × frame ×
+trial. ``planner`` is empty in an open-loop run; ``runtime_s`` is the only column that is not
+a function of the experiment."""
+
+TRIAL_COLUMNS: tuple[str, ...] = TRIALS.names()
+"""Every fixed column of a trial frame; the swept-parameter columns come on top of these.
+``planner`` is optional (empty in open-loop runs)."""
+
+REQUIRED_TRIAL_COLUMNS: tuple[str, ...] = tuple(c.name for c in TRIALS.columns if c.required)
+"""The trial columns :func:`comparison.metrics.summarize` reads."""
+
+ESTIMATE_COLUMNS: tuple[str, ...] = tuple(c.name for c in TRIALS.columns if c.source == "estimate")
+"""The columns computed from one estimate (:func:`comparison.scoring.estimate_columns`)."""
+
+BOUND_COLUMN = next(c.name for c in TRIALS.columns if c.source == "bound")
+"""The CRLB an estimate is scored against (MATH §8)."""
+
+POINT_COLUMNS: tuple[str, ...] = tuple(c.name for c in TRIALS.columns if c.source == "points")
+"""The trial columns joined from the points table (on its key)."""
+
+FLIGHTS = Table(
+    "flights",
+    (
+        Column("scenario", "TEXT", None, "key"),
+        Column("point", "INTEGER", "int64", "key"),
+        Column("planner", "TEXT", None, "key"),
+        Column("trial", "INTEGER", "int64", "key"),
+        Column("frame", "INTEGER", "int64", "key"),
+        Column("start_x_m", "REAL"),
+        Column("start_y_m", "REAL"),
+        Column("start_z_m", "REAL"),
+        Column("end_x_m", "REAL"),
+        Column("end_y_m", "REAL"),
+        Column("end_z_m", "REAL"),
+        Column("vx_mps", "REAL"),
+        Column("vy_mps", "REAL"),
+        Column("vz_mps", "REAL"),
+        Column("message", "TEXT"),
+        Column("diagnostics_json", "TEXT"),
+    ),
+    indexes=(_SCENARIO_INDEX, Column("planner_index", "INTEGER")),
+)
+"""Closed loop only: frame ``frame``'s first and last samples and velocity, and the plan
+message that chose it (frame 0 is the scenario's own)."""
+
+FLIGHT_COLUMNS: tuple[str, ...] = FLIGHTS.names()
+"""Columns of :func:`comparison.store.read_flights`."""
+
+FLIGHT_VALUE_COLUMNS: tuple[str, ...] = tuple(
+    c.name for c in FLIGHTS.columns if c.source == "value"
+)
+"""The columns computed from one flown frame (:func:`comparison.tasks.run_task`)."""

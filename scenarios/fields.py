@@ -1,0 +1,186 @@
+"""Field checks shared by the data types, measurement files and experiment files.
+
+Every check takes a value and its ``path``, the key a reader would fix (``noise.toa_s``,
+``samples[2].toa_s``, ``sweep.values[1]``, ``trials``), and returns the value converted, or
+raises a ``ValueError`` whose message starts with the path and says what is expected.
+
+Two kinds of number: :func:`finite` and :func:`positive_finite` take whatever ``float()``
+takes (the data types, built in Python); :func:`number` takes only a real number as a file
+writes it, not a boolean and not a string (measurement and experiment files).
+
+:class:`FrozenDict` and :func:`frozen_table` keep a table of options (estimator or planner
+keyword arguments, fixed sweep values) immutable and hashable; :func:`thaw` gives it back as
+plain ``dict`` and ``list``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+REAL_TYPES = (int, float, np.integer, np.floating)
+"""The types :func:`number` accepts (``bool`` excepted)."""
+
+
+# --------------------------------------------------------------------------------------------
+# numbers and text
+# --------------------------------------------------------------------------------------------
+
+
+def finite(value: float, name: str) -> float:
+    """Return ``value`` as a float if it is finite, else raise naming ``name``."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a number, got {value!r}") from None
+    if not math.isfinite(number):
+        raise ValueError(f"{name}: must be finite, got {value!r}")
+    return number
+
+
+def positive_finite(value: float, name: str) -> float:
+    """Return ``value`` as a float if it is finite and > 0, else raise naming ``name``."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a positive number, got {value!r}") from None
+    if not math.isfinite(number) or number <= 0.0:
+        raise ValueError(f"{name}: must be finite and > 0, got {value!r}")
+    return number
+
+
+def number(value: Any, path: str, *, describe: Callable[[Any], str] = repr, fix: str = "") -> float:
+    """A finite real number (not a bool, not a string) as a float.
+
+    ``describe`` words a value of the wrong type in the message (default ``repr``); ``fix``
+    is appended to the message about a non-finite number.
+    """
+    if isinstance(value, bool) or not isinstance(value, REAL_TYPES):
+        raise ValueError(f"{path}: expected a number, got {describe(value)}")
+    try:
+        result = float(value)
+    except OverflowError:
+        raise ValueError(f"{path}: too large for a float (above 1.8e308)") from None
+    if not math.isfinite(result):
+        raise ValueError(f"{path}: must be finite, got {value!r}{fix}")
+    return result
+
+
+def whole(value: Any, path: str, *, minimum: int) -> int:
+    """A whole number ``>= minimum`` as an int; an integral float (``3.0``) is accepted."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        else:
+            raise ValueError(f"{path}: expected a whole number >= {minimum}, got {value!r}")
+    if value < minimum:
+        raise ValueError(f"{path}: must be a whole number >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def text(value: Any, path: str, *, allow_empty: bool = False) -> str:
+    """A string, non-empty unless ``allow_empty``."""
+    if not isinstance(value, str) or (not value and not allow_empty):
+        raise ValueError(f"{path}: expected a non-empty string, got {value!r}")
+    return value
+
+
+def number_list(value: Any, path: str) -> Sequence[Any]:
+    """``value`` if it is a list, tuple or array, not a string.
+
+    The items are the caller's to check (with :func:`number` or a parameter's own check), so
+    that each message can name the item the way its file does.
+    """
+    if isinstance(value, str | bytes) or not isinstance(value, Sequence | np.ndarray):
+        raise ValueError(f"{path}: expected a list of numbers, got {value!r}")
+    return value
+
+
+# --------------------------------------------------------------------------------------------
+# tables of options
+# --------------------------------------------------------------------------------------------
+
+
+class FrozenDict(Mapping[str, Any]):
+    """A read-only, hashable, picklable ``dict``; nested lists become tuples."""
+
+    __slots__ = ("_data",)
+
+    def __init__(self, data: Mapping[str, Any] | None = None) -> None:
+        object.__setattr__(self, "_data", {k: _freeze(v) for k, v in dict(data or {}).items()})
+
+    def __getitem__(self, key: str) -> Any:
+        return self._data[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._data)
+
+    def __len__(self) -> int:
+        return len(self._data)
+
+    def __hash__(self) -> int:
+        return hash(frozenset(self._data.items()))
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, Mapping):
+            return self._data == dict(other.items())
+        return NotImplemented
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError("FrozenDict is read-only")
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (FrozenDict, (thaw(self),))
+
+    def __repr__(self) -> str:
+        return f"FrozenDict({self._data!r})"
+
+
+def _freeze(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        return value if isinstance(value, FrozenDict) else FrozenDict(value)
+    if isinstance(value, list | tuple):
+        return tuple(_freeze(v) for v in value)
+    return value
+
+
+def thaw(value: Any, *, sequence: type = list) -> Any:
+    """A plain-``dict``/``list`` copy of a frozen value (``sequence=tuple`` keeps tuples)."""
+    if isinstance(value, Mapping):
+        return {k: thaw(v, sequence=sequence) for k, v in value.items()}
+    if isinstance(value, tuple | list):
+        return sequence(thaw(v, sequence=sequence) for v in value)
+    return value
+
+
+def option_value(value: Any, path: str) -> None:
+    """An option: a string, boolean, finite number, or a list or table of them."""
+    if isinstance(value, str | bool | int):
+        return
+    if isinstance(value, float):
+        number(value, path)
+        return
+    if isinstance(value, list | tuple):
+        for index, item in enumerate(value):
+            option_value(item, f"{path}[{index}]")
+        return
+    if isinstance(value, Mapping):
+        for key, item in value.items():
+            option_value(item, f"{path}.{key}")
+        return
+    raise ValueError(
+        f"{path}: expected a string, boolean, number, list or table, got {type(value).__name__}"
+    )
+
+
+def frozen_table(value: Any, path: str) -> FrozenDict:
+    """A table of options (names to :func:`option_value` values), frozen."""
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{path}: expected a table, got {type(value).__name__}")
+    for key, item in value.items():
+        text(key, path)
+        option_value(item, f"{path}.{key}")
+    return FrozenDict(value)
