@@ -10,20 +10,23 @@ trajectory, so the worker computes the information of that trial (:func:`informa
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from comparison.crlb import fisher_information_per_frame, rmse_bound_m
-from comparison.experiment import Experiment
-from comparison.trial_rows import POINT_CRLB_SETS
+from comparison.trial_rows import POINT_CRLB_SETS, POINT_KNOWN_CRLB_SETS
 from estimators.base import Estimator, capabilities_of
 from scenarios.measurement_model import slant_range_m
 from scenarios.simulate import noise_free
 from scenarios.types import MeasurementSet, Scenario
+
+if TYPE_CHECKING:  # annotations only: workers need not import the experiment schema
+    from comparison.experiment import Experiment
 
 Information = tuple[np.ndarray, np.ndarray]
 """``(per_frame, accumulated)`` Fisher information, one 2×2 matrix per frame each."""
@@ -40,6 +43,11 @@ class PointInfo:
     snr_db: float
     settings: dict[str, float]
     information: dict[tuple[str, ...], Information | None]
+    known_information: dict[tuple[str, ...], Information | None] = dataclasses.field(
+        default_factory=dict
+    )
+    """The same with every nuisance parameter known (MATH §15): the scenario's unknowns'
+    price; empty when the scenario has none (then ``information`` is it)."""
 
     @property
     def n_frames(self) -> int:
@@ -79,14 +87,21 @@ def crlb_key(estimator: Estimator) -> CrlbKey:
 
 
 def information_at_truth(
-    data: MeasurementSet, truth: Any, needed: Iterable[tuple[str, ...]]
+    data: MeasurementSet,
+    truth: Any,
+    needed: Iterable[tuple[str, ...]],
+    *,
+    unknowns: Iterable[str] | None = None,
 ) -> dict[tuple[str, ...], Information | None]:
     """Per-frame and accumulated Fisher information of ``data``'s flight at the truth, per
-    modality set (None where a σ or the RSS model is absent: no bound)."""
+    modality set (None where a σ or the RSS model is absent: no bound), with the nuisance
+    parameters ``unknowns`` (default ``data.unknowns``) eliminated (MATH §15)."""
     information: dict[tuple[str, ...], Information | None] = {}
     for modalities in needed:
         try:
-            information[modalities] = fisher_information_per_frame(data, truth, modalities)
+            information[modalities] = fisher_information_per_frame(
+                data, truth, modalities, unknowns=unknowns
+            )
         except ValueError:  # a σ or the RSS model is absent: no bound
             information[modalities] = None
     return information
@@ -104,11 +119,15 @@ def point_infos(
         for p, settings in enumerate(experiment.sweep.points()):
             scenario, snr_db = experiment.point_scenario(i, p)
             data = noise_free(scenario, snr_db=snr_db)
+            known = sorted({_modality_key(m) for m in POINT_KNOWN_CRLB_SETS.values()})
             infos[(i, p)] = PointInfo(
                 scenario=scenario,
                 snr_db=snr_db,
                 settings=settings,
                 information=information_at_truth(data, scenario.emitter_m, sorted(needed)),
+                known_information=information_at_truth(data, scenario.emitter_m, known, unknowns=())
+                if data.unknowns
+                else {},
             )
     return infos
 
@@ -132,6 +151,10 @@ def point_rows(
                 column: info.rmse_bound_m(_modality_key(modalities), frame)
                 for column, modalities in POINT_CRLB_SETS.items()
             }
+            for column, modalities in POINT_KNOWN_CRLB_SETS.items():
+                key = _modality_key(modalities)
+                known = info.known_information.get(key, info.information.get(key))
+                bounds[column] = bound_of(known, frame)
             scale = math.sqrt(float(np.mean(squared_range[flight.sample_frames() <= frame])))
             rows.append(
                 {

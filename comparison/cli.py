@@ -1,32 +1,67 @@
 """The ``emitterbench`` command line: ``simulate``, ``estimate``, ``crlb``, ``fly``, ``list``, ``run``, ``report``.
 
-Adding a command is one function registered with ``@command("name")``: its parameters are
-typed ``Annotated`` typer options, it imports the heavy modules it needs inside its body (so
-that ``emitterbench --help`` stays quick), and any ``ValueError`` it raises (the library's
-errors name the field and the fix) becomes the one line ``error: <message>`` on stderr with
-exit status 2, without a traceback. A command that reads a measurement file takes the options
-of its CSV constants with ``@with_csv_options`` and reads the file with :func:`load_measurements`.
+Adding a command is one function registered with ``@command("name", field=...)``: its
+parameters are typed ``Annotated`` typer options, it imports the heavy modules it needs inside
+its body (so that ``emitterbench --help`` stays quick), and any ``ValueError`` it raises (the
+library's errors name the field and the fix) becomes the one line ``error: <field>: <message>``
+on stderr with exit status 2, without a traceback; a message without a field gets ``field``.
+Usage errors, Ctrl-C (exit 130) and unexpected exceptions (exit 1, ``error: internal: ...``)
+are one line too (:mod:`comparison.cli_support`). A command that reads a measurement file takes
+the options of its CSV constants with ``@with_csv_options`` and reads the file with
+:func:`load_measurements`. Help texts are rich markup: write a literal ``[`` as ``\\[``.
+
+Resource-sized requests are refused before any work, with the limit and the environment
+variable that raises it: ``--frames`` and the samples of a measurement set
+(:mod:`scenarios.limits`), ``--trials`` and the size of a run (:mod:`comparison.experiment`),
+``--workers`` (:data:`WORKERS_PER_CORE` per core), ``--instances``, ``--bootstrap``.
 """
 
 from __future__ import annotations
 
-import functools
-import inspect
-import json
 import math
+import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, NoReturn, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
 import typer
+
+from comparison.cli_support import (
+    INTERNAL_ERROR_STATUS,
+    INTERRUPTED_STATUS,
+    USAGE_ERROR_STATUS,
+    CsvConstants,
+    OneLineErrors,
+    blame,
+    clean_errors,
+    fail,
+    load_measurements,
+    parse_estimator_options,
+    print_json,
+    with_csv_options,
+)
 
 if TYPE_CHECKING:
     from scenarios.types import MeasurementSet
 
-USAGE_ERROR_STATUS = 2
-"""Exit status of a malformed file, an unknown name or a bad option."""
+__all__ = [
+    "INTERNAL_ERROR_STATUS",
+    "INTERRUPTED_STATUS",
+    "USAGE_ERROR_STATUS",
+    "app",
+    "fail",
+    "main",
+]
+
+WORKERS_PER_CORE = 4
+"""Most local worker processes per core: more only add memory, each holds the numerics."""
+MAX_INSTANCES = 1_000_000
+"""Most ``validate`` instances per family (an SDP each, some milliseconds)."""
+MAX_BOOTSTRAP = 100_000
+"""Most bootstrap resamples of ``report`` (the intervals settle within a few thousand)."""
 
 app = typer.Typer(
+    cls=OneLineErrors,
     name="emitterbench",
     help=(
         "Locate a radio emitter from one UAV's Doppler and time-of-arrival measurements, "
@@ -38,8 +73,31 @@ app = typer.Typer(
 )
 
 
+def version_text() -> str:
+    """``emitterbench 0.1.0``: the installed distribution's version (importlib.metadata)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return f"emitterbench {version('emitterbench')}"
+    except PackageNotFoundError:
+        return "emitterbench (version unknown: not installed; pip install -e .)"
+
+
+def _print_version(asked: bool) -> None:
+    if asked:
+        typer.echo(version_text())
+        raise typer.Exit()
+
+
 @app.callback()
-def emitterbench() -> None:
+def emitterbench(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version", is_eager=True, callback=_print_version, help="Print the version and exit."
+        ),
+    ] = False,
+) -> None:
     """Locate a radio emitter from one UAV's Doppler and ToA measurements (see docs/math.md)."""
 
 
@@ -50,30 +108,22 @@ def emitterbench() -> None:
 Command = TypeVar("Command", bound=Callable[..., Any])
 
 
-def fail(message: str) -> NoReturn:
-    """Print ``error: <message>`` on one line to stderr and exit with status 2."""
-    typer.echo(f"error: {' '.join(message.split())}", err=True)
-    raise typer.Exit(USAGE_ERROR_STATUS)
+def command(
+    name: str,
+    *,
+    field: str,
+    interrupted: Callable[[dict[str, Any]], str] | None = None,
+    **typer_options: Any,
+) -> Callable[[Command], Command]:
+    """Register ``function`` as the sub-command ``name`` of :data:`app`, with clean errors.
 
-
-def exit_on_value_error(function: Command) -> Command:
-    """Turn a ``ValueError`` escaping ``function`` into :func:`fail` (no traceback)."""
-
-    @functools.wraps(function)
-    def run(*args: Any, **kwargs: Any) -> Any:
-        try:
-            return function(*args, **kwargs)
-        except ValueError as error:
-            fail(str(error))
-
-    return run  # type: ignore[return-value]
-
-
-def command(name: str, **typer_options: Any) -> Callable[[Command], Command]:
-    """Register ``function`` as the sub-command ``name`` of :data:`app`, with clean errors."""
+    ``field`` names a message that has none (the command's main input); ``interrupted``
+    says, from the command's arguments, what to do after Ctrl-C.
+    """
 
     def register(function: Command) -> Command:
-        app.command(name, **typer_options)(exit_on_value_error(function))
+        wrapped = clean_errors(function, field=field, interrupted=interrupted)
+        app.command(name, **typer_options)(wrapped)
         return function
 
     return register
@@ -85,117 +135,6 @@ JsonFlag = Annotated[
 MeasurementFile = Annotated[
     Path, typer.Argument(help="Measurement file, .json or .csv (CSV needs the constants).")
 ]
-
-_CSV_PANEL = "CSV constants (a JSON file carries its own)"
-
-CSV_OPTIONS: dict[str, tuple[str, str]] = {
-    "carrier_hz": ("--carrier-hz", "Carrier frequency f0, Hz."),
-    "speed_of_light_mps": ("--speed-of-light-mps", "Propagation speed c, m/s (default 299792458)."),
-    "emitter_height_m": ("--emitter-height-m", "Known emitter height z_s, m (default 0)."),
-    "noise.doppler_hz": ("--sigma-doppler-hz", "Doppler noise σ, Hz."),
-    "noise.toa_s": ("--sigma-toa-s", "ToA noise σ, s."),
-    "noise.rss_db": ("--sigma-rss-db", "RSS noise σ, dB."),
-    "rss_model.reference_power_dbm": ("--rss-reference-power-dbm", "RSS model P0, dBm."),
-    "rss_model.reference_distance_m": ("--rss-reference-distance-m", "RSS model d0, m."),
-    "rss_model.path_loss_exponent": ("--rss-path-loss-exponent", "RSS model η."),
-}
-"""The options that give a CSV file its constants: field of the file (JSON path) → option, help."""
-
-CsvConstants = dict[str, float | None]
-"""The CSV options a command was given: field of the file → value (None: not given)."""
-
-_CSV_PARAMETERS = {
-    field: inspect.Parameter(
-        option.lstrip("-").replace("-", "_"),
-        inspect.Parameter.KEYWORD_ONLY,
-        default=None,
-        annotation=Annotated[
-            float | None, typer.Option(option, help=text, rich_help_panel=_CSV_PANEL)
-        ],
-    )
-    for field, (option, text) in CSV_OPTIONS.items()
-}
-_OPTION_OF_FIELD = {field: option for field, (option, _) in CSV_OPTIONS.items()}
-_OPTION_OF_FIELD["rss_model"] = "/".join(
-    option for field, option in _OPTION_OF_FIELD.items() if field.startswith("rss_model.")
-)
-
-
-def with_csv_options(function: Command) -> Command:
-    """Give a command the options of :data:`CSV_OPTIONS`, after its own.
-
-    ``function`` ends with the keyword-only parameter ``constants: CsvConstants``; typer sees the
-    nine options in its place, and ``function`` receives their values in that one mapping.
-    """
-    signature = inspect.signature(function, eval_str=True)
-    parameters = [p for p in signature.parameters.values() if p.name != "constants"]
-    parameters += _CSV_PARAMETERS.values()
-
-    @functools.wraps(function)
-    def run(*args: Any, **kwargs: Any) -> Any:
-        constants = {field: kwargs.pop(p.name) for field, p in _CSV_PARAMETERS.items()}
-        return function(*args, constants=constants, **kwargs)
-
-    run.__signature__ = signature.replace(parameters=parameters)  # type: ignore[attr-defined]
-    run.__annotations__ = {p.name: p.annotation for p in parameters}
-    return run  # type: ignore[return-value]
-
-
-def load_measurements(file: Path, constants: CsvConstants) -> MeasurementSet:
-    """Read a measurement file; a CSV one with the constants of the CSV options.
-
-    Errors about a CSV constant name the command-line option to fix (``--sigma-toa-s``).
-    """
-    from scenarios.files import read_measurements_with
-
-    return read_measurements_with(file, constants, names=_OPTION_OF_FIELD)
-
-
-def parse_estimator_options(pairs: list[str]) -> dict[str, Any]:
-    """``key=value`` strings to keyword arguments; values are JSON where they parse.
-
-    ``side_prior_m=[30,10]`` gives the tuple ``(30, 10)`` (JSON arrays become tuples, so the
-    frozen estimator stays hashable), ``frames=last`` the string ``"last"``.
-    """
-
-    def frozen(value: Any) -> Any:
-        return tuple(frozen(item) for item in value) if isinstance(value, list) else value
-
-    options: dict[str, Any] = {}
-    for pair in pairs:
-        key, separator, text = pair.partition("=")
-        key = key.strip()
-        if not separator or not key.isidentifier():
-            raise ValueError(f"--option: expected key=value, got {pair!r}")
-        if key in options:
-            raise ValueError(f"--option: {key!r} given twice; keep one")
-        try:
-            options[key] = frozen(json.loads(text))
-        except json.JSONDecodeError:
-            options[key] = text
-    return options
-
-
-def json_ready(value: Any) -> Any:
-    """Nested dicts, sequences and numpy values as plain JSON; non-finite floats as null."""
-    import numpy as np
-
-    if isinstance(value, dict):
-        return {str(key): json_ready(item) for key, item in value.items()}
-    if isinstance(value, list | tuple | np.ndarray):
-        return [json_ready(item) for item in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if value is None or isinstance(value, bool | int | str):
-        return value
-    return str(value)
-
-
-def print_json(obj: Any) -> None:
-    """Print one JSON object on stdout (strict: NaN was already turned into null)."""
-    typer.echo(json.dumps(json_ready(obj), allow_nan=False))
 
 
 def _console() -> Any:
@@ -213,10 +152,10 @@ def _point_text(point: Any) -> str:
 # --------------------------------------------------------------------------------------------
 
 
-@command("simulate")
+@command("simulate", field="scenario")
 def simulate_command(
     scenario: Annotated[str, typer.Argument(help="Scenario name (see `emitterbench list`).")],
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the noise draw.")],
+    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the noise draw.")],
     output: Annotated[
         Path, typer.Option("--output", "-o", help="Measurement file to write (.json).")
     ],
@@ -228,13 +167,22 @@ def simulate_command(
     ] = None,
 ) -> None:
     """Simulate one noisy trial of a named scenario and write it, truth included."""
+    from comparison.experiment import SNR_RANGE_DB
     from scenarios.catalog import get_scenario
     from scenarios.files import write_measurements
+    from scenarios.limits import FRAMES, SAMPLES, check_limit
     from scenarios.simulate import simulate
 
     if output.suffix.lower() != ".json":
         raise ValueError(f"--output: {output} must end in .json")
+    low, high = SNR_RANGE_DB
+    if not low <= snr_db <= high:
+        raise ValueError(f"--snr-db: must lie in [{low:g}, {high:g}] dB, got {snr_db:g}")
+    if frames is not None:
+        check_limit(frames, "--frames", "frames", FRAMES, "fly fewer frames")
     chosen = get_scenario(scenario, frames=frames)
+    fix = "fly fewer frames"
+    check_limit(chosen.flight.n_samples, "--frames", "samples", SAMPLES, fix)
     data = simulate(chosen, snr_db=snr_db, seed=seed)
     write_measurements(data, output)
     typer.echo(
@@ -243,7 +191,7 @@ def simulate_command(
     )
 
 
-@command("estimate")
+@command("estimate", field="file")
 @with_csv_options
 def estimate_command(
     file: MeasurementFile,
@@ -260,6 +208,14 @@ def estimate_command(
             help="Estimator option key=value, repeatable; JSON values, e.g. side_prior_m=[30,10].",
         ),
     ] = None,
+    ignore_unknowns: Annotated[
+        bool,
+        typer.Option(
+            "--ignore-unknowns",
+            help="Take the file's unknown carrier offset and emission time as zero, to see the "
+            "bias that costs (MATH §15).",
+        ),
+    ] = False,
     as_json: JsonFlag = False,
     *,
     constants: CsvConstants,
@@ -268,12 +224,20 @@ def estimate_command(
     import numpy as np
 
     from comparison.scoring import estimate_to_dict
+    from estimators.base import capabilities_of, unknowns_problem
     from estimators.registry import make_estimator
 
     options = parse_estimator_options(option or [])
     chosen = make_estimator(estimator, **options)
     data = load_measurements(file, constants)
-    estimate = chosen.estimate(data.without_truth(), rng=np.random.default_rng(0))
+    if ignore_unknowns:
+        data = data.assuming_known()
+    used = capabilities_of(chosen).modalities & data.modalities
+    problem = unknowns_problem(chosen, data.unknowns, used, ignore_hint="--ignore-unknowns")
+    if problem is not None:
+        raise ValueError(problem)
+    with blame("--estimator", f"{estimator} cannot estimate from {file}; try another estimator"):
+        estimate = chosen.estimate(data.without_truth(), rng=np.random.default_rng(0))
     result = estimate_to_dict(estimate, data.truth_emitter_m)
     if as_json:
         print_json(result)
@@ -320,7 +284,7 @@ def _number_text(value: float | None) -> str:
     return "-" if value is None else f"{value:.4g}"
 
 
-@command("crlb")
+@command("crlb", field="file")
 @with_csv_options
 def crlb_command(
     file: MeasurementFile,
@@ -336,10 +300,15 @@ def crlb_command(
 
     Needs only the geometry and the σ's of the file, not the measured values (MATH §8).
     """
+    from scenarios.types import MAX_COORDINATE_M
+
     data = load_measurements(file, constants)
     if at is not None:
-        if not all(math.isfinite(v) for v in at):
-            raise ValueError(f"--at: expected two finite numbers X Y, got {at}")
+        if not all(math.isfinite(v) and abs(v) <= MAX_COORDINATE_M for v in at):
+            raise ValueError(
+                f"--at: expected two finite numbers X Y within ±{MAX_COORDINATE_M:g} m, got "
+                f"{' '.join(f'{v:g}' for v in at)}"
+            )
         at_m: Any = at
     elif data.truth_emitter_m is not None:
         at_m = data.truth_emitter_m
@@ -353,21 +322,34 @@ def crlb_command(
         return
     from rich.table import Table
 
-    view = Table(title=f"CRLB at {_point_text(table['at_m'])} m, {data.n_samples} samples")
-    for heading in ("modalities", "√trace CRLB (m)", "CRLB (m²)", "note"):
+    unknowns = table["unknowns"]
+    title = f"CRLB at {_point_text(table['at_m'])} m, {data.n_samples} samples"
+    if unknowns:
+        title += f", {' and '.join(unknowns)} unknown (MATH §15)"
+    view = Table(title=title)
+    headings = ["modalities", "√trace CRLB (m)", "CRLB (m²)"]
+    if unknowns:
+        headings += ["known: √trace CRLB (m)", "price"]
+    for heading in (*headings, "note"):
         view.add_column(heading)
     for name in table["rmse_bound_m"]:
         bound, matrix = table["rmse_bound_m"][name], table["crlb_m2"][name]
-        view.add_row(
+        cells = [
             name,
             _number_text(bound),
             "-" if matrix is None else "; ".join(" ".join(f"{v:.3g}" for v in r) for r in matrix),
-            table["notes"].get(name, ""),
-        )
+        ]
+        if unknowns:
+            price = table["price"].get(name)
+            cells += [
+                _number_text(table["known_rmse_bound_m"].get(name)),
+                "-" if price is None else f"{price:.3g}×",
+            ]
+        view.add_row(*cells, table["notes"].get(name, ""))
     _console().print(view)
 
 
-@command("fly")
+@command("fly", field="file")
 @with_csv_options
 def fly_command(
     file: MeasurementFile,
@@ -456,7 +438,7 @@ def _print_plan(result: dict[str, Any], file: Path) -> None:
     _console().print(table)
 
 
-@command("list")
+@command("list", field="list")
 def list_command() -> None:
     """The built-in experiments, named scenarios and estimators, one line each."""
 
@@ -490,17 +472,27 @@ def list_command() -> None:
         typer.echo(f"  {name:<{width}}  {summary}")
 
 
-@command("run")
+def _resume_hint(arguments: dict[str, Any]) -> str:
+    command = f"emitterbench run {arguments['experiment']} -o {arguments['output']} --resume"
+    return f"the rows stored so far are kept; finish the run with `{command}`"
+
+
+@command("run", field="experiment", interrupted=_resume_hint)
 def run_command(
     experiment: Annotated[
         str, typer.Argument(help="A built-in experiment (see `emitterbench list`) or a .toml file.")
     ],
     output: Annotated[Path, typer.Option("--output", "-o", help="Run folder to write.")],
     trials: Annotated[
-        int | None, typer.Option("--trials", min=1, help="Trials per point (overrides the file).")
+        int | None,
+        typer.Option(
+            "--trials",
+            min=1,
+            help="Trials per point (overrides the file; with --resume, the run's own).",
+        ),
     ] = None,
     workers: Annotated[
-        int | None, typer.Option("--workers", min=1, help="Local worker processes [all cores].")
+        int | None, typer.Option("--workers", min=1, help="Local worker processes \\[all cores].")
     ] = None,
     resume: Annotated[
         bool, typer.Option("--resume", help="Finish an interrupted run in the same folder.")
@@ -510,35 +502,54 @@ def run_command(
         typer.Option(
             "--scheduler",
             envvar="DASK_SCHEDULER_ADDRESS",
-            help="Run on a Dask cluster at tcp://HOST:PORT (extra emitterbench[cluster]).",
+            help="Run on a Dask cluster at tcp://HOST:PORT (extra emitterbench\\[cluster]).",
         ),
     ] = None,
 ) -> None:
     """Run a Monte Carlo comparison into a run folder, then write its report.
 
     Rows are stored as they arrive (results.sqlite): a killed run loses at most the trials in
-    flight, and --resume finishes it with exactly the rows of an uninterrupted run.
+    flight, and --resume finishes it with exactly the rows of an uninterrupted run, with the
+    number of trials it was started with unless --trials asks for more.
     """
     from comparison.engine import run_experiment
     from comparison.experiment import load_experiment
     from comparison.report import write_report
+    from comparison.run_folder import EXPERIMENT_FILE, read_experiment
 
+    cores = os.cpu_count() or 1
+    if workers is not None and workers > WORKERS_PER_CORE * cores:
+        raise ValueError(
+            f"--workers: {workers} is more than {WORKERS_PER_CORE} per core ({cores} cores "
+            "here); more processes than cores only add memory"
+        )
     definition = load_experiment(experiment)
+    if trials is None and resume and (output / EXPERIMENT_FILE).is_file():
+        trials = read_experiment(output).trials  # the run keeps its own number of trials
+    if trials is not None and trials != definition.trials:
+        try:
+            definition = definition.with_trials(trials)
+        except ValueError as error:
+            raise ValueError(f"--trials: {str(error).partition(': ')[2]}") from None
     run_dir = run_experiment(
-        definition, output, workers=workers, scheduler=scheduler, resume=resume, trials=trials
+        definition, output, workers=workers, scheduler=scheduler, resume=resume
     )
     html = write_report(run_dir)
     typer.echo(f"report: {html}")
-    typer.echo(f"tables: {run_dir / 'summary.csv'}, {run_dir / 'trials.csv'}")
+    tables = [run_dir / name for name in ("summary.csv", "trials.csv")]
+    typer.echo(f"tables: {', '.join(str(path) for path in tables if path.is_file())}")
 
 
-@command("report")
+@command("report", field="run_dir")
 def report_command(
     run_dir: Annotated[Path, typer.Argument(help="A run folder written by `emitterbench run`.")],
     bootstrap: Annotated[
         int | None,
         typer.Option(
-            "--bootstrap", min=100, help="Bootstrap resamples for intervals (default: as run)."
+            "--bootstrap",
+            min=100,
+            max=MAX_BOOTSTRAP,
+            help="Bootstrap resamples for intervals (default: as run).",
         ),
     ] = None,
 ) -> None:
@@ -553,22 +564,25 @@ def report_command(
     typer.echo(f"report: {write_report(run_dir, **options)}")
 
 
-@command("validate")
+@command("validate", field="validate")
 def validate_command(
     output: Annotated[
         Path | None, typer.Option("--output", "-o", help="Folder for validate.json and reports.")
     ] = None,
     instances: Annotated[
-        int, typer.Option("--instances", min=1, help="Seeded instances per family.")
+        int,
+        typer.Option("--instances", min=1, max=MAX_INSTANCES, help="Seeded instances per family."),
     ] = 1000,
     families: Annotated[
         list[str] | None,
         typer.Option("--families", help="Instance families (repeat); default: all."),
     ] = None,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the instance draws.")] = 0,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the instance draws.")] = 0,
     replay_seed: Annotated[
         int | None,
-        typer.Option("--replay", help="Re-run one instance verbosely (give one --families)."),
+        typer.Option(
+            "--replay", min=0, help="Re-run one instance verbosely (give one --families)."
+        ),
     ] = None,
     estimator: Annotated[
         str | None,

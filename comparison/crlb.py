@@ -58,15 +58,21 @@ def crlb_table(data: MeasurementSet, at_m: Any) -> dict[str, Any]:
     """RMSE bound and CRLB matrix at ``at_m`` for each of ``MODALITY_SETS`` (MATH §8).
 
     A set whose σ (or RSS model) is missing, or whose information is singular, is ``None``
-    with a note saying why.
+    with a note saying why. With nuisance parameters in ``data.unknowns`` the bounds are those
+    with them unknown (MATH §15), and ``unknowns`` names them; ``known_rmse_bound_m`` holds the
+    bounds with them known and ``price`` the ratio of the two, per set (1 where an unknown
+    does not enter the set's modalities).
     """
     table: dict[str, Any] = {
         "at_m": [float(v) for v in at_m],
         "n_samples": data.n_samples,
+        "unknowns": list(data.unknowns),
         "rmse_bound_m": {},
         "crlb_m2": {},
         "notes": {},
     }
+    if data.unknowns:
+        table["known_rmse_bound_m"], table["price"] = {}, {}
     for name, modalities in MODALITY_SETS.items():
         try:
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -82,4 +88,8 @@ def crlb_table(data: MeasurementSet, at_m: Any) -> dict[str, Any]:
             continue
         table["rmse_bound_m"][name] = bound
         table["crlb_m2"][name] = crlb_m2(information).tolist()
+        if data.unknowns:
+            known = float(rmse_bound_m(fisher_information(data, at_m, modalities, unknowns=())))
+            table["known_rmse_bound_m"][name] = known
+            table["price"][name] = bound / known
     return table

@@ -1,9 +1,10 @@
 """The Monte Carlo engine: run an :class:`~comparison.experiment.Experiment` into a run folder.
 
-:func:`run_experiment` checks the folder (:mod:`comparison.run_folder`), works out every
-point's CRLB (:mod:`comparison.bounds`), cuts the missing trials into tasks
-(:mod:`comparison.tasks`), runs them here, in local processes or on a dask cluster
-(:mod:`comparison.execution`), and stores each task's rows as it finishes
+:func:`run_experiment` works out every point's CRLB (:mod:`comparison.bounds`) and builds the
+estimators and planners, then checks and locks the folder (:mod:`comparison.run_folder`) and
+its store, so that nothing is written for an experiment that cannot run; it cuts the missing
+trials into tasks (:mod:`comparison.tasks`), runs them here, in local processes or on a dask
+cluster (:mod:`comparison.execution`), and stores each task's rows as it finishes
 (:mod:`comparison.store`). The rows follow the contract of :mod:`comparison.trial_rows`;
 ``runtime_s`` is the only column that is not a function of the experiment, and no row depends
 on the number of workers, their order, the chunking, or the number of trials asked (the seed
@@ -17,7 +18,8 @@ The pieces:
 - :mod:`comparison.scoring`: one estimate's columns (errors, side, the two NEES);
 - :mod:`comparison.bounds`: the CRLB of every point and of every flown trial;
 - :mod:`comparison.store`: ``results.sqlite``, written and read back;
-- :mod:`comparison.run_folder`: the folder's rules, ``experiment.json`` and ``run.json``;
+- :mod:`comparison.run_folder`: the folder's rules and lock, safe writes, ``experiment.json``
+  and ``run.json``;
 - :mod:`comparison.execution`: joblib/loky, dask, the progress bar.
 
 :func:`read_trials`, :func:`read_points`, :func:`read_flights` and :func:`read_experiment` are
@@ -29,32 +31,41 @@ from __future__ import annotations
 import os
 import sys
 import time
+import warnings
 from contextlib import ExitStack, closing
 from pathlib import Path
+from typing import Any
 
-from comparison.bounds import crlb_key, point_infos, point_rows
+import numpy as np
+
+from comparison.bounds import CrlbKey, PointInfo, crlb_key, point_infos, point_rows
 from comparison.execution import connect_scheduler, execute, progress_bar
 from comparison.experiment import Experiment
 from comparison.run_folder import (
     RESULTS_FILE,
+    check_folder,
+    folder_session,
     now_utc,
-    prepare_folder,
     read_experiment,
     session_info,
     warn_on_code_change,
+    write_experiment,
     write_run_info,
 )
 from comparison.store import (
+    check_store,
     complete_trials,
     connect,
     create_tables,
     read_flights,
     read_points,
     read_trials,
+    store_errors,
     write_points,
     write_task,
 )
-from comparison.tasks import estimator_of, plan_tasks
+from comparison.tasks import estimator_of, plan_tasks, planner_of
+from scenarios.simulate import noise_free
 
 __all__ = ["read_experiment", "read_flights", "read_points", "read_trials", "run_experiment"]
 
@@ -70,6 +81,11 @@ def run_experiment(
     progress: bool | None = None,
 ) -> Path:
     """Run ``experiment`` into the run folder ``out_dir``; return the folder.
+
+    Everything that can fail from the experiment alone (every point's scenario and CRLB, the
+    estimators and planners) is worked out before the folder is touched, and a session that
+    fails before it stores a row leaves the folder as it found it. One session at a time
+    writes a folder (a lock held for the session, :func:`comparison.run_folder.folder_session`).
 
     Parameters
     ----------
@@ -98,8 +114,10 @@ def run_experiment(
     Raises
     ------
     ValueError
-        A non-empty folder without ``resume``, a mismatching experiment on resume, bad
-        ``workers``, or an unreachable or missing dask scheduler.
+        A point that cannot be simulated, a non-empty folder without ``resume``, a
+        mismatching experiment on resume, a folder another session is writing, a damaged
+        ``results.sqlite``, a file of the run that is a symbolic link, bad ``workers``, or an
+        unreachable or missing dask scheduler.
     """
     if not isinstance(experiment, Experiment):
         raise ValueError(f"experiment: expected an Experiment, got {type(experiment).__name__}")
@@ -114,22 +132,25 @@ def run_experiment(
             f"scheduler: expected an address such as tcp://host:8786, got {scheduler!r}"
         )
     out = Path(out_dir)
+    # everything that can fail from the experiment alone, before the folder is touched
+    crlb_keys, infos, points = _worked_out(experiment)
+    check_folder(out, experiment, resume)
+    database = out / RESULTS_FILE
     with ExitStack() as stack:
-        if scheduler is not None:  # fail before touching the folder
+        if scheduler is not None:
             connect_scheduler(scheduler, stack)
-        prepare_folder(out, experiment, resume)
+        folder = stack.enter_context(folder_session(out, experiment, resume))
+        check_store(database)  # a damaged store stops a resume before anything is written
+        write_experiment(out, experiment)
         session = session_info(experiment, workers, scheduler, resume)
         if resume:
             warn_on_code_change(out, session)
         write_run_info(out, session)
         start = time.perf_counter()
-
-        # the bounds of every point, and the points table
-        crlb_keys = [crlb_key(estimator_of(spec)) for spec in experiment.estimators]
-        infos = point_infos(experiment, crlb_keys)
-        connection = stack.enter_context(closing(connect(out / RESULTS_FILE)))
+        connection = stack.enter_context(closing(connect(database)))
+        stack.enter_context(store_errors(database))
         create_tables(connection, experiment)
-        write_points(connection, experiment, point_rows(experiment, infos))
+        write_points(connection, experiment, points)
 
         # the missing trials, in tasks, stored as each finishes
         complete = complete_trials(connection, experiment, infos)
@@ -142,16 +163,62 @@ def run_experiment(
         )
         task_time_s = 0.0
         for result in execute(tasks, workers, scheduler):
+            folder.keep = True  # rows from here on: a failure keeps the folder for --resume
             info = infos[(result.scenario_index, result.point)]
             write_task(connection, experiment, result, info, crlb_keys)
             task_time_s += result.elapsed_s
             if advance is not None:
                 advance(len(result.trials))
-    session.update(
-        finished_utc=now_utc(),
-        wall_time_s=time.perf_counter() - start,
-        tasks_run=len(tasks),
-        task_time_s=task_time_s,
-    )
-    write_run_info(out, session)
+        folder.keep = True
+        session.update(
+            finished_utc=now_utc(),
+            wall_time_s=time.perf_counter() - start,
+            tasks_run=len(tasks),
+            task_time_s=task_time_s,
+        )
+        write_run_info(out, session)
     return out
+
+
+def _worked_out(
+    experiment: Experiment,
+) -> tuple[list[CrlbKey], dict[tuple[int, int], PointInfo], list[dict[str, Any]]]:
+    """The bound keys of the estimators, every point's scenario and CRLB and the rows of the
+    points table, with the estimators and planners built: what can fail before a run."""
+    crlb_keys = []
+    for index, spec in enumerate(experiment.estimators):
+        try:
+            crlb_keys.append(crlb_key(estimator_of(spec)))
+        except ValueError as error:
+            raise ValueError(f"estimators[{index}]: {error}") from None
+    for index, spec in enumerate(experiment.planners):
+        try:
+            planner_of(spec)
+        except ValueError as error:
+            raise ValueError(f"planners[{index}]: {error}") from None
+    with warnings.catch_warnings(record=True) as caught:  # numpy's, on a point that fails
+        try:
+            infos = point_infos(experiment, crlb_keys)
+            rows = point_rows(experiment, infos)
+        except (ValueError, ArithmeticError) as error:
+            with np.errstate(all="ignore"):
+                raise _point_error(experiment, error) from None
+    for warning in caught:  # the experiment can run: the caller sees them
+        warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
+    return crlb_keys, infos, rows
+
+
+def _point_error(experiment: Experiment, error: Exception) -> ValueError:
+    """The error of the first point that cannot be simulated (else ``error`` as it is)."""
+    for i, name in enumerate(experiment.scenarios):
+        for p, settings in enumerate(experiment.sweep.points()):
+            try:
+                scenario, snr_db = experiment.point_scenario(i, p)
+                noise_free(scenario, snr_db=snr_db)
+            except (ValueError, ArithmeticError) as failure:
+                values = ", ".join(f"{key}={value:g}" for key, value in settings.items())
+                return ValueError(
+                    f"sweep: point {p} ({values}) of scenarios[{i}] ({name}) gives measurements "
+                    f"that cannot be used ({failure}); change or drop that value"
+                )
+    return ValueError(f"sweep: the bounds of the points cannot be computed ({error})")

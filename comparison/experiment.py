@@ -21,6 +21,7 @@ A complete example (every key; the optional ones show their defaults)::
     per_frame = false                       # optional; estimate after every frame
     metrics = ["rmse_m", "efficiency"]      # optional; comparison.metrics.METRIC_NAMES
     chunk_size = 25                         # optional; trials per parallel task
+    time_limit_s = 60.0                     # optional; seconds one estimate may take
 
     [sweep]                                 # optional; without it: one point at 0 dB
     parameter = "snr_db"                    # snr_db, a scenarios.parameters.SWEEPABLE name,
@@ -37,6 +38,7 @@ A complete example (every key; the optional ones show their defaults)::
     name = "ml"
     label = "ml-rss"
     options = { use_rss = true }            # optional; keyword arguments of the estimator
+    ignore_unknowns = false                 # optional; take nuisance parameters as known (§15)
 
 ``estimators = ["cls", "ml"]`` (plain names) is shorthand for tables with only ``name``.
 
@@ -63,14 +65,19 @@ The sweep has one parameter with a list of ``values``, or the 2-D grid ``paramet
 are those of :data:`scenarios.parameters.SWEEPABLE`; :func:`scenarios.parameters.with_parameter`
 applies them after ``frames``.
 
+Resource limits, checked at load: at most :data:`MAX_TRIALS` trials per point,
+:data:`MAX_POINTS` sweep points, :data:`MAX_ESTIMATES` estimates in all and, per trial, the
+frames and samples of :mod:`scenarios.limits`; each error names the key and the environment
+variable that raises the limit (``EMITTERBENCH_MAX_TRIALS=N``).
+
 The built-in experiments (:mod:`comparison.experiment_catalog`) are written in the same format,
 as dicts; :func:`load_experiment` takes their names as well as files.
 """
 
 from __future__ import annotations
 
-import importlib.util
 import json
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -78,12 +85,19 @@ from typing import Any
 
 from comparison.experiment_catalog import builtin_definition, experiment_definition
 from comparison.metrics import METRIC_NAMES
-from comparison.specs import EstimatorSpec, PlannerSpec, built_specs, check_keys, specs_from_list
-from estimators.base import capabilities_of
+from comparison.specs import (
+    EstimatorSpec,
+    PlannerSpec,
+    built_specs,
+    check_estimator_fits,
+    check_keys,
+    specs_from_list,
+)
 from estimators.registry import estimator_class
 from scenarios import fields
 from scenarios.catalog import CATALOG, get_scenario
 from scenarios.fields import FrozenDict
+from scenarios.limits import FRAMES, SAMPLES, LongInteger, check_limit, count_text, load_json
 from scenarios.parameters import SWEEPABLE, check_parameter_value, with_parameters
 from scenarios.planners import planner_class
 from scenarios.types import Scenario
@@ -97,6 +111,19 @@ GRID_PARAMETER = "emitter_m"
 GRID_COLUMNS = ("emitter_x_m", "emitter_y_m")
 """The result columns of the ``emitter_m`` grid."""
 
+MAX_TRIALS = 1_000_000
+"""Most trials per point (``EMITTERBENCH_MAX_TRIALS``); 500 bound an efficiency to about ±5%."""
+MAX_POINTS = 10_000
+"""Most sweep points, ``values`` or the ``x`` × ``y`` grid (``EMITTERBENCH_MAX_POINTS``)."""
+MAX_ESTIMATES = 100_000_000
+"""Most estimates, i.e. result rows, of a run (``EMITTERBENCH_MAX_ESTIMATES``): some 30 GB."""
+MAX_CHUNK_SAMPLES = 5_000_000
+"""Most samples one task simulates at once, ``chunk_size`` × samples per trial (about 400 MB)."""
+
+_TRIALS = (MAX_TRIALS, "EMITTERBENCH_MAX_TRIALS")
+_POINTS = (MAX_POINTS, "EMITTERBENCH_MAX_POINTS")
+_ESTIMATES = (MAX_ESTIMATES, "EMITTERBENCH_MAX_ESTIMATES")
+
 _EXPERIMENT_KEYS = (
     "name",
     "description",
@@ -109,6 +136,7 @@ _EXPERIMENT_KEYS = (
     "per_frame",
     "metrics",
     "chunk_size",
+    "time_limit_s",
     "swept_columns",
     "planners",
     "steering_estimator",
@@ -123,8 +151,19 @@ _SWEEP_KEYS = ("parameter", "values", "x", "y", "fixed")
 # --------------------------------------------------------------------------------------------
 
 
+def _count(value: Any, path: str, *, minimum: int) -> int:
+    """A whole number ``>= minimum``; a huge one named by its size, never by 4000 digits."""
+    if isinstance(value, LongInteger):
+        raise ValueError(f"{path}: expected a whole number, got {value!r}")
+    if isinstance(value, int) and not isinstance(value, bool) and value < min(minimum, -(10**15)):
+        raise ValueError(f"{path}: must be a whole number >= {minimum}, got {count_text(value)}")
+    return fields.whole(value, path, minimum=minimum)
+
+
 def _check_parameter(name: str, value: float, path: str) -> float:
-    """One sweep value: SNR range or the scenario parameter's own domain."""
+    """One sweep value: SNR range, the scenario parameter's own domain, the resource limits."""
+    if isinstance(value, LongInteger):
+        raise ValueError(f"{path}: {value!r} is too large for a float (above 1.8e308)")
     number = fields.number(value, path)
     if name == "snr_db":
         low, high = SNR_RANGE_DB
@@ -132,9 +171,14 @@ def _check_parameter(name: str, value: float, path: str) -> float:
             raise ValueError(f"{path}: snr_db must lie in [{low:g}, {high:g}] dB, got {value!r}")
         return number
     try:
-        return check_parameter_value(name, number)
+        number = check_parameter_value(name, number)
     except ValueError as error:
         raise ValueError(f"{path}: {error}") from None
+    if name == "frames":
+        check_limit(int(number), path, "frames", FRAMES, "fly fewer frames")
+    if name == "samples_per_frame":
+        check_limit(int(number), path, "samples per frame", SAMPLES, "take fewer samples")
+    return number
 
 
 # --------------------------------------------------------------------------------------------
@@ -212,15 +256,17 @@ class Sweep:
     @staticmethod
     def _sequence(raw: Any, key: str, parameter: str | None) -> tuple[float, ...]:
         raw = fields.number_list(raw, key)
+        check_limit(len(raw), key, "values", _POINTS, "sweep fewer values")
         if parameter is None:
             return tuple(fields.number(v, key) for v in raw)
         values = tuple(_check_parameter(parameter, v, f"{key}[{i}]") for i, v in enumerate(raw))
+        first: dict[float, int] = {}
         for index, value in enumerate(values):
-            if value in values[:index]:
-                first = values.index(value)
+            if value in first:
                 raise ValueError(
-                    f"{key}[{index}]: {value:g} repeats {key}[{first}]; give distinct values"
+                    f"{key}[{index}]: {value:g} repeats {key}[{first[value]}]; give distinct values"
                 )
+            first[value] = index
         return values
 
     @property
@@ -240,14 +286,17 @@ class Sweep:
 
     def points(self) -> list[dict[str, float]]:
         """Every point's settings: ``snr_db`` and each fixed or swept scenario parameter."""
+        return [self.point(index) for index in range(self.n_points)]
+
+    def point(self, index: int) -> dict[str, float]:
+        """Point ``index``'s settings (grid points x-major, as :meth:`points` lists them)."""
         base = {"snr_db": 0.0, **self.fixed}
         if self.parameter is None:
-            return [base]
+            return base
         if self.parameter == GRID_PARAMETER:
-            return [
-                {**base, "emitter_x_m": x, "emitter_y_m": y} for x in self.x_m for y in self.y_m
-            ]
-        return [{**base, self.parameter: value} for value in self.values]
+            i, j = divmod(index, len(self.y_m))
+            return {**base, "emitter_x_m": self.x_m[i], "emitter_y_m": self.y_m[j]}
+        return {**base, self.parameter: self.values[index]}
 
     def to_dict(self) -> dict[str, Any]:
         raw: dict[str, Any] = {}
@@ -304,6 +353,9 @@ class Experiment:
         Metric columns the report shows (:data:`comparison.metrics.METRIC_NAMES`); None: all.
     chunk_size : int
         Trials per parallel task (>= 1); results never depend on it.
+    time_limit_s : float
+        Seconds one estimator call may take (> 0); a longer one fails its row
+        (:mod:`comparison.estimator_calls`).
     planners : sequence of PlannerSpec
         Closed loop: each planner flies every trial (distinct labels); empty for an
         open-loop experiment. Needs ``per_frame``.
@@ -328,6 +380,7 @@ class Experiment:
     per_frame: bool = False
     metrics: tuple[str, ...] | None = None
     chunk_size: int = 25
+    time_limit_s: float = 60.0
     planners: tuple[PlannerSpec, ...] = ()
     steering_estimator: str | None = None
 
@@ -335,23 +388,31 @@ class Experiment:
         set_ = object.__setattr__
         fields.text(self.name, "name")
         fields.text(self.description, "description", allow_empty=True)
-        set_(self, "trials", fields.whole(self.trials, "trials", minimum=1))
-        set_(self, "seed", fields.whole(self.seed, "seed", minimum=0))
-        set_(self, "chunk_size", fields.whole(self.chunk_size, "chunk_size", minimum=1))
+        set_(self, "trials", _count(self.trials, "trials", minimum=1))
+        check_limit(self.trials, "trials", "trials per point", _TRIALS, "ask for fewer")
+        set_(self, "seed", _count(self.seed, "seed", minimum=0))
+        set_(self, "chunk_size", _count(self.chunk_size, "chunk_size", minimum=1))
+        check_limit(self.chunk_size, "chunk_size", "trials per task", _TRIALS, "use fewer")
+        set_(self, "time_limit_s", fields.number(self.time_limit_s, "time_limit_s"))
+        if self.time_limit_s <= 0:
+            raise ValueError(f"time_limit_s: must be > 0 seconds, got {self.time_limit_s:g}")
         if self.frames is not None:
-            set_(self, "frames", fields.whole(self.frames, "frames", minimum=1))
+            set_(self, "frames", _count(self.frames, "frames", minimum=1))
+            check_limit(self.frames, "frames", "frames", FRAMES, "fly fewer frames")
         if not isinstance(self.per_frame, bool):
             raise ValueError(f"per_frame: expected true or false, got {self.per_frame!r}")
         if not isinstance(self.sweep, Sweep):
             raise ValueError(f"sweep: expected a Sweep, got {type(self.sweep).__name__}")
-        self._check_scenarios()
+        most_frames, most_samples = self._check_scenarios()
         self._check_metrics()
         self._check_estimators()
         self._check_planners()
+        self._check_size(most_frames, most_samples)
 
     # -- validation ------------------------------------------------------------------------
 
-    def _check_scenarios(self) -> None:
+    def _check_scenarios(self) -> tuple[int, int]:
+        """Check the names and fly every point; the most frames and samples of a trial."""
         if isinstance(self.scenarios, str) or not isinstance(self.scenarios, Sequence):
             raise ValueError(f"scenarios: expected a list of names, got {self.scenarios!r}")
         names = tuple(self.scenarios)
@@ -366,15 +427,67 @@ class Experiment:
             if name in names[:index]:
                 raise ValueError(f"scenarios[{index}]: {name!r} is listed twice; list it once")
         object.__setattr__(self, "scenarios", names)
+        check_limit(self.sweep.n_points, "sweep", "points", _POINTS, "sweep fewer values")
+        most_frames = most_samples = 0
         for index, name in enumerate(names):
             for point, settings in enumerate(self.sweep.points()):
                 try:
-                    build_scenario(name, settings, frames=self.frames)
+                    flight = self._flight_of(name, settings)
                 except ValueError as error:
                     raise ValueError(
-                        f"sweep: point {point} cannot be applied to scenarios[{index}] "
-                        f"({name}): {error}"
+                        f"{self._culprit(name, point)}: point {point} of the sweep cannot be "
+                        f"flown in scenarios[{index}] ({name}): {error}"
                     ) from None
+                most_frames = max(most_frames, flight.n_frames)
+                most_samples = max(most_samples, flight.n_samples)
+        return most_frames, most_samples
+
+    def _flight_of(self, name: str, settings: Mapping[str, float]) -> Any:
+        """The flight of ``name`` at ``settings``: within the limits, every σ in range (MATH §2)."""
+        scenario = build_scenario(name, settings, frames=self.frames)
+        fix = "fly fewer frames or samples per frame"
+        check_limit(scenario.flight.n_samples, "samples", "samples per trial", SAMPLES, fix)
+        scenario.noise.at_snr(settings.get("snr_db", 0.0))
+        return scenario.flight
+
+    def _culprit(self, name: str, point: int) -> str:
+        """The key to fix for a point that cannot be flown: the first value failing alone."""
+        sweep = self.sweep
+        snr = {"snr_db": sweep.fixed.get("snr_db", 0.0)}
+        alone: list[tuple[str, dict[str, float]]] = [("frames", {})] if self.frames else []
+        alone += [(f"sweep.fixed.{key}", {**snr, key: value}) for key, value in sweep.fixed.items()]
+        settings = sweep.point(point)
+        if sweep.parameter == GRID_PARAMETER:
+            i, j = divmod(point, len(sweep.y_m))
+            alone.append((f"sweep.x[{i}]", {**snr, "emitter_x_m": settings["emitter_x_m"]}))
+            alone.append((f"sweep.y[{j}]", {**snr, "emitter_y_m": settings["emitter_y_m"]}))
+        elif sweep.parameter is not None:
+            value = settings[sweep.parameter]
+            alone.append((f"sweep.values[{point}]", {**snr, sweep.parameter: value}))
+        for path, values in alone:
+            try:
+                self._flight_of(name, values)
+            except ValueError:
+                return path
+        return "sweep"
+
+    def _check_size(self, most_frames: int, most_samples: int) -> None:
+        """The whole run within :data:`MAX_ESTIMATES`, a task within :data:`MAX_CHUNK_SAMPLES`."""
+        counts = (self.trials, self.sweep.n_points, len(self.scenarios), len(self.estimators))
+        counts += (max(1, len(self.planners)), most_frames if self.per_frame else 1)
+        names = ("trials", "points", "scenarios", "estimators", "planners", "frames")
+        product = " × ".join(
+            f"{n:,} {what}" for what, n in zip(names, counts, strict=True) if n > 1
+        )
+        fix = "ask for fewer trials, points, estimators or frames"
+        check_limit(math.prod(counts), "trials", f"estimates ({product})", _ESTIMATES, fix)
+        chunk = min(self.chunk_size, self.trials) * most_samples
+        if chunk > MAX_CHUNK_SAMPLES:
+            raise ValueError(
+                f"chunk_size: {min(self.chunk_size, self.trials):,} trials of {most_samples:,} "
+                f"samples, {chunk:,} samples simulated at once, more than the limit of "
+                f"{MAX_CHUNK_SAMPLES:,}; set chunk_size <= {MAX_CHUNK_SAMPLES // most_samples}"
+            )
 
     def _check_metrics(self) -> None:
         if self.metrics is None:
@@ -401,20 +514,8 @@ class Experiment:
         for path, spec, estimator in built_specs(
             specs, "estimators", EstimatorSpec, estimator_class
         ):
-            capabilities = capabilities_of(estimator)
-            absent = [m for m in capabilities.modules if importlib.util.find_spec(m) is None]
-            if absent:
-                raise ValueError(
-                    f"{path}: {spec.label!r} needs the module(s) {', '.join(absent)}, which "
-                    "are not installed; install them or drop the estimator"
-                )
             for name, scenario in scenarios.items():
-                missing = sorted(capabilities.modalities - set(scenario.modalities))
-                if missing:
-                    raise ValueError(
-                        f"{path}: {spec.label!r} needs {', '.join(missing)} measurements, "
-                        f"which scenario {name!r} does not simulate; drop one of the two"
-                    )
+                check_estimator_fits(path, spec, estimator, name, scenario)
         object.__setattr__(self, "estimators", specs)
 
     def _check_planners(self) -> None:
@@ -479,7 +580,7 @@ class Experiment:
 
     def point_scenario(self, scenario_index: int, point: int) -> tuple[Scenario, float]:
         """The scenario of ``(scenario_index, point)`` and its SNR in dB."""
-        settings = self.sweep.points()[point]
+        settings = self.sweep.point(point)
         return build_scenario(self.scenarios[scenario_index], settings, frames=self.frames), (
             settings["snr_db"]
         )
@@ -504,6 +605,7 @@ class Experiment:
             "per_frame": self.per_frame,
             "metrics": None if self.metrics is None else list(self.metrics),
             "chunk_size": self.chunk_size,
+            "time_limit_s": self.time_limit_s,
             "swept_columns": list(self.swept_columns),
         } | self._closed_loop_dict()
 
@@ -522,11 +624,8 @@ class Experiment:
 
     @classmethod
     def from_json(cls, text: str) -> Experiment:
-        try:
-            raw = json.loads(text)
-        except json.JSONDecodeError as error:
-            raise ValueError(f"experiment: not valid JSON ({error})") from None
-        return cls.from_dict(raw)
+        """The experiment of :meth:`to_json` (read within :mod:`scenarios.limits`)."""
+        return cls.from_dict(load_json(text, source="experiment"))
 
     @classmethod
     def from_dict(cls, raw: Mapping[str, Any]) -> Experiment:
@@ -550,6 +649,7 @@ class Experiment:
             per_frame=raw.get("per_frame", False),
             metrics=raw.get("metrics"),
             chunk_size=raw.get("chunk_size", 25),
+            time_limit_s=raw.get("time_limit_s", 60.0),
             planners=planners,
             steering_estimator=raw.get("steering_estimator"),
         )

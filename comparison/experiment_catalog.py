@@ -6,15 +6,24 @@ that ``emitterbench run NAME_OR_FILE`` means: a built-in by name, or a ``.toml``
 file read into a dict. :func:`comparison.experiment.load_experiment` validates it into an
 :class:`~comparison.experiment.Experiment`. This module holds no schema and imports neither the
 estimators nor the scenarios, so ``emitterbench list`` reads the summaries at once.
+
+A file is read within the limits of :mod:`scenarios.limits`: at most :data:`MAX_EXPERIMENT_MB`
+MiB, UTF-8 with or without a byte order mark, nesting at most 32 levels, integers of at most
+4300 digits; each refusal names the key or the line.
 """
 
 from __future__ import annotations
 
 import copy
-import json
+import re
+import sys
 import tomllib
 from pathlib import Path
 from typing import Any
+
+MAX_EXPERIMENT_MB = 1
+"""Largest experiment file read, MiB: an experiment is a few dozen lines, and a sweep of the
+largest number of points allowed (comparison.experiment.MAX_POINTS) fits in a tenth of it."""
 
 BUILTIN_DEFINITIONS: dict[str, dict[str, Any]] = {
     "paper-fig2": {
@@ -47,6 +56,26 @@ BUILTIN_DEFINITIONS: dict[str, dict[str, Any]] = {
         "trials": 100,
         "seed": 20_240_603,
         "frames": 1,
+    },
+    "geometry-map-dense": {
+        "name": "geometry-map-dense",
+        "description": (
+            "the geometry map at 1 m resolution: RMSE against the CRLB of the two closed forms "
+            "over a 100 x 100 grid of emitter positions beside the paper's track, cells from "
+            "x = -40.5 to 59.5 m and y = 0 (the track) to 100 m (paper-1m at 10 dB, one frame)"
+        ),
+        "scenarios": ["paper-1m"],
+        "sweep": {
+            "parameter": "emitter_m",
+            "x": [float(x) for x in range(-40, 60)],
+            "y": [y + 0.5 for y in range(100)],
+            "fixed": {"snr_db": 10},
+        },
+        "estimators": ["cls", "cls-paper"],
+        "trials": 100,
+        "seed": 20_240_606,
+        "frames": 1,
+        "chunk_size": 100,
     },
     "frames": {
         "name": "frames",
@@ -91,6 +120,26 @@ BUILTIN_DEFINITIONS: dict[str, dict[str, Any]] = {
         "frames": 10,
         "per_frame": True,
     },
+    "noncooperative": {
+        "name": "noncooperative",
+        "description": (
+            "non-cooperative emitters (MATH §15): a 406 MHz beacon 1 kHz off its carrier and on "
+            "its own clock, and the paper's turn with both unknown; every estimator that "
+            "estimates the carrier offset and emission time against the CRLB with them unknown, "
+            "beside the bound with them known"
+        ),
+        "scenarios": ["beacon-pass", "turn-noncooperative"],
+        "sweep": {"parameter": "snr_db", "values": [-10, 0, 10, 20, 30]},
+        "estimators": [
+            "cls",
+            {"name": "cls", "label": "cls-profile", "options": {"offset_method": "profile"}},
+            "ml",
+            "ekf",
+            "gtsam-smoother",
+        ],
+        "trials": 300,
+        "seed": 20_240_607,
+    },
     "smoke": {
         "name": "smoke",
         "description": "a tiny run for tests: two SNR points, two CLS variants, 20 trials",
@@ -108,7 +157,9 @@ BUILTIN_EXPERIMENTS: dict[str, str] = {
     "paper-fig2": "accuracy vs SNR, one frame, paper/paper-1m/paper-10m, 7 estimators, 500 trials",
     "frames": "per-frame RMSE, NEES, wrong side over 10 frames, with and without a turn",
     "geometry-map": "RMSE/CRLB of cls, ml, lls-toa over an emitter grid, paper-1m at 10 dB",
+    "geometry-map-dense": "RMSE/CRLB of cls, cls-paper over a 100 x 100 emitter grid, 100 trials",
     "paper-fig3": "closed loop: 4 planners x 10 frames, ml and per-frame cls vs flown CRLB",
+    "noncooperative": "unknown carrier offset and emission time: a beacon pass and a turn",
     "smoke": "2 SNR points, cls and cls-paper, 20 trials (for tests)",
 }
 """Built-in experiments by name: one-line summaries (``emitterbench list``)."""
@@ -131,7 +182,8 @@ def experiment_definition(name_or_path: str | Path) -> Any:
     Raises
     ------
     ValueError
-        Unknown name, unreadable file, invalid TOML or JSON.
+        Unknown name, unreadable or oversized file, invalid TOML or JSON, nesting too deep, an
+        integer too long to read.
     """
     text = str(name_or_path)
     if text in BUILTIN_DEFINITIONS:
@@ -142,16 +194,39 @@ def experiment_definition(name_or_path: str | Path) -> Any:
             f"experiment: {text!r} is neither a built-in ({', '.join(BUILTIN_EXPERIMENTS)}) "
             "nor a .toml file"
         )
-    try:
-        content = path.read_bytes()
-    except OSError as error:
-        raise ValueError(f"experiment: cannot read {path} ({error.strerror})") from None
+    from scenarios.limits import TOO_DEEP, check_nesting, load_json, read_text
+
+    text = read_text(path, field="experiment", limit_mb=(MAX_EXPERIMENT_MB, ""))
     if path.suffix == ".json":
-        try:
-            return json.loads(content.decode())
-        except json.JSONDecodeError as error:
-            raise ValueError(f"experiment: not valid JSON ({error})") from None
+        return load_json(text, source=f"experiment: {path}")
     try:
-        return tomllib.loads(content.decode())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
+        definition = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
         raise ValueError(f"experiment: {path} is not valid TOML ({error})") from None
+    except RecursionError:
+        raise ValueError(f"experiment: {path}: {TOO_DEEP}") from None
+    except ValueError:  # an integer longer than Python converts (sys.get_int_max_str_digits)
+        raise ValueError(_long_integer(text, path)) from None
+    check_nesting(definition)
+    return definition
+
+
+def _long_integer(text: str, path: Path) -> str:
+    """The message for the first integer of ``text`` too long for Python to read, by key."""
+    limit = sys.get_int_max_str_digits()
+    table = ""
+    for number, line in enumerate(text.splitlines(), start=1):
+        header = re.match(r"\s*\[\[?\s*([\w.\-]+)\s*\]", line)
+        if header:
+            table = header.group(1)
+        digits = max(
+            (len(run.replace("_", "")) for run in re.findall(r"\d[\d_]*", line)), default=0
+        )
+        if digits > limit:
+            key = re.match(r"\s*([\w\-]+)\s*=", line)
+            field = ".".join(part for part in (table, key.group(1) if key else "") if part)
+            return (
+                f"{field or 'experiment'}: an integer of {digits} digits ({path}, line {number}); "
+                f"Python reads at most {limit} digits, so write a smaller number"
+            )
+    return f"experiment: {path} holds a number Python cannot read; fix it"

@@ -6,7 +6,8 @@
 - ``summary.csv``: :func:`comparison.metrics.summarize`, full precision, one row per
   (scenario, point, frame, estimator), and planner in a closed loop;
 - ``trials.csv``: the tidy trial rows, one per estimator × scenario × point × frame × trial
-  (× planner in a closed loop);
+  (× planner in a closed loop), for runs of at most :data:`MAX_TRIALS_CSV_ROWS` rows (larger
+  runs keep them in ``results.sqlite`` only, and the page says so);
 - ``flights.csv`` (closed loop): every frame flown, per planner and trial
   (:func:`comparison.engine.read_flights`);
 - ``figures/<name>.png`` (150 dpi) and ``figures/<name>.svg`` for every figure of
@@ -17,8 +18,9 @@
 - ``report.html``: one self-contained file (figures embedded as base64 PNG, styles inline, no
   external resource). Its first screen is one verdict table (estimators × scenarios) with the
   notes the table cannot say (:mod:`comparison.verdict_table`); then the figures, the summary
-  tables, the metric definitions, the experiment definition and the run's provenance. The
-  markup is XHTML-compatible, so any XML parser reads it.
+  tables (one line per estimator instead for a scenario of more than :data:`MAX_TABLE_ROWS`
+  summary rows), the metric definitions, the experiment definition and the run's
+  provenance. The markup is XHTML-compatible, so any XML parser reads it.
 
 The tables print every number with :func:`comparison.metrics.format_number` (4 significant
 digits) from the same frame that is written to ``summary.csv``.
@@ -45,10 +47,24 @@ from comparison.metrics import (
     summary_swept_columns,
 )
 from comparison.report_figures import FIGURE_STEMS, report_figures
-from comparison.verdicts import DEFAULT_N_BOOTSTRAP
+from comparison.run_folder import check_report_outputs, write_atomic, write_csv
+from comparison.verdicts import DEFAULT_N_BOOTSTRAP, VERDICTS
+from scenarios.limits import configured_limit
 
 BOOTSTRAP_STREAM = 2**31 + 7
 """Spawn key of the bootstrap's seed sequence under the experiment seed (no trial uses it)."""
+
+MAX_TRIALS_CSV_ROWS = 1_000_000
+"""Most trial rows written to trials.csv (``EMITTERBENCH_MAX_TRIALS_CSV_ROWS``): about 500 MB of
+text and 10 s of formatting. A larger run (a dense geometry map) keeps its rows in
+results.sqlite only, which :func:`comparison.engine.read_trials` reads."""
+
+MAX_TABLE_ROWS = 1000
+"""Most summary rows of one scenario printed as tables in report.html. A scenario with more
+(a dense sweep) gets one line per estimator instead: its verdicts counted and the range of
+its judged efficiency; every row stays in summary.csv."""
+
+_TRIALS_CSV_LIMIT = (MAX_TRIALS_CSV_ROWS, "EMITTERBENCH_MAX_TRIALS_CSV_ROWS")
 
 COMPACT_COLUMNS: tuple[str, ...] = (
     "n_trials",
@@ -253,6 +269,9 @@ def _summary_tables(summary: pd.DataFrame, metrics: Sequence[str] | None = None)
     ].transform("max")
     parts = []
     for index, (scenario, rows) in enumerate(summary.groupby("scenario", sort=False)):
+        if len(rows) > MAX_TABLE_ROWS:
+            parts.append(_overview_html(str(scenario), rows, index))
+            continue
         compact = rows[rows["frame"] == latest[rows.index]][[*key_columns, *chosen]]
         full = rows.drop(columns="scenario")
         note = " (last frame of each point)" if figures.is_per_frame(rows) else ""
@@ -266,6 +285,42 @@ def _summary_tables(summary: pd.DataFrame, metrics: Sequence[str] | None = None)
             "</details></section>"
         )
     return "".join(parts)
+
+
+def overview_table(rows: pd.DataFrame) -> pd.DataFrame:
+    """One line per estimator (planner · estimator in a closed loop) over the last frame of
+    every point of ``rows``: points, the count of each verdict, and the smallest, median and
+    largest judged efficiency."""
+    judged = verdict_table.judged_points(rows)
+    efficiency = judged["efficiency_judged"].where(np.isfinite(judged["efficiency_judged"]))
+    by_row = judged.assign(efficiency=efficiency).groupby("row", sort=False)
+    counts = by_row["verdict"].value_counts().unstack(fill_value=0)
+    table = pd.DataFrame({"points": by_row.size()})
+    for verdict in VERDICTS:
+        table[verdict] = counts[verdict] if verdict in counts.columns else 0
+    table["efficiency_min"] = by_row["efficiency"].min()
+    table["efficiency_median"] = by_row["efficiency"].median()
+    table["efficiency_max"] = by_row["efficiency"].max()
+    return table.rename_axis("estimator").reset_index()
+
+
+def _overview_html(scenario: str, rows: pd.DataFrame, index: int) -> str:
+    """The tables of a scenario of more than :data:`MAX_TABLE_ROWS` rows: a sentence saying
+    where the rows are, and :func:`overview_table`."""
+    n_points = len(rows.drop_duplicates(["snr_db", *summary_swept_columns(rows)]))
+    sentence = (
+        f"{len(rows):,} summary rows on {scenario} ({n_points:,} points), more than the "
+        f"{MAX_TABLE_ROWS:,} this page prints: every row, with every metric, is in summary.csv. "
+        "Here, one line per estimator over the last frame of every point: how many points get "
+        "each verdict, and the smallest, median and largest judged efficiency (RMSE/√CRLB, "
+        "side-resolved where the estimator flags ambiguity)."
+    )
+    table = _table_html(overview_table(rows), f"summary-{index}-overview")
+    return (
+        f'<section class="scenario-overview" data-scenario="{_escape(scenario)}">'
+        f"<h3>{_escape(scenario)}</h3><p>{_escape(sentence)}</p>"
+        f'<div class="table-wrap">{table}</div></section>'
+    )
 
 
 def closed_loop_table(summary: pd.DataFrame, *, from_frame: int = 2) -> pd.DataFrame:
@@ -363,12 +418,14 @@ def render_html(
     figure_entries: list[tuple[str, str, str]],
     notes: list[str],
     experiment_text: str | None = None,
+    file_notes: Sequence[str] = (),
 ) -> str:
     """The report page; ``figure_entries`` are ``(stem, caption, data URI)``, ``notes`` the
     sentences of :func:`comparison.verdict_table.first_screen_notes`.
 
     ``experiment_text`` is the text of experiment.json, shown verbatim (default: ``experiment``
-    as JSON).
+    as JSON); ``file_notes`` are sentences about the files written, shown above the summary
+    tables (:func:`trials_csv_note`).
     """
     name = str(experiment.get("name", "experiment"))
     description = experiment.get("description", "")
@@ -380,6 +437,7 @@ def render_html(
         for stem, caption, uri in figure_entries
     )
     statements = "".join(f"<li>{_escape(note)}</li>" for note in notes)
+    files = "".join(f'<p class="file-note">{_escape(note)}</p>' for note in file_notes)
     return (
         "<!DOCTYPE html>\n"
         '<html lang="en"><head><meta charset="utf-8"/>'
@@ -400,7 +458,7 @@ def render_html(
         f"<p>{_escape(MATH_CAPTION)}</p></section>"
         f"{_closed_loop_section(summary, experiment)}"
         f'<section id="figures"><h2>Figures</h2>{figures_html}</section>'
-        '<section id="tables"><h2>Summary tables</h2>'
+        f'<section id="tables"><h2>Summary tables</h2>{files}'
         "<p>Every number below is the value in summary.csv printed to 4 significant digits; "
         "error metrics are over the successful trials, rates as fractions.</p>"
         f"{_summary_tables(summary, experiment.get('metrics'))}</section>"
@@ -409,6 +467,16 @@ def render_html(
         "</section>"
         f'<section id="run"><h2>Run: versions, machine, times</h2>{_value_html(run_info)}'
         "</section></body></html>\n"
+    )
+
+
+def trials_csv_note(n_rows: int, limit: int) -> str:
+    """The sentence of a report whose trial rows are too many for trials.csv."""
+    return (
+        f"trials.csv is not written: this run has {n_rows:,} trial rows, more than the "
+        f"{limit:,} written as text ({_TRIALS_CSV_LIMIT[1]}). Every row is in results.sqlite, "
+        "which comparison.engine.read_trials reads; to have the file, raise the limit and "
+        "run emitterbench report again."
     )
 
 
@@ -423,6 +491,7 @@ def write_report(
     flights: pd.DataFrame | None = None,
     n_bootstrap: int = DEFAULT_N_BOOTSTRAP,
     dpi: int = 150,
+    max_trials_csv_rows: int | None = None,
 ) -> Path:
     """Write summary.csv, trials.csv, figures/ and report.html into ``run_dir``.
 
@@ -444,6 +513,10 @@ def write_report(
         Bootstrap resamples; the bootstrap is seeded from the experiment's seed.
     dpi : int
         Resolution of the PNG figures.
+    max_trials_csv_rows : int, optional
+        Most trial rows written to trials.csv (default :data:`MAX_TRIALS_CSV_ROWS`, or the
+        environment variable ``EMITTERBENCH_MAX_TRIALS_CSV_ROWS``); a run with more writes
+        none, removes an earlier report's, and says so on the page.
 
     Returns
     -------
@@ -456,6 +529,7 @@ def write_report(
             f"run_dir: {folder} is not a folder; give the folder of a finished run "
             "(the one holding experiment.json)"
         )
+    check_report_outputs(folder)
     trials, points, experiment, run_info = _load(folder, trials, points, experiment, run_info)
     seed = int(experiment.get("seed", 0))
     swept = experiment.get("swept_columns")
@@ -465,9 +539,17 @@ def write_report(
         seed=np.random.SeedSequence(seed, spawn_key=(BOOTSTRAP_STREAM,)),
         swept_columns=None if swept is None else list(swept),
     )
-    summary.to_csv(folder / "summary.csv", index=False)
-    verdict_table.thresholds(summary).to_csv(folder / "thresholds.csv", index=False)
-    trials.to_csv(folder / "trials.csv", index=False)
+    write_csv(folder / "summary.csv", summary)
+    write_csv(folder / "thresholds.csv", verdict_table.thresholds(summary))
+    limit = (
+        configured_limit(_TRIALS_CSV_LIMIT) if max_trials_csv_rows is None else max_trials_csv_rows
+    )
+    file_notes = []
+    if len(trials) <= limit:
+        write_csv(folder / "trials.csv", trials)
+    else:
+        (folder / "trials.csv").unlink(missing_ok=True)  # an earlier report's, now stale
+        file_notes.append(trials_csv_note(len(trials), limit))
     steering = None
     if "planner" in summary.columns:
         if flights is None and (folder / "results.sqlite").is_file():
@@ -475,7 +557,7 @@ def write_report(
 
             flights = engine.read_flights(folder)
         if flights is not None:
-            flights.to_csv(folder / "flights.csv", index=False)
+            write_csv(folder / "flights.csv", flights)
         steering = experiment.get("steering_estimator")
         if steering is None and experiment.get("estimators"):
             first = experiment["estimators"][0]
@@ -504,7 +586,8 @@ def write_report(
         experiment_text=definition_path.read_text(encoding="utf-8")
         if definition_path.is_file()
         else None,
+        file_notes=file_notes,
     )
     path = folder / "report.html"
-    path.write_text(page, encoding="utf-8")
+    write_atomic(path, page)
     return path

@@ -1,11 +1,18 @@
-"""One estimate scored against the truth: the per-estimate columns of a trial row.
+"""Estimates scored against the truth: the per-estimate columns of trial rows.
 
-:func:`estimate_columns` gives the :data:`~comparison.trial_rows.ESTIMATE_COLUMNS` of a row:
-the position and its error, the error once the mirror ambiguity is resolved (MATH §7), the
-side of the track, the covariance and the two NEES (:func:`normalized_error_squared`, with
+:func:`estimate_columns` gives the :data:`~comparison.trial_rows.ESTIMATE_COLUMNS` of one
+row: the position and its error, the error once the mirror ambiguity is resolved (MATH §7),
+the side of the track, the covariance and the two NEES (:func:`normalized_error_squared`, with
 :func:`mirrored_covariance` for a candidate across the track). The track is that of one frame
 (:func:`frame_track`); in a closed loop, that of the first frame the estimator uses
 (:func:`ambiguity_track`).
+
+:func:`score_outcomes` gives the same columns for every trial of a task at once, from an
+estimator's :class:`Outcomes` (its results as :class:`~estimators.batch.BatchEstimates`
+columns, whether the estimator returned them so or one :class:`~estimators.base.Estimate` per
+trial): array operations in the order of the one-estimate code, so that every value is the
+same to the bit, and the JSON columns written by an exact formatter (the text of
+``json.dumps``). A column-returning estimator's trials never become ``Estimate`` objects.
 """
 
 from __future__ import annotations
@@ -13,12 +20,15 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from comparison.trial_rows import ESTIMATE_COLUMNS
 from estimators.base import Estimate
+from estimators.batch import BatchEstimates
 from scenarios.fisher import inverse_2x2
 from scenarios.types import MeasurementSet
 
@@ -185,3 +195,248 @@ def estimate_to_dict(estimate: Estimate, truth_emitter_m: Any | None) -> dict[st
             float(np.min(np.linalg.norm(candidates - truth, axis=1))) if len(candidates) else None
         )
     return result
+
+
+# --------------------------------------------------------------------------------------------
+# every trial of a task at once
+# --------------------------------------------------------------------------------------------
+
+_SORTED_JSON = json.JSONEncoder(sort_keys=True)
+"""``json.dumps(value, sort_keys=True)``, without building an encoder per call."""
+
+
+def diagnostics_text(diagnostics: Mapping[str, Any]) -> str:
+    """The ``diagnostics_json`` of one estimate (as :func:`estimate_columns` writes it)."""
+    return _SORTED_JSON.encode(jsonable(dict(diagnostics)))
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Outcomes:
+    """One estimator's results on the trials of a task at one frame, ready to be scored.
+
+    Attributes
+    ----------
+    columns : BatchEstimates
+    runtime_s : (n,)
+        Each trial's share of the estimator's time.
+    diagnostics_json : tuple of str, optional
+        Each trial's ``diagnostics_json`` when the results came as ``Estimate`` objects (their
+        diagnostics can be anything; the columns of :meth:`of_estimates` hold none), else
+        None: the text is then written from ``columns.diagnostics``.
+    """
+
+    columns: BatchEstimates
+    runtime_s: NDArray[np.float64]
+    diagnostics_json: tuple[str, ...] | None = None
+
+    @classmethod
+    def of_columns(cls, columns: BatchEstimates, runtime_s: float) -> Outcomes:
+        """A column-returning estimator's results, every trial given ``runtime_s``."""
+        return cls(columns, np.full(len(columns), float(runtime_s)))
+
+    @classmethod
+    def of_estimates(cls, results: Sequence[tuple[Estimate, float]]) -> Outcomes:
+        """``(estimate, runtime_s)`` per trial, as columns (the diagnostics as their text).
+
+        Unlike :meth:`BatchEstimates.from_estimates` it keeps whatever the diagnostics hold:
+        those of a failed estimate, keys that differ between trials, nested values.
+        """
+        n = len(results)
+        estimates = [estimate for estimate, _ in results]
+        counts = [len(estimate.candidates_m) for estimate in estimates]
+        candidates = np.full((n, max(counts, default=0), 2), np.nan)
+        position = np.full((n, 2), np.nan)
+        success = np.array([estimate.success for estimate in estimates], dtype=bool)
+        with_covariance = any(estimate.covariance_m2 is not None for estimate in estimates)
+        covariance = np.full((n, 2, 2), np.nan) if with_covariance else None
+        codes: dict[str, int] = {}
+        for i, estimate in enumerate(estimates):
+            if counts[i]:
+                candidates[i, : counts[i]] = estimate.candidates_m
+            if success[i]:
+                position[i] = estimate.position_m
+            if covariance is not None and estimate.covariance_m2 is not None:
+                covariance[i] = estimate.covariance_m2
+        message_code = [codes.setdefault(str(e.message), len(codes)) for e in estimates]
+        columns = BatchEstimates(
+            estimator=estimates[0].estimator if estimates else "",
+            position_m=position,
+            candidates_m=candidates,
+            n_candidates=np.array(counts, dtype=np.int64),
+            ambiguous=np.array([estimate.ambiguous for estimate in estimates], dtype=bool),
+            success=success,
+            message_code=np.array(message_code, dtype=np.int64),
+            messages=tuple(codes) or ("",),
+            covariance_m2=covariance,
+        )
+        runtime_s = np.array([runtime for _, runtime in results], dtype=float)
+        texts = tuple(diagnostics_text(estimate.diagnostics) for estimate in estimates)
+        return cls(columns, runtime_s, texts)
+
+
+def score_outcomes(
+    outcomes: Outcomes, truth_m: ArrayLike, track: Track | None
+) -> list[tuple[Any, ...]]:
+    """:func:`estimate_columns` of every trial of ``outcomes``, computed on columns.
+
+    Every value equals the one-estimate function's to the bit: the same floating-point
+    operations in the same order (``np.matmul`` for the NEES and the mirror, as ``@`` there),
+    the JSON columns in ``json.dumps``'s text. A success whose position or candidates are not
+    finite (which :class:`~estimators.base.Estimate` turns into a failure) is scored one
+    estimate at a time.
+    """
+    columns = outcomes.columns
+    n = len(columns)
+    if n == 0:
+        return []
+    nan = math.nan
+    truth = np.asarray(truth_m, dtype=float)[:2]
+    success = np.asarray(columns.success, dtype=bool)
+    count = np.asarray(columns.n_candidates, dtype=np.int64)
+    k = columns.candidates_m.shape[1]
+    slot = np.arange(k)[None, :] < count[:, None]
+    candidates = np.where(slot[..., None], columns.candidates_m, nan)
+    position = np.where(success[:, None], columns.position_m, nan)
+    finite_position = np.isfinite(position).all(axis=1)
+    finite_candidates = (np.isfinite(candidates) | ~slot[..., None]).all(axis=(1, 2))
+    odd = success & ~(finite_position & finite_candidates)
+    rows = np.arange(n)
+    with np.errstate(invalid="ignore", over="ignore"):
+        error_m = np.hypot(position[:, 0] - truth[0], position[:, 1] - truth[1])
+        # the nearest candidate (the position when there is none), as np.nanargmin picks it
+        pool = np.full((n, max(k, 1), 2), nan)
+        pool[:, :k] = candidates
+        empty = count == 0
+        pool[empty, 0] = position[empty]
+        distances = np.hypot(pool[..., 0] - truth[0], pool[..., 1] - truth[1])
+        found = success & np.isfinite(distances).any(axis=1)
+        distances = np.where(np.isnan(distances), np.inf, distances)
+        best = np.argmin(distances, axis=1)
+        side_resolved_m = np.where(found, distances[rows, best], nan)
+        nearest = np.where(found[:, None], pool[rows, best], position)
+        wrong_side = np.full(n, nan)
+        mirror = np.zeros(n, dtype=bool)
+        if track is not None:
+            (ox, oy), (dx, dy) = track
+            side_estimate = dx * (position[:, 1] - oy) - dy * (position[:, 0] - ox)
+            side_truth = dx * (truth[1] - oy) - dy * (truth[0] - ox)
+            origin = np.asarray(track[0], dtype=float)
+            reach = np.hypot(position[:, 0] - origin[0], position[:, 1] - origin[1])
+            bound = abs(side_truth)
+            scale = np.where(reach > bound, reach, bound)  # Python's max(bound, reach)
+            on_plane = np.abs(side_estimate) <= 1e-9 * scale
+            opposite = np.where(side_estimate * side_truth < 0.0, 1.0, 0.0)
+            judged = success & finite_position
+            wrong_side = np.where(judged & ~on_plane, opposite, nan)
+            side_nearest = dx * (nearest[:, 1] - oy) - dy * (nearest[:, 0] - ox)
+            mirror = side_nearest * side_estimate < 0.0
+        if columns.covariance_m2 is None:
+            cov_xx = cov_xy = cov_yy = nees = nees_side_resolved = np.full(n, nan)
+        else:
+            covariance = np.asarray(columns.covariance_m2, dtype=float)
+            cov_xx, cov_xy, cov_yy = covariance[:, 0, 0], covariance[:, 0, 1], covariance[:, 1, 1]
+            nees = _nees(position - truth, covariance)
+            if track is not None and mirror.any():
+                d = np.asarray(track[1], dtype=float).reshape(2)
+                reflection = 2.0 * np.outer(d, d) - np.eye(2)
+                covariance = covariance.copy()
+                covariance[mirror] = np.matmul(
+                    np.matmul(reflection, covariance[mirror]), reflection.T
+                )
+            nees_side_resolved = _nees(nearest - truth, covariance)
+    messages = [str(message) for message in columns.messages]
+    values = {
+        "x_m": position[:, 0].tolist(),
+        "y_m": position[:, 1].tolist(),
+        "error_m": error_m.tolist(),
+        "error_side_resolved_m": side_resolved_m.tolist(),
+        "wrong_side": wrong_side.tolist(),
+        "ambiguous": np.asarray(columns.ambiguous, dtype=bool).tolist(),
+        "success": success.tolist(),
+        "n_candidates": count.tolist(),
+        "candidates_json": _candidates_texts(candidates, count),
+        "cov_xx_m2": cov_xx.tolist(),
+        "cov_xy_m2": cov_xy.tolist(),
+        "cov_yy_m2": cov_yy.tolist(),
+        "nees": nees.tolist(),
+        "nees_side_resolved": nees_side_resolved.tolist(),
+        "runtime_s": np.asarray(outcomes.runtime_s, dtype=float).tolist(),
+        "message": [messages[code] for code in columns.message_code.tolist()],
+        "diagnostics_json": (
+            list(outcomes.diagnostics_json)
+            if outcomes.diagnostics_json is not None
+            else _diagnostics_texts(columns, success)
+        ),
+    }
+    scored = list(zip(*(values[column] for column in ESTIMATE_COLUMNS), strict=True))
+    for i in np.flatnonzero(odd).tolist():  # Estimate makes these failures: its own path
+        one = estimate_columns(columns.estimate(i), truth_m, track, values["runtime_s"][i])
+        if outcomes.diagnostics_json is not None:
+            one = (*one[:-1], outcomes.diagnostics_json[i])
+        scored[i] = one
+    return scored
+
+
+def _nees(error_m: NDArray[np.float64], covariance_m2: NDArray[np.float64]) -> NDArray[Any]:
+    """:func:`normalized_error_squared` of each row: ``(e P⁻¹) e`` as ``np.matmul`` does it."""
+    left = np.matmul(error_m[:, None, :], inverse_2x2(covariance_m2))
+    return np.matmul(left, error_m[:, :, None])[:, 0, 0]
+
+
+def _float_texts(values: NDArray[np.float64]) -> list[str]:
+    """The JSON text of each float, as ``json.dumps(jsonable(v))``: ``repr``, or ``null``."""
+    texts = list(map(float.__repr__, values.tolist()))
+    for i in np.flatnonzero(~np.isfinite(values)).tolist():
+        texts[i] = "null"
+    return texts
+
+
+def _candidates_texts(candidates: NDArray[np.float64], count: NDArray[np.int64]) -> list[str]:
+    """``candidates_json`` of each row: ``json.dumps`` of its ``count`` points, [[x, y], ...]."""
+    k = candidates.shape[1]
+    slot = np.arange(k)[None, :] < count[:, None]
+    texts = _float_texts(candidates[slot].reshape(-1))
+    points = [f"[{x}, {y}]" for x, y in zip(texts[0::2], texts[1::2], strict=True)]
+    ends = np.cumsum(count).tolist()
+    starts = [0, *ends[:-1]]
+    return ["[" + ", ".join(points[a:b]) + "]" for a, b in zip(starts, ends, strict=True)]
+
+
+def _value_texts(column: NDArray[Any]) -> list[str]:
+    """The JSON text of each value of a diagnostics column, as :func:`diagnostics_text`."""
+    kind = column.dtype.kind
+    if kind == "b":
+        return ["true" if value else "false" for value in column.tolist()]
+    if kind in "iu":
+        return list(map(int.__repr__, column.tolist()))
+    if kind == "f":
+        return _float_texts(column.astype(float))
+    return [_SORTED_JSON.encode(jsonable(_scalar(value))) for value in column]
+
+
+def _scalar(value: Any) -> Any:
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def _diagnostics_texts(columns: BatchEstimates, success: NDArray[np.bool_]) -> list[str]:
+    """``diagnostics_json`` of each row from the diagnostics columns (``{}`` for a failure,
+    which has none, as :meth:`BatchEstimates.estimate` gives it)."""
+    n = len(success)
+    keys = list(columns.diagnostics)
+    if not keys or not all(isinstance(key, str) for key in keys):
+        return [
+            diagnostics_text(
+                {key: _scalar(value[i]) for key, value in columns.diagnostics.items()}
+                if success[i]
+                else {}
+            )
+            for i in range(n)
+        ]
+    parts = []
+    for key in sorted(keys):
+        prefix = json.dumps(key) + ": "
+        parts.append([prefix + text for text in _value_texts(np.asarray(columns.diagnostics[key]))])
+    return [
+        "{" + ", ".join(row) + "}" if ok else "{}"
+        for ok, row in zip(success.tolist(), zip(*parts, strict=True), strict=True)
+    ]

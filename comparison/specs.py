@@ -4,21 +4,30 @@ An experiment file lists ``[[estimators]]`` and ``[[planners]]`` tables (or bare
 :class:`EstimatorSpec` and :class:`PlannerSpec` hold one entry each, validated on construction
 (every message starts with the key path), and build the object through the registries
 (:func:`estimators.registry.make_estimator`, :func:`scenarios.planners.get_planner`).
+
+:func:`built_specs` checks an entry in the order that runs the least code: the name must
+resolve to a class with the estimator (or planner) interface, found without calling anything
+of it, then the options must fit the constructor's signature and simple annotations
+(:func:`scenarios.planners.registry.check_options`); only then is the class built. Errors
+name ``estimators[i].name`` or ``estimators[i].options.<option>``.
 """
 
 from __future__ import annotations
 
+import importlib.util
+import inspect
+import re
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from estimators.base import Estimator
+from estimators.base import Estimator, capabilities_of, unknowns_problem
 from estimators.registry import make_estimator
 from scenarios import fields
 from scenarios.fields import FrozenDict, thaw
 from scenarios.planners import Planner, get_planner
 
-ESTIMATOR_KEYS = ("name", "label", "options")
+ESTIMATOR_KEYS = ("name", "label", "options", "ignore_unknowns")
 PLANNER_KEYS = ("name", "label", "options", "steering_estimator")
 
 
@@ -69,25 +78,37 @@ class EstimatorSpec:
         different options.
     options : mapping
         Keyword arguments of the estimator's constructor (lists become tuples).
+    ignore_unknowns : bool
+        Feed it the data as if the emitter's nuisance parameters were known and zero (MATH
+        §15), even where a scenario declares them unknown: to show the bias that costs. Without
+        it an estimator that does not estimate a scenario's unknowns is refused at load.
     """
 
     name: str
     label: str | None = None
     options: Mapping[str, Any] = field(default_factory=FrozenDict)
+    ignore_unknowns: bool = False
 
     def __post_init__(self) -> None:
         _check_spec_fields(self)
+        if not isinstance(self.ignore_unknowns, bool):
+            raise ValueError(
+                f"ignore_unknowns: expected true or false, got {self.ignore_unknowns!r}"
+            )
 
     def build(self) -> Estimator:
         """A new estimator object (:func:`estimators.registry.make_estimator`)."""
         return make_estimator(self.name, **thaw(self.options, sequence=tuple))
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "label": self.label, "options": thaw(self.options)}
+        raw = {"name": self.name, "label": self.label, "options": thaw(self.options)}
+        if self.ignore_unknowns:
+            raw["ignore_unknowns"] = True
+        return raw
 
     @classmethod
     def from_dict(cls, raw: Mapping[str, Any] | str, *, path: str = "estimator") -> EstimatorSpec:
-        """From a table ``{name, label?, options?}`` or a bare name."""
+        """From a table ``{name, label?, options?, ignore_unknowns?}`` or a bare name."""
         return _spec_from_dict(cls, raw, path, ESTIMATOR_KEYS, "a registry name such as 'cls'")
 
 
@@ -141,13 +162,26 @@ def specs_from_list(raw: Any, key: str, spec_type: Any) -> tuple[Any, ...]:
     return tuple(spec_type.from_dict(entry, path=f"{key}[{i}]") for i, entry in enumerate(raw))
 
 
+def option_error(path: str, message: str, parameters: Sequence[str]) -> str:
+    """``message`` of a constructor or option check under ``path.options``.
+
+    A message that starts with the name of a parameter or given option (``side_prior_m: ...``,
+    ``modalities[1]: ...``) names that option: ``estimators[0].options.side_prior_m: ...``.
+    """
+    match = re.match(r"([A-Za-z_]\w*)(?=[:\[])", message)
+    if match and match.group(1) in parameters:
+        return f"{path}.options.{message}"
+    return f"{path}.options: {message}"
+
+
 def built_specs(
     specs: Sequence[Any], key: str, spec_type: type, find_class: Any
 ) -> Iterator[tuple[str, Any, Any]]:
     """Check a list of estimator or planner specs; yield ``(key path, spec, built object)``.
 
     Each entry must be a ``spec_type`` with a label unique in the list, a name that
-    ``find_class`` resolves, and options its class accepts; errors name the key path.
+    ``find_class`` resolves to a checked class (nothing of it called), and options its
+    constructor accepts; only then is it built. Errors name the key path.
     """
     labels: dict[str, int] = {}
     for index, spec in enumerate(specs):
@@ -160,12 +194,48 @@ def built_specs(
                 f"{key}[{labels[spec.label]}]); give each entry a distinct label"
             )
         labels[spec.label] = index
+        kind = f"{key.rstrip('s')}: "  # the registries' own field, named by the path here
         try:
-            find_class(spec.name)
+            cls = find_class(spec.name)
         except ValueError as error:
-            raise ValueError(f"{path}.name: {error}") from None
+            raise ValueError(f"{path}.name: {str(error).removeprefix(kind)}") from None
+        try:
+            parameters = [*inspect.signature(cls).parameters, *spec.options]
+        except (TypeError, ValueError):
+            parameters = list(spec.options)
         try:
             built = spec.build()
         except ValueError as error:
-            raise ValueError(f"{path}.options: {error}") from None
+            message = str(error)
+            if message.startswith(kind):  # the object built lacks the interface
+                raise ValueError(f"{path}.name: {message.removeprefix(kind)}") from None
+            raise ValueError(option_error(path, message, parameters)) from None
         yield path, spec, built
+
+
+def check_estimator_fits(
+    path: str, spec: EstimatorSpec, estimator: Any, name: str, scenario: Any
+) -> None:
+    """Raise ``ValueError`` (naming ``path``) unless the estimator can run on the scenario:
+    its modules installed, the modalities it uses simulated, and every nuisance parameter the
+    scenario declares unknown (MATH §15) estimated, or ``ignore_unknowns`` set."""
+    capabilities = capabilities_of(estimator)
+    absent = [m for m in capabilities.modules if importlib.util.find_spec(m) is None]
+    if absent:
+        raise ValueError(
+            f"{path}: {spec.label!r} needs the module(s) {', '.join(absent)}, which "
+            "are not installed; install them or drop the estimator"
+        )
+    missing = sorted(capabilities.modalities - set(scenario.modalities))
+    if missing:
+        raise ValueError(
+            f"{path}: {spec.label!r} needs {', '.join(missing)} measurements, "
+            f"which scenario {name!r} does not simulate; drop one of the two"
+        )
+    if spec.ignore_unknowns:
+        return
+    used = capabilities.modalities & set(scenario.modalities)
+    hint = "ignore_unknowns = true on the estimator"
+    problem = unknowns_problem(estimator, scenario.unknowns, used, ignore_hint=hint)
+    if problem is not None:
+        raise ValueError(f"{path}: scenario {name!r}: {problem}")

@@ -19,14 +19,20 @@ flight; :func:`complete_trials` tells a resume which trials are done. A file wri
 planners, the side-resolved NEES or ``range_scale_m`` existed gets those columns on resume.
 :func:`read_trials`, :func:`read_points` and :func:`read_flights` return the tables as tidy
 pandas frames with the columns of the contract.
+
+A damaged file (truncated, overwritten, not SQLite at all) is found when it is opened
+(:func:`check_store`, SQLite's ``quick_check``) and reported as one line naming
+``results.sqlite`` and the way out (:func:`store_errors`); so is any SQLite error later. A
+``results.sqlite`` (or its ``-wal``, ``-shm``) that is a symbolic link is refused.
 """
 
 from __future__ import annotations
 
+import operator
 import os
 import sqlite3
 from collections.abc import Iterator, Mapping, Sequence
-from contextlib import closing, contextmanager
+from contextlib import closing, contextmanager, suppress
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +40,13 @@ import pandas as pd
 
 from comparison.bounds import CrlbKey, PointInfo
 from comparison.experiment import Experiment
-from comparison.run_folder import RESULTS_FILE, now_utc, read_experiment
+from comparison.run_folder import (
+    RESULTS_FILE,
+    now_utc,
+    read_experiment,
+    refuse_symlink,
+    sqlite_paths,
+)
 from comparison.tasks import TaskResult
 from comparison.trial_rows import (
     BOUND_COLUMN,
@@ -64,16 +76,116 @@ def _names(columns: Sequence[str]) -> str:
 
 
 # --------------------------------------------------------------------------------------------
-# writing (main process)
+# opening: links, damage, errors
 # --------------------------------------------------------------------------------------------
 
 
-def connect(path: Path) -> sqlite3.Connection:
-    """A connection for writing, in WAL mode."""
-    connection = sqlite3.connect(path, timeout=60.0)
-    connection.execute("PRAGMA journal_mode=WAL")
-    connection.execute("PRAGMA synchronous=NORMAL")
+_DAMAGED = ("SQLITE_CORRUPT", "SQLITE_NOTADB")
+_DAMAGED_TEXT = ("malformed", "not a database", "no such table", "no such column")
+
+
+def store_error(path: Path, error: sqlite3.Error) -> ValueError | None:
+    """The one-line error of a SQLite failure on the store ``path`` (None for a misuse of
+    the API, which is a bug to show as it is)."""
+    detail = " ".join(str(error).split())[:300] or type(error).__name__
+    code = getattr(error, "sqlite_errorname", None) or ""
+    if code.startswith(_DAMAGED) or any(sign in detail for sign in _DAMAGED_TEXT):
+        return _damaged(path, detail)
+    if isinstance(error, sqlite3.OperationalError):  # locked, read-only, disk full, I/O
+        return ValueError(
+            f"{RESULTS_FILE}: cannot use {path} ({detail}); check that its folder is "
+            "writable and has free space and that no other program holds the file, then retry"
+        )
+    return None
+
+
+def _damaged(path: Path, detail: str) -> ValueError:
+    return ValueError(
+        f"{RESULTS_FILE}: {path} is not a readable SQLite database of a run ({detail}); move "
+        "it away and rerun the experiment with --resume (its trials run again), or restore it "
+        "from a backup"
+    )
+
+
+@contextmanager
+def store_errors(path: Path) -> Iterator[None]:
+    """Turn a SQLite error in the block (also as pandas wraps it) into :func:`store_error`."""
+    try:
+        yield
+    except (sqlite3.Error, pd.errors.DatabaseError) as error:
+        cause = error.__cause__ if isinstance(error.__cause__, sqlite3.Error) else error
+        translated = store_error(path, cause) if isinstance(cause, sqlite3.Error) else None
+        if translated is None:
+            raise
+        raise translated from None
+
+
+def _refuse_links(path: Path) -> None:
+    for each in sqlite_paths(path):
+        refuse_symlink(each)
+
+
+def _signature(path: Path) -> tuple[tuple[int, int], ...]:
+    def stat(each: Path) -> tuple[int, int]:
+        with suppress(OSError):
+            info = each.stat()
+            return info.st_size, info.st_mtime_ns
+        return -1, -1
+
+    return tuple(stat(each) for each in sqlite_paths(path)[:2])
+
+
+_SOUND: dict[Path, tuple[tuple[int, int], ...]] = {}
+"""Stores found sound by :func:`check_store`, with the sizes and times they had then."""
+
+
+def _quick_check(connection: sqlite3.Connection, path: Path) -> None:
+    with store_errors(path):
+        found = [row[0] for row in connection.execute("PRAGMA quick_check")]
+    if found != ["ok"]:
+        detail = " ".join(" ".join(found[:2]).split())[:300] if found else "no answer"
+        raise _damaged(path, f"quick_check: {detail}")
+
+
+def check_store(path: Path) -> None:
+    """Raise the one-line :func:`store_error` unless ``path`` is absent or a sound SQLite
+    database (SQLite's ``quick_check``; repeated only when the file has changed)."""
+    _refuse_links(path)
+    if not path.exists():
+        return
+    signature = _signature(path)
+    if _SOUND.get(path.resolve()) == signature:
+        return
+    with store_errors(path), closing(_open_existing(path)) as connection:
+        _quick_check(connection, path)
+    _SOUND[path.resolve()] = signature
+
+
+def _open_existing(path: Path) -> sqlite3.Connection:
+    """A query-only connection to the existing file ``path`` (never creates one)."""
+    connection = sqlite3.connect(f"{path.resolve().as_uri()}?mode=rw", uri=True, timeout=60.0)
+    connection.execute("PRAGMA query_only=ON")
     return connection
+
+
+def connect(path: Path) -> sqlite3.Connection:
+    """A connection for writing, in WAL mode (the engine checks the file first,
+    :func:`check_store`)."""
+    _refuse_links(path)
+    with store_errors(path):
+        connection = sqlite3.connect(path, timeout=60.0)
+        try:
+            connection.execute("PRAGMA journal_mode=WAL")
+            connection.execute("PRAGMA synchronous=NORMAL")
+        except BaseException:
+            connection.close()
+            raise
+    return connection
+
+
+# --------------------------------------------------------------------------------------------
+# writing (main process)
+# --------------------------------------------------------------------------------------------
 
 
 def _create(connection: sqlite3.Connection, table: Table, swept: Sequence[str] = ()) -> None:
@@ -143,6 +255,20 @@ def complete_trials(
     return complete
 
 
+_ROW_KEYS = (
+    "scenario",
+    "point",
+    "planner",
+    "estimator",
+    "frame",
+    "trial",
+    "scenario_index",
+    "planner_index",
+    "estimator_index",
+)
+"""The fields of a trial row that :func:`write_task` takes from the task and the row's keys."""
+
+
 def write_task(
     connection: sqlite3.Connection,
     experiment: Experiment,
@@ -160,6 +286,9 @@ def write_task(
     planners = experiment.planner_labels or ("",)
     bounds: dict[tuple[int, int], float] = {}
     trial_columns = [name for name, _ in TRIALS.stored()]
+    # each row's fields in this order, then picked in the table's order
+    fields = (*_ROW_KEYS, *ESTIMATE_COLUMNS, BOUND_COLUMN)
+    pick = operator.itemgetter(*(fields.index(c) for c in trial_columns))
     rows = []
     for row in result.rows:
         bound = row.crlb_rmse_m
@@ -169,20 +298,22 @@ def write_task(
                 modalities, frames = crlb_keys[row.estimator_index]
                 bounds[key] = info.rmse_bound_m(modalities, row.frame, frames)
             bound = bounds[key]
-        fields = {
-            "scenario": scenario,
-            "point": result.point,
-            "planner": planners[row.planner_index],
-            "estimator": labels[row.estimator_index],
-            "frame": row.frame,
-            "trial": row.trial,
-            "scenario_index": result.scenario_index,
-            "planner_index": row.planner_index,
-            "estimator_index": row.estimator_index,
-            **dict(zip(ESTIMATE_COLUMNS, row.values, strict=True)),
-            BOUND_COLUMN: bound,
-        }
-        rows.append(tuple(fields[c] for c in trial_columns))
+        if len(row.values) != len(ESTIMATE_COLUMNS):
+            raise ValueError(
+                f"a row of {len(row.values)} estimate columns, not {len(ESTIMATE_COLUMNS)}"
+            )
+        keys = (
+            scenario,
+            result.point,
+            planners[row.planner_index],
+            labels[row.estimator_index],
+            row.frame,
+            row.trial,
+            result.scenario_index,
+            row.planner_index,
+            row.estimator_index,
+        )
+        rows.append(pick((*keys, *row.values, bound)))
     flight_columns = [name for name, _ in FLIGHTS.stored()]
     flights = []
     for flown in result.flights:
@@ -222,11 +353,12 @@ def write_task(
 @contextmanager
 def _reading(out_dir: Path) -> Iterator[sqlite3.Connection]:
     path = out_dir / RESULTS_FILE
+    _refuse_links(path)
     if not path.is_file():
         raise ValueError(f"out_dir: {path} not found; run the experiment first")
+    check_store(path)
     # a plain connection (query-only) so that closing it removes the empty WAL files
-    with closing(sqlite3.connect(path, timeout=60.0)) as connection:
-        connection.execute("PRAGMA query_only=ON")
+    with store_errors(path), closing(_open_existing(path)) as connection:
         yield connection
 
 

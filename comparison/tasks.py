@@ -15,8 +15,9 @@ Seeds
 Tasks
     A task is a chunk of ``chunk_size`` trials of one (scenario, point) (:func:`plan_tasks`).
     It simulates the chunk once (:func:`scenarios.simulate.simulate_trials`) and runs every
-    estimator on every trial; an estimator with ``estimate_batch`` gets the whole chunk, and
-    falls back to one call per trial if the batch call raises
+    estimator on every trial; a batch estimator gets the whole chunk, through
+    ``estimate_columns`` when it has one (its results stay columns, no object per trial),
+    else ``estimate_batch``, and falls back to one call per trial if the batch call raises
     (:mod:`comparison.estimator_calls`). With ``per_frame`` every estimator runs on
     ``data.up_to_frame(l)`` for every frame ``l``; sequential estimators
     (``init``/``update``/``estimate_state``) are streamed frame by frame instead. A
@@ -24,9 +25,18 @@ Tasks
     (:func:`comparison.closed_loop.fly_closed_loop`), and each row carries the CRLB of the
     trajectory that trial flew; its wrong side is judged against the track of the first frame
     the estimator uses (:func:`comparison.scoring.ambiguity_track`), the mirror ambiguity a
-    turn must resolve. Each estimate becomes the columns of
-    :func:`comparison.scoring.estimate_columns`; the main process stores them
-    (:func:`comparison.store.write_task`).
+    turn must resolve. An open-loop task scores each estimator's trials at once
+    (:func:`comparison.scoring.score_outcomes`), a closed-loop one each estimate
+    (:func:`comparison.scoring.estimate_columns`), to the same values; the main process
+    stores them (:func:`comparison.store.write_task`).
+
+Faults
+    Every estimator call of a task runs under the experiment's ``time_limit_s``
+    (:func:`comparison.estimator_calls.call_limits`), and whatever Python can catch becomes a
+    failed row there (:mod:`comparison.estimator_calls`). A task whose worker process dies is
+    rerun isolated, the call that ended the process replaced by a failure
+    (:mod:`comparison.execution`); :func:`run_task` is the same code in both cases, so every
+    other row is the same.
 """
 
 from __future__ import annotations
@@ -38,21 +48,30 @@ import time
 import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
 from comparison.bounds import PointInfo, bound_of, crlb_key, information_at_truth
 from comparison.closed_loop import ClosedLoopTrial, fly_closed_loop
-from comparison.estimator_calls import Stream, call_batch, timed_call
-from comparison.experiment import Experiment
-from comparison.scoring import ambiguity_track, estimate_columns, frame_track, jsonable
+from comparison.estimator_calls import Stream, call_batch, call_columns, call_limits, timed_call
+from comparison.scoring import (
+    Outcomes,
+    ambiguity_track,
+    estimate_columns,
+    frame_track,
+    jsonable,
+    score_outcomes,
+)
 from comparison.specs import EstimatorSpec, PlannerSpec
 from comparison.trial_rows import FLIGHT_VALUE_COLUMNS
-from estimators.base import Estimate, Estimator, capabilities_of
+from estimators.base import Estimator, capabilities_of
 from scenarios.planners import Planner
 from scenarios.simulate import simulate_trials
 from scenarios.types import MeasurementBatch, MeasurementSet, Scenario
+
+if TYPE_CHECKING:  # annotations only: workers need not import the experiment schema
+    from comparison.experiment import Experiment
 
 # --------------------------------------------------------------------------------------------
 # seeds
@@ -91,6 +110,7 @@ class Task:
     per_frame: bool
     planners: tuple[PlannerSpec, ...] = ()
     steering: tuple[str, ...] = ()
+    time_limit_s: float | None = None  # per estimator call (None: no limit)
 
 
 class ScoredRow(NamedTuple):
@@ -167,6 +187,7 @@ def plan_tasks(
                         per_frame=experiment.per_frame,
                         planners=experiment.planners,
                         steering=steering,
+                        time_limit_s=experiment.time_limit_s,
                     )
                 )
     return tasks
@@ -178,7 +199,8 @@ def plan_tasks(
 
 
 def run_task(task: Task) -> TaskResult:
-    """Simulate the task's trials and run every estimator on each; never raises for an estimator.
+    """Simulate the task's trials and run every estimator on each, every call under
+    ``task.time_limit_s``; never raises for an estimator.
 
     Returns
     -------
@@ -186,8 +208,14 @@ def run_task(task: Task) -> TaskResult:
         Rows without the bound, which the main process adds (a closed-loop task, with
         planners, is :func:`run_closed_loop_task`: its rows carry their own bounds).
     """
-    if task.planners:
-        return run_closed_loop_task(task)
+    with call_limits(task.time_limit_s):
+        if task.planners:
+            return run_closed_loop_task(task)
+        return _run_open_loop_task(task)
+
+
+def _run_open_loop_task(task: Task) -> TaskResult:
+    """:func:`run_task` of an open-loop task (no planners)."""
     start = time.perf_counter()
     seeds = [trial_seed(task.seed, task.scenario_index, task.point, t) for t in task.trials]
     simulated = simulate_trials(task.scenario, snr_db=task.snr_db, seeds=seeds)
@@ -198,13 +226,23 @@ def run_task(task: Task) -> TaskResult:
     eval_frames = frames if task.per_frame else frames[-1:]
     tracks = {frame: frame_track(batch.geometry, frame) for frame in eval_frames}
     data = _TaskData(batch)
+    assuming_known = None  # the same data with the nuisance parameters taken as known (§15)
     rows: list[ScoredRow] = []
     for index, spec in enumerate(task.estimators):
         estimator = estimator_of(spec)
-        results = _run_estimator(estimator, spec.label, task, data, eval_frames)
-        for (frame, position), (estimate, runtime_s) in results.items():
-            values = estimate_columns(estimate, truth, tracks[frame], runtime_s)
-            rows.append(ScoredRow(0, index, frame, task.trials[position], None, values))
+        fed = data
+        if spec.ignore_unknowns and batch.geometry.unknowns:
+            if assuming_known is None:
+                assuming_known = _TaskData(
+                    dataclasses.replace(batch, geometry=batch.geometry.assuming_known())
+                )
+            fed = assuming_known
+        for frame, outcomes in _run_estimator(estimator, spec.label, task, fed, eval_frames):
+            scored = score_outcomes(outcomes, truth, tracks[frame])
+            rows.extend(
+                ScoredRow(0, index, frame, trial, None, values)
+                for trial, values in zip(task.trials, scored, strict=True)
+            )
     return TaskResult(
         scenario_index=task.scenario_index,
         point=task.point,
@@ -253,8 +291,12 @@ def _run_estimator(
     task: Task,
     data: _TaskData,
     eval_frames: list[int],
-) -> dict[tuple[int, int], tuple[Estimate, float]]:
-    """``{(frame, trial position): (estimate, runtime_s)}`` for one estimator on one task."""
+) -> list[tuple[int, Outcomes]]:
+    """``[(frame, outcomes of every trial)]`` for one estimator on one task.
+
+    ``estimate_columns`` when the estimator declares ``batch`` and has it, else
+    ``estimate_batch``, else (or when the batch call fails) one call per trial.
+    """
 
     def rng(trial: int) -> np.random.Generator:
         return tie_rng(task.seed, task.scenario_index, task.point, trial, label)
@@ -262,24 +304,33 @@ def _run_estimator(
     def rngs() -> list[np.random.Generator]:
         return [rng(trial) for trial in task.trials]
 
-    out: dict[tuple[int, int], tuple[Estimate, float]] = {}
     capabilities = capabilities_of(estimator)
     if task.per_frame and capabilities.sequential:
+        streamed: dict[int, list[Any]] = {frame: [] for frame in eval_frames}
         for position, trial_data in enumerate(data.trials(data.final_frame)):
             stream = Stream(estimator)
             for frame in eval_frames:
                 newest = trial_data.take(trial_data.frame == frame)
-                out[(frame, position)] = stream.step(newest, rng(task.trials[position]))
-        return out
+                streamed[frame].append(stream.step(newest, rng(task.trials[position])))
+        return [(frame, Outcomes.of_estimates(streamed[frame])) for frame in eval_frames]
+    columnar = capabilities.batch and callable(getattr(estimator, "estimate_columns", None))
+    out = []
     for frame in eval_frames:
-        estimates = call_batch(estimator, data.batch(frame), rngs()) if capabilities.batch else None
-        if estimates is None:
-            estimates = [
-                timed_call(estimator.estimate, trial_data, rng=trial_rng)
-                for trial_data, trial_rng in zip(data.trials(frame), rngs(), strict=True)
-            ]
-        for position, result in enumerate(estimates):
-            out[(frame, position)] = result
+        outcomes = None
+        if columnar:
+            columns = call_columns(estimator, data.batch(frame), rngs())
+            outcomes = None if columns is None else Outcomes.of_columns(*columns)
+        elif capabilities.batch:
+            estimates = call_batch(estimator, data.batch(frame), rngs())
+            outcomes = None if estimates is None else Outcomes.of_estimates(estimates)
+        if outcomes is None:
+            outcomes = Outcomes.of_estimates(
+                [
+                    timed_call(estimator.estimate, trial_data, rng=trial_rng)
+                    for trial_data, trial_rng in zip(data.trials(frame), rngs(), strict=True)
+                ]
+            )
+        out.append((frame, outcomes))
     return out
 
 

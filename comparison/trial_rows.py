@@ -116,7 +116,15 @@ POINT_CRLB_SETS: dict[str, tuple[str, ...]] = {
     "crlb_rmse_toa_doppler_m": ("toa", "doppler"),
     "crlb_rmse_all_m": ("toa", "doppler", "rss"),
 }
-"""The CRLB columns of the points table and the modalities of each (MATH §8)."""
+"""The CRLB columns of the points table and the modalities of each (MATH §8), with the
+scenario's nuisance parameters unknown where it declares them (MATH §15)."""
+
+POINT_KNOWN_CRLB_SETS: dict[str, tuple[str, ...]] = {
+    "crlb_rmse_known_doppler_m": ("doppler",),
+    "crlb_rmse_known_toa_doppler_m": ("toa", "doppler"),
+}
+"""Bounds with every nuisance parameter known (MATH §15): beside their namesakes of
+:data:`POINT_CRLB_SETS` they give the price of the scenario's unknowns (equal without any)."""
 
 _SCENARIO_INDEX = Column("scenario_index", "INTEGER")
 
@@ -131,6 +139,7 @@ POINTS = Table(
         _real("truth_y_m"),
         _real("range_scale_m"),
         *(_real(name) for name in POINT_CRLB_SETS),
+        *(_real(name, required=False) for name in POINT_KNOWN_CRLB_SETS),
     ),
     indexes=(_SCENARIO_INDEX,),
 )

@@ -209,7 +209,7 @@ def first_screen_notes(summary: pd.DataFrame, points: pd.DataFrame | None) -> li
     """Sentences for what the verdict table cannot say, each computed from the data."""
     rows = judged_points(summary)
     swept = summary_swept_columns(summary)
-    notes = _uninformative_modalities(rows, points)
+    notes = _price_of_unknowns(points) + _uninformative_modalities(rows, points)
     few = rows[rows["verdict_reason"].str.startswith("too few trials")]
     if not few.empty:
         notes.append(
@@ -358,3 +358,40 @@ def _uninformative_modalities(rows: pd.DataFrame, points: pd.DataFrame | None) -
                 text += f" Above the bound at every point there: {', '.join(always)}."
             notes.append(text)
     return notes
+
+
+def _price_of_unknowns(points: pd.DataFrame | None) -> list[str]:
+    """Scenarios whose emitter's carrier offset or emission time is unknown (MATH §15): the
+    bounds every verdict is judged on, beside the bounds with them known, and the ratio."""
+    pairs = {
+        "ToA+Doppler": ("crlb_rmse_toa_doppler_m", "crlb_rmse_known_toa_doppler_m"),
+        "Doppler": ("crlb_rmse_doppler_m", "crlb_rmse_known_doppler_m"),
+    }
+    if points is None or not {c for pair in pairs.values() for c in pair} <= set(points.columns):
+        return []
+    latest = points.groupby(["scenario", "point"], sort=False)["frame"].transform("max")
+    last = points[points["frame"] == latest]
+    parts = []
+    for scenario, own in last.groupby("scenario", sort=False):
+        prices = []
+        for name, (column, known) in pairs.items():
+            bound = own[column].to_numpy(float)
+            reference = own[known].to_numpy(float)
+            ratio = bound / reference
+            ratio = ratio[np.isfinite(ratio)]
+            if ratio.size and ratio.max() > 1.0 + 1e-9:
+                spread = (
+                    f"{ratio.min():.3g}"
+                    if np.ptp(ratio) < 5e-3 * ratio.min()
+                    else (f"{ratio.min():.3g} to {ratio.max():.3g}")
+                )
+                prices.append(f"{name} {spread}×")
+        if prices:
+            parts.append(f"{scenario}: {', '.join(prices)}")
+    if not parts:
+        return []
+    return [
+        "Price of the unknown carrier offset and emission time (MATH §15): every bound here is "
+        "the CRLB with them estimated too; it is this many times the bound with them known "
+        f"(√CRLB ratio, at the last frame): {'; '.join(parts)}."
+    ]

@@ -17,19 +17,36 @@ extend it:
 Constructors take keyword-only hyper-parameters and only store them (scikit-learn's rule);
 the built-ins are frozen dataclasses. A failure to estimate is data (``success=False`` and a
 ``message``), not an exception; malformed input raises ``ValueError`` naming the field.
+
+Two rules hold for every estimator, built-in or plug-in, in one place each:
+
+- ``success`` means a finite answer. :class:`Estimate` itself turns a success whose position or
+  candidates are not finite into a failed estimate whose message quotes what was reported
+  (rather than raising: the caller gets the one result type either way, and the row says why).
+- Data with no baseline locate nothing. :func:`require_modalities`, which every built-in calls
+  first, raises ``ValueError`` naming ``position_m`` or ``velocity_mps`` when every sample is
+  at one horizontal point and the modalities used cannot fix a point from there
+  (:func:`baseline_problem`): a hovering UAV, or ranges or powers alone from one point. Such
+  data are valid measurements, but an answer would be a guess reported as a success; refused
+  here, the estimate never says otherwise, and the engine records the refusal as a failed row
+  with this message. One point with Doppler and ToA (a single moving sample) still fixes a
+  mirror pair, which the estimators report as ambiguous (MATH §7).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import inspect
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from scenarios.fields import vector_text
+from scenarios.geometry import moves_horizontally, single_horizontal_point
+from scenarios.nuisance import describe_unknowns, parse_unknowns, unknowns_used
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -72,19 +89,33 @@ class Estimate:
     diagnostics: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        set_ = object.__setattr__
         position = np.array(self.position_m, dtype=float).reshape(2)
         candidates = np.array(self.candidates_m, dtype=float).reshape(-1, 2)
+        set_(self, "ambiguous", bool(self.ambiguous))
+        set_(self, "success", bool(self.success))
+        set_(self, "diagnostics", dict(self.diagnostics))
+        if self.success and not (np.all(np.isfinite(position)) and np.all(np.isfinite(candidates))):
+            what = (
+                f"position_m {vector_text(position)}"
+                if not np.all(np.isfinite(position))
+                else f"candidates_m {'; '.join(vector_text(c) for c in candidates)}"
+            )
+            note = f"{self.estimator or 'the estimator'} reported success with a non-finite {what}"
+            set_(self, "message", f"{note}; {self.message}" if self.message else note)
+            set_(self, "success", False)
+            set_(self, "ambiguous", False)
+            set_(self, "covariance_m2", None)
+            position = np.full(2, np.nan)
+            candidates = np.empty((0, 2))
         position.flags.writeable = False
         candidates.flags.writeable = False
-        object.__setattr__(self, "position_m", position)
-        object.__setattr__(self, "candidates_m", candidates)
-        object.__setattr__(self, "ambiguous", bool(self.ambiguous))
-        object.__setattr__(self, "success", bool(self.success))
+        set_(self, "position_m", position)
+        set_(self, "candidates_m", candidates)
         if self.covariance_m2 is not None:
             covariance = np.array(self.covariance_m2, dtype=float).reshape(2, 2)
             covariance.flags.writeable = False
-            object.__setattr__(self, "covariance_m2", covariance)
-        object.__setattr__(self, "diagnostics", dict(self.diagnostics))
+            set_(self, "covariance_m2", covariance)
 
     @classmethod
     def failed(cls, estimator: str, message: str, **diagnostics: Any) -> Estimate:
@@ -154,6 +185,10 @@ class Capabilities:
         than the suite's default only with a ``tolerance_reason`` and within the suite's cap.
     tolerance_reason : str
         Why the tolerance is looser than the default (an iterative stop, a grid).
+    unknowns : frozenset of {"carrier_offset_hz", "emission_time_s"}
+        The nuisance parameters of a non-cooperative emitter it estimates alongside the
+        emitter (MATH §15). Data declaring an unknown it does not handle, in a modality it
+        uses, are refused (:func:`require_modalities`).
     """
 
     modalities: frozenset[str]
@@ -164,9 +199,12 @@ class Capabilities:
     unit_invariant: bool = False
     noise_free_tolerance_m: float = 1e-6
     tolerance_reason: str = ""
+    unknowns: frozenset[str] = frozenset()
 
     def __post_init__(self) -> None:
         from scenarios.types import MODALITIES
+
+        object.__setattr__(self, "unknowns", frozenset(parse_unknowns(self.unknowns)))
 
         modalities = frozenset(self.modalities)
         unknown = sorted(modalities - set(MODALITIES))
@@ -280,7 +318,15 @@ class Estimator(Protocol):
 
 @runtime_checkable
 class BatchEstimator(Estimator, Protocol):
-    """An estimator that is faster on a whole batch of Monte Carlo trials at once."""
+    """An estimator that is faster on a whole batch of Monte Carlo trials at once.
+
+    Trial ``i`` of ``estimate_batch(batch, rngs=rngs)`` must equal
+    ``estimate(batch.trial(i), rng=rngs[i])`` (to rounding), tie-break included, and must not
+    depend on the other trials of the batch. An estimator may also offer
+    ``estimate_columns(batch, *, rngs)`` returning :class:`estimators.batch.BatchEstimates`:
+    the same results as columns (one array per field, diagnostics as arrays, messages as
+    codes), with no object per trial; the engine stores those directly.
+    """
 
     def estimate_batch(
         self, batch: MeasurementBatch, *, rngs: list[np.random.Generator] | None = None
@@ -305,8 +351,70 @@ class SequentialEstimator(Estimator, Protocol[State]):
 # --------------------------------------------------------------------------------------------
 
 
+_MODALITY_NAMES = {"doppler": "Doppler", "toa": "ToA", "rss": "RSS"}
+
+
+def baseline_problem(modalities: frozenset[str] | set[str], data: MeasurementSet) -> str | None:
+    """Why ``data`` cannot locate the emitter with ``modalities``, or None when they can.
+
+    Only a geometry with no horizontal baseline, every sample at one horizontal point
+    (:func:`~scenarios.geometry.single_horizontal_point`), is refused, when:
+
+    - no sample moves horizontally (a hovering or climbing UAV): every bearing fits the data
+      equally, whatever the modalities;
+    - ToA or RSS alone: from one point they fix only a circle around it;
+    - Doppler alone: from one point and one velocity it fixes only a curve.
+
+    Doppler with ToA (or RSS) from one moving point fixes a mirror pair (MATH §7) and is not
+    refused. The reason starts with the field at fault (``position_m:``, ``velocity_mps:``).
+    """
+    if not single_horizontal_point(data.position_m):
+        return None
+    hovering = _hovering_problem(data)
+    if hovering is not None:
+        return hovering
+    where = vector_text(data.position_m[0, :2])
+    used = set(modalities) or set(data.modalities)
+    if "doppler" not in used:
+        names = " and ".join(_MODALITY_NAMES[m] for m in sorted(used))
+        return (
+            f"position_m: every sample is at one horizontal point {where} m, from which "
+            f"{names} {'fix' if len(used) > 1 else 'alone fixes'} only a circle around it; give "
+            "samples from at least two points (fly a track) or an estimator that also uses Doppler"
+        )
+    if used == {"doppler"}:
+        return (
+            f"position_m: every sample is at one horizontal point {where} m, from which Doppler "
+            "alone fixes only a curve; give samples from at least two points (fly a track) or "
+            "add ToA"
+        )
+    return None
+
+
+def _hovering_problem(data: MeasurementSet) -> str | None:
+    """The reason of :func:`baseline_problem` for a hovering or climbing UAV, else None."""
+    if not single_horizontal_point(data.position_m) or moves_horizontally(data.velocity_mps):
+        return None
+    return (
+        f"velocity_mps: every sample is at one horizontal point "
+        f"{vector_text(data.position_m[0, :2])} m with no horizontal motion (a hovering or "
+        "climbing UAV), so every bearing to the emitter fits the data equally; give samples "
+        "flown along a horizontal track"
+    )
+
+
+def _used_modalities(estimator: Any, data: MeasurementSet) -> frozenset[str]:
+    """The modalities ``estimator`` uses on ``data``: declared ones present, else required."""
+    try:
+        declared = capabilities_of(estimator).modalities
+    except (TypeError, ValueError):
+        declared = frozenset(estimator.requires)
+    return (declared & data.modalities) | frozenset(estimator.requires)
+
+
 def require_modalities(estimator: Estimator, data: MeasurementSet) -> None:
-    """Raise ``ValueError`` naming the missing measurement field, if any.
+    """Raise ``ValueError`` naming the missing measurement field, or the field at fault when
+    the data span no baseline for the modalities the estimator uses (:func:`baseline_problem`).
 
     Anything but a :class:`~scenarios.types.MeasurementSet` raises ``TypeError`` naming
     ``data``, before any attribute of it is read.
@@ -327,6 +435,61 @@ def require_modalities(estimator: Estimator, data: MeasurementSet) -> None:
         raise ValueError(
             f"{names}: estimator {estimator.name!r} needs {', '.join(missing)} measurements; "
             f"add them to the data or choose an estimator that works without them"
+        )
+    used = _used_modalities(estimator, data)
+    problem = unknowns_problem(estimator, data.unknowns, used)
+    if problem is not None:
+        raise ValueError(problem)
+    problem = baseline_problem(used, data)
+    if problem is not None:
+        raise ValueError(problem)
+
+
+def unknowns_problem(
+    estimator: Any,
+    unknowns: Iterable[str],
+    modalities: Iterable[str],
+    *,
+    ignore_hint: str = "data.assuming_known() in Python",
+) -> str | None:
+    """Why ``estimator`` cannot take data with these nuisance ``unknowns`` (MATH §15), or None.
+
+    An unknown counts only in a modality the estimator uses (δ with Doppler, b with ToA). The
+    reason names the built-in estimators that do handle it, and how to see what ignoring it
+    costs (``ignore_hint``: ``MeasurementSet.assuming_known()``, or in an experiment
+    ``ignore_unknowns = true``).
+    """
+    needed = unknowns_used(unknowns, modalities)
+    try:
+        handled = capabilities_of(estimator).unknowns
+    except (TypeError, ValueError):
+        handled = frozenset()
+    missing = [name for name in needed if name not in handled]
+    if not missing:
+        return None
+    from estimators.registry import estimators_handling  # the registry imports this module
+
+    able = estimators_handling(missing)
+    use = f"use {', '.join(repr(name) for name in able)}, or " if able else ""
+    them = "it" if len(missing) == 1 else "them"
+    return (
+        f"unknowns: the data declare the emitter's {describe_unknowns(missing)} unknown, but "
+        f"{getattr(estimator, 'name', type(estimator).__name__)!r} takes {them} as known "
+        f"(MATH §15); {use}ignore {them} on purpose to see the bias that costs ({ignore_hint})"
+    )
+
+
+def check_side_prior(side_prior_m: Any) -> None:
+    """Raise ``ValueError`` unless ``side_prior_m`` is None or a finite ``(x, y)`` in metres."""
+    if side_prior_m is None:
+        return
+    try:
+        point = np.asarray(side_prior_m, dtype=float)
+    except (TypeError, ValueError):
+        point = np.full(0, np.nan)
+    if point.shape != (2,) or not np.all(np.isfinite(point)):
+        raise ValueError(
+            f"side_prior_m: expected a finite (x, y) in metres or None, got {side_prior_m!r}"
         )
 
 
@@ -400,8 +563,15 @@ def finalize_estimate(
     On a straight track (every sample on one line, flying along it) each candidate's mirror
     image across the track has exactly the same cost, so it is added, and the answer is
     ambiguous. Coincident candidates are merged; see :func:`choose_position` for the pick.
+    ``data`` are the samples used: when they hover at one point (an estimator that uses only
+    the last frame, and the UAV hovered in it), the estimate is failed, with the reason of
+    :func:`baseline_problem`, whatever the candidates.
     """
     from scenarios.geometry import mirror_across_line, straight_track_line
+
+    hovering = _hovering_problem(data)
+    if hovering is not None:
+        return Estimate.failed(estimator, hovering, **dict(diagnostics or {}))
 
     points = np.asarray(candidates_m, dtype=float).reshape(-1, 2)
     cost = np.asarray(costs, dtype=float).reshape(-1)

@@ -24,32 +24,55 @@ not. All are solved in a centred, scaled frame for conditioning.
 Each exposes the system it minimises, ``constrained_ls(data)`` (the rows of the last stage, in
 its local frame; :mod:`estimators.constrained_ls`), so that ``emitterbench validate --estimator``
 can check its candidates against the exact optimum and the SDP relaxation (MATH §5, §11).
+
+Each also solves a whole :class:`~scenarios.types.MeasurementBatch` at once:
+``estimate_columns(batch, rngs=...)`` returns a :class:`~estimators.batch.BatchEstimates` (one
+array per field) and ``estimate_batch`` the same as one :class:`Estimate` per trial. Trial ``i``
+gets exactly what ``estimate(batch.trial(i), rng=rngs[i])`` returns, tie-break included; the
+vectorised path is :mod:`estimators.cls_batch`.
+
+In the hard case the pair is handed to the mirror rule in a fixed order, the point left of the
+last heading first (:func:`ordered_candidates`), so that which point a tie-break returns does not
+depend on the rounding of the two costs.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
-from estimators.base import Capabilities, Estimate, finalize_estimate, require_modalities
+from estimators.base import (
+    Capabilities,
+    Estimate,
+    check_side_prior,
+    finalize_estimate,
+    require_modalities,
+)
+from estimators.batch import BatchEstimates, check_rngs
+from estimators.cls_batch import estimate_columns
 from estimators.cls_rows import (
     LocalFrame,
+    carrier_offset_column,
     doppler_rows,
     doppler_rows_as_printed,
     frame_mean_rows,
     horizontal_speed_mps,
     paper_row_scale_m2ps2,
+    project_out,
     sample_pair_covariance,
     toa_rows,
     whiten_sample_pairs,
 )
 from estimators.constrained_ls import ConstrainedLS
 from estimators.gtrs import GtrsSolution, solve_gtrs
+from estimators.pseudorange_cls import OffsetMethod, solve_pseudorange_cls
 from scenarios import measurement_model as model
-from scenarios.types import MeasurementSet
+from scenarios.geometry import straight_track_line
+from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
 Rows = Literal["weighted", "per-sample", "per-frame", "as-printed"]
@@ -60,7 +83,9 @@ Frames = Literal["all", "last"]
 class ClsSolution:
     """Minimisers in world coordinates with the GTRS diagnostics of the last stage.
 
-    ``A``, ``b`` are the rows of the last stage in ``frame``: the system ``gtrs`` solves.
+    ``A``, ``b`` are the rows of the last stage in ``frame``: the system ``gtrs`` solves. With
+    an unknown carrier offset (MATH §15) they are the rows with δ projected out, and
+    ``carrier_offset_hz`` holds δ's least-squares value at each candidate.
     """
 
     candidates_m: FloatArray
@@ -70,6 +95,7 @@ class ClsSolution:
     stages: int
     A: FloatArray
     b: FloatArray
+    carrier_offset_hz: FloatArray | None = None
 
 
 def cls_rows(
@@ -84,7 +110,9 @@ def cls_rows(
     ``weighted``: per-sample Doppler and ToA rows, whitened per sample with
     the MATH §6 covariances evaluated at the measured ``(r_k, f_k)`` or, when
     ``weights_at_local_xy`` is given, at that estimate. The unweighted variants rescale the
-    Doppler rows so the objective is the SI-unit one of the paper.
+    Doppler rows so the objective is the SI-unit one of the paper. With an unknown carrier
+    offset in ``data.unknowns`` the system has a fourth column, δ's (MATH §15), which
+    :func:`solve_doppler_toa_cls` projects out.
     """
     position = frame.positions(data.position_m)
     range_local = data.range_m / frame.scale_m
@@ -99,9 +127,13 @@ def cls_rows(
         A_d, b_d = doppler_rows(
             position, data.velocity_mps, range_local, data.doppler_hz, gamma, height
         )
+        A_t, b_t = toa_rows(position, range_local, height)
+        if "carrier_offset_hz" in data.unknowns and rows != "per-frame":
+            # δ's column, eliminated by the caller (MATH §15)
+            offset = carrier_offset_column(range_local, data.velocity_mps, gamma)
+            A_d, A_t = np.column_stack([A_d, offset]), np.column_stack([A_t, 0.0 * offset])
         range_sigma = data.noise.toa_s * data.speed_of_light_mps / frame.scale_m
         if rows == "weighted":
-            A_t, b_t = toa_rows(position, range_local, height)
             if weights_at_local_xy is None:
                 rho, doppler = range_local, data.doppler_hz
             else:
@@ -118,7 +150,6 @@ def cls_rows(
                 range_sigma,
             )
             return whiten_sample_pairs(A_d, b_d, A_t, b_t, *covariance)
-        A_t, b_t = toa_rows(position, range_local, height)
         if rows == "per-frame":
             A_d, b_d = frame_mean_rows(data.frame, A_d, b_d)
     # Unweighted in SI units, a ToA residual in m². In the local frame lengths shrink by L, so a
@@ -148,14 +179,25 @@ def solve_doppler_toa_cls(
     stage-1 estimate (both mirror candidates give the same weights, MATH §6).
     """
     frame = LocalFrame.fit(data.position_m, data.range_m)
-    A, b = cls_rows(data, frame, rows)
-    solution = solve_gtrs(A, b, hard_case_rtol=hard_case_rtol)
+
+    def solve(weights_at: FloatArray | None) -> tuple[GtrsSolution, FloatArray, FloatArray, Any]:
+        A, b = cls_rows(data, frame, rows, weights_at_local_xy=weights_at)
+        offset = None
+        if A.shape[1] == 4:  # an unknown carrier offset: eliminate its column (MATH §15)
+            offset = (A[:, :3], b, A[:, 3])
+            A, b = project_out(*offset)
+        return solve_gtrs(A, b, hard_case_rtol=hard_case_rtol), A, b, offset
+
+    solution, A, b, offset = solve(None)
     n_stages = 1
     if rows == "weighted":
         for _ in range(stages - 1):
-            A, b = cls_rows(data, frame, rows, weights_at_local_xy=solution.points[0, :2])
-            solution = solve_gtrs(A, b, hard_case_rtol=hard_case_rtol)
+            solution, A, b, offset = solve(solution.points[0, :2])
             n_stages += 1
+    carrier_offset = None
+    if offset is not None:
+        A_full, b_full, column = offset  # δ = cᵀ(b − A r)/‖c‖² at each candidate r
+        carrier_offset = (b_full - solution.points @ A_full.T) @ column / (column @ column)
     return ClsSolution(
         candidates_m=frame.to_world(solution.points[:, :2]),
         costs=solution.costs,
@@ -164,7 +206,32 @@ def solve_doppler_toa_cls(
         stages=n_stages,
         A=A,
         b=b,
+        carrier_offset_hz=carrier_offset,
     )
+
+
+def ordered_candidates(
+    candidates: FloatArray, costs: FloatArray, hard_case: bool, data: MeasurementSet
+) -> tuple[FloatArray, FloatArray]:
+    """The candidates and costs handed to :func:`~estimators.base.finalize_estimate`.
+
+    The hard case's two minimisers have equal cost (MATH §5); their computed costs differ only
+    by rounding, so ordering them by cost would let the rounding decide which comes first, and
+    with it which one a tie-break by ``rng`` returns. Instead the point to the left of the last
+    sample's heading comes first, at the smaller cost: the answer is then a function of the
+    data and the generator alone. On a straight track the other point is that one's mirror
+    image (MATH §7), which ``finalize_estimate`` adds; elsewhere both go, at one cost.
+    """
+    if not hard_case or len(candidates) != 2:
+        return candidates, costs
+    velocity = data.velocity_mps[-1]
+    left = np.array([-velocity[1], velocity[0]])
+    if (candidates[0] - candidates[1]) @ left < 0.0:
+        candidates = candidates[::-1]
+    best = np.full(2, np.min(costs))
+    if straight_track_line(data.position_m, data.velocity_mps) is not None:
+        return candidates[:1], best[:1]
+    return candidates, best
 
 
 def _estimate(
@@ -177,12 +244,17 @@ def _estimate(
     **solve_options,
 ) -> Estimate:
     used = data.select_frames(frames)
+    if "emission_time_s" in used.unknowns:
+        return _estimate_pseudorange(name, used, rng, side_prior_m, **solve_options)
     solution = solve_doppler_toa_cls(used, rows, **solve_options)
     gtrs = solution.gtrs
+    candidates, costs = ordered_candidates(
+        solution.candidates_m, solution.costs, gtrs.hard_case, used
+    )
     return finalize_estimate(
         name,
-        solution.candidates_m,
-        solution.costs,
+        candidates,
+        costs,
         used,
         rng=rng,
         side_prior_m=side_prior_m,
@@ -193,23 +265,132 @@ def _estimate(
             "rank": gtrs.rank,
             "stages": solution.stages,
             "n_samples": used.n_samples,
+            **(
+                {}
+                if solution.carrier_offset_hz is None
+                else {"carrier_offset_hz": float(solution.carrier_offset_hz[0])}
+            ),
         },
+    )
+
+
+def _estimate_pseudorange(
+    name: str,
+    data: MeasurementSet,
+    rng: np.random.Generator | None,
+    side_prior_m: tuple[float, float] | None,
+    offset_method: OffsetMethod = "relaxed",
+) -> Estimate:
+    """:func:`_estimate` with an unknown emission time: the pseudo-range closed form, an
+    indefinite GTRS (MATH §15, :mod:`estimators.pseudorange_cls`)."""
+    offset_unknown = "carrier_offset_hz" in data.unknowns
+    solution = solve_pseudorange_cls(
+        data, carrier_offset_unknown=offset_unknown, offset_method=offset_method
+    )
+    info = solution.diagnostics
+    nuisance = {"emission_time_s": float(solution.emission_time_s[0])}
+    if solution.carrier_offset_hz is not None:
+        nuisance["carrier_offset_hz"] = float(solution.carrier_offset_hz[0])
+    diagnostics = {
+        key: info[key] for key in ("status", "multiplier", "hard_case", "rank", "stages")
+    }
+    if not info["success"] or not len(solution.candidates_m):
+        return Estimate.failed(
+            name, f"pseudo-range closed form: {info['status']} (MATH §15)", **diagnostics
+        )
+    candidates, costs = ordered_candidates(
+        solution.candidates_m, solution.costs, bool(info["hard_case"]), data
+    )
+    notes = ["hard case: mirror pair (MATH §15)"] if info["hard_case"] else []
+    if not info.get("on_physical_sheet", True):
+        notes.append(
+            "the global minimiser has a negative reference range: the best point "
+            "on the physical sheet is returned (MATH §15)"
+        )
+    return finalize_estimate(
+        name,
+        candidates,
+        costs,
+        data,
+        rng=rng,
+        side_prior_m=side_prior_m,
+        message="; ".join(notes),
+        diagnostics={**diagnostics, "n_samples": data.n_samples, **nuisance},
     )
 
 
 def _constrained_ls(rows: Rows, frames: Frames, data: MeasurementSet) -> ConstrainedLS:
     """The rows whose minimisers :func:`_estimate` returns: the last stage's, frames used."""
+    if "emission_time_s" in data.unknowns:
+        raise ValueError(
+            "unknowns: with an unknown emission time the CLS is an indefinite GTRS over "
+            "(x, y, ρ_j) (MATH §15), not the paraboloid GTRS of §5 that constrained_ls describes"
+        )
     solution = solve_doppler_toa_cls(data.select_frames(frames), rows)
     return ConstrainedLS.in_frame(solution.A, solution.b, solution.frame)
 
 
-def _check_frames(frames: str) -> None:
+def _estimate_columns(
+    estimator: Cls | ClsPaper | ClsAsPrinted,
+    rows: Rows,
+    batch: MeasurementBatch,
+    rngs: Sequence[np.random.Generator | None] | None,
+) -> BatchEstimates:
+    """``estimate`` of every trial of ``batch`` at once (:mod:`estimators.cls_batch`)."""
+    if not isinstance(batch, MeasurementBatch):
+        raise TypeError(
+            f"batch: expected a scenarios.types.MeasurementBatch, got {type(batch).__name__}"
+        )
+    if batch.n_trials:
+        require_modalities(estimator, batch.trial(0))
+    else:
+        require_modalities(estimator, batch.geometry)
+    name, frames, prior = estimator.name, estimator.frames, estimator.side_prior_m
+
+    def solve_one(data: MeasurementSet, rng: np.random.Generator | None) -> Estimate:
+        return _estimate(name, rows, frames, data, rng, prior)
+
+    if batch.geometry.unknowns:  # not vectorised (MATH §15): one trial at a time
+        rngs = check_rngs(rngs, batch.n_trials)
+        return BatchEstimates.from_estimates(
+            name, [estimator.estimate(batch.trial(i), rng=rngs[i]) for i in range(batch.n_trials)]
+        )
+    return estimate_columns(name, rows, frames, batch, rngs, prior, solve_one)
+
+
+def _check_options(frames: str, side_prior_m: object) -> None:
     if frames not in ("all", "last"):
         raise ValueError(f"frames: expected 'all' or 'last', got {frames!r}")
+    check_side_prior(side_prior_m)
+
+
+class _Batches:
+    """``estimate_batch`` and ``estimate_columns`` of the closed forms (:mod:`estimators.cls_batch`)."""
+
+    def _rows(self) -> Rows:
+        raise NotImplementedError
+
+    def estimate_batch(
+        self,
+        batch: MeasurementBatch,
+        *,
+        rngs: Sequence[np.random.Generator | None] | None = None,
+    ) -> list[Estimate]:
+        """``estimate`` of every trial (trial ``i`` with ``rngs[i]``), solved together."""
+        return self.estimate_columns(batch, rngs=rngs).to_estimates()
+
+    def estimate_columns(
+        self,
+        batch: MeasurementBatch,
+        *,
+        rngs: Sequence[np.random.Generator | None] | None = None,
+    ) -> BatchEstimates:
+        """``estimate_batch`` as columns, without an object per trial."""
+        return _estimate_columns(self, self._rows(), batch, rngs)
 
 
 @dataclass(frozen=True, kw_only=True)
-class Cls:
+class Cls(_Batches):
     """The corrected closed-form CLS (MATH §3-§6): weighted, exact GTRS, both mirror minimisers.
 
     Parameters
@@ -221,6 +402,15 @@ class Cls:
         Use every frame so far, or only the last (as the paper does).
     side_prior_m : (x, y) or None
         A rough emitter position; picks the nearer mirror candidate (MATH §7).
+    offset_method : {"relaxed", "profile"}
+        With both the carrier offset and the emission time unknown (MATH §15): ``relaxed`` is
+        the closed form (``w = ρ_j δ`` relaxed and projected out), ``profile`` minimises the
+        exact cost over δ by a scalar search, one GTRS per step: no longer closed form, but
+        without the relaxation's price.
+
+    An unknown carrier offset is projected out of the rows; an unknown emission time turns the
+    ranges into pseudo-ranges, whose differences give the indefinite GTRS of MATH §15
+    (``weighting="optimal"`` only).
     """
 
     name: ClassVar[str] = "cls"
@@ -229,11 +419,16 @@ class Cls:
     weighting: Literal["optimal", "none"] = "optimal"
     frames: Frames = "all"
     side_prior_m: tuple[float, float] | None = None
+    offset_method: OffsetMethod = "relaxed"
 
     def __post_init__(self) -> None:
         if self.weighting not in ("optimal", "none"):
             raise ValueError(f"weighting: expected 'optimal' or 'none', got {self.weighting!r}")
-        _check_frames(self.frames)
+        if self.offset_method not in ("relaxed", "profile"):
+            raise ValueError(
+                f"offset_method: expected 'relaxed' or 'profile', got {self.offset_method!r}"
+            )
+        _check_options(self.frames, self.side_prior_m)
 
     def _rows(self) -> Rows:
         return "weighted" if self.weighting == "optimal" else "per-sample"
@@ -243,12 +438,23 @@ class Cls:
         return Capabilities(
             modalities=self.requires,
             frames=self.frames,
+            batch=True,
             unit_invariant=self.weighting == "optimal",
+            unknowns=frozenset(
+                {"carrier_offset_hz", "emission_time_s"}
+                if self.weighting == "optimal"
+                else {"carrier_offset_hz"}
+            ),
         )
 
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)
-        return _estimate(self.name, self._rows(), self.frames, data, rng, self.side_prior_m)
+        options = (
+            {"offset_method": self.offset_method} if "emission_time_s" in data.unknowns else {}
+        )
+        return _estimate(
+            self.name, self._rows(), self.frames, data, rng, self.side_prior_m, **options
+        )
 
     def constrained_ls(self, data: MeasurementSet) -> ConstrainedLS:
         """The system ``estimate`` minimises: with ``optimal`` weighting, stage 2's rows."""
@@ -257,7 +463,7 @@ class Cls:
 
 
 @dataclass(frozen=True, kw_only=True)
-class ClsPaper:
+class ClsPaper(_Batches):
     """The paper's unweighted CLS with the errata fixed (MATH §3-§5, paper eq ``finalest``).
 
     One projected Doppler row per frame at the paper's scale ``K|v|²``, a residual in m³/s²
@@ -273,10 +479,15 @@ class ClsPaper:
     side_prior_m: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
-        _check_frames(self.frames)
+        _check_options(self.frames, self.side_prior_m)
 
     def capabilities(self) -> Capabilities:
-        return Capabilities(modalities=self.requires, frames=self.frames)
+        # No unknown carrier offset: the frame's mean row loses the within-frame variation of
+        # δ's column r_k/(γ|v|), so δ would take a frame's whole Doppler information (§15).
+        return Capabilities(modalities=self.requires, frames=self.frames, batch=True)
+
+    def _rows(self) -> Rows:
+        return "per-frame"
 
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)
@@ -289,7 +500,7 @@ class ClsPaper:
 
 
 @dataclass(frozen=True, kw_only=True)
-class ClsAsPrinted:
+class ClsAsPrinted(_Batches):
     """The paper's CLS as printed (first-row Doppler line, no height term); λ solved exactly.
 
     Labelled as the printed version wherever it appears; it shows what the errata cost.
@@ -302,10 +513,13 @@ class ClsAsPrinted:
     side_prior_m: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
-        _check_frames(self.frames)
+        _check_options(self.frames, self.side_prior_m)
 
     def capabilities(self) -> Capabilities:
-        return Capabilities(modalities=self.requires, frames=self.frames)
+        return Capabilities(modalities=self.requires, frames=self.frames, batch=True)
+
+    def _rows(self) -> Rows:
+        return "as-printed"
 
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)

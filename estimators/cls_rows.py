@@ -12,6 +12,9 @@ the weighted CLS unit-invariant and keeps the solve well conditioned.
 - Squared-range rows (MATH §4, paper eq ``Beq`` with the height term the paper omits):
   ``[−2x_k, −2y_k, 1] r = r_k² − x_k² − y_k² − (z_k − z_s)²``.
 - Exact second moments of the right-hand sides and per-sample whitening (MATH §6).
+- An unknown carrier offset δ (MATH §15) adds the column ``r_k/(γ|v_xy|)`` to the Doppler rows
+  (:func:`carrier_offset_column`); a free linear unknown, it is eliminated exactly by projecting
+  the system onto the orthogonal complement of its column (:func:`project_out`).
 """
 
 from __future__ import annotations
@@ -220,3 +223,26 @@ def whiten_sample_pairs(
     A_t = (A_toa - l21[:, None] * A_d) / l22[:, None]
     b_t = (b_toa - l21 * b_d) / l22
     return np.vstack([A_d, A_t]), np.concatenate([b_d, b_t])
+
+
+def carrier_offset_column(
+    range_m: ArrayLike, velocity_mps: ArrayLike, gamma_per_m: float
+) -> FloatArray:
+    """The coefficient of δ in each Doppler row of :func:`doppler_rows` (MATH §15).
+
+    With ``f_k = −γ v_kᵀu_k + δ``, the Doppler·range row becomes
+    ``[v̂_kᵀ, 0] r + (r_k/(γ|v_xy|)) δ = (v_kᵀp_k + r_k f_k/γ − v_z z_s)/|v_xy|``. Returns (N,).
+    """
+    speed = horizontal_speed_mps(velocity_mps)
+    return np.asarray(range_m, dtype=float) / (gamma_per_m * speed)
+
+
+def project_out(A: FloatArray, b: FloatArray, columns: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Eliminate free linear unknowns ``t`` from ``min ‖A r + N t − b‖²`` (MATH §15).
+
+    For any ``r`` the best ``t`` is the least-squares solution of ``N t = b − A r``, and the cost
+    left is ``‖Q(A r − b)‖²`` with ``Q = I − N N⁺`` the projection off the columns ``N``
+    (``(n,)`` or ``(n, m)``): the same GTRS in ``r`` on ``(QA, Qb)``, with the same minimisers.
+    """
+    basis, _ = np.linalg.qr(np.asarray(columns, dtype=float).reshape(len(b), -1))
+    return A - basis @ (basis.T @ A), b - basis @ (basis.T @ b)

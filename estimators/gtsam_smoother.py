@@ -12,21 +12,26 @@ returns garbage on an underdetermined graph without raising and ISAM2/Marginals 
 ``RuntimeError`` (DEPENDENCIES §1).
 
 With a static emitter the optimum is the maximum likelihood over all frames (MATH §10). The
-reported covariance is GTSAM's marginal covariance of the last variable (the inverse Fisher
-information at the estimate in the static case).
+reported covariance is the marginal covariance of the last variable at the estimate (the inverse
+Fisher information in the static case): GTSAM's ``Marginals`` in batch, the inverse of the same
+marginal information from the graph's 2×2 block elimination when streaming.
 
 **Batch and streaming.** :meth:`GtsamSmoother.estimate` builds each hypothesis's full graph and
-runs Levenberg-Marquardt; :meth:`GtsamSmoother.update` extends an ISAM2 per hypothesis by one
-frame and steps it until no variable needs relinearising (:mod:`estimators.smoother_hypotheses`,
-which also says why the live ISAM2 objects sit in a private per-process cache), so streaming
-converges to the same optimum as the batch solve. With a static emitter every frame's factor
-sits on the one variable, so each relinearisation re-evaluates all of them and the cost per
-frame grows with the number of frames; ISAM2 saves work in the random-walk chain, where only the
-recent variables move. Hypothesis weights are Laplace approximations of each hypothesis's
-evidence at its optimum, ``−½χ²(ŝ) − ½ log det Λ(ŝ)``
-(:func:`~estimators.smoother_graph.chain_fit`), computed the same way in both modes. Pruning is
-decided after every frame when streaming and once on all the data in batch; the two differ only
-if a hypothesis's weight crosses ``1e−9`` and then climbs back.
+runs Levenberg-Marquardt; :meth:`GtsamSmoother.update` adds the new frame's factor (and link) to
+an ISAM2 per hypothesis and steps it until no variable needs relinearising
+(:mod:`estimators.smoother_hypotheses`, which also says why the live ISAM2 objects sit in a
+private per-process cache). Only new factors enter ISAM2, and a variable is relinearised only
+when its step from its linearisation point reaches ``5·10⁻⁴`` of the length scale, so once
+converged a frame costs one factor evaluation however many frames came before. Beside each
+ISAM2 its frames are kept to third order about ISAM2's linearisation point (additive per-frame
+sums, :class:`~estimators.smoother_graph.Expansion`): ISAM2's Gauss-Newton estimate, which with
+old factors linearised at a stale point is ~``10⁻³`` of the distance off, is finished there by
+Newton's method, and every check below reads its cost, decrement and curvature from those sums,
+so streaming converges to the same optimum as the batch solve. Hypothesis weights are
+Laplace approximations of each hypothesis's evidence at its optimum,
+``−½χ²(ŝ) − ½ log det Λ(ŝ)`` (:func:`~estimators.smoother_graph.chain_fit`), computed the same
+way in both modes. Pruning is decided after every frame when streaming and once on all the data
+in batch; the two differ only if a hypothesis's weight crosses ``1e−9`` and then climbs back.
 
 **Convergence and the batch fallback (no silent divergence).** ISAM2 takes undamped Gauss-Newton
 steps. Near the track, where the data barely fix the cross-track coordinate (every emitter close
@@ -36,7 +41,9 @@ damps its steps, stays at the optimum. On ``paper-1m-turn`` at −20 dB, 34 stre
 17 of 500 trials were more than 5 √CRLB (up to 2·10⁵ √CRLB) from the maximum likelihood of the
 same frames with ``success=True`` and an empty message, all before the turn. So every streaming
 update is checked, per hypothesis, against the whitened cost ``χ²`` of the graph and the
-decrement ``δ`` at the result (:func:`~estimators.smoother_graph.chain_fit`;
+decrement ``δ`` at the result (:func:`~estimators.smoother_graph.fit_from_sums` on the
+expansion, or :func:`~estimators.smoother_graph.chain_fit` on the frames when the result lies
+outside the expansion's trust radius;
 ``δ ≤ DECREMENT_TOL`` is convergence, "Convergence" in :mod:`estimators.convergence`). The
 update is rejected when
 
@@ -44,7 +51,7 @@ update is rejected when
   (:data:`~estimators.smoother_hypotheses.MAX_ISAM2_STEPS`), or stopped away from a stationary
   point;
 - the cost rose: ``χ²`` at the result above ``χ²`` of the update's starting point (the previous
-  optimum with the new frame added), beyond rounding
+  optimum's ``χ²`` plus the new frame's residuals there), beyond rounding
   (:data:`~estimators.smoother_batch.COST_RISE_RTOL`);
 - the result is a saddle point: the exact Hessian has negative curvature
   (:meth:`~estimators.smoother_graph.ChainFit.saddle_direction`). A hypothesis started at the
@@ -68,8 +75,15 @@ the flat near-track valley it can need hundreds of iterations) is finished by Ne
 the whole graph, and a saddle is left along its negative curvature
 (``diagnostics["lm_fallback"]``); a result that still has not converged, or ends above its
 starting cost, is a failure. On the −20 dB sweep above, 207 of 5000 streamed updates fell back
-(86 saddles, 121 steps that did not converge, 60 of them raising the cost), all before the turn,
+(86 saddles, 121 steps that did not converge, 67 of them raising the cost), all before the turn,
 and none failed; at 0 dB none fell back.
+
+**Unknown nuisance parameters** (MATH §15). When the data declare the carrier offset δ or the
+emission time b unknown, everything above is replaced by :mod:`estimators.smoother_nuisance`:
+the same graph with one more variable holding them (δ in Hz, ``c b`` in metres; the frame
+factors' Jacobians gain the constant columns ``∂f_k/∂δ = 1``, ``∂r_k/∂(c b) = 1``), started
+by :mod:`estimators.nuisance_starts`, solved by checked Levenberg-Marquardt, in batch and (as
+re-solves, without ISAM2) when streaming; their values are reported in ``diagnostics``.
 """
 
 from __future__ import annotations
@@ -82,6 +96,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
+from estimators import smoother_nuisance
 from estimators.base import Capabilities, Estimate, require_modalities
 from estimators.convergence import COST_ROUNDING_RTOL, DECREMENT_TOL, EstimationFailure
 from estimators.frame_model import FrameModel
@@ -93,18 +108,20 @@ from estimators.mirror_hypotheses import (
     hypotheses_estimate,
     surviving_hypotheses,
 )
+from estimators.nuisance_states import NUISANCE_UNKNOWNS, check_same_unknowns, nuisance_names
 from estimators.smoother_batch import COST_RISE_RTOL, best_lm_solve, lm_solve
-from estimators.smoother_graph import chain_fit, marginal_covariance, step_sigmas_m
+from estimators.smoother_graph import chain_fit, step_sigmas_m
 from estimators.smoother_hypotheses import (
     MAX_ISAM2_STEPS,
+    LiveGraph,
     SmootherHypothesis,
     SmootherState,
     add_frame,
     checkin,
     checkout,
     discard,
-    new_isam2,
-    replay_isam2,
+    new_live,
+    replay_live,
 )
 from scenarios.types import MeasurementSet
 
@@ -177,13 +194,26 @@ class GtsamSmoother:
             modules=self.required_modules,
             sequential=True,
             unit_invariant=self.process_noise_mps == 0.0,  # q is in m/s
+            unknowns=NUISANCE_UNKNOWNS,
         )
+
+    def _nuisance_options(self) -> dict[str, Any]:
+        """What :mod:`estimators.smoother_nuisance` needs of this estimator."""
+        return {
+            "name": self.name,
+            "process_noise_mps": self.process_noise_mps,
+            "max_iterations": self.max_iterations,
+        }
 
     # -- batch ----------------------------------------------------------------------------------
 
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
-        """Levenberg-Marquardt on every hypothesis's full graph, each solve checked (module text)."""
+        """Levenberg-Marquardt on every hypothesis's full graph, each solve checked (module text).
+        With unknown nuisance parameters (``data.unknowns``, MATH §15) the graph carries them
+        as one more variable (:mod:`estimators.smoother_nuisance`)."""
         require_modalities(self, data)
+        if nuisance_names(data):
+            return smoother_nuisance.estimate(data, self._nuisance_options(), rng)
         frame_data = list(data.iter_frames())
         frames = tuple(FrameModel.from_measurements(frame) for frame in frame_data)
         steps = step_sigmas_m(frames, self.process_noise_mps) if self.random_walk else np.empty(0)
@@ -243,10 +273,22 @@ class GtsamSmoother:
         """No frame yet."""
         return SmootherState()
 
-    def update(self, state: SmootherState, frame: MeasurementSet) -> SmootherState:
+    def update(
+        self, state: SmootherState | smoother_nuisance.NuisanceSmootherState, frame: MeasurementSet
+    ) -> SmootherState | smoother_nuisance.NuisanceSmootherState:
         """The state after one more frame: each hypothesis's ISAM2 extended, re-optimised and
-        checked; a hypothesis whose update did not converge falls back to the batch solve."""
+        checked; a hypothesis whose update did not converge falls back to the batch solve.
+        With unknown nuisance parameters (MATH §15) every hypothesis's graph, with them as a
+        variable, is re-solved instead (:func:`estimators.smoother_nuisance.update`)."""
         require_modalities(self, frame)
+        if isinstance(state, smoother_nuisance.NuisanceSmootherState):
+            check_same_unknowns(state.frames[0].names, frame)
+            return smoother_nuisance.update(state, frame, self._nuisance_options())
+        if nuisance_names(frame):
+            if state.frames:
+                check_same_unknowns((), frame)
+            fresh = smoother_nuisance.NuisanceSmootherState()
+            return smoother_nuisance.update(fresh, frame, self._nuisance_options())
         model = FrameModel.from_measurements(frame)
         frames = (*state.frames, model)
         if state.failure:
@@ -260,9 +302,15 @@ class GtsamSmoother:
             return replace(state, frames=frames, failure=str(error))
 
     def estimate_state(
-        self, state: SmootherState, *, rng: np.random.Generator | None = None
+        self,
+        state: SmootherState | smoother_nuisance.NuisanceSmootherState,
+        *,
+        rng: np.random.Generator | None = None,
     ) -> Estimate:
-        """The estimate of the last emitter variable (``rng`` breaks an exact mirror tie)."""
+        """The estimate of the last emitter variable (``rng`` breaks an exact mirror tie); with
+        unknown nuisance parameters their values are in ``diagnostics`` (MATH §15)."""
+        if isinstance(state, smoother_nuisance.NuisanceSmootherState):
+            return smoother_nuisance.estimate_state(state, self._nuisance_options(), rng)
         if state.failure:
             return Estimate.failed(self.name, state.failure, frames=state.n_frames)
         if not state.frames:
@@ -408,21 +456,25 @@ class GtsamSmoother:
         at the last one): the cost must not rise from there. See the module text.
         """
         prior_sigma = DIFFUSE_PRIOR_SCALE * length_scale_m
-        start_chi2 = chain_fit(
-            frames,
-            start_values_m,
-            random_walk=self.random_walk,
-            step_sigmas=steps,
-            prior_mean_m=prior_mean_m,
-            prior_sigma_m=prior_sigma,
-        ).chi2
+        if previous is None:
+            start_chi2 = chain_fit(
+                frames,
+                start_values_m,
+                random_walk=self.random_walk,
+                step_sigmas=steps,
+                prior_mean_m=prior_mean_m,
+                prior_sigma_m=prior_sigma,
+            ).chi2
+        else:  # the previous optimum's cost, plus the new frame's (the new variable adds no step)
+            residual = frames[-1].whitened_error(start_values_m[-1])
+            start_chi2 = previous.chi2 + float(residual @ residual)
         problems: list[str] = []
         candidate: SmootherHypothesis | None = None
         n_steps, moving = 0, False
         token = ""
         try:
             if previous is None:
-                isam, n_steps, moving = new_isam2(
+                live, n_steps, moving = new_live(
                     frames,
                     start_values_m,
                     prior_mean_m,
@@ -437,22 +489,22 @@ class GtsamSmoother:
                     "start_iterated": True,
                 }
             else:
-                isam = checkout(previous.token, len(frames) - 1)
-                if isam is None:
-                    isam = replay_isam2(
+                live = checkout(previous.token, len(frames) - 1)
+                if live is None:
+                    live = replay_live(
                         previous, frames[:-1], steps, length_scale_m, random_walk=self.random_walk
                     )
                 n_steps, moving = add_frame(
-                    isam, frames, steps, prior_sigma, random_walk=self.random_walk
+                    live, frames, steps, prior_sigma, random_walk=self.random_walk
                 )
                 recipe = {
                     "start_frames": previous.start_frames,
                     "start_values_m": previous.start_values_m,
                     "start_iterated": previous.start_iterated,
                 }
-            token = checkin(isam, len(frames))
+            token = checkin(live, len(frames))
             candidate = self._read_isam2(
-                isam, frames, prior_mean_m, prior_sigma, steps, token=token, **recipe
+                live, frames, prior_mean_m, prior_sigma, steps, moving=moving, token=token, **recipe
             )
         except (RuntimeError, EstimationFailure) as error:
             discard(token)
@@ -522,7 +574,7 @@ class GtsamSmoother:
         no Gauss-Newton step taken), the recipe that rebuilds it, and its cache token."""
         token = ""
         try:
-            isam, _, _ = new_isam2(
+            live, _, _ = new_live(
                 frames,
                 batch.estimates_m,
                 batch.prior_mean_m,
@@ -531,7 +583,7 @@ class GtsamSmoother:
                 random_walk=self.random_walk,
                 iterate=False,
             )
-            token = checkin(isam, len(frames))
+            token = checkin(live, len(frames))
         except RuntimeError:
             pass  # no live ISAM2: the next update replays the recipe (and is checked)
         return replace(
@@ -544,29 +596,21 @@ class GtsamSmoother:
 
     def _read_isam2(
         self,
-        isam: Any,
+        live: LiveGraph,
         frames: tuple[FrameModel, ...],
         prior_mean_m: FloatArray,
         prior_sigma: float,
         steps: FloatArray,
+        *,
+        moving: bool = False,
         **recipe: Any,
     ) -> SmootherHypothesis:
-        from gtsam.symbol_shorthand import X
-
-        n_variables = len(frames) if self.random_walk else 1
+        """The hypothesis at ISAM2's estimate: finished on the expansion unless ISAM2 was still
+        relinearising (:meth:`~estimators.smoother_hypotheses.LiveGraph.solution`), with the
+        fit there and the inverse of the last variable's marginal information."""
+        estimates, fit = live.solution(prior_mean_m, prior_sigma, steps, polish=not moving)
         try:
-            estimate = isam.calculateBestEstimate()
-        except RuntimeError as error:
-            raise EstimationFailure(f"GTSAM ISAM2 failed ({error})") from None
-        estimates = np.array([estimate.atPoint2(X(i)) for i in range(n_variables)])
-        covariance = marginal_covariance(lambda: isam.marginalCovariance(X(n_variables - 1)))
-        return SmootherHypothesis.fitted(
-            frames,
-            estimates,
-            covariance,
-            prior_mean_m,
-            prior_sigma,
-            steps,
-            random_walk=self.random_walk,
-            **recipe,
-        )
+            covariance = np.linalg.inv(fit.last_information)
+        except np.linalg.LinAlgError:
+            covariance = None
+        return SmootherHypothesis.from_fit(fit, estimates, covariance, prior_mean_m, **recipe)

@@ -38,11 +38,21 @@ every converged minimum (the optimum found is then not the best the data allow);
 did not converge but ended higher are counted in ``diagnostics`` and noted in ``message``.
 The exact Hessian is the central difference of the analytic gradient ``Jᵀe`` (step
 ``HESSIAN_STEP_RTOL`` of the length scale: truncation and rounding both ~1e−11 relative).
+
+Reproducibility. Each start is rounded to a grid of ``START_GRID`` local units (~1e−6 of the
+length scale, far below any start's own error) and every cost is a left-to-right sum of
+squares (:func:`~estimators.minpack_batch.ordered_sum`): the search's path is then a function
+of the data alone, not of the last bits of the CLS solve, and :mod:`estimators.ml_batch`
+reproduces ``estimate`` bit for bit on a whole batch (``estimate_batch``). Two starts that
+end at one minimum (closer than ``MERGE_RTOL`` of the scale) at costs equal within ``xtol``
+keep the earlier start's point, not whichever rounding put lower: an on-plane start stays on
+a straight track's plane, its off-plane copy stops a fraction of a micrometre off it.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
@@ -50,19 +60,31 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
-from estimators.base import Capabilities, Estimate, finalize_estimate, require_modalities
+from estimators.base import (
+    Capabilities,
+    Estimate,
+    check_side_prior,
+    finalize_estimate,
+    require_modalities,
+)
+from estimators.batch import BatchEstimates
 from estimators.cls import solve_doppler_toa_cls
 from estimators.cls_rows import LocalFrame
 from estimators.convergence import DECREMENT_TOL, stationarity_decrement
 from estimators.lls import solve_lls_toa
-from scenarios import measurement_model as model
-from scenarios.fisher import fisher_information, inverse_2x2, regular_2x2, whitened_jacobian
+from estimators.minpack_batch import ordered_sum
+from estimators.ml_residuals import ResidualModel, profiled_offsets
+from estimators.ml_starts import doppler_frame_starts, ranges_uninformative
+from estimators.pseudorange_cls import solve_pseudorange_cls
+from scenarios.fisher import fisher_information, inverse_2x2, regular_2x2
 from scenarios.geometry import cross_track_m, mirror_across_line, straight_track_line
-from scenarios.types import MeasurementSet
+from scenarios.nuisance import NUISANCE_PARAMETERS
+from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
 Frames = Literal["all", "last"]
 Method = Literal["lm", "trf"]
+Rngs = Sequence[np.random.Generator | None] | None
 
 MERGE_RTOL = 1e-6
 """Minima closer than ``MERGE_RTOL`` times the local length scale are one minimum."""
@@ -72,6 +94,9 @@ _ON_TRACK_RTOL = 1e-6
 
 HESSIAN_STEP_RTOL = 1e-6
 """Central-difference step of the exact Hessian (module text), relative to the length scale."""
+
+START_GRID = 2.0**-16
+"""Starts are rounded to this grid in local units (module text, "Reproducibility")."""
 
 MINPACK_STATUS = {
     -1: "improper input",
@@ -99,27 +124,11 @@ def whitened_residuals(
     Vectorised: ``emitter_m`` of shape ``(..., 2)`` gives residuals of shape ``(..., n_rows)``.
     """
     emitter = np.asarray(emitter_m, dtype=float)
-    position, height = data.position_m, data.emitter_height_m
-    blocks = [
-        (
-            data.doppler_hz
-            - model.doppler_hz(position, data.velocity_mps, emitter, data.gamma_per_m, height)
-        )
-        / data.noise.doppler_hz,
-        (data.toa_s - model.toa_s(position, emitter, data.speed_of_light_mps, height))
-        / data.noise.toa_s,
-    ]
-    if use_rss:
-        blocks.append(
-            (data.rss_dbm - model.rss_dbm(position, emitter, data.rss_model, height))
-            / data.noise.rss_db
-        )
+    rss = data.rss_dbm if use_rss else None
+    blocks = ResidualModel.of(data).residuals(
+        emitter[..., 0, None], emitter[..., 1, None], data.doppler_hz, data.toa_s, rss
+    )
     return np.concatenate(blocks, axis=-1)
-
-
-def _modalities(use_rss: bool) -> tuple[str, ...]:
-    """The rows of the residual, in order: Doppler, ToA and (``use_rss``) RSS."""
-    return ("doppler", "toa", "rss") if use_rss else ("doppler", "toa")
 
 
 def whitened_residual_jacobian(
@@ -131,7 +140,19 @@ def whitened_residual_jacobian(
     :func:`scenarios.fisher.whitened_jacobian`, so its Gram matrix ``JᵀJ`` is the Fisher
     information of MATH §8 at ``emitter_m``.
     """
-    return -whitened_jacobian(data, emitter_m, _modalities(use_rss))
+    emitter = np.asarray(emitter_m, dtype=float)
+    columns = ResidualModel.of(data).jacobian(emitter[..., 0, None], emitter[..., 1, None], use_rss)
+    return np.stack([np.concatenate(c, axis=-1) for c in columns], axis=-1)
+
+
+def on_start_grid(local_xy: ArrayLike) -> FloatArray:
+    """Starts in local units rounded to ``START_GRID`` (module text, "Reproducibility")."""
+    return np.round(np.asarray(local_xy, dtype=float) / START_GRID) * START_GRID
+
+
+def _modalities(use_rss: bool) -> tuple[str, ...]:
+    """The rows of the residual, in order: Doppler, ToA and (``use_rss``) RSS."""
+    return ("doppler", "toa", "rss") if use_rss else ("doppler", "toa")
 
 
 # --------------------------------------------------------------------------------------------
@@ -197,7 +218,7 @@ def solve_maximum_likelihood(
     data : MeasurementSet
         Needs Doppler and ToA (and RSS with ``use_rss``).
     starts_m : (n_starts, 2)
-        Initial positions in world coordinates.
+        Initial positions in world coordinates (rounded to ``START_GRID`` in ``frame``).
     use_rss : bool
         Include the RSS residuals.
     method : {"lm", "trf"}
@@ -206,7 +227,8 @@ def solve_maximum_likelihood(
     cost_rtol : float
         Two minima whose costs tie within ``cost_rtol`` (relative) and with no cost barrier
         between them (the midpoint no higher than the tie level) are one flat minimum and are
-        merged; so are minima closer than ``MERGE_RTOL`` times the length scale.
+        merged; so are minima closer than ``MERGE_RTOL`` times the length scale (the lower
+        cost kept, or the earlier start's at a tie within ``xtol``: module text).
     xtol : float
         Relative step tolerance (``ftol`` and ``gtol`` use it too).
     max_nfev : int
@@ -232,7 +254,7 @@ def solve_maximum_likelihood(
     statuses: list[str] = []
     unconverged_best = float("inf")
     n_evaluations = 0
-    for start in frame.to_local(starts):
+    for start in on_start_grid(frame.to_local(starts)):
         if not np.all(np.isfinite(start)):
             messages.append("non-finite start")
             statuses.append("non-finite start")
@@ -277,8 +299,8 @@ def solve_maximum_likelihood(
             unconverged_best = min(unconverged_best, cost)
             continue
         minima.append(point)
-        costs.append(cost)
-    points, values = _distinct_minima(np.reshape(minima, (-1, 2)), np.asarray(costs), scale)
+        costs.append(float(ordered_sum(result.fun**2)))  # the same, summed left to right
+    points, values = _distinct_minima(np.reshape(minima, (-1, 2)), np.asarray(costs), scale, xtol)
     if len(values) > 1:
         points, values = _merge_flat_ties(data, points, values, use_rss, cost_rtol)
     return MlSolution(
@@ -327,14 +349,26 @@ def ml_decrement(
 
 
 def _distinct_minima(
-    points_m: FloatArray, costs: FloatArray, scale_m: float
+    points_m: FloatArray, costs: FloatArray, scale_m: float, tie_rtol: float = 0.0
 ) -> tuple[FloatArray, FloatArray]:
-    """Merge points closer than ``MERGE_RTOL · scale_m`` (keeping the lower cost), best first."""
+    """Merge points closer than ``MERGE_RTOL · scale_m``, best first.
+
+    In cost order, a point within the threshold of a kept one is merged into the first such,
+    and the lower cost is kept; but costs within ``tie_rtol`` (relative) are one cost, and of
+    tied points the one given first (the earlier start) is kept. One minimum reached from two
+    starts ends at two costs that differ by the solver's tolerance: which is lower is chance.
+    """
     order = np.argsort(costs, kind="stable")
     kept: list[int] = []
-    for index in order:
-        if all(np.linalg.norm(points_m[index] - points_m[j]) > MERGE_RTOL * scale_m for j in kept):
-            kept.append(int(index))
+    for index in order.tolist():
+        for at, j in enumerate(kept):
+            if np.linalg.norm(points_m[index] - points_m[j]) <= MERGE_RTOL * scale_m:
+                if index < j and costs[index] <= costs[j] + tie_rtol * abs(costs[j]):
+                    kept[at] = index
+                break
+        else:
+            kept.append(index)
+    kept = [kept[i] for i in np.argsort(costs[kept], kind="stable")]
     return points_m[kept], costs[kept]
 
 
@@ -359,7 +393,8 @@ def _merge_flat_ties(
             flat = False
             for j in kept:
                 middle = 0.5 * (points_m[index] + points_m[j])
-                middle_cost = float(np.sum(whitened_residuals(data, middle, use_rss=use_rss) ** 2))
+                rows = whitened_residuals(data, middle, use_rss=use_rss)
+                middle_cost = float(ordered_sum(rows**2))
                 if middle_cost <= tie_level:
                     flat = True
                     break
@@ -380,58 +415,6 @@ def fisher_covariance_m2(
     if not regular_2x2(information):
         return None
     return inverse_2x2(information)
-
-
-def ranges_uninformative(data: MeasurementSet) -> bool:
-    """True when the range noise ``c σ_τ`` exceeds the size of the geometry.
-
-    The size is ``√(mean‖p_k,xy − p̄_xy‖² + mean (z_k − z_s)²)``, the spread of the track and
-    its height above the emitter, which bounds the ranges from below; a range error larger than
-    that leaves the CLS start (MATH §5) without range information.
-    """
-    position = data.position_m
-    spread_sq = np.mean(np.sum((position[:, :2] - position[:, :2].mean(axis=0)) ** 2, axis=1))
-    height_sq = np.mean((position[:, 2] - data.emitter_height_m) ** 2)
-    return bool(data.noise.toa_s * data.speed_of_light_mps > np.sqrt(spread_sq + height_sq))
-
-
-def doppler_frame_starts(frame_data: MeasurementSet) -> FloatArray:
-    """Doppler-only starting points from one straight, level frame: a mirror pair, (2, 2).
-
-    With ``g_k = f_k/(γ|v|) = −v̂ᵀu_k = −a_k/ρ_k`` (physical sign, MATH §1), ``a_k`` the
-    along-track offset ``v̂ᵀ(p_k − s)`` and ``ρ_0`` the distance from the emitter to the line of
-    flight, ``ρ_k² = a_k² + ρ_0²`` gives ``a_k = −ρ_0 g_k/√(1 − g_k²)``, so
-
-    ``v̂ᵀp_k = v̂ᵀs − ρ_0 g_k/√(1 − g_k²)``
-
-    is linear in ``(v̂ᵀs, ρ_0)``: least squares over the frame, then the cross-track distance
-    ``√(ρ_0² − (z − z_s)²)`` on both sides. Independent of the ToA, so it still starts the
-    search near the emitter when the ranges are useless (the paper's ``c σ_τ = 300 km``).
-    Returns an empty (0, 2) array when the frame is not straight and level or the fit fails.
-    """
-    velocity = frame_data.velocity_mps
-    if frame_data.n_samples < 2 or np.ptp(velocity, axis=0).any() or velocity[0, 2] != 0.0:
-        return np.empty((0, 2))
-    speed = float(np.linalg.norm(velocity[0]))
-    if not speed > 0.0:
-        return np.empty((0, 2))
-    direction = velocity[0, :2] / speed
-    g = frame_data.doppler_hz / (frame_data.gamma_per_m * speed)
-    usable = np.abs(g) < 0.999
-    if np.count_nonzero(usable) < 2:
-        return np.empty((0, 2))
-    along = frame_data.position_m[usable, :2] @ direction
-    slope = -g[usable] / np.sqrt(1.0 - g[usable] ** 2)
-    A = np.column_stack([np.ones_like(slope), slope])
-    (along_s, closest_m), *_ = np.linalg.lstsq(A, along, rcond=None)
-    height_m = float(np.mean(frame_data.position_m[:, 2])) - frame_data.emitter_height_m
-    if not (np.isfinite(along_s) and np.isfinite(closest_m)):
-        return np.empty((0, 2))
-    cross = np.sqrt(max(closest_m**2 - height_m**2, 0.0))
-    origin = frame_data.position_m[0, :2]
-    on_line = origin + (along_s - origin @ direction) * direction
-    normal = np.array([-direction[1], direction[0]])
-    return np.vstack([on_line + cross * normal, on_line - cross * normal])
 
 
 def straight_track_starts(
@@ -515,6 +498,9 @@ class MaximumLikelihood:
     def __post_init__(self) -> None:
         if self.frames not in ("all", "last"):
             raise ValueError(f"frames: expected 'all' or 'last', got {self.frames!r}")
+        for option in ("use_rss", "fallback_lls"):
+            if not isinstance(getattr(self, option), bool):
+                raise ValueError(f"{option}: expected true or false, got {getattr(self, option)!r}")
         if not (isinstance(self.cost_rtol, int | float) and 0.0 <= self.cost_rtol < np.inf):
             raise ValueError(f"cost_rtol: expected a finite number >= 0, got {self.cost_rtol!r}")
         if self.doppler_start not in (True, False, "auto"):
@@ -526,17 +512,29 @@ class MaximumLikelihood:
         n = self.max_nfev
         if isinstance(n, bool) or not isinstance(n, int) or n < 1:
             raise ValueError(f"max_nfev: expected a whole number >= 1, got {n!r}")
-        if self.side_prior_m is not None and (
-            np.shape(self.side_prior_m) != (2,) or not np.all(np.isfinite(self.side_prior_m))
-        ):
-            raise ValueError(
-                f"side_prior_m: expected a finite (x, y) in metres, got {self.side_prior_m!r}"
-            )
+        check_side_prior(self.side_prior_m)
 
     def capabilities(self) -> Capabilities:
         """Doppler and ToA, and RSS with ``use_rss``; whitened residuals: unit-invariant."""
         modalities = self.requires | ({"rss"} if self.use_rss else set())
-        return Capabilities(modalities=modalities, frames=self.frames, unit_invariant=True)
+        return Capabilities(
+            modalities=modalities,
+            frames=self.frames,
+            batch=True,
+            unit_invariant=True,
+            unknowns=frozenset(NUISANCE_PARAMETERS),  # profiled out (MATH §15)
+        )
+
+    def estimate_batch(self, batch: MeasurementBatch, *, rngs: Rngs = None) -> list[Estimate]:
+        """``estimate`` of every trial (trial ``i`` with ``rngs[i]``), solved together."""
+        return self.estimate_columns(batch, rngs=rngs).to_estimates()
+
+    def estimate_columns(self, batch: MeasurementBatch, *, rngs: Rngs = None) -> BatchEstimates:
+        """``estimate_batch`` as columns (:mod:`estimators.ml_batch`): the same answers, bit
+        for bit, with the trials the batch cannot reproduce solved one at a time."""
+        from estimators.ml_batch import estimate_columns
+
+        return estimate_columns(self, batch, rngs)
 
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)
@@ -546,18 +544,9 @@ class MaximumLikelihood:
                 "or set use_rss=False"
             )
         used = data.select_frames(self.frames)
-        starts, start_method, start_note = self._starts(used)
+        starts, start_method, start_note, frame = self.search_starts(used)
         if starts is None:
             return Estimate.failed(self.name, f"no starting point: {start_note}")
-        if self.doppler_start is True or (
-            self.doppler_start == "auto" and ranges_uninformative(used)
-        ):
-            last = used.take(used.frame == used.frame[-1])
-            starts = np.vstack([starts, doppler_frame_starts(last)])
-        frame = LocalFrame.fit(used.position_m, used.range_m)
-        line = straight_track_line(used.position_m, used.velocity_mps)
-        if line is not None:
-            starts = straight_track_starts(used, starts, line, frame.scale_m)
         solution = solve_maximum_likelihood(
             used,
             starts,
@@ -612,6 +601,7 @@ class MaximumLikelihood:
                 diagnostics,
                 cost=float(solution.costs[0]),
                 n_minima=len(solution.minima_m),
+                **profiled_offsets(used, solution.minima_m[0]),
             ),
         )
         if not (
@@ -627,16 +617,40 @@ class MaximumLikelihood:
             return dataclasses.replace(estimate, message=message)
         return dataclasses.replace(estimate, covariance_m2=covariance)
 
+    def search_starts(self, used: MeasurementSet) -> tuple[FloatArray | None, str, str, LocalFrame]:
+        """The starts (world) ``estimate`` searches from, how they were found, a note, and the
+        local frame: :meth:`_starts`, the Doppler pair (``doppler_start``) and, on a straight
+        track, :func:`straight_track_starts` (module text, "Starts")."""
+        starts, start_method, start_note = self._starts(used)
+        frame = LocalFrame.fit(used.position_m, used.range_m)
+        if starts is None:
+            return None, start_method, start_note, frame
+        if self.doppler_start is True or (
+            self.doppler_start == "auto" and ranges_uninformative(used)
+        ):
+            last = used.take(used.frame == used.frame[-1])
+            starts = np.vstack([starts, doppler_frame_starts(last)])
+        line = straight_track_line(used.position_m, used.velocity_mps)
+        if line is not None:
+            starts = straight_track_starts(used, starts, line, frame.scale_m)
+        return starts, start_method, start_note, frame
+
     def _starts(self, data: MeasurementSet) -> tuple[FloatArray | None, str, str]:
-        """The CLS candidates, or the LLS-ToA solution when the CLS fails and fallback is on."""
+        """The CLS candidates, or the LLS-ToA solution when the CLS fails and fallback is on;
+        with an unknown emission time the pseudo-range closed form's (MATH §15)."""
         try:
-            candidates = solve_doppler_toa_cls(data).candidates_m
+            if "emission_time_s" in data.unknowns:
+                unknown_offset = "carrier_offset_hz" in data.unknowns
+                solution = solve_pseudorange_cls(data, carrier_offset_unknown=unknown_offset)
+                candidates = solution.candidates_m
+            else:
+                candidates = solve_doppler_toa_cls(data).candidates_m
             if np.all(np.isfinite(candidates)) and len(candidates):
                 return candidates, "cls", ""
             reason = "CLS returned no finite candidate"
         except (ValueError, np.linalg.LinAlgError) as error:
             reason = f"CLS failed ({error})"
-        if not self.fallback_lls:
+        if not self.fallback_lls or "emission_time_s" in data.unknowns:
             return None, "none", reason
         lls = solve_lls_toa(data.position_m, data.range_m, data.emitter_height_m)
         if not np.all(np.isfinite(lls.position_m)):

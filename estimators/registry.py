@@ -8,6 +8,13 @@ entry-point group ``emitterbench.estimators``::
     my-method = "my_package.module:MyEstimator"
 
 and anywhere an estimator name is accepted, ``package.module:Class`` works too.
+
+A ``package.module:Class`` path or an entry point is resolved by importing its module, which
+runs the module's code (that is why an experiment file is code, docs/writing-an-experiment.md).
+What it names is then used only if it is a class with the estimator interface
+(:func:`estimator_class_problems`, read without calling anything of it), and its options are
+checked against the constructor (:func:`scenarios.planners.registry.check_options`) before it
+is built: ``os:system`` or ``builtins:eval`` are refused, never called.
 """
 
 from __future__ import annotations
@@ -16,11 +23,14 @@ import importlib
 import importlib.util
 import inspect
 import warnings
+from collections.abc import Iterable
 from dataclasses import dataclass
 from importlib.metadata import entry_points
 from typing import Any
 
-from estimators.base import Estimator, protocol_problems
+from estimators.base import Estimator, capabilities_of, protocol_problems
+from scenarios.planners.registry import check_options, checked_class, import_target, method_takes
+from scenarios.types import MODALITIES
 
 ENTRY_POINT_GROUP = "emitterbench.estimators"
 
@@ -47,7 +57,7 @@ class RegistryEntry:
             found = False
         if not found:
             return (module,)
-        return tuple(getattr(_load(self.target), "required_modules", ()))
+        return tuple(inspect.getattr_static(_load(self.target), "required_modules", ()))
 
     def missing_modules(self) -> list[str]:
         """The required modules that are not installed."""
@@ -110,20 +120,33 @@ BUILTIN: dict[str, RegistryEntry] = {
 }
 
 
+ESTIMATOR_INTERFACE = (
+    "a class with the class attributes name and requires and estimate(data, *, rng=None) "
+    "(docs/writing-an-estimator.md)"
+)
+
+
 def _load(target: str) -> Any:
-    module_name, _, attribute = target.partition(":")
-    if not module_name or not attribute:
-        raise ValueError(f"estimator: {target!r} is not of the form 'package.module:Class'")
-    try:
-        module = importlib.import_module(module_name)
-    except Exception as error:  # a plug-in may fail in any way on import: report, don't crash
-        raise ValueError(
-            f"estimator: cannot import {module_name!r} ({type(error).__name__}: {error})"
-        ) from None
-    try:
-        return getattr(module, attribute)
-    except AttributeError:
-        raise ValueError(f"estimator: module {module_name!r} has no {attribute!r}") from None
+    """What ``module:attribute`` names (the module is imported), not yet checked."""
+    return import_target(target, "estimator")
+
+
+def estimator_class_problems(cls: type) -> list[str]:
+    """What a class lacks to be an estimator (empty: nothing), read without calling any of it.
+
+    The class level of :func:`estimators.base.protocol_problems`: ``name`` a non-empty string,
+    ``requires`` a set of modalities, ``estimate`` a method taking the keyword ``rng``.
+    """
+    problems = []
+    name = inspect.getattr_static(cls, "name", None)
+    if not isinstance(name, str) or not name:
+        problems.append("the class attribute name must be a non-empty string")
+    requires = inspect.getattr_static(cls, "requires", None)
+    if not isinstance(requires, frozenset | set) or not requires <= set(MODALITIES):
+        problems.append(
+            f"the class attribute requires must be a frozenset of {', '.join(MODALITIES)}"
+        )
+    return problems + method_takes(cls, "estimate", ("rng",))
 
 
 def plugin_entries() -> dict[str, RegistryEntry]:
@@ -148,9 +171,15 @@ def all_entries() -> dict[str, RegistryEntry]:
 
 
 def estimator_class(name: str) -> type:
-    """The class registered as ``name``, or the class at ``module:Class``."""
+    """The class registered as ``name``, or the class at ``module:Class``, checked.
+
+    Raises ``ValueError`` (one line, starting ``estimator:``) for an unknown name, a module
+    that does not import, or anything but a class with the estimator interface.
+    """
     if ":" in name:
-        return _load(name)
+        return checked_class(
+            name, _load(name), "estimator", estimator_class_problems, ESTIMATOR_INTERFACE
+        )
     entries = all_entries()
     if name not in entries:
         known = ", ".join(entries)
@@ -162,29 +191,45 @@ def estimator_class(name: str) -> type:
     missing = entry.missing_modules()
     if missing:
         raise ValueError(f"estimator: {name!r} needs {', '.join(missing)}, which is not installed")
-    return _load(entry.target)
+    return checked_class(
+        name, _load(entry.target), "estimator", estimator_class_problems, ESTIMATOR_INTERFACE
+    )
+
+
+def estimators_handling(unknowns: Iterable[str]) -> list[str]:
+    """The installed built-in estimators whose default options estimate every nuisance
+    parameter in ``unknowns`` (MATH §15), by name: what to suggest when one does not."""
+    wanted = set(unknowns)
+    able = []
+    for name, entry in BUILTIN.items():
+        if not entry.is_available():
+            continue
+        if wanted <= capabilities_of(make_estimator(name)).unknowns:
+            able.append(name)
+    return able
 
 
 def make_estimator(name: str, **options: Any) -> Estimator:
-    """Construct the estimator ``name`` with keyword ``options``; errors name the option."""
+    """Construct the estimator ``name`` with keyword ``options``; errors name the option.
+
+    The class is checked first (:func:`estimator_class`), then the options against its
+    constructor (:func:`scenarios.planners.registry.check_options`), and only then is it built.
+    """
     cls = estimator_class(name)
-    accepted = sorted(inspect.signature(cls).parameters)
-    unknown = sorted(set(options) - set(accepted))
-    if unknown:
-        raise ValueError(
-            f"{unknown[0]}: not an option of estimator {name!r}; "
-            f"its options: {', '.join(accepted) or 'none'}"
-        )
+    check_options(cls, options, f"estimator {name!r}")
     try:
         estimator = cls(**options)
-    except TypeError as error:
+    except ValueError:
+        raise  # the constructor's own check, naming the option
+    except Exception as error:  # a plug-in may fail in any way: one line, not a traceback
         raise ValueError(
-            f"options: estimator {name!r} rejected {sorted(options)} ({error})"
+            f"options: estimator {name!r} rejected {sorted(options)} "
+            f"({type(error).__name__}: {error})"
         ) from None
     problems = protocol_problems(estimator)
     if problems or not isinstance(estimator, Estimator):
         raise ValueError(
-            f"estimator {name!r}: {cls.__name__} lacks the Estimator interface: "
+            f"estimator: {name!r} built a {cls.__name__} that lacks the estimator interface: "
             f"{'; '.join(problems) or 'needs name, requires and estimate(data, *, rng=None)'} "
             "(docs/writing-an-estimator.md)"
         )

@@ -33,15 +33,26 @@ inequality relaxation below, not tight when λ* < 0).
   relaxation of ``‖y‖² ≤ r_z``, tight only when λ* ≥ 0 (MATH §11); with λ* < 0 it returns the
   unconstrained least-squares point, strictly inside the paraboloid, at a value below f*.
 
-Numerics (MATH §11, DEPENDENCIES §3). The rows come in the :class:`~estimators.cls_rows.LocalFrame`
-(order one). ``A = QR`` compresses the rows to the 3×3 triangle:
-``‖A r − b‖² = ‖R r − Qᵀb‖² + ‖b − QQᵀb‖²``, so the solver's problem does not depend on the
-number of samples. It is then written around the least-squares point ``r₀`` in whitened
-coordinates ``r = r₀ + L w`` (``L = V diag(ℓ_i)`` from the SVD of ``R``), which makes the
-objective ``O(1)`` in every direction; without it Clarabel stops with gaps near 1e−4 or with
-``InsufficientProgress`` (seen on weighted two-heading rows). The problem is built once per
-process per relaxation with ``cp.Parameter`` data (DPP) and re-solved; only status
-``optimal`` is a success.
+Where things are. :mod:`estimators.sdp_lift` compresses the rows (QR) to a problem whose size
+does not depend on the number of samples, whitens it around the least-squares point, and
+recovers the minimisers from an optimal lift, for many systems at once.
+:mod:`estimators.sdp_solvers` holds the conic program, its solvers (Clarabel called directly
+on a program whose pattern is built once per process, the default; SCS through a parametrised
+cvxpy problem) and the tolerance rungs each system climbs. This module holds the status
+discipline (:func:`solve_relaxations`: only ``optimal`` is a success, ``optimal_inaccurate``
+is retried at Clarabel's default tolerances, a success with non-finite numbers is
+``non_finite``) and the estimator :class:`SdpCls`.
+
+One trial or many. :meth:`SdpCls.estimate_columns` solves a whole
+:class:`~scenarios.types.MeasurementBatch`: the rows of every trial come from
+:mod:`estimators.cls_batch` (the same code as ``cls``'s batch), the QR compression, the
+whitening, the recovery and the mirror rule are vectorised over trials, and the only
+per-trial Python is the solver call of each trial and stage (with its own rung ladder).
+:meth:`SdpCls.estimate` is that same computation on a batch of one trial. Every per-trial
+number of it depends on that trial alone, to the last bit (:mod:`estimators.sdp_lift`; a
+chunk of one trial has its rows computed as two, since numpy sums a single column in another
+order), so a trial gets exactly the same solver inputs, solves, statuses, candidates and
+tie-break draws alone as in any batch.
 
 References
 ----------
@@ -51,516 +62,132 @@ IEEE TSP 56(5), 2008. Moré, "Generalizations of the trust region problem", 1993
 
 from __future__ import annotations
 
-import functools
-import math
-import threading
 import time
-import warnings
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar, Literal
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from estimators.base import Capabilities, Estimate, finalize_estimate, require_modalities
-from estimators.cls import cls_rows
-from estimators.cls_rows import LocalFrame
-from estimators.gtrs import constrained_cost
-from scenarios.types import MeasurementSet
-
-if TYPE_CHECKING:
-    import cvxpy as cp
-
-# cvxpy's status strings (cvxpy.OPTIMAL, ...), so that importing this module does not import
-# cvxpy: the registry reads ``SdpCls.required_modules`` before anything is imported.
-OPTIMAL, OPTIMAL_INACCURATE, USER_LIMIT = "optimal", "optimal_inaccurate", "user_limit"
-
-FloatArray = NDArray[np.float64]
-Relaxation = Literal["equality", "inequality"]
-Solver = Literal["CLARABEL", "SCS"]
-
-RELAXATIONS: tuple[str, ...] = ("equality", "inequality")
-SOLVERS: tuple[str, ...] = ("CLARABEL", "SCS")
-
-CLARABEL_TOLERANCES: tuple[tuple[float, float], ...] = ((1e-10, 1e-9), (1e-8, 1e-8))
-"""Clarabel's ``(tol_gap, tol_feas)`` rungs, tried in order while the status is
-``optimal_inaccurate`` or a solver error. The whitened problem is of order one and its value at
-least one, so the gap criterion is relative. On a few flat instances (about 1 in 4000 of the
-validation families) the primal residual grows again after the gap falls below 1e−9 and the
-tight rung ends ``AlmostSolved``; the second rung is Clarabel's default."""
-
-SCS_TOLERANCES: tuple[tuple[float, float], ...] = ((1e-9, 1e-9),)
-"""SCS's ``(eps_abs, eps_rel)``: one rung (SCS is a cross-check)."""
-
-CLARABEL_MAX_ITER = 200
-"""Clarabel's own default iteration limit."""
-
-SCS_MAX_ITERS = 100_000
-"""SCS's own default iteration limit."""
-
-RANK_RTOL = 1e-6
-"""An eigenvalue of the whitened lift below ``RANK_RTOL`` times the largest counts as zero."""
-
-NON_FINITE = "non_finite"
-"""Status of a solve whose solver claimed success but whose lift, points or value are not
-finite (NaN or infinity): a failure, never an estimate."""
-
-_SINGULAR_RTOL = 1e-12
+from estimators.base import (
+    Capabilities,
+    Estimate,
+    check_side_prior,
+    finalize_estimate,
+    require_modalities,
+)
+from estimators.batch import BatchEstimates, FinalizedColumns, check_rngs, finalize_columns
+from estimators.cls_batch import CHUNK_ELEMENTS, MAX_CHUNK, SharedGeometry
+from estimators.sdp_lift import (
+    RANK_RTOL,
+    ChunkRows,
+    FloatArray,
+    IntArray,
+    compress_rows,
+    compress_stacked,
+    object_column,
+    read_lifts,
+    whiten_batch,
+)
+from estimators.sdp_solvers import (
+    NON_FINITE,
+    OPTIMAL,
+    OPTIMAL_INACCURATE,
+    RELAXATIONS,
+    SOLVER_ERROR,
+    SOLVERS,
+    USER_LIMIT,
+    Relaxation,
+    SdpColumns,
+    SdpSolution,
+    Solver,
+    solve_ladders,
+    solver_attempts,
+)
+from scenarios.types import MeasurementBatch, MeasurementSet
 
 
-# --------------------------------------------------------------------------------------------
-# pure numpy: compression, whitening, recovery
-# --------------------------------------------------------------------------------------------
+def _python(value: Any) -> Any:
+    return value.item() if isinstance(value, np.generic) else value
 
 
-def compress_rows(A: ArrayLike, b: ArrayLike) -> tuple[FloatArray, FloatArray, float]:
-    """QR compression ``‖A r − b‖² = ‖R r − c‖² + ρ²`` (MATH §11).
+def _row(columns: dict[str, NDArray[Any]], index: int) -> dict[str, Any]:
+    """Entry ``index`` of every column, as Python values."""
+    return {key: _python(column[index]) for key, column in columns.items()}
 
-    Parameters
-    ----------
-    A : (m, 3)
-    b : (m,)
 
-    Returns
-    -------
-    R : (3, 3)
-        Upper triangle of ``A = QR`` (zero rows appended when ``m < 3``).
-    c : (3,)
-        ``Qᵀ b`` (zeros appended likewise).
-    residual_sq : float
-        ``ρ² = ‖b − Q Qᵀ b‖²``, the part of the cost no ``r`` can change.
+def _inaccurate_message(solver: str) -> str:
+    return f"solver {solver} returned optimal_inaccurate: the witness is not certified"
 
-    Raises
-    ------
-    ValueError
-        If ``A`` is not (m, 3) with m >= 1, ``b`` not (m,), or an entry is not finite.
+
+def solve_relaxations(
+    R: FloatArray,
+    c: FloatArray,
+    residual_sq: FloatArray,
+    *,
+    relaxation: Relaxation = "equality",
+    solver: Solver = "CLARABEL",
+    max_iter: int | None = None,
+    rank_rtol: float = RANK_RTOL,
+) -> SdpColumns:
+    """Solve the relaxation of MATH §11 for ``n`` compressed systems ``(R, c, ρ²)``
+    (:func:`estimators.sdp_lift.compress_stacked`; shapes (n, 3, 3), (n, 3), (n,), finite).
+
+    Each system climbs its own rungs of :func:`solver_attempts` while its status is
+    ``optimal_inaccurate`` or ``solver_error`` (:func:`estimators.sdp_solvers.solve_ladders`).
+    Never raises for a solver failure: the status and message say what happened. A status
+    ``optimal``/``optimal_inaccurate`` whose lift, recovered points, costs or value are not
+    finite becomes ``non_finite``.
     """
-    A = np.asarray(A, dtype=float)
-    b = np.asarray(b, dtype=float)
-    if A.ndim != 2 or A.shape[1] != 3 or A.shape[0] < 1:
-        raise ValueError(f"A: expected the stacked rows with shape (m, 3), m >= 1; got {A.shape}")
-    if b.shape != (A.shape[0],):
-        raise ValueError(f"b: expected shape ({A.shape[0]},) to match A, got {b.shape}")
-    if not (np.all(np.isfinite(A)) and np.all(np.isfinite(b))):
-        raise ValueError("A/b: the stacked rows contain NaN or infinity; check the measurements")
-    Q, R_top = np.linalg.qr(A, mode="reduced")
-    c_top = Q.T @ b
-    residual = b - Q @ c_top
-    R = np.zeros((3, 3))
-    c = np.zeros(3)
-    R[: len(R_top)] = R_top
-    c[: len(c_top)] = c_top
-    return R, c, float(residual @ residual)
-
-
-@dataclass(frozen=True, slots=True, eq=False)
-class WhitenedRelaxation:
-    """The relaxation's data in the solver's coordinates ``r = r₀ + L w`` (MATH §11).
-
-    Attributes
-    ----------
-    objective : (4, 4)
-        ``H_w / s``: ``tr(H_w W_w) = ‖A r − b‖²`` on rank-one lifts of ``(w, 1)``.
-    constraint : (4, 4)
-        ``C_w / κ``: ``tr(C_w W_w) = ‖y‖² − r_z`` on rank-one lifts.
-    origin : (3,)
-        ``r₀``, the minimum-norm least-squares point of ``R r = c``.
-    basis : (3, 3)
-        ``L``.
-    objective_scale : float
-        ``s``; the relaxation value is ``s · tr(objective · W_w)``.
-    constraint_scale : float
-        ``κ``.
-    """
-
-    objective: FloatArray
-    constraint: FloatArray
-    origin: FloatArray
-    basis: FloatArray
-    objective_scale: float
-    constraint_scale: float
-
-    def to_local(self, lift_w: ArrayLike) -> FloatArray:
-        """The lift of ``(r, 1)`` from that of ``(w, 1)``: ``T W_w Tᵀ``, ``T = [[L, r₀], [0, 1]]``."""
-        T = np.zeros((4, 4))
-        T[:3, :3] = self.basis
-        T[:3, 3] = self.origin
-        T[3, 3] = 1.0
-        return T @ np.asarray(lift_w, dtype=float) @ T.T
-
-    def points(self, w: ArrayLike) -> FloatArray:
-        """``r = r₀ + L w`` for rows ``w`` of shape (..., 3)."""
-        return self.origin + np.asarray(w, dtype=float) @ self.basis.T
-
-
-def paraboloid_residual(r: ArrayLike) -> FloatArray:
-    """``‖y‖² − r_z`` for points ``r`` (..., 3): zero on the constraint of MATH §5."""
-    r = np.asarray(r, dtype=float)
-    return np.sum(r[..., :2] ** 2, axis=-1) - r[..., 2]
-
-
-def whiten_relaxation(R: FloatArray, c: FloatArray, residual_sq: float) -> WhitenedRelaxation:
-    """Write the lifted problem of MATH §11 around ``r₀`` in whitened coordinates.
-
-    With ``R = U Σ Vᵀ``, ``r₀ = V Σ⁺ Uᵀ c`` and ``e = c − R r₀``, the cost is
-    ``‖R L w − e‖² + ρ²``. Choosing ``L = V diag(ℓ_i)``, ``ℓ_i = min(√s / σ_i, ℓ_max)``, makes
-    its quadratic part ``diag(min(1, σ_i² ℓ_max² / s))·s``: order one in every direction once
-    divided by ``s``. The scale is the least-squares residual ``s = ρ² + ‖e‖²``, a lower bound
-    on the optimum, so the solver sees ``f*/s ≥ 1`` and its relative gap criterion holds the
-    value to a relative accuracy; when that residual vanishes (three rows, noise-free data) it
-    is floored at 1e−9 times the excess cost of a cheap feasible point (the vertical projection
-    of ``r₀`` or a crossing of the weakest direction ``v₃`` with the paraboloid).
-    ``ℓ_max = 1 + ‖r₀‖`` bounds the weak directions by the frame's length scale.
-    """
-    U, sigma, Vt = np.linalg.svd(R)
-    V = Vt.T
-    keep = sigma > _SINGULAR_RTOL * max(sigma[0], np.finfo(float).tiny)
-    inverse = np.where(keep, 1.0 / np.where(keep, sigma, 1.0), 0.0)
-    origin = V @ (inverse * (U.T @ c))
-    misfit = c - R @ origin
-
-    def excess(r: FloatArray) -> float:
-        residual = R @ r - c
-        return float(residual @ residual - misfit @ misfit)
-
-    feasible = [np.array([origin[0], origin[1], origin[0] ** 2 + origin[1] ** 2])]
-    feasible += list(_line_paraboloid_points(origin, V[:, 2]))
-    upper = min(excess(point) for point in feasible)
-    floor = residual_sq + float(misfit @ misfit)
-    scale = max(floor, 1e-9 * max(upper, 0.0), 1e-300)
-
-    length_max = 1.0 + float(np.linalg.norm(origin))
-    with np.errstate(divide="ignore"):
-        ideal = np.sqrt(scale) / sigma
-    lengths = np.minimum(np.where(sigma > 0.0, ideal, np.inf), length_max)
-    basis = V * lengths
-
-    RL = R @ basis
-    H = np.zeros((4, 4))
-    H[:3, :3] = RL.T @ RL
-    H[:3, 3] = H[3, :3] = -(RL.T @ misfit)
-    H[3, 3] = residual_sq + float(misfit @ misfit)
-
-    L_y, L_z = basis[:2], basis[2]
-    y0 = origin[:2]
-    C = np.zeros((4, 4))
-    C[:3, :3] = L_y.T @ L_y
-    C[:3, 3] = C[3, :3] = L_y.T @ y0 - 0.5 * L_z
-    C[3, 3] = float(paraboloid_residual(origin))
-    constraint_scale = float(np.max(np.abs(C)))
-    return WhitenedRelaxation(
-        objective=H / scale,
-        constraint=C / constraint_scale,
-        origin=origin,
-        basis=basis,
-        objective_scale=scale,
-        constraint_scale=constraint_scale,
-    )
-
-
-def _line_paraboloid_points(point: FloatArray, direction: FloatArray) -> FloatArray:
-    """The (0 to 2) points ``point + t·direction`` with ``‖y‖² = r_z``, shape (n, 3)."""
-    a = float(direction[:2] @ direction[:2])
-    half_b = float(point[:2] @ direction[:2]) - 0.5 * float(direction[2])
-    c = float(paraboloid_residual(point))
-    roots = _quadratic_roots(a, half_b, c)
-    return point + np.outer(roots, direction)
-
-
-def _quadratic_roots(a: float, half_b: float, c: float) -> FloatArray:
-    """Real roots of ``a t² + 2 half_b t + c = 0`` (cancellation-free), ascending."""
-    if a <= 0.0:
-        return np.array([-c / (2.0 * half_b)]) if half_b != 0.0 else np.empty(0)
-    discriminant = half_b * half_b - a * c
-    if discriminant < 0.0:
-        return np.empty(0)
-    q = -(half_b + math.copysign(math.sqrt(discriminant), half_b))
-    if q == 0.0:
-        return np.array([0.0])
-    return np.sort(np.array([q / a, c / q]))
-
-
-def recover_minimisers(
-    lift_w: ArrayLike, whitened: WhitenedRelaxation, *, rank_rtol: float = RANK_RTOL
-) -> tuple[FloatArray, int]:
-    """The points of MATH §5 encoded in an optimal lift (MATH §11), and the lift's rank.
-
-    Rank one: the single point ``r = r₀ + L w`` read from the last column. Rank two (the hard
-    case): ``W_w = α ŵ₁ŵ₁ᵀ + (1 − α) ŵ₂ŵ₂ᵀ``, so the Schur complement ``W_ww − w wᵀ`` is
-    ``α(1−α) (w₁ − w₂)(w₁ − w₂)ᵀ``; both minimisers are the points of the line through ``w``
-    along its principal eigenvector that satisfy ``‖y‖² = r_z``. Since
-    ``tr(C W) = ‖y‖² − r_z + tr(Schur_yy) ≤ 0`` holds for both relaxations, that line always
-    crosses the paraboloid.
-
-    Returns ``(points (n, 3) in the local frame, rank)``.
-    """
-    W = np.asarray(lift_w, dtype=float)
-    W = 0.5 * (W + W.T)
-    eigenvalues = np.linalg.eigvalsh(W)
-    rank = int(np.sum(eigenvalues > rank_rtol * max(eigenvalues[-1], np.finfo(float).tiny)))
-    w = W[:3, 3] / W[3, 3]
-    centre = whitened.points(w)
-    if rank < 2:
-        return centre[None, :], max(rank, 1)
-    schur = W[:3, :3] / W[3, 3] - np.outer(w, w)
-    _, vectors = np.linalg.eigh(0.5 * (schur + schur.T))
-    direction = whitened.basis @ vectors[:, -1]
-    points = _line_paraboloid_points(centre, direction)
-    if len(points) == 0:
-        return centre[None, :], rank
-    return points, rank
-
-
-# --------------------------------------------------------------------------------------------
-# the convex problem: built once per process per relaxation, re-solved with new parameters
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(eq=False)
-class RelaxationProblem:
-    """A parametrised (DPP) cvxpy problem for one relaxation, shared within a process."""
-
-    relaxation: str
-    problem: cp.Problem
-    lift: cp.Variable
-    objective: cp.Parameter
-    constraint: cp.Parameter
-    lifted_constraint: cp.Constraint
-    lock: threading.Lock = field(default_factory=threading.Lock)
-
-
-@functools.cache
-def relaxation_problem(relaxation: Relaxation) -> RelaxationProblem:
-    """The lifted problem of MATH §11, built once per process and cached.
-
-    ``min tr(H W)`` s.t. ``W ⪰ 0``, ``W₄₄ = 1`` and ``tr(C W) = 0`` (``≤ 0`` for the
-    inequality relaxation), ``H`` and ``C`` being ``cp.Parameter``\\ s so re-solving only
-    refills the canonical data (DPP).
-    """
+    attempts = solver_attempts(solver, max_iter)
     if relaxation not in RELAXATIONS:
         raise ValueError(f"relaxation: expected one of {RELAXATIONS}, got {relaxation!r}")
-    import cvxpy as cp
-
-    lift = cp.Variable((4, 4), symmetric=True, name="W")
-    objective = cp.Parameter((4, 4), symmetric=True, name="H")
-    constraint = cp.Parameter((4, 4), symmetric=True, name="C")
-    lifted = cp.trace(constraint @ lift)
-    lifted_constraint = lifted == 0 if relaxation == "equality" else lifted <= 0
-    problem = cp.Problem(
-        cp.Minimize(cp.trace(objective @ lift)),
-        [lift >> 0, lift[3, 3] == 1, lifted_constraint],
-    )
-    assert problem.is_dpp(), "the lifted CLS must be DPP to be re-solved cheaply"
-    return RelaxationProblem(
-        relaxation=relaxation,
-        problem=problem,
-        lift=lift,
-        objective=objective,
-        constraint=constraint,
-        lifted_constraint=lifted_constraint,
-    )
-
-
-def solver_attempts(solver: Solver, max_iter: int | None) -> list[dict[str, Any]]:
-    """Keyword arguments for ``Problem.solve``, one dict per tolerance rung, tightest first.
-
-    Every setting is passed on every call: cvxpy keeps the solver object of the previous
-    solve and only overrides the settings it is given, so an omitted ``max_iter`` would
-    inherit the last call's. ``warm_start=False`` makes a result independent of the solves
-    before it (SCS would otherwise start from the previous solution).
-    """
-    if solver == "CLARABEL":
-        limit = CLARABEL_MAX_ITER if max_iter is None else int(max_iter)
-        return [
-            {
-                "warm_start": False,
-                "tol_gap_abs": gap,
-                "tol_gap_rel": gap,
-                "tol_feas": feasibility,
-                "max_iter": limit,
-            }
-            for gap, feasibility in CLARABEL_TOLERANCES
-        ]
-    if solver == "SCS":
-        limit = SCS_MAX_ITERS if max_iter is None else int(max_iter)
-        return [
-            {"warm_start": False, "eps_abs": eps_abs, "eps_rel": eps_rel, "max_iters": limit}
-            for eps_abs, eps_rel in SCS_TOLERANCES
-        ]
-    raise ValueError(f"solver: expected one of {SOLVERS}, got {solver!r}")
-
-
-@dataclass(frozen=True, slots=True, eq=False)
-class SdpSolution:
-    """The solved relaxation of MATH §11 for one stacked system ``A r = b`` (local frame).
-
-    Attributes
-    ----------
-    status : str
-        The cvxpy status (``optimal``, ``optimal_inaccurate``, ``user_limit``, ...),
-        ``solver_error``, or ``non_finite`` (:data:`NON_FINITE`).
-    message : str
-        Empty on ``optimal``; otherwise what happened and what to try.
-    value : float
-        Optimal value of the relaxation in the units of ``‖A r − b‖²`` (NaN on failure): a
-        lower bound on the CLS optimum, equal to it when the relaxation is tight.
-    points : (n, 3)
-        ``r`` of the recovered minimisers (two in the rank-two case); for a non-tight
-        inequality relaxation, the relaxation's own argmin (off the paraboloid).
-    costs : (n,)
-        ``‖A (x, y, x² + y²) − b‖²`` at each point's ``(x, y)``: the CLS objective of §5.
-    lift : (4, 4)
-        ``W`` in the local frame, over ``(x, y, r_z, 1)``; ``lift[[0,1,3]][:, [0,1,3]]`` is
-        MATH §11's ``Z``.
-    rank : int
-        Numerical rank of the lift (1: tight and unique; 2: the hard case).
-    multiplier : float
-        λ from the dual of the lifted constraint, in the convention of MATH §5.
-    iterations : int or None
-    solve_time_s : float
-        Solver time as reported by cvxpy (excludes the Python wrapper).
-    wall_time_s : float
-        Time of the whole call, compression to recovery.
-    rung : int
-        The tolerance rung that produced the status (1: the tightest; see
-        :data:`CLARABEL_TOLERANCES`).
-    """
-
-    status: str
-    message: str
-    value: float
-    points: FloatArray
-    costs: FloatArray
-    lift: FloatArray
-    rank: int
-    multiplier: float
-    iterations: int | None
-    solve_time_s: float
-    wall_time_s: float
-    rung: int = 1
-
-    @property
-    def optimal(self) -> bool:
-        return self.status == OPTIMAL
-
-    @property
-    def has_solution(self) -> bool:
-        """A lift was returned with status ``optimal`` or ``optimal_inaccurate``."""
-        return self.status in (OPTIMAL, OPTIMAL_INACCURATE) and len(self.points) > 0
-
-    @property
-    def z_matrix(self) -> FloatArray:
-        """MATH §11's ``Z = [[Y, y], [yᵀ, 1]]`` (local frame)."""
-        return self.lift[np.ix_([0, 1, 3], [0, 1, 3])]
-
-    @property
-    def lift_eigenvalues(self) -> FloatArray:
-        """Eigenvalues of the lift, descending (NaN on failure)."""
-        if not np.all(np.isfinite(self.lift)):
-            return np.full(4, np.nan)
-        return np.linalg.eigvalsh(self.lift)[::-1]
-
-    @property
-    def z_eigenvalues(self) -> FloatArray:
-        """Eigenvalues of ``Z``, descending: one nonzero when tight and unique."""
-        if not np.all(np.isfinite(self.lift)):
-            return np.full(3, np.nan)
-        return np.linalg.eigvalsh(self.z_matrix)[::-1]
-
-    @property
-    def relaxed_point(self) -> FloatArray:
-        """``r`` read from the lift's last column (local frame)."""
-        return self.lift[:3, 3]
-
-    @property
-    def tightness_gap(self) -> float:
-        """``(min cost of the points − value) / max(|value|, tiny)``: 0 when tight."""
-        if not self.has_solution:
-            return float("nan")
-        best = float(np.min(self.costs))
-        return (best - self.value) / max(abs(self.value), np.finfo(float).tiny)
-
-    def diagnostics(self) -> dict[str, Any]:
-        """JSON-ready scalars and short lists for an :class:`~estimators.base.Estimate`."""
-        return {
-            "status": self.status,
-            "relaxation_value": self.value,
-            "cost_at_points": float(np.min(self.costs)) if len(self.costs) else float("nan"),
-            "tightness_gap": self.tightness_gap,
-            "rank": self.rank,
-            "hard_case": self.rank >= 2,
-            "multiplier": self.multiplier,
-            "z_eigenvalues": [float(v) for v in self.z_eigenvalues],
-            "lift_eigenvalues": [float(v) for v in self.lift_eigenvalues],
-            "constraint_residual": float(paraboloid_residual(self.relaxed_point))
-            if np.all(np.isfinite(self.lift))
-            else float("nan"),
-            "iterations": self.iterations,
-            "solve_time_s": self.solve_time_s,
-            "tolerance_rung": self.rung,
-        }
-
-
-@dataclass(frozen=True, slots=True, eq=False)
-class _SolveOutcome:
-    status: str
-    lift: FloatArray | None
-    dual: Any
-    iterations: int | None
-    solve_time_s: float
-    error: str = ""
-
-
-def _solve_built(
-    built: RelaxationProblem,
-    whitened: WhitenedRelaxation,
-    solver: Solver,
-    options: dict[str, Any],
-) -> _SolveOutcome:
-    """One solve of the shared problem with the whitened data; a solver error is an outcome."""
-    from cvxpy.error import SolverError
-
-    with built.lock:
-        built.objective.value = 0.5 * (whitened.objective + whitened.objective.T)
-        built.constraint.value = 0.5 * (whitened.constraint + whitened.constraint.T)
-        try:
-            with warnings.catch_warnings():
-                # reported through the status, not as a warning
-                warnings.filterwarnings("ignore", "Solution may be inaccurate", UserWarning)
-                built.problem.solve(solver=solver, verbose=False, **options)
-        except SolverError as error:
-            return _SolveOutcome("solver_error", None, None, None, float("nan"), str(error))
-        stats = built.problem.solver_stats
-        return _SolveOutcome(
-            status=str(built.problem.status),
-            lift=None if built.lift.value is None else np.array(built.lift.value, dtype=float),
-            dual=built.lifted_constraint.dual_value,
-            iterations=None if stats.num_iters is None else int(stats.num_iters),
-            solve_time_s=float("nan") if stats.solve_time is None else float(stats.solve_time),
+    n = len(R)
+    whitened = whiten_batch(R, c, residual_sq)
+    out = solve_ladders(whitened, relaxation, solver, attempts)
+    status, message = list(out.status), [""] * n
+    statuses = object_column(status)
+    solved = out.has_lift & ((statuses == OPTIMAL) | (statuses == OPTIMAL_INACCURATE))
+    finite_lift = solved & np.isfinite(out.lift).all(axis=(1, 2))
+    for i in np.flatnonzero(~finite_lift).tolist():
+        if status[i] == SOLVER_ERROR:
+            message[i] = (
+                f"solver {solver} failed ({out.error[i]}); try solver='SCS' or check the rows"
+            )
+        elif not solved[i]:
+            hint = " (raise max_iter)" if status[i] == USER_LIMIT else ""
+            message[i] = f"solver {solver} stopped with status {status[i]}{hint}"
+        else:
+            message[i] = f"solver {solver} reported {status[i]} but its lift is not finite"
+            status[i] = NON_FINITE
+    read = read_lifts(out.lift, whitened, R, c, residual_sq, finite_lift, rank_rtol=rank_rtol)
+    for i in np.flatnonzero(finite_lift & ~read.finite).tolist():
+        message[i] = (
+            f"solver {solver} reported {status[i]} but the recovered points or the value are "
+            "not finite"
         )
-
-
-def _failed_solution(
-    status: str,
-    message: str,
-    started: float,
-    *,
-    iterations: int | None = None,
-    rung: int = 1,
-) -> SdpSolution:
-    return SdpSolution(
+        status[i] = NON_FINITE
+    for i in np.flatnonzero(read.finite & (statuses == OPTIMAL_INACCURATE)).tolist():
+        message[i] = _inaccurate_message(solver)
+    # Lagrangian of the solver: tr(H W)/s + ν tr(C W)/κ  ⇔  ‖Ar − b‖² + ν (s/κ)(‖y‖² − r_z);
+    # MATH §5 writes λ (‖y‖² − r_z) with the same sign.
+    with np.errstate(all="ignore"):
+        multiplier = out.dual * whitened.objective_scale / whitened.constraint_scale
+    return SdpColumns(
         status=status,
         message=message,
-        value=float("nan"),
-        points=np.empty((0, 3)),
-        costs=np.empty(0),
-        lift=np.full((4, 4), np.nan),
-        rank=0,
-        multiplier=float("nan"),
-        iterations=iterations,
-        solve_time_s=float("nan"),
-        wall_time_s=time.perf_counter() - started,
-        rung=rung,
+        value=read.value,
+        points=read.points,
+        count=read.count,
+        costs=read.costs,
+        lift=read.lift,
+        rank=read.rank,
+        multiplier=np.where(read.finite, multiplier, np.nan),
+        iterations=out.iterations,
+        solve_time=out.solve_time,
+        rung=out.rung,
+        rungs_solve_time=out.rungs_solve_time,
     )
 
 
@@ -575,127 +202,58 @@ def solve_sdp_relaxation(
 ) -> SdpSolution:
     """Solve the SDP relaxation of MATH §11 for the stacked rows ``A r = b`` of MATH §5.
 
-    Parameters
-    ----------
-    A : (m, 3)
-        Rows in a frame scaled to order one (:class:`~estimators.cls_rows.LocalFrame`).
-    b : (m,)
-    relaxation : {"equality", "inequality"}
-        ``r_z = trace Y`` (the Shor relaxation, tight) or ``r_z ≥ trace Y`` (tight only when
-        λ* ≥ 0).
-    solver : {"CLARABEL", "SCS"}
-    max_iter : int or None
-        The solver's iteration limit (None: its default).
-    rank_rtol : float
-        Relative eigenvalue threshold for the rank of the whitened lift.
-
-    Returns
-    -------
-    SdpSolution
-        Never raises for a solver failure: the status and message say what happened.
-
-    Raises
-    ------
-    ValueError
-        Malformed ``A``/``b`` (shape, NaN) or an unknown ``relaxation``/``solver``.
+    ``A`` (m, 3) and ``b`` (m,) in a frame scaled to order one
+    (:class:`~estimators.cls_rows.LocalFrame`); ``relaxation`` ``equality`` (``r_z = trace
+    Y``, the Shor relaxation, tight) or ``inequality`` (``r_z ≥ trace Y``, tight only when
+    λ* ≥ 0); ``solver`` Clarabel (called directly) or SCS (through cvxpy); ``max_iter`` the
+    solver's iteration limit (None: its default); ``rank_rtol`` the relative eigenvalue
+    threshold for the rank of the whitened lift. :func:`solve_relaxations` for one system:
+    never raises for a solver failure. Raises ``ValueError`` for malformed ``A``/``b`` (shape,
+    NaN) or an unknown ``relaxation``/``solver``.
     """
     started = time.perf_counter()
     R, c, residual_sq = compress_rows(A, b)
-    attempts = solver_attempts(solver, max_iter)
-    built = relaxation_problem(relaxation)
-    whitened = whiten_relaxation(R, c, residual_sq)
-    rung = 0
-    for options in attempts:
-        rung += 1
-        outcome = _solve_built(built, whitened, solver, options)
-        if outcome.status not in (OPTIMAL_INACCURATE, "solver_error"):
-            break
-    status, iterations, solve_time = outcome.status, outcome.iterations, outcome.solve_time_s
-    if status == "solver_error":
-        return _failed_solution(
-            status,
-            f"solver {solver} failed ({outcome.error}); try solver='SCS' or check the rows",
-            started,
-            rung=rung,
-        )
-    lift_w = outcome.lift
-    if status not in (OPTIMAL, OPTIMAL_INACCURATE) or lift_w is None:
-        hint = " (raise max_iter)" if status == USER_LIMIT else ""
-        return _failed_solution(
-            status,
-            f"solver {solver} stopped with status {status}{hint}",
-            started,
-            iterations=iterations,
-            rung=rung,
-        )
-    if not np.all(np.isfinite(lift_w)):
-        return _failed_solution(
-            NON_FINITE,
-            f"solver {solver} reported {status} but its lift is not finite",
-            started,
-            iterations=iterations,
-            rung=rung,
-        )
-    dual = outcome.dual
-    points, rank = recover_minimisers(lift_w, whitened, rank_rtol=rank_rtol)
-    costs = constrained_cost(A, b, points[:, :2])
-    value = whitened.objective_scale * float(np.sum(whitened.objective * lift_w))
-    if not (np.all(np.isfinite(points)) and np.all(np.isfinite(costs)) and np.isfinite(value)):
-        return _failed_solution(
-            NON_FINITE,
-            f"solver {solver} reported {status} but the recovered points or the value are "
-            "not finite",
-            started,
-            iterations=iterations,
-            rung=rung,
-        )
-    # Lagrangian of the solver: tr(H W)/s + ν tr(C W)/κ  ⇔  ‖Ar − b‖² + ν (s/κ)(‖y‖² − r_z);
-    # MATH §5 writes λ (‖y‖² − r_z) with the same sign.
-    multiplier = (
-        float(np.asarray(dual).reshape(-1)[0])
-        * whitened.objective_scale
-        / whitened.constraint_scale
-        if dual is not None
-        else float("nan")
+    columns = solve_relaxations(
+        R[None],
+        c[None],
+        np.array([residual_sq]),
+        relaxation=relaxation,
+        solver=solver,
+        max_iter=max_iter,
+        rank_rtol=rank_rtol,
     )
-    message = ""
-    if status == OPTIMAL_INACCURATE:
-        message = f"solver {solver} returned optimal_inaccurate: the witness is not certified"
-    return SdpSolution(
-        status=status,
-        message=message,
-        value=value,
-        points=points,
-        costs=costs,
-        lift=whitened.to_local(lift_w),
-        rank=rank,
-        multiplier=multiplier,
-        iterations=iterations,
-        solve_time_s=solve_time,
-        wall_time_s=time.perf_counter() - started,
-        rung=rung,
-    )
+    return columns.solution(0, wall_time_s=time.perf_counter() - started)
 
 
 # --------------------------------------------------------------------------------------------
 # the estimator
 # --------------------------------------------------------------------------------------------
 
+RANK_TWO_NOTE = "rank-two lift: mirror pair recovered (MATH §5, §11)"
+LOOSE_NOTE = "inequality relaxation not tight (λ* < 0, MATH §11)"
+LOOSE_GAP = 1e-6
+"""A tightness gap above this flags a loose inequality relaxation in the message."""
+
 
 @dataclass(frozen=True, kw_only=True)
 class SdpCls:
     """The CLS of MATH §3-§6 solved through its SDP relaxation (MATH §11).
 
-    Same rows and two-stage weighting as ``cls`` (:func:`estimators.cls.cls_rows`): stage 1
-    weights from the data, stage 2 from the stage-1 SDP estimate. The returned
-    ``diagnostics`` carry the solver status, the relaxation value, the CLS cost of the
-    returned points (their difference is the tightness gap), the eigenvalues of ``Z`` and of
-    the full lift, the rank and λ from the dual, and ``stage_statuses`` (one solver status per
-    stage). Only status ``optimal`` is a success (``optimal_inaccurate`` too with
-    ``accept_inaccurate``, flagged in ``message``), after the tolerance rungs of
-    :func:`solver_attempts` (the documented retry); a solve that reports success with a
-    non-finite lift, point or value is a failure with status ``non_finite``. The built problem
-    is cached per process, so the estimator itself only stores options (and pickles).
+    Same rows and two-stage weighting as ``cls`` (:mod:`estimators.cls_batch`): stage 1
+    weights from the data, stage 2 from each trial's stage-1 SDP estimate (its first
+    recovered point). The returned ``diagnostics`` carry the solver status, the relaxation
+    value, the CLS cost of the returned points (their difference is the tightness gap), the
+    eigenvalues of ``Z`` and of the full lift, the rank and λ from the dual, ``stage_statuses``
+    (one solver status per stage) and ``estimate_solve_time_s`` (the solver's own time over
+    every solve of the estimate, stages and rungs). Only status ``optimal`` is a success
+    (``optimal_inaccurate`` too with ``accept_inaccurate``, flagged in ``message``), after the
+    tolerance rungs of :func:`solver_attempts` (the documented retry); a solve that reports
+    success with a non-finite lift, point or value is a failure with status ``non_finite``.
+    The program's fixed part is cached per process, so the estimator itself only stores
+    options (and pickles).
+
+    ``estimate_columns``/``estimate_batch`` solve a whole batch (module docstring); trial
+    ``i`` gets exactly what ``estimate(batch.trial(i), rng=rngs[i])`` returns.
 
     Parameters
     ----------
@@ -746,6 +304,11 @@ class SdpCls:
             raise ValueError(f"weighting: expected 'optimal' or 'none', got {self.weighting!r}")
         if self.frames not in ("all", "last"):
             raise ValueError(f"frames: expected 'all' or 'last', got {self.frames!r}")
+        check_side_prior(self.side_prior_m)
+        if not isinstance(self.accept_inaccurate, bool):
+            raise ValueError(
+                f"accept_inaccurate: expected true or false, got {self.accept_inaccurate!r}"
+            )
 
     def capabilities(self) -> Capabilities:
         """Like ``cls`` (unit-invariant when weighted), to the interior-point solver's accuracy."""
@@ -753,6 +316,7 @@ class SdpCls:
             modalities=self.requires,
             frames=self.frames,
             modules=self.required_modules,
+            batch=True,
             unit_invariant=self.weighting == "optimal",
             noise_free_tolerance_m=1e-5,
             tolerance_reason="the interior-point solver stops at a relative gap of about 1e-8",
@@ -760,66 +324,363 @@ class SdpCls:
 
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)
-        used = data.select_frames(self.frames)
-        frame = LocalFrame.fit(used.position_m, used.range_m)
-        rows = "weighted" if self.weighting == "optimal" else "per-sample"
-        stages = 2 if rows == "weighted" else 1
-        solution: SdpSolution | None = None
-        statuses: list[str] = []
-        for stage in range(stages):
-            weights_at = None if solution is None else solution.points[0, :2]
-            A, b = cls_rows(used, frame, rows, weights_at_local_xy=weights_at)
-            if not (np.all(np.isfinite(A)) and np.all(np.isfinite(b))):
-                return Estimate.failed(
-                    self.name,
-                    f"rows: the stage-{stage + 1} CLS system has NaN or infinite entries "
-                    "(degenerate geometry or weights); check speeds, ranges and noise levels",
-                    stage=stage + 1,
-                )
-            solution = solve_sdp_relaxation(
-                A, b, relaxation=self.relaxation, solver=self.solver, max_iter=self.max_iter
-            )
-            statuses.append(solution.status)
-            accepted = solution.optimal or (
-                self.accept_inaccurate and solution.status == OPTIMAL_INACCURATE
-            )
-            if not (accepted and solution.has_solution):
-                message = solution.message or (
-                    f"solver {self.solver} returned status {solution.status}, not accepted"
-                )
-                return Estimate.failed(
-                    self.name,
-                    f"stage {stage + 1}: {message}",
-                    **solution.diagnostics(),
-                    stage=stage + 1,
-                    stage_statuses=statuses,
-                )
-        assert solution is not None
-        notes = [solution.message] if solution.message else []
-        if solution.rank >= 2:
-            notes.append("rank-two lift: mirror pair recovered (MATH §5, §11)")
-        if self.relaxation == "inequality" and solution.tightness_gap > 1e-6:
-            notes.append("inequality relaxation not tight (λ* < 0, MATH §11)")
-        diagnostics = dict(
-            solution.diagnostics(),
-            relaxation=self.relaxation,
-            solver=self.solver,
-            stages=stages,
-            stage_statuses=statuses,
-            n_samples=used.n_samples,
+        assert data.doppler_hz is not None and data.toa_s is not None
+        batch = MeasurementBatch(
+            geometry=data, doppler_hz=data.doppler_hz[None], toa_s=data.toa_s[None], rss_dbm=None
         )
-        points = frame.to_world(solution.points[:, :2])
-        if not np.all(np.isfinite(points)):
-            return Estimate.failed(
-                self.name, "the recovered minimisers are not finite", **diagnostics
+        decided = _solve_batch(self, batch, [rng])
+        if decided.index.size == 0:
+            return decided.failures[0]
+        if decided.redone:
+            return decided.redone[0]
+        return decided.estimate(0, self.name, self.solver)
+
+    def estimate_batch(
+        self,
+        batch: MeasurementBatch,
+        *,
+        rngs: Sequence[np.random.Generator | None] | None = None,
+    ) -> list[Estimate]:
+        """``estimate`` of every trial (trial ``i`` with ``rngs[i]``), solved together; a
+        failed trial is its failed estimate, diagnostics included."""
+        batch = _checked_batch(self, batch)
+        if batch.n_trials == 0:
+            check_rngs(rngs, 0)
+            return []
+        decided = _solve_batch(self, batch, rngs)
+        estimates = [
+            decided.estimate(row, self.name, self.solver) for row in range(len(decided.index))
+        ]
+        out = dict(zip(decided.index.tolist(), estimates, strict=True))
+        out |= decided.redone | decided.failures
+        return [out[i] for i in range(batch.n_trials)]
+
+    def estimate_columns(
+        self,
+        batch: MeasurementBatch,
+        *,
+        rngs: Sequence[np.random.Generator | None] | None = None,
+    ) -> BatchEstimates:
+        """``estimate_batch`` as columns, without an object per trial (a failed trial keeps
+        its message, not its diagnostics)."""
+        batch = _checked_batch(self, batch)
+        if batch.n_trials == 0:
+            check_rngs(rngs, 0)
+            return BatchEstimates.from_estimates(self.name, [])
+        return _columns(self, _solve_batch(self, batch, rngs), batch.n_trials)
+
+
+def _checked_batch(estimator: SdpCls, batch: MeasurementBatch) -> MeasurementBatch:
+    if not isinstance(batch, MeasurementBatch):
+        raise TypeError(
+            f"batch: expected a scenarios.types.MeasurementBatch, got {type(batch).__name__}"
+        )
+    require_modalities(estimator, batch.trial(0) if batch.n_trials else batch.geometry)
+    return batch
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class _Solved:
+    """The trials of one chunk that passed every stage, in the local frame's world units."""
+
+    index: IntArray
+    world: FloatArray  # (k, 2, 2)
+    count: IntArray
+    costs: FloatArray  # (k, 2)
+    code: IntArray  # message code (_message)
+    diagnostics: dict[str, NDArray[Any]]
+
+    FIELDS: ClassVar[tuple[str, ...]] = ("index", "world", "count", "costs", "code")
+
+    @staticmethod
+    def join(parts: list[_Solved]) -> _Solved:
+        """The trials of every chunk, in order."""
+        if len(parts) == 1:
+            return parts[0]
+        empty = np.empty(0, dtype=np.int64)
+        if not parts:
+            return _Solved(empty, np.empty((0, 2, 2)), empty, np.empty((0, 2)), empty, {})
+        joined = (np.concatenate([getattr(p, name) for p in parts]) for name in _Solved.FIELDS)
+        keys = list(parts[0].diagnostics)
+        return _Solved(
+            *joined, {key: np.concatenate([p.diagnostics[key] for p in parts]) for key in keys}
+        )
+
+
+def _message(code: int, solver: str) -> str:
+    """The message of a success: bit 4 accepted ``optimal_inaccurate``, 2 rank two, 1 loose."""
+    notes = [_inaccurate_message(solver)] if code & 4 else []
+    notes += [RANK_TWO_NOTE] if code & 2 else []
+    notes += [LOOSE_NOTE] if code & 1 else []
+    return "; ".join(notes)
+
+
+def _solve_batch(
+    estimator: SdpCls,
+    batch: MeasurementBatch,
+    rngs: Sequence[np.random.Generator | None] | None,
+) -> _Decided:
+    """Every stage of every trial, chunk by chunk, then the mirror rule and the draws."""
+    n = batch.n_trials
+    generators = check_rngs(rngs, n)
+    shared = SharedGeometry.of(batch, estimator.frames)
+    assert batch.toa_s is not None and batch.doppler_hz is not None
+    ranges = shared.used.speed_of_light_mps * batch.toa_s[:, shared.columns]
+    doppler = batch.doppler_hz[:, shared.columns]
+    chunk = int(np.clip(CHUNK_ELEMENTS // max(shared.used.n_samples, 1), 256, MAX_CHUNK))
+    failures: dict[int, Estimate] = {}
+    solved = [
+        _solve_chunk(
+            estimator,
+            shared,
+            ranges[start : start + chunk],
+            doppler[start : start + chunk],
+            start,
+            failures,
+        )
+        for start in range(0, n, chunk)
+    ]
+    parts = [part for part in solved if part is not None]
+    return _decide(estimator, shared, parts, dict(sorted(failures.items())), generators)
+
+
+def _solve_chunk(
+    estimator: SdpCls,
+    shared: SharedGeometry,
+    ranges: FloatArray,
+    doppler: FloatArray,
+    start: int,
+    failures: dict[int, Estimate],
+) -> _Solved | None:
+    """Every stage of the trials ``start, start + 1, ...`` of ``ranges`` (m, K); failures go
+    to ``failures`` (by trial index), the trials that pass every stage are returned (None when
+    no trial does)."""
+    name, solver = estimator.name, estimator.solver
+    chunk = ChunkRows(shared, ranges, doppler)
+    m = chunk.m
+    rows = "weighted" if estimator.weighting == "optimal" else "per-sample"
+    stages = 2 if rows == "weighted" else 1
+    alive = np.ones(m, dtype=bool)
+    statuses: list[list[str]] = [[] for _ in range(m)]
+    spent = np.zeros(m)
+    weights_at = None
+    for stage in range(1, stages + 1):
+        system = chunk.systems(rows, weights_at)
+        finite = np.isfinite(system).all(axis=(1, 2))
+        for i in np.flatnonzero(alive & ~finite).tolist():
+            failures[start + i] = Estimate.failed(
+                name,
+                f"rows: the stage-{stage} CLS system has NaN or infinite entries "
+                "(degenerate geometry or weights); check speeds, ranges and noise levels",
+                stage=stage,
             )
-        return finalize_estimate(
-            self.name,
-            points,
-            solution.costs,
-            used,
+        alive &= finite
+        index = np.flatnonzero(alive)
+        if index.size == 0:
+            return None
+        solved = solve_relaxations(
+            *compress_stacked(system[index]),
+            relaxation=estimator.relaxation,
+            solver=solver,
+            max_iter=estimator.max_iter,
+        )
+        spent[index] += np.where(np.isfinite(solved.rungs_solve_time), solved.rungs_solve_time, 0)
+        for i, status in zip(index.tolist(), solved.status, strict=True):
+            statuses[i].append(status)
+        accepted = solved.accepted(estimator.accept_inaccurate)
+        if stage == stages or not accepted.all():
+            diagnostics = solved.diagnostic_columns()
+        for j in np.flatnonzero(~accepted).tolist():
+            i = int(index[j])
+            message = solved.message[j] or (
+                f"solver {solver} returned status {solved.status[j]}, not accepted"
+            )
+            failures[start + i] = Estimate.failed(
+                name,
+                f"stage {stage}: {message}",
+                **_row(diagnostics, j),
+                stage=stage,
+                stage_statuses=list(statuses[i]),
+                estimate_solve_time_s=float(spent[i]),
+            )
+        alive[index[~accepted]] = False
+        if stage < stages:  # the weights of stage 2 at each trial's first stage-1 point
+            x, y = np.full(m, np.nan), np.full(m, np.nan)
+            x[index], y[index] = solved.points[:, 0, 0], solved.points[:, 0, 1]
+            weights_at = (x, y)
+
+    # the trials that passed: world candidates, message, diagnostics
+    final = index[accepted]
+    if final.size == 0:
+        return None
+    every = final.size == index.size
+    if not every:
+        diagnostics = {key: column[accepted] for key, column in diagnostics.items()}
+    count, points, costs = (
+        (solved.count, solved.points, solved.costs)
+        if every
+        else (solved.count[accepted], solved.points[accepted], solved.costs[accepted])
+    )
+    world = points[:, :, :2] * chunk.scale[final, None, None] + shared.origin
+    valid = np.arange(2) < count[:, None]
+    good = (np.isfinite(world).all(axis=2) | ~valid).all(axis=1)
+    rank_two = diagnostics["rank"] >= 2
+    loose = np.zeros_like(rank_two)
+    if estimator.relaxation == "inequality":
+        loose = diagnostics["tightness_gap"] > LOOSE_GAP
+    inaccurate = diagnostics["status"] == OPTIMAL_INACCURATE
+    diagnostics |= {
+        "relaxation": object_column([estimator.relaxation] * final.size),
+        "solver": object_column([solver] * final.size),
+        "stages": np.full(final.size, stages, dtype=np.int64),
+        "stage_statuses": object_column([list(statuses[i]) for i in final.tolist()]),
+        "estimate_solve_time_s": spent[final],
+        "n_samples": np.full(final.size, shared.used.n_samples, dtype=np.int64),
+    }
+    for j in np.flatnonzero(~good).tolist():
+        failures[start + int(final[j])] = Estimate.failed(
+            name, "the recovered minimisers are not finite", **_row(diagnostics, j)
+        )
+    code = (4 * inaccurate + 2 * rank_two + loose).astype(np.int64)
+    if not good.all():
+        world, count, costs, code, final = (
+            world[good],
+            count[good],
+            costs[good],
+            code[good],
+            final[good],
+        )
+        diagnostics = {key: column[good] for key, column in diagnostics.items()}
+    return _Solved(start + final, world, count, costs, code, diagnostics)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class _Decided:
+    """Every trial's outcome. The trials that passed are rows of the arrays (trial ``index``),
+    with their kept candidates in the mirror rule's order and the one chosen; ``redone`` holds
+    those finalized one at a time and ``failures`` the failed ones, by trial."""
+
+    index: IntArray
+    candidates: FloatArray  # (k, width, 2)
+    n_kept: IntArray
+    chosen: IntArray
+    ambiguous: NDArray[np.bool_]
+    code: IntArray
+    diagnostics: dict[str, NDArray[Any]]
+    redone: dict[int, Estimate]
+    failures: dict[int, Estimate]
+
+    def estimate(self, row: int, name: str, solver: str) -> Estimate:
+        """The estimate of row ``row``, as :meth:`BatchEstimates.estimate` builds it."""
+        return Estimate(
+            estimator=name,
+            position_m=self.candidates[row, self.chosen[row]],
+            candidates_m=self.candidates[row, : self.n_kept[row]],
+            ambiguous=bool(self.ambiguous[row]),
+            success=True,
+            message=_message(int(self.code[row]), solver),
+            diagnostics=_row(self.diagnostics, row),
+        )
+
+
+def _decide(
+    estimator: SdpCls,
+    shared: SharedGeometry,
+    parts: list[_Solved],
+    failures: dict[int, Estimate],
+    generators: list[np.random.Generator | None],
+) -> _Decided:
+    """The mirror rule of :func:`~estimators.base.finalize_estimate` for every trial that
+    passed (:func:`~estimators.batch.finalize_columns`) and the tie-break draws in trial
+    order; a trial whose choice is within rounding of a threshold is finalized by
+    ``finalize_estimate`` itself, with its generator, when its turn comes."""
+    solved = _Solved.join(parts)
+    index, world, count, costs, code = (getattr(solved, name) for name in _Solved.FIELDS)
+    found, keys = dict(solved.diagnostics), list(solved.diagnostics)
+    if index.size:
+        with np.errstate(all="ignore"):
+            final = finalize_columns(
+                world,
+                count,
+                costs,
+                shared.mean_xy,
+                shared.line,
+                side_prior_m=estimator.side_prior_m,
+            )
+    else:  # no trial passed: every one is in failures
+        none = np.zeros(0, dtype=bool)
+        final = FinalizedColumns(np.empty((0, 1, 2)), count, count, none, none, none)
+    chosen = final.chosen.copy()
+    take = np.flatnonzero(final.uncertain | final.draw).tolist()
+    redone = {}
+    for j in take:  # rows are in trial order
+        rng = generators[int(index[j])]
+        if not final.uncertain[j]:
+            if rng is not None:
+                chosen[j] = rng.integers(final.n_candidates[j])
+            continue
+        k = int(count[j])
+        redone[int(index[j])] = finalize_estimate(
+            estimator.name,
+            world[j, :k],
+            costs[j, :k],
+            shared.used,
             rng=rng,
-            side_prior_m=self.side_prior_m,
-            message="; ".join(notes),
-            diagnostics=diagnostics,
+            side_prior_m=estimator.side_prior_m,
+            message=_message(int(code[j]), estimator.solver),
+            diagnostics=_row(found, j),
         )
+    if keys:
+        found["straight_track"] = np.full(len(index), shared.line is not None)
+    return _Decided(
+        index=index,
+        candidates=final.candidates,
+        n_kept=final.n_candidates,
+        chosen=chosen,
+        ambiguous=final.ambiguous,
+        code=code,
+        diagnostics=found,
+        redone=redone,
+        failures=failures,
+    )
+
+
+def _columns(estimator: SdpCls, decided: _Decided, n: int) -> BatchEstimates:
+    """The estimates of ``n`` trials as :class:`BatchEstimates` (a failed trial keeps its
+    message, not its diagnostics)."""
+    index = decided.index
+    width = max(decided.candidates.shape[1], 1)
+    candidates = np.full((n, width, 2), np.nan)
+    candidates[index, : decided.candidates.shape[1]] = decided.candidates
+    n_kept = np.zeros(n, dtype=np.int64)
+    n_kept[index] = decided.n_kept
+    position = np.full((n, 2), np.nan)
+    position[index] = decided.candidates[np.arange(len(index)), decided.chosen]
+    ambiguous = np.zeros(n, dtype=bool)
+    ambiguous[index] = decided.ambiguous
+    success = np.zeros(n, dtype=bool)
+    success[index] = True
+    messages = [_message(code, estimator.solver) for code in range(8)]
+    message_code = np.zeros(n, dtype=np.int64)
+    message_code[index] = decided.code
+    for trial, failure in decided.failures.items():
+        if failure.message not in messages:
+            messages.append(failure.message)
+        message_code[trial] = messages.index(failure.message)
+    diagnostics: dict[str, NDArray[Any]] = {}
+    for key, column in decided.diagnostics.items():
+        full = np.empty(n, dtype=object) if column.dtype == object else np.zeros(n, column.dtype)
+        full[index] = column
+        diagnostics[key] = full
+    columns = BatchEstimates(
+        estimator=estimator.name,
+        position_m=position,
+        candidates_m=candidates,
+        n_candidates=n_kept,
+        ambiguous=ambiguous,
+        success=success,
+        message_code=message_code,
+        messages=tuple(messages),
+        diagnostics=diagnostics,
+    )
+    return columns.with_trials(list(decided.redone), list(decided.redone.values()))

@@ -19,10 +19,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from estimators.convergence import (
-    DECREMENT_TOL,
-    HALVINGS,
-    NEWTON_ITERATIONS,
-    NEWTON_RTOL,
     EstimationFailure,
     SolverReport,
     convergence_report,
@@ -35,6 +31,7 @@ from estimators.smoother_graph import (
     chain_fit,
     graph_part,
     marginal_covariance,
+    newton_descent,
     values_of,
 )
 from estimators.smoother_hypotheses import SmootherHypothesis
@@ -214,9 +211,9 @@ def newton_polish(
     *,
     random_walk: bool,
 ) -> tuple[FloatArray, int, bool]:
-    """Newton's method on the whole graph (:attr:`~estimators.smoother_graph.ChainFit.step_m`, halved while the cost
-    rises) until the decrement is negligible. Returns ``(estimates, iterations, stalled)``."""
-    estimates = np.array(estimates_m, dtype=float)
+    """Newton's method on the whole graph (:func:`~estimators.smoother_graph.newton_descent`,
+    evaluated exactly) until the decrement is negligible. Returns ``(estimates, iterations,
+    stalled)``."""
     fit = partial(
         chain_fit,
         frames,
@@ -225,24 +222,8 @@ def newton_polish(
         prior_mean_m=prior_mean_m,
         prior_sigma_m=prior_sigma_m,
     )
-    fit_now = fit(estimates)
-    iterations = 0
-    while iterations < NEWTON_ITERATIONS and fit_now.decrement > NEWTON_RTOL * DECREMENT_TOL:
-        iterations += 1
-        step = fit_now.step_m
-        for _ in range(HALVINGS):
-            trial = estimates + step
-            try:
-                trial_fit = fit(trial)
-            except EstimationFailure:
-                trial_fit = None
-            if trial_fit is not None and trial_fit.chi2 <= fit_now.chi2:
-                break
-            step = 0.5 * step
-        else:
-            return estimates, iterations, True
-        estimates, fit_now = trial, trial_fit
-    return estimates, iterations, False
+    estimates, _, iterations, stalled = newton_descent(fit, np.array(estimates_m, dtype=float))
+    return estimates, iterations, stalled
 
 
 def _escape_start(

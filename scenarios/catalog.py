@@ -4,6 +4,8 @@ The paper's scenario as printed has ``σ_τ² = 1e−6 s²``, i.e. ``c σ_τ = 3
 62 m away: ToA is useless there. ``paper-1m`` and ``paper-10m`` keep the geometry with
 ``c σ_τ = 1 m`` and ``10 m``. One straight frame can never tell the side of the track (MATH §7):
 ``turn`` (two headings) and ``orbit`` resolve it, and give the LLS baselines full rank (MATH §9).
+``beacon-pass``, ``beacon-pass-doppler`` and ``turn-noncooperative`` have a non-cooperative
+emitter, whose carrier offset and emission time are unknown (MATH §15).
 """
 
 from __future__ import annotations
@@ -109,6 +111,55 @@ def orbit_scenario() -> Scenario:
     )
 
 
+BEACON_CARRIER_HZ = 406.025e6
+"""A 406 MHz distress-beacon channel (MATH §15)."""
+
+
+def beacon_pass_scenario(*, toa: bool = True, name: str = "beacon-pass") -> Scenario:
+    """A lost distress beacon found by one UAV: a non-cooperative emitter (MATH §15).
+
+    The beacon, on the ground at (150, 120) m, transmits near 406.025 MHz with its oscillator
+    1 kHz off and on its own clock (an emission time of 12.3 ms against the receiver's). The
+    UAV flies at 100 m and 20 m/s, 200 m east and then 200 m north, 4 frames of K = 10 samples
+    0.5 s apart; Doppler σ_f = 0.5 Hz and, with ``toa``, c σ_τ = 10 m at 0 dB. Both the
+    carrier offset and the emission time are unknown to the receiver; without ``toa`` only the
+    offset matters (Doppler alone). Samples are taken as from a continuous carrier: a real
+    406 MHz beacon sends a 0.5 s burst every 50 s, which a pass of 20 s would see once.
+    """
+    return Scenario(
+        name=name,
+        emitter_m=[150.0, 120.0],
+        flight=FlightPlan(
+            start_position_m=[0.0, 0.0, 100.0],
+            frame_velocities_mps=heading_velocities_mps(20.0, [0.0, 0.0, 90.0, 90.0]),
+            samples_per_frame=10,
+            sample_interval_s=0.5,
+        ),
+        carrier_hz=BEACON_CARRIER_HZ,
+        noise=NoiseSigmas(doppler_hz=0.5, toa_s=10.0 / 299_792_458.0 if toa else None),
+        modalities=("doppler", "toa") if toa else ("doppler",),
+        carrier_offset_hz=1000.0,
+        emission_time_s=12.3e-3,
+        unknowns=("carrier_offset_hz", "emission_time_s"),
+        description=(
+            "a 406 MHz beacon 1 kHz off its carrier, on its own clock; UAV at 100 m, 20 m/s, "
+            + ("Doppler + ToA (c*sigma_tau = 10 m)" if toa else "Doppler only")
+        ),
+    )
+
+
+def noncooperative_turn_scenario() -> Scenario:
+    """``turn`` with a non-cooperative emitter: the carrier 800 Hz off and an emission time of
+    0.3 ms, both unknown (MATH §15)."""
+    return turn_scenario().replace(
+        name="turn-noncooperative",
+        carrier_offset_hz=800.0,
+        emission_time_s=3e-4,
+        unknowns=("carrier_offset_hz", "emission_time_s"),
+        description="turn with the carrier 800 Hz off and the emission time unknown",
+    )
+
+
 @dataclass(frozen=True)
 class CatalogEntry:
     name: str
@@ -137,6 +188,21 @@ CATALOG: dict[str, CatalogEntry] = {
             "paper-1m-turn", paper_turn_scenario, "paper-1m, 10 frames, turning north after frame 3"
         ),
         CatalogEntry("orbit", orbit_scenario, "a 12-frame polygonal orbit around the emitter"),
+        CatalogEntry(
+            "beacon-pass",
+            beacon_pass_scenario,
+            "a 406 MHz beacon, carrier offset and emission time unknown, Doppler + ToA",
+        ),
+        CatalogEntry(
+            "beacon-pass-doppler",
+            lambda: beacon_pass_scenario(toa=False, name="beacon-pass-doppler"),
+            "the beacon pass from Doppler alone, carrier offset unknown",
+        ),
+        CatalogEntry(
+            "turn-noncooperative",
+            noncooperative_turn_scenario,
+            "turn with the carrier offset and emission time unknown",
+        ),
     )
 }
 

@@ -4,6 +4,10 @@ Every check takes a value and its ``path``, the key a reader would fix (``noise.
 ``samples[2].toa_s``, ``sweep.values[1]``, ``trials``), and returns the value converted, or
 raises a ``ValueError`` whose message starts with the path and says what is expected.
 
+Arrays: :func:`frozen_array` (a read-only copy of the right shape, every entry finite) and
+:func:`check_magnitude` (every entry within a limit); their messages name the entry
+(``position_m[3]``, ``toa_s[2][5]``, :func:`entry_path`).
+
 Two kinds of number: :func:`finite` and :func:`positive_finite` take whatever ``float()``
 takes (the data types, built in Python); :func:`number` takes only a real number as a file
 writes it, not a boolean and not a string (measurement and experiment files).
@@ -20,9 +24,14 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 REAL_TYPES = (int, float, np.integer, np.floating)
 """The types :func:`number` accepts (``bool`` excepted)."""
+
+FRAME_LIMIT = 2**31
+"""Frame indices are whole numbers in ``[0, FRAME_LIMIT)``: they fit a 32-bit signed integer,
+whatever stores them (numpy, SQLite, a CSV reader), and no flight has two billion frames."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -50,6 +59,40 @@ def positive_finite(value: float, name: str) -> float:
     if not math.isfinite(number) or number <= 0.0:
         raise ValueError(f"{name}: must be finite and > 0, got {value!r}")
     return number
+
+
+def bounded(value: float, name: str, low: float, high: float, unit: str, fix: str) -> float:
+    """Return ``value`` as a float if it is finite and in ``[low, high]``, else raise naming
+    ``name``; ``fix`` ends the message (what to check or change)."""
+    number = finite(value, name)
+    if not low <= number <= high:
+        raise ValueError(f"{name}: {number:g} {unit} is outside [{low:g}, {high:g}] {unit}; {fix}")
+    return number
+
+
+def frame_index(value: Any, path: str) -> int:
+    """A frame index: a whole number in ``[0, FRAME_LIMIT)`` as an int (``3.0`` is accepted)."""
+    whole_value = (
+        not isinstance(value, bool)
+        and isinstance(value, REAL_TYPES)
+        and (not isinstance(value, float | np.floating) or math.isfinite(value))
+        and value == int(value)
+    )
+    if not whole_value or value < 0:
+        raise ValueError(f"{path}: expected a whole number >= 0, got {_short(value)}")
+    if int(value) >= FRAME_LIMIT:
+        raise ValueError(
+            f"{path}: frame {_short(value)} is too large; number the frames 0, 1, 2, ... "
+            f"(below 2^31 = {FRAME_LIMIT})"
+        )
+    return int(value)
+
+
+def _short(value: Any) -> str:
+    """``repr(value)``, or its order of magnitude for an integer too long to print."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**20:
+        return f"an integer of {value.bit_length()} bits (about 2^{value.bit_length() - 1})"
+    return repr(value)
 
 
 def number(value: Any, path: str, *, describe: Callable[[Any], str] = repr, fix: str = "") -> float:
@@ -97,6 +140,83 @@ def number_list(value: Any, path: str) -> Sequence[Any]:
     if isinstance(value, str | bytes) or not isinstance(value, Sequence | np.ndarray):
         raise ValueError(f"{path}: expected a list of numbers, got {value!r}")
     return value
+
+
+# --------------------------------------------------------------------------------------------
+# arrays
+# --------------------------------------------------------------------------------------------
+
+
+def frozen_array(
+    value: ArrayLike, name: str, shape: tuple[int | None, ...], *, dtype: type = np.float64
+) -> NDArray[Any]:
+    """Return ``value`` as a read-only array of the given shape, or raise ``ValueError``.
+
+    ``None`` in ``shape`` accepts any length. The message names ``name``, the shape expected
+    and the one received, and the first non-finite entry.
+    """
+    try:
+        array = np.array(value, dtype=dtype, copy=True)
+    except (TypeError, ValueError, OverflowError) as error:
+        raise ValueError(
+            f"{name}: expected numbers of shape {_shape_text(shape)} ({error})"
+        ) from None
+    if array.ndim != len(shape) or any(
+        want is not None and got != want for got, want in zip(array.shape, shape, strict=True)
+    ):
+        raise ValueError(
+            f"{name}: expected shape {_shape_text(shape)}, got {array.shape}; "
+            "give one value per sample in the same order as the other per-sample fields"
+        )
+    if array.dtype.kind == "f" and not np.all(np.isfinite(array)):
+        index = np.unravel_index(np.argmin(np.isfinite(array)), array.shape)
+        raise ValueError(
+            f"{name}: entry {tuple(int(i) for i in index)} is {array[index]}; "
+            "every value must be finite (drop the sample or mark the modality absent)"
+        )
+    array.flags.writeable = False
+    return array
+
+
+def _shape_text(shape: tuple[int | None, ...]) -> str:
+    names = iter("NMLK")
+    return "(" + ", ".join(str(s) if s is not None else next(names) for s in shape) + ")"
+
+
+def entry_path(name: str, index: Sequence[int]) -> str:
+    """``name[i][j]``: the path of an entry of an array, as a message's first word."""
+    return name + "".join(f"[{int(i)}]" for i in index)
+
+
+def vector_text(vector: ArrayLike) -> str:
+    """``(1, 2.5, 0)``: a short vector for a message."""
+    return "(" + ", ".join(f"{float(v):.6g}" for v in np.asarray(vector).ravel()) + ")"
+
+
+def check_magnitude(
+    array: NDArray[Any],
+    name: str,
+    limit: float,
+    unit: str,
+    fix: str,
+    *,
+    axes: str | None = None,
+) -> None:
+    """Raise ``ValueError`` naming the first entry of ``array`` with ``|value| > limit``.
+
+    ``axes`` names the last axis's components (``"xyz"``): the message then names the sample
+    (``position_m[3]``) and the component; otherwise every index is in the name.
+    """
+    over = np.abs(array) > limit
+    if not over.any():
+        return
+    index = tuple(int(i) for i in np.argwhere(over)[0])
+    value = float(array[index])
+    if axes is None:
+        what, where = f"{value:g} {unit}", index
+    else:
+        what, where = f"{axes[index[-1]]} = {value:g} {unit}", index[:-1]
+    raise ValueError(f"{entry_path(name, where)}: {what} is beyond ±{limit:g} {unit}; {fix}")
 
 
 # --------------------------------------------------------------------------------------------

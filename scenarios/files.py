@@ -8,6 +8,7 @@ JSON, schema ``emitterbench.measurements/1``::
      "rss_model": {"reference_power_dbm": 0.0, "reference_distance_m": 1.0,
                    "path_loss_exponent": 2.0},
      "truth": {"emitter_m": [35.0, 15.0]},
+     "unknowns": [],
      "samples": [{"frame": 0, "time_s": 0.0, "position_m": [0, 0, 50],
                   "velocity_mps": [10, 0, 0], "doppler_hz": 5.57, "toa_s": 2.05e-7,
                   "rss_dbm": -30.7}]}
@@ -16,7 +17,9 @@ JSON, schema ``emitterbench.measurements/1``::
 ``toa_s`` the one-way time of arrival (MATH §1); ``rss_dbm`` the received power of the
 log-distance model of ``rss_model`` (MATH §1). ``speed_of_light_mps`` defaults to 299 792 458,
 ``emitter_height_m`` to 0 (MATH §0); ``noise`` holds the σ's the data were drawn with (MATH §2),
-``truth`` the true emitter when known. A modality is present when every sample has it; a
+``truth`` the true emitter when known, and beside it the true ``carrier_offset_hz`` and
+``emission_time_s`` of a non-cooperative emitter; ``unknowns`` lists which of those two the
+receiver does not know (MATH §15; absent or empty: both known). A modality is present when every sample has it; a
 modality on some samples only, an unknown key (a typo), a non-finite number, a wrong length or
 type, an unknown schema, no samples, a negative σ or frames out of order are errors.
 
@@ -30,6 +33,12 @@ Every error is a ``ValueError`` whose message starts with the field's path
 line, and says how to fix it. Value checks that :class:`~scenarios.types.MeasurementSet`
 already makes (σ > 0, RSS model, truth length) are left to it; this module adds the paths and
 the structural checks. Floats are written with ``repr`` precision, so a round trip is exact.
+
+The limits of :mod:`scenarios.limits` hold before the work they would cost: a file above
+32 MiB is refused before it is read, more than 100 000 samples or 10 000 frames before they
+are converted (each raised by an environment variable, ``EMITTERBENCH_MAX_SAMPLES``); JSON
+nests at most 32 levels and an integer has at most 4300 digits. Text is UTF-8, with or without
+a byte order mark (spreadsheet programs write one).
 """
 
 from __future__ import annotations
@@ -40,7 +49,6 @@ import io
 import json
 import math
 import os
-import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -49,18 +57,39 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from scenarios import fields
+from scenarios.limits import (
+    FRAMES,
+    SAMPLES,
+    LongInteger,
+    check_limit,
+    child_path,
+    clip,
+    configured_limit,
+    key_path,
+    load_json,
+    read_text,
+    write_text_atomically,
+)
+from scenarios.nuisance import parse_unknowns
 from scenarios.types import SPEED_OF_LIGHT_MPS, MeasurementSet, NoiseSigmas, RssModel
 
 SCHEMA = "emitterbench.measurements/1"
 """The ``schema`` value of the JSON files this module reads and writes."""
 
 _TOP_REQUIRED = ("schema", "carrier_hz", "samples")
-_TOP_OPTIONAL = ("speed_of_light_mps", "emitter_height_m", "noise", "rss_model", "truth")
+_TOP_OPTIONAL = (
+    "speed_of_light_mps",
+    "emitter_height_m",
+    "noise",
+    "rss_model",
+    "truth",
+    "unknowns",
+)
 _SAMPLE_REQUIRED = ("frame", "time_s", "position_m", "velocity_mps")
 _MEASUREMENT_FIELDS = ("doppler_hz", "toa_s", "rss_dbm")
 _NOISE_KEYS = ("doppler_hz", "toa_s", "rss_db")
 _RSS_MODEL_KEYS = ("reference_power_dbm", "reference_distance_m", "path_loss_exponent")
-_TRUTH_KEYS = ("emitter_m",)
+_TRUTH_OPTIONAL = ("carrier_offset_hz", "emission_time_s")
 
 CSV_COLUMNS = ("frame", "time_s", "x_m", "y_m", "z_m", "vx_mps", "vy_mps", "vz_mps")
 """The CSV columns every file must have."""
@@ -114,7 +143,7 @@ def read_measurements(
                 f"{given[0]}: only for CSV files; {path} is JSON and carries its own constants "
                 "(edit the file instead)"
             )
-        return measurements_from_json(_read_text(path), source=str(path))
+        return measurements_from_json(read_text(path), source=str(path))
     if suffix == ".csv":
         if carrier_hz is None:
             raise ValueError(
@@ -197,14 +226,7 @@ def read_measurements_with(
 
 def measurements_from_json(text: str, *, source: str = "json") -> MeasurementSet:
     """Parse JSON text of schema :data:`SCHEMA`; ``source`` names the text in syntax errors."""
-    try:
-        obj = json.loads(text, object_pairs_hook=_object_without_duplicate_keys)
-    except json.JSONDecodeError as error:
-        raise ValueError(
-            f"{source}: invalid JSON at line {error.lineno}, column {error.colno} "
-            f"({error.msg}); fix the syntax"
-        ) from None
-    return measurements_from_dict(obj)
+    return measurements_from_dict(load_json(text, source=source))
 
 
 def measurements_from_dict(obj: Any) -> MeasurementSet:
@@ -238,7 +260,8 @@ def measurements_from_dict(obj: Any) -> MeasurementSet:
         emitter_height_m=_number(obj.get("emitter_height_m", 0.0), "emitter_height_m"),
         noise=_noise_from_json(obj.get("noise")),
         rss_model=_rss_model_from_json(obj.get("rss_model")),
-        truth_emitter_m=_truth_from_json(obj.get("truth")),
+        **_truth_from_json(obj.get("truth")),
+        unknowns=parse_unknowns(obj.get("unknowns"), "unknowns"),
     )
 
 
@@ -260,6 +283,11 @@ def measurements_to_dict(data: MeasurementSet) -> dict[str, Any]:
         obj["rss_model"] = data.rss_model.as_dict()
     if data.truth_emitter_m is not None:
         obj["truth"] = {"emitter_m": data.truth_emitter_m.tolist()}
+        for name in _TRUTH_OPTIONAL:
+            if getattr(data, f"truth_{name}") is not None:
+                obj["truth"][name] = getattr(data, f"truth_{name}")
+    if data.unknowns:
+        obj["unknowns"] = list(data.unknowns)
     columns: dict[str, list[Any]] = {
         "frame": data.frame.tolist(),
         "time_s": data.time_s.tolist(),
@@ -302,7 +330,7 @@ def write_measurements(data: MeasurementSet, path: str | os.PathLike[str]) -> Pa
             "measurement files are written as JSON)"
         )
     text = measurements_to_json(data)
-    _write_text_atomically(text, path)
+    write_text_atomically(text, path)
     return path
 
 
@@ -332,7 +360,7 @@ def read_measurements_csv(
     truth_emitter_m : (2,) or None
         The true emitter, when known.
     """
-    text = _read_text(Path(path))
+    text = read_text(Path(path))
     return _measurement_set(
         _sample_columns_from_csv(text),
         carrier_hz=carrier_hz,
@@ -349,21 +377,13 @@ def read_measurements_csv(
 # --------------------------------------------------------------------------------------------
 
 
-def _object_without_duplicate_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-    obj: dict[str, Any] = {}
-    for key, value in pairs:
-        if key in obj:
-            raise ValueError(f"{key}: appears twice in one JSON object; keep only one")
-        obj[key] = value
-    return obj
-
-
 def _sample_columns_from_json(samples: Any) -> dict[str, Any]:
     """Per-sample fields as columns; every value checked with its path ``samples[i].name``."""
     if not isinstance(samples, list):
         raise ValueError(f"samples: expected an array of sample objects, got {_kind(samples)}")
     if not samples:
         raise ValueError("samples: empty; give at least one sample")
+    check_limit(len(samples), "samples", "samples", SAMPLES, "split the file")
     columns: dict[str, list[Any]] = {name: [] for name in _SAMPLE_REQUIRED}
     measured: dict[str, list[float]] = {name: [] for name in _MEASUREMENT_FIELDS}
     lacking: dict[str, list[int]] = {name: [] for name in _MEASUREMENT_FIELDS}
@@ -391,6 +411,7 @@ def _sample_columns_from_json(samples: Any) -> dict[str, Any]:
                 "a modality must be on every sample or on none"
             )
     _check_frame_order(columns["frame"], lambda i: f"samples[{i}].frame")
+    _check_frame_count(columns["frame"], "samples")
     result: dict[str, Any] = dict(columns)
     for name in _MEASUREMENT_FIELDS:
         result[name] = measured[name] or None
@@ -420,13 +441,18 @@ def _rss_model_from_json(value: Any) -> RssModel | None:
     return RssModel(**{key: _number(value[key], f"rss_model.{key}") for key in _RSS_MODEL_KEYS})
 
 
-def _truth_from_json(value: Any) -> list[float] | None:
+def _truth_from_json(value: Any) -> dict[str, Any]:
+    """``truth_emitter_m`` and the true nuisance values (MATH §15) of the ``truth`` object."""
     if value is None:
-        return None
+        return {"truth_emitter_m": None}
     if not isinstance(value, dict):
         raise ValueError(f'truth: expected an object {{"emitter_m": [x, y]}}, got {_kind(value)}')
-    _check_keys(value, "truth", required=_TRUTH_KEYS, optional=())
-    return _vector(value["emitter_m"], "truth.emitter_m", 2)
+    _check_keys(value, "truth", required=("emitter_m",), optional=_TRUTH_OPTIONAL)
+    truth: dict[str, Any] = {"truth_emitter_m": _vector(value["emitter_m"], "truth.emitter_m", 2)}
+    for name in _TRUTH_OPTIONAL:
+        if name in value:
+            truth[f"truth_{name}"] = _number(value[name], f"truth.{name}")
+    return truth
 
 
 # --------------------------------------------------------------------------------------------
@@ -436,18 +462,32 @@ def _truth_from_json(value: Any) -> list[float] | None:
 
 def _sample_columns_from_csv(text: str) -> dict[str, Any]:
     """The CSV table as columns; errors name the column and the file line."""
-    reader = csv.reader(io.StringIO(text))
+    reader = csv.reader(io.StringIO(text.removeprefix("\ufeff")))
     header: list[str] | None = None
     header_line = 0
     rows: list[tuple[int, list[str]]] = []
-    for row in reader:
-        cells = [cell.strip() for cell in row]
-        if not any(cells):
-            continue
-        if header is None:
-            header, header_line = cells, reader.line_num
-        else:
-            rows.append((reader.line_num, cells))
+    max_rows = configured_limit(SAMPLES)
+    start = 1  # the line the next row starts on
+    try:
+        for row in reader:
+            cells = [cell.strip() for cell in row]
+            if any("\n" in cell or "\r" in cell for cell in cells):
+                raise ValueError(
+                    f"samples (CSV line {start}): a quoted cell runs over several lines; "
+                    "close the quote (cells are numbers)"
+                )
+            start = reader.line_num + 1
+            if not any(cells):
+                continue
+            if header is None:
+                header, header_line = cells, reader.line_num
+            else:
+                rows.append((reader.line_num, cells))
+                if len(rows) > max_rows:
+                    check_limit(len(rows), "samples", "rows or more", SAMPLES, "split the file")
+    except csv.Error as error:
+        problem = _CSV_PROBLEMS.get(str(error).split(" (")[0], str(error))
+        raise ValueError(f"samples (CSV line {start}): {problem}") from None
     if header is None:
         raise ValueError(
             f"header: the CSV file is empty; give the header {','.join(CSV_COLUMNS)} "
@@ -457,7 +497,8 @@ def _sample_columns_from_csv(text: str) -> dict[str, Any]:
     for position, name in enumerate(header):
         if name not in allowed:
             raise ValueError(
-                f"{name or f'column {position + 1}'}: unknown CSV column (line {header_line})"
+                f"{key_path([name]) if name else f'column {position + 1}'}: unknown CSV column "
+                f"(line {header_line})"
                 f"{_suggestion(name, allowed)}; allowed columns: {', '.join(allowed)}"
             )
         if header.index(name) != position:
@@ -492,6 +533,7 @@ def _sample_columns_from_csv(text: str) -> dict[str, Any]:
         "velocity_mps": np.column_stack([values["vx_mps"], values["vy_mps"], values["vz_mps"]]),
     }
     _check_frame_order(columns["frame"], lambda i: f"frame (CSV line {lines[i]})")
+    _check_frame_count(columns["frame"], "frame")
     for name in CSV_MEASUREMENT_COLUMNS:
         column = values.get(name)
         if column is None or all(value is None for value in column):
@@ -508,6 +550,14 @@ def _sample_columns_from_csv(text: str) -> dict[str, Any]:
     return columns
 
 
+_CSV_PROBLEMS = {
+    "line contains NUL": "a NUL byte; save the file as plain UTF-8 text",
+    "field larger than field limit": (
+        f"a cell longer than {csv.field_size_limit():,} characters; cells are numbers"
+    ),
+}
+
+
 def _csv_number(cell: str, column: str, line: int, *, optional: bool) -> float | None:
     path = f"{column} (CSV line {line})"
     if not cell:
@@ -517,10 +567,10 @@ def _csv_number(cell: str, column: str, line: int, *, optional: bool) -> float |
     try:
         number = float(cell)
     except ValueError:
-        raise ValueError(f"{path}: {cell!r} is not a number") from None
+        raise ValueError(f"{path}: {clip(cell)!r} is not a number") from None
     if not math.isfinite(number):
         raise ValueError(
-            f"{path}: must be finite, got {cell!r}; drop the sample or the whole column"
+            f"{path}: must be finite, got {clip(cell)!r}; drop the sample or the whole column"
         )
     return number
 
@@ -539,8 +589,11 @@ def _measurement_set(
     noise: NoiseSigmas,
     rss_model: RssModel | None,
     truth_emitter_m: ArrayLike | None,
+    **nuisance: Any,
 ) -> MeasurementSet:
-    """Build the :class:`MeasurementSet`; it checks the values (σ's, RSS model, truth)."""
+    """Build the :class:`MeasurementSet`; it checks the values (σ's, RSS model, truth).
+
+    ``nuisance``: ``unknowns`` and the true offsets (MATH §15), as the JSON file gives them."""
     if not isinstance(noise, NoiseSigmas):
         raise ValueError(f"noise: expected NoiseSigmas, got {type(noise).__name__}")
     if rss_model is not None and not isinstance(rss_model, RssModel):
@@ -559,6 +612,7 @@ def _measurement_set(
         noise=noise,
         rss_model=rss_model,
         truth_emitter_m=truth_emitter_m,
+        **nuisance,
     )
 
 
@@ -567,16 +621,15 @@ def _check_keys(
 ) -> None:
     """Unknown keys (typos) and missing required keys are errors naming the key's path."""
     allowed = (*required, *optional)
-    prefix = f"{path}." if path else ""
     for key in obj:
         if key not in allowed:
             raise ValueError(
-                f"{prefix}{key}: unknown key{_suggestion(key, allowed)}; fix the name or "
-                f"remove it (allowed here: {', '.join(allowed)})"
+                f"{child_path(path, key)}: unknown key{_suggestion(key, allowed)}; fix the "
+                f"name or remove it (allowed here: {', '.join(allowed)})"
             )
     for key in required:
         if key not in obj:
-            raise ValueError(f"{prefix}{key}: missing; this field is required, add it")
+            raise ValueError(f"{child_path(path, key)}: missing; this field is required, add it")
 
 
 def _check_frame_order(frames: Sequence[int], name_of: Any) -> None:
@@ -589,17 +642,24 @@ def _check_frame_order(frames: Sequence[int], name_of: Any) -> None:
             )
 
 
+def _check_frame_count(frames: Sequence[int], path: str) -> None:
+    count = len(set(frames))
+    check_limit(count, path, "frames", FRAMES, "split the file into shorter flights")
+
+
 def _number(value: Any, path: str) -> float:
     """A finite JSON number (not a bool, not a string) as a float."""
+    if isinstance(value, LongInteger):
+        raise ValueError(f"{path}: {value!r} is too large for a float (above 1.8e308)")
     return fields.number(value, path, describe=_kind, fix="; replace it with a number")
 
 
 def _whole_number(value: Any, path: str) -> int:
-    """A frame index: a whole number >= 0 (an integral float is accepted)."""
+    """A frame index (:func:`scenarios.fields.frame_index`; an integral float is accepted)."""
+    if isinstance(value, LongInteger):
+        raise ValueError(f"{path}: {value!r} is too large; number the frames 0, 1, 2, ...")
     number = _number(value, path)
-    if number != int(number) or number < 0:
-        raise ValueError(f"{path}: expected a whole number >= 0, got {value!r}")
-    return int(number)
+    return fields.frame_index(value if isinstance(value, int) else number, path)
 
 
 def _vector(value: Any, path: str, length: int) -> list[float]:
@@ -616,7 +676,7 @@ def _kind(value: Any) -> str:
     if isinstance(value, bool):
         return f"{str(value).lower()} (a boolean)"
     if isinstance(value, str):
-        return f"the string {value!r}"
+        return f"the string {clip(value)!r}"
     if isinstance(value, dict):
         return "an object"
     if isinstance(value, list):
@@ -627,47 +687,5 @@ def _kind(value: Any) -> str:
 
 
 def _suggestion(key: str, allowed: Iterable[str]) -> str:
-    close = difflib.get_close_matches(key, list(allowed), n=1, cutoff=0.6)
+    close = difflib.get_close_matches(key[:100], list(allowed), n=1, cutoff=0.6)
     return f" (did you mean {close[0]!r}?)" if close else ""
-
-
-# --------------------------------------------------------------------------------------------
-# file access
-# --------------------------------------------------------------------------------------------
-
-
-def _read_text(path: Path) -> str:
-    try:
-        return path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ValueError(f"{path}: no such file; check the path") from None
-    except UnicodeDecodeError as error:
-        raise ValueError(
-            f"{path}: not UTF-8 text ({error.reason} at byte {error.start}); save it as UTF-8"
-        ) from None
-    except OSError as error:
-        raise ValueError(f"{path}: cannot read ({error.strerror or error})") from None
-
-
-def _write_text_atomically(text: str, path: Path) -> None:
-    """Write to a temporary file beside ``path``, then ``os.replace`` it over ``path``."""
-    folder = path.parent
-    if not folder.is_dir():
-        raise ValueError(f"output: folder {folder} does not exist; create it first")
-    mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
-    try:
-        descriptor, temporary = tempfile.mkstemp(dir=folder, prefix=f".{path.name}.", suffix=".tmp")
-    except OSError as error:
-        raise ValueError(f"output: cannot write in {folder} ({error.strerror or error})") from None
-    try:
-        with os.fdopen(descriptor, "w", encoding="utf-8", newline="\n") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.chmod(temporary, mode)
-        os.replace(temporary, path)
-    except BaseException as error:
-        Path(temporary).unlink(missing_ok=True)
-        if isinstance(error, OSError):
-            raise ValueError(f"output: cannot write {path} ({error.strerror or error})") from None
-        raise

@@ -30,6 +30,15 @@ emitter positions for a geometry map, many headings for a planner):
 
 Modalities are ``"toa"``, ``"doppler"``, ``"rss"`` or a combination, given as a tuple or as a
 string joined by ``+`` (``"toa+doppler"``); see :func:`parse_modalities`.
+
+Nuisance parameters (MATH §15). With an unknown carrier offset δ every Doppler row gains the
+column ``∂f_k/∂δ = 1``, with an unknown emission time b every ToA row the column
+``∂τ_k/∂b = 1``. The ``(x_s, y_s)`` block of the inverse of the enlarged information is the
+inverse of its Schur complement, and because each nuisance column is constant over one
+modality's rows (one σ) and zero elsewhere, that complement is the Gram matrix of the rows with
+each affected modality's block *centred* over its samples: ``J = Σ (g − ḡ)(g − ḡ)ᵀ``. So
+``unknowns`` centres blocks and everything else is unchanged; accumulated information per frame
+centres over the samples up to each frame (it is not a sum of per-frame terms then).
 """
 
 from __future__ import annotations
@@ -40,6 +49,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from scenarios import measurement_model as model
+from scenarios.nuisance import AFFECTED_MODALITY, parse_unknowns
 from scenarios.types import MODALITIES, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -81,9 +91,12 @@ def _whitened_blocks(
     emitter_m: ArrayLike,
     data: MeasurementSet,
     modalities: str | Iterable[str],
+    unknowns: Iterable[str] = (),
 ) -> list[FloatArray]:
-    """One ``∇h_k/σ`` block of shape ``(..., N, 2)`` per modality, in the order given."""
+    """One ``∇h_k/σ`` block of shape ``(..., N, 2)`` per modality, in the order given; the
+    block of a modality with an unknown nuisance parameter centred over its samples (§15)."""
     emitter = np.asarray(emitter_m, dtype=float)
+    centred = {AFFECTED_MODALITY[name] for name in parse_unknowns(unknowns)}
     blocks = []
     for modality in parse_modalities(modalities):
         sigma = data.noise.for_modality(modality)
@@ -106,6 +119,8 @@ def _whitened_blocks(
             gradient = model.rss_jacobian(
                 position_m, emitter, data.rss_model, data.emitter_height_m
             )
+        if modality in centred:
+            gradient = gradient - gradient.mean(axis=-2, keepdims=True)
         blocks.append(gradient / sigma)
     return blocks
 
@@ -116,6 +131,8 @@ def whitened_gradients(
     emitter_m: ArrayLike,
     data: MeasurementSet,
     modalities: str | Iterable[str] = "toa+doppler",
+    *,
+    unknowns: Iterable[str] = (),
 ) -> FloatArray:
     """The rows ``g = ∇h_k/σ`` of MATH §8 at the given samples, shape ``(..., M·N, 2)``.
 
@@ -131,10 +148,13 @@ def whitened_gradients(
         information does not need measured values).
     modalities : str or iterable of str
         See :func:`parse_modalities`; the ``M`` blocks of ``N`` rows follow this order.
+    unknowns : iterable of str
+        Nuisance parameters to eliminate (MATH §15): the affected blocks are centred over these
+        samples. Default none: the samples alone, with the emitter's carrier and clock known.
 
     Raises ``ValueError`` naming a missing σ or RSS model.
     """
-    blocks = _whitened_blocks(position_m, velocity_mps, emitter_m, data, modalities)
+    blocks = _whitened_blocks(position_m, velocity_mps, emitter_m, data, modalities, unknowns)
     return np.concatenate(blocks, axis=-2)
 
 
@@ -154,13 +174,17 @@ def per_sample_information(
     emitter_m: ArrayLike,
     data: MeasurementSet,
     modalities: str | Iterable[str] = "toa+doppler",
+    *,
+    unknowns: Iterable[str] = (),
 ) -> FloatArray:
     """Each sample's term ``J_k = Σ_modalities ∇h_k∇h_kᵀ/σ²`` of MATH §8, shape ``(..., N, 2, 2)``.
 
     Arguments as for :func:`whitened_gradients`; summed over ``N`` it is
     :func:`information_at_samples`.
     """
-    blocks = np.stack(_whitened_blocks(position_m, velocity_mps, emitter_m, data, modalities))
+    blocks = np.stack(
+        _whitened_blocks(position_m, velocity_mps, emitter_m, data, modalities, unknowns)
+    )
     return np.einsum("m...ki,m...kj->...kij", blocks, blocks)
 
 
@@ -170,6 +194,8 @@ def information_at_samples(
     emitter_m: ArrayLike,
     data: MeasurementSet,
     modalities: str | Iterable[str] = "toa+doppler",
+    *,
+    unknowns: Iterable[str] = (),
 ) -> FloatArray:
     """``J`` of MATH §8 over the given samples, units 1/m², shape ``(..., 2, 2)``.
 
@@ -177,45 +203,87 @@ def information_at_samples(
     many headings at once), the constants are ``data``'s.
     """
     return gram_information(
-        whitened_gradients(position_m, velocity_mps, emitter_m, data, modalities)
+        whitened_gradients(position_m, velocity_mps, emitter_m, data, modalities, unknowns=unknowns)
     )
 
 
 def whitened_jacobian(
-    data: MeasurementSet, emitter_m: ArrayLike, modalities: str | Iterable[str] = "toa+doppler"
+    data: MeasurementSet,
+    emitter_m: ArrayLike,
+    modalities: str | Iterable[str] = "toa+doppler",
+    *,
+    unknowns: Iterable[str] | None = None,
 ) -> FloatArray:
     """Rows ``∇h_k/σ`` of every sample of ``data`` and modality, shape ``(..., n_rows, 2)``.
 
     :func:`whitened_gradients` at ``data``'s own samples (MATH §8); ``emitter_m`` is
-    ``(..., 2)``.
+    ``(..., 2)``. ``unknowns`` defaults to ``data.unknowns`` (MATH §15); ``()`` gives the rows
+    of a cooperative emitter.
     """
-    return whitened_gradients(data.position_m, data.velocity_mps, emitter_m, data, modalities)
+    unknowns = data.unknowns if unknowns is None else unknowns
+    return whitened_gradients(
+        data.position_m, data.velocity_mps, emitter_m, data, modalities, unknowns=unknowns
+    )
 
 
 def fisher_information(
-    data: MeasurementSet, emitter_m: ArrayLike, modalities: str | Iterable[str] = "toa+doppler"
+    data: MeasurementSet,
+    emitter_m: ArrayLike,
+    modalities: str | Iterable[str] = "toa+doppler",
+    *,
+    unknowns: Iterable[str] | None = None,
 ) -> FloatArray:
     """``J`` of MATH §8 over all samples of ``data``, shape ``(..., 2, 2)`` for ``emitter_m``
-    of shape ``(..., 2)`` (many emitter positions in one call: a geometry map)."""
-    return gram_information(whitened_jacobian(data, emitter_m, modalities))
+    of shape ``(..., 2)`` (many emitter positions in one call: a geometry map).
+
+    With ``data.unknowns`` (or ``unknowns``) it is the information left for ``(x_s, y_s)`` once
+    the nuisance parameters are estimated too, the Schur complement of MATH §15; pass
+    ``unknowns=()`` for the bound with them known (the price of an unknown is the ratio).
+    """
+    return gram_information(whitened_jacobian(data, emitter_m, modalities, unknowns=unknowns))
 
 
 def fisher_information_per_frame(
-    data: MeasurementSet, emitter_m: ArrayLike, modalities: str | Iterable[str] = "toa+doppler"
+    data: MeasurementSet,
+    emitter_m: ArrayLike,
+    modalities: str | Iterable[str] = "toa+doppler",
+    *,
+    unknowns: Iterable[str] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
-    """Information of each frame and accumulated up to each frame (MATH §8).
+    """Information of each frame and accumulated up to each frame (MATH §8, §15).
 
     Returns ``(per_frame, accumulated)``, each of shape ``(n_frames, ..., 2, 2)`` for
     ``emitter_m`` of shape ``(..., 2)``, frames in the order of ``data.frames``;
     ``per_frame[l]`` is :func:`fisher_information` of frame ``l``'s samples and
-    ``accumulated[l]`` the running sum ``Σ_{l' ≤ l} per_frame[l']``.
+    ``accumulated[l]`` that of the samples of frames ``<= l``: the running sum
+    ``Σ_{l' ≤ l} per_frame[l']`` for a cooperative emitter. With nuisance parameters
+    (``unknowns``, default ``data.unknowns``) a frame's rows are centred over the samples up to
+    it, ``Σ g gᵀ − (Σ g)(Σ g)ᵀ / n`` per affected modality, so the accumulated information is
+    formed from running sums rather than added up.
     """
-    rows = whitened_jacobian(data, emitter_m, modalities)
-    row_frame = np.tile(data.frame, rows.shape[-2] // len(data.frame))
-    per_frame = np.stack(
-        [gram_information(rows[..., row_frame == frame, :]) for frame in data.frames]
-    )
-    return per_frame, np.cumsum(per_frame, axis=0)
+    unknowns = parse_unknowns(data.unknowns if unknowns is None else unknowns)
+    chosen = parse_modalities(modalities)
+    blocks = _whitened_blocks(data.position_m, data.velocity_mps, emitter_m, data, chosen)
+    centred = {AFFECTED_MODALITY[name] for name in unknowns}
+    per_frame, accumulated = [], 0.0
+    for modality, rows in zip(chosen, blocks, strict=True):
+        grams = np.stack([gram_information(rows[..., data.frame == f, :]) for f in data.frames])
+        if modality not in centred:
+            per_frame.append(grams)
+            accumulated = accumulated + np.cumsum(grams, axis=0)
+            continue
+        sums = np.stack([rows[..., data.frame == f, :].sum(axis=-2) for f in data.frames])
+        counts = np.array([np.count_nonzero(data.frame == f) for f in data.frames], dtype=float)
+        shape = (-1,) + (1,) * (sums.ndim - 1)
+        outer = np.einsum("...i,...j->...ij", sums, sums)
+        per_frame.append(grams - outer / counts.reshape(shape)[..., None])
+        running = np.cumsum(sums, axis=0)
+        accumulated = accumulated + (
+            np.cumsum(grams, axis=0)
+            - np.einsum("...i,...j->...ij", running, running)
+            / np.cumsum(counts).reshape(shape)[..., None]
+        )
+    return sum(per_frame), accumulated
 
 
 def regular_2x2(matrix: ArrayLike) -> BoolArray:

@@ -4,13 +4,14 @@ r"""The forward model of MATH §1 and its Jacobians in the emitter's ``(x_s, y_s
 
     \rho_k = \lVert p_k - s \rVert,\qquad u_k = (p_k - s)/\rho_k
 
-    f_k = -\gamma\, v_k^\top u_k \quad\text{(Doppler, received minus carrier, Hz)}
+    f_k = -\gamma\, v_k^\top u_k + \delta \quad\text{(Doppler, received minus carrier, Hz)}
 
-    \tau_k = \rho_k / c \quad\text{(one-way time of arrival, s)}
+    \tau_k = \rho_k / c + b \quad\text{(one-way time of arrival, s)}
 
     P_k = P_0 - 10\,\eta\,\log_{10}(\rho_k / d_0) \quad\text{(received power, dBm)}
 
-with ``s = (x_s, y_s, z_s)`` and ``z_s`` known. Pure functions, vectorised: ``position_m`` and
+with ``s = (x_s, y_s, z_s)`` and ``z_s`` known; the carrier offset δ and the emission time b
+are zero for a cooperative emitter and nuisance parameters otherwise (MATH §15). Pure functions, vectorised: ``position_m`` and
 ``velocity_mps`` have shape ``(..., N, 3)``, ``emitter_m`` has shape ``(..., 2)``; leading axes
 broadcast, so one call evaluates many trials, many candidate emitters or many geometries.
 Noise-free values come out with shape ``(..., N)``, Jacobians with shape ``(..., N, 2)``.
@@ -52,15 +53,17 @@ def doppler_hz(
     emitter_m: ArrayLike,
     gamma_per_m: float,
     emitter_height_m: float = 0.0,
+    carrier_offset_hz: float = 0.0,
 ) -> FloatArray:
-    """Noise-free Doppler ``f_k = −γ v_kᵀ u_k`` with the physical sign (MATH §1).
+    """Noise-free Doppler ``f_k = −γ v_kᵀ u_k + δ`` with the physical sign (MATH §1, §15).
 
     The paper's eq ``fd`` has the opposite sign; convert at the boundary of paper-faithful code.
+    ``carrier_offset_hz`` is δ, the emitter's carrier minus the nominal ``f0``.
     """
     offset = emitter_offsets_m(position_m, emitter_m, emitter_height_m)
     distance = np.linalg.norm(offset, axis=-1)
     radial_speed = np.einsum("...i,...i->...", np.asarray(velocity_mps, dtype=float), offset)
-    return -gamma_per_m * radial_speed / distance
+    return -gamma_per_m * radial_speed / distance + carrier_offset_hz
 
 
 def toa_s(
@@ -68,9 +71,13 @@ def toa_s(
     emitter_m: ArrayLike,
     speed_of_light_mps: float,
     emitter_height_m: float = 0.0,
+    emission_time_s: float = 0.0,
 ) -> FloatArray:
-    """Noise-free one-way time of arrival ``τ_k = ρ_k / c`` (MATH §1, paper eq ``TOA``)."""
-    return slant_range_m(position_m, emitter_m, emitter_height_m) / speed_of_light_mps
+    """Noise-free one-way time of arrival ``τ_k = ρ_k / c + b`` (MATH §1, §15, paper eq
+    ``TOA``); ``emission_time_s`` is b, when the emitter sent relative to the receiver's clock."""
+    return slant_range_m(position_m, emitter_m, emitter_height_m) / speed_of_light_mps + (
+        emission_time_s
+    )
 
 
 def rss_dbm(

@@ -25,11 +25,16 @@ def noise_free(scenario: Scenario, *, snr_db: float = 0.0) -> MeasurementSet:
     position = flight.sample_positions_m()
     velocity = flight.sample_velocities_mps()
     emitter, height = scenario.emitter_m, scenario.emitter_height_m
+    # a known offset is corrected by the receiver: only the unknown ones reach the data (§15)
+    offset_hz = scenario.carrier_offset_hz if "carrier_offset_hz" in scenario.unknowns else None
+    emission_s = scenario.emission_time_s if "emission_time_s" in scenario.unknowns else None
     values = {
         "doppler": lambda: model.doppler_hz(
-            position, velocity, emitter, scenario.gamma_per_m, height
+            position, velocity, emitter, scenario.gamma_per_m, height, offset_hz or 0.0
         ),
-        "toa": lambda: model.toa_s(position, emitter, scenario.speed_of_light_mps, height),
+        "toa": lambda: model.toa_s(
+            position, emitter, scenario.speed_of_light_mps, height, emission_s or 0.0
+        ),
         "rss": lambda: model.rss_dbm(position, emitter, scenario.rss_model, height),
     }
     present = {m: values[m]() if m in scenario.modalities else None for m in MODALITIES}
@@ -47,6 +52,9 @@ def noise_free(scenario: Scenario, *, snr_db: float = 0.0) -> MeasurementSet:
         noise=scenario.noise.at_snr(snr_db),
         rss_model=scenario.rss_model if "rss" in scenario.modalities else None,
         truth_emitter_m=emitter,
+        unknowns=scenario.unknowns,
+        truth_carrier_offset_hz=offset_hz,
+        truth_emission_time_s=emission_s,
     )
 
 

@@ -6,10 +6,48 @@ are copied and made read-only: ``frozen=True`` alone does not stop in-place writ
 
 Conventions (MATH §0): local flat-earth frame, x east, y north, z up; SI units in every name;
 Doppler is received minus carrier frequency, positive while closing (MATH §1).
+
+Physical consistency. A :class:`MeasurementSet` (and each trial of a :class:`MeasurementBatch`)
+must describe a flight that can happen, whether it comes from a file, a simulation or Python:
+
+- time never decreases; frames are whole numbers ``0 <= frame < 2^31``, never decreasing;
+- a frame is one straight segment flown at one velocity (MATH §0): every sample of a frame has
+  the velocity of the frame's first sample, and consecutive samples of a frame follow
+  ``p[k+1] = p[k] + v[k] (t[k+1] − t[k])``, both to within :data:`KINEMATIC_RTOL` (1e-6, the
+  tolerance of ``emitterbench fly``) of the speed or of the step, plus float rounding;
+- a ToA range ``c τ_k`` is never shorter than the height ``|z_k − z_s|`` of the UAV above the
+  emitter (MATH §1) by more than :data:`RANGE_DEFICIT_SIGMAS` = 8 standard deviations
+  ``c σ_τ``. The true range never is; noise makes it so with probability Φ(−8) = 6.2e-16 per
+  sample, once in 1.6e15 samples (at 5 σ it would be once in 3.5 million samples, which one
+  long Monte Carlo run reaches). So the paper's scenario, ``c σ_τ = 300 km`` and ranges often
+  negative, still loads, while a negated or zero ToA with ``c σ_τ = 1 m`` is refused.
+
+Limits. Every number is bounded so that what the estimators and the Fisher information form
+from it (squares, fourth powers, products with a σ², inverses of σ²) stays far inside the
+float range (1.8e308); beyond them no measurement is physical. Values in SI units:
+
+=============================================  ====================  ==========================
+quantity                                       accepted              why
+=============================================  ====================  ==========================
+positions, emitter, emitter height             ``|x| <= 1e9`` m      a million km; squares 4e18
+velocities (each component)                    ``|v| <= 1e6`` m/s    100 × a satellite's speed
+times                                          ``|t| <= 1e12`` s     Unix time fits; ``v Δt`` 1e18
+carrier ``f0``                                 1e-3 to 1e15 Hz       infrasound to ultraviolet
+propagation speed ``c``                        1e-3 to 1e12 m/s      sound in km/s to light in mm/s
+σ of Doppler (Hz), ToA (s), RSS (dB)           1e-30 to 1e30         ``(c σ_τ)⁴ <= 1e168``,
+                                                                     ``1/σ² <= 1e60``
+measured ``|c τ|`` (m), ``|f|`` (Hz), ``|P|``  ``<= 1e40``           40 σ beyond the world at
+(dBm)                                                                the largest σ; the LLS cost
+                                                                     in m⁴ stays below 1e160
+=============================================  ====================  ==========================
+
+Every refusal is a ``ValueError`` whose message starts with the field and the sample
+(``toa_s[12]: ...``, ``toa_s[3][12]`` for trial 3 of a batch) and says what to fix.
 """
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -17,7 +55,20 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from scenarios.fields import finite, positive_finite, text
+from scenarios.fields import (
+    FRAME_LIMIT,
+    bounded,
+    check_magnitude,
+    entry_path,
+    finite,
+    frame_index,
+    frozen_array,
+    positive_finite,
+    text,
+)
+from scenarios.geometry import KINEMATIC_RTOL as KINEMATIC_RTOL  # cited by the module text
+from scenarios.geometry import check_order, check_straight_frames
+from scenarios.nuisance import set_nuisance_fields
 
 SPEED_OF_LIGHT_MPS = 299_792_458.0
 """Speed of light in vacuum, m/s: the default propagation speed (MATH §0)."""
@@ -27,47 +78,25 @@ MODALITIES = ("doppler", "toa", "rss")
 
 FloatArray = NDArray[np.float64]
 
+MAX_COORDINATE_M = 1e9
+"""Largest ``|x|``, ``|y|``, ``|z|`` of a UAV position, of the emitter and its height, metres."""
+MAX_SPEED_MPS = 1e6
+"""Largest velocity component, m/s."""
+MAX_TIME_S = 1e12
+"""Largest ``|time_s|``, seconds."""
+CARRIER_RANGE_HZ = (1e-3, 1e15)
+"""Accepted carrier frequencies ``f0``, Hz."""
+PROPAGATION_SPEED_RANGE_MPS = (1e-3, 1e12)
+"""Accepted propagation speeds ``c``, m/s."""
+SIGMA_RANGE = (1e-30, 1e30)
+"""Accepted noise standard deviations, each in its unit (Hz, s, dB)."""
+MAX_MEASURED = 1e40
+"""Largest measured ``|c τ|`` (m), ``|f|`` (Hz) and ``|P|`` (dBm)."""
+RANGE_DEFICIT_SIGMAS = 8.0
+"""How many ``c σ_τ`` a ToA range may fall short of the height ``|z_k − z_s|`` (noise)."""
 
-# --------------------------------------------------------------------------------------------
-# validation helpers: arrays here, numbers and text in scenarios.fields (finite and
-# positive_finite are still imported from this module, e.g. by scenarios.planners)
-# --------------------------------------------------------------------------------------------
-
-
-def frozen_array(
-    value: ArrayLike, name: str, shape: tuple[int | None, ...], *, dtype: type = np.float64
-) -> NDArray[Any]:
-    """Return ``value`` as a read-only array of the given shape, or raise ``ValueError``.
-
-    ``None`` in ``shape`` accepts any length. The message names ``name``, the shape expected
-    and the one received, and the first non-finite entry.
-    """
-    try:
-        array = np.array(value, dtype=dtype, copy=True)
-    except (TypeError, ValueError) as error:
-        raise ValueError(
-            f"{name}: expected numbers of shape {_shape_text(shape)} ({error})"
-        ) from None
-    if array.ndim != len(shape) or any(
-        want is not None and got != want for got, want in zip(array.shape, shape, strict=True)
-    ):
-        raise ValueError(
-            f"{name}: expected shape {_shape_text(shape)}, got {array.shape}; "
-            "give one value per sample in the same order as the other per-sample fields"
-        )
-    if array.dtype.kind == "f" and not np.all(np.isfinite(array)):
-        index = np.unravel_index(np.argmin(np.isfinite(array)), array.shape)
-        raise ValueError(
-            f"{name}: entry {tuple(int(i) for i in index)} is {array[index]}; "
-            "every value must be finite (drop the sample or mark the modality absent)"
-        )
-    array.flags.writeable = False
-    return array
-
-
-def _shape_text(shape: tuple[int | None, ...]) -> str:
-    names = iter("NMLK")
-    return "(" + ", ".join(str(s) if s is not None else next(names) for s in shape) + ")"
+_ROUNDING = 16 * np.finfo(float).eps
+_SIGMA_UNIT = {"doppler_hz": "Hz", "toa_s": "s", "rss_db": "dB"}
 
 
 # --------------------------------------------------------------------------------------------
@@ -92,11 +121,30 @@ class NoiseSigmas:
         for name in ("doppler_hz", "toa_s", "rss_db"):
             value = getattr(self, name)
             if value is not None:
-                object.__setattr__(self, name, positive_finite(value, f"noise.{name}"))
+                checked = positive_finite(value, f"noise.{name}")
+                bounded(
+                    checked,
+                    f"noise.{name}",
+                    *SIGMA_RANGE,
+                    _SIGMA_UNIT[name],
+                    "give the standard deviation in SI units (Hz, s, dB)",
+                )
+                object.__setattr__(self, name, checked)
 
     def at_snr(self, snr_db: float) -> NoiseSigmas:
-        """Every σ multiplied by ``10^(−snr_db/20)`` (MATH §2: the SNR axis)."""
-        factor = 10.0 ** (-finite(snr_db, "snr_db") / 20.0)
+        """Every σ multiplied by ``10^(−snr_db/20)`` (MATH §2: the SNR axis).
+
+        Raises ``ValueError`` naming ``snr_db`` when a σ would leave :data:`SIGMA_RANGE`.
+        """
+        snr = finite(snr_db, "snr_db")
+        low, high = np.log10(SIGMA_RANGE)
+        for name, value in self.as_dict().items():
+            if value is not None and not low <= np.log10(value) - snr / 20.0 <= high:
+                raise ValueError(
+                    f"snr_db: {snr:g} dB takes noise.{name} = {value:g} {_SIGMA_UNIT[name]} "
+                    f"outside [{SIGMA_RANGE[0]:g}, {SIGMA_RANGE[1]:g}]; choose an SNR nearer 0 dB"
+                )
+        factor = 10.0 ** (-snr / 20.0)
         return NoiseSigmas(
             **{
                 name: None if value is None else value * factor
@@ -171,17 +219,20 @@ class FlightPlan:
     sample_interval_s: float
 
     def __post_init__(self) -> None:
-        object.__setattr__(
-            self,
-            "start_position_m",
-            frozen_array(self.start_position_m, "flight.start_position_m", (3,)),
+        start = frozen_array(self.start_position_m, "flight.start_position_m", (3,))
+        check_magnitude(start, "flight.start_position_m", MAX_COORDINATE_M, "m", _FIX_POSITION)
+        object.__setattr__(self, "start_position_m", start)
+        try:
+            velocities = np.atleast_2d(np.asarray(self.frame_velocities_mps, dtype=float))
+        except (TypeError, ValueError, OverflowError) as error:
+            raise ValueError(
+                f"flight.frame_velocities_mps: expected numbers of shape (N, 3) ({error})"
+            ) from None
+        velocities = frozen_array(velocities, "flight.frame_velocities_mps", (None, 3))
+        check_magnitude(
+            velocities, "flight.frame_velocities_mps", MAX_SPEED_MPS, "m/s", _FIX_VELOCITY
         )
-        velocities = np.atleast_2d(np.asarray(self.frame_velocities_mps, dtype=float))
-        object.__setattr__(
-            self,
-            "frame_velocities_mps",
-            frozen_array(velocities, "flight.frame_velocities_mps", (None, 3)),
-        )
+        object.__setattr__(self, "frame_velocities_mps", velocities)
         if len(self.frame_velocities_mps) == 0:
             raise ValueError("flight.frame_velocities_mps: needs at least one frame")
         if int(self.samples_per_frame) != self.samples_per_frame or self.samples_per_frame < 1:
@@ -190,11 +241,9 @@ class FlightPlan:
                 f"got {self.samples_per_frame!r}"
             )
         object.__setattr__(self, "samples_per_frame", int(self.samples_per_frame))
-        object.__setattr__(
-            self,
-            "sample_interval_s",
-            positive_finite(self.sample_interval_s, "flight.sample_interval_s"),
-        )
+        interval = positive_finite(self.sample_interval_s, "flight.sample_interval_s")
+        bounded(interval, "flight.sample_interval_s", 0.0, MAX_TIME_S, "s", _FIX_TIME)
+        object.__setattr__(self, "sample_interval_s", interval)
 
     @property
     def n_frames(self) -> int:
@@ -225,6 +274,7 @@ class FlightPlan:
     def with_frame(self, velocity_mps: ArrayLike) -> FlightPlan:
         """This plan with one more frame flown at ``velocity_mps``."""
         velocity = frozen_array(velocity_mps, "velocity_mps", (3,))
+        check_magnitude(velocity, "velocity_mps", MAX_SPEED_MPS, "m/s", _FIX_VELOCITY)
         return replace(self, frame_velocities_mps=np.vstack([self.frame_velocities_mps, velocity]))
 
     def with_n_frames(self, n_frames: int) -> FlightPlan:
@@ -244,6 +294,9 @@ class Scenario:
 
     ``noise`` holds the reference standard deviations at 0 dB; simulation at ``snr_db``
     scales each by ``10^(−snr_db/20)`` (MATH §2). ``modalities`` lists what is simulated.
+    ``carrier_offset_hz`` (δ) and ``emission_time_s`` (b) are the emitter's true nuisance
+    parameters and ``unknowns`` names those the receiver does not know (MATH §15); a known one is
+    corrected for, so only the unknown ones reach the measurements.
     """
 
     name: str
@@ -256,21 +309,21 @@ class Scenario:
     rss_model: RssModel = field(default_factory=RssModel)
     modalities: tuple[str, ...] = MODALITIES
     description: str = ""
+    carrier_offset_hz: float = 0.0
+    emission_time_s: float = 0.0
+    unknowns: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         text(self.name, "scenario.name")
-        object.__setattr__(self, "emitter_m", frozen_array(self.emitter_m, "emitter_m", (2,)))
+        set_nuisance_fields(self, "", "")
+        emitter = frozen_array(self.emitter_m, "emitter_m", (2,))
+        check_magnitude(emitter, "emitter_m", MAX_COORDINATE_M, "m", _FIX_POSITION)
+        object.__setattr__(self, "emitter_m", emitter)
         if not isinstance(self.flight, FlightPlan):
             raise ValueError("flight: expected a FlightPlan")
-        object.__setattr__(self, "carrier_hz", positive_finite(self.carrier_hz, "carrier_hz"))
-        object.__setattr__(
-            self,
-            "speed_of_light_mps",
-            positive_finite(self.speed_of_light_mps, "speed_of_light_mps"),
-        )
-        object.__setattr__(
-            self, "emitter_height_m", finite(self.emitter_height_m, "emitter_height_m")
-        )
+        if not isinstance(self.noise, NoiseSigmas):
+            raise ValueError(f"noise: expected NoiseSigmas, got {type(self.noise).__name__}")
+        _set_constants(self)
         modalities = tuple(self.modalities)
         unknown = sorted(set(modalities) - set(MODALITIES))
         if unknown or not modalities:
@@ -297,6 +350,97 @@ class Scenario:
 
 _NOISE_FIELD = {"doppler": "doppler_hz", "toa": "toa_s", "rss": "rss_db"}
 
+_FIX_POSITION = (
+    "positions are metres in a local frame (MATH §0); check the unit, or move the origin near "
+    "the flight"
+)
+_FIX_VELOCITY = "velocities are metres per second; check the unit"
+_FIX_TIME = "times are seconds; check the unit, or count time from the start of the flight"
+
+
+def _set_constants(obj: Any) -> None:
+    """Check and store ``carrier_hz``, ``speed_of_light_mps`` and ``emitter_height_m``."""
+    set_ = object.__setattr__
+    carrier = positive_finite(obj.carrier_hz, "carrier_hz")
+    bounded(carrier, "carrier_hz", *CARRIER_RANGE_HZ, "Hz", "give the carrier in hertz")
+    set_(obj, "carrier_hz", carrier)
+    speed = positive_finite(obj.speed_of_light_mps, "speed_of_light_mps")
+    bounded(
+        speed,
+        "speed_of_light_mps",
+        *PROPAGATION_SPEED_RANGE_MPS,
+        "m/s",
+        "give the propagation speed in metres per second",
+    )
+    set_(obj, "speed_of_light_mps", speed)
+    height = finite(obj.emitter_height_m, "emitter_height_m")
+    bounded(height, "emitter_height_m", -MAX_COORDINATE_M, MAX_COORDINATE_M, "m", _FIX_POSITION)
+    set_(obj, "emitter_height_m", height)
+
+
+# --------------------------------------------------------------------------------------------
+# physical consistency of measurements (the module text)
+# --------------------------------------------------------------------------------------------
+
+
+def _frame_indices(frame: FloatArray) -> NDArray[np.int64]:
+    """The frame labels as int64, each a whole number in ``[0, 2^31)``."""
+    bad = (frame != np.round(frame)) | (frame < 0) | (frame >= FRAME_LIMIT)
+    if bad.any():
+        index = int(np.argmax(bad))
+        frame_index(float(frame[index]), f"frame[{index}]")  # raises, with the right message
+    indices = frame.astype(np.int64)
+    indices.flags.writeable = False
+    return indices
+
+
+def check_measured(
+    geometry: MeasurementSet,
+    doppler_hz: FloatArray | None,
+    toa_s: FloatArray | None,
+    rss_dbm: FloatArray | None,
+) -> None:
+    """Measured values of shape ``(..., N)`` against the limits and the geometry.
+
+    ``|f|`` and ``|P|`` at most :data:`MAX_MEASURED`; ToA ranges ``c τ`` at most
+    :data:`MAX_MEASURED` in size and, unless the emission time is unknown (MATH §15), never
+    shorter than the height ``|z_k − z_s|`` by more than :data:`RANGE_DEFICIT_SIGMAS` ``c σ_τ``
+    (module text). The message names the entry,
+    ``toa_s[12]`` or, for trial 3 of a batch, ``toa_s[3][12]``.
+    """
+    fix = "check the unit and the sign"
+    if doppler_hz is not None:
+        check_magnitude(doppler_hz, "doppler_hz", MAX_MEASURED, "Hz", fix)
+    if rss_dbm is not None:
+        check_magnitude(rss_dbm, "rss_dbm", MAX_MEASURED, "dBm", fix)
+    if toa_s is None:
+        return
+    c = geometry.speed_of_light_mps
+    if "emission_time_s" in geometry.unknowns:
+        # pseudo-ranges c(τ − b) (MATH §15): an unknown emission time may make them any size
+        check_magnitude(toa_s, "toa_s", MAX_MEASURED / c, "s", fix)
+        return
+    check_magnitude(
+        toa_s, "toa_s", MAX_MEASURED / c, "s", f"a range c·τ beyond {MAX_MEASURED:g} m; {fix}"
+    )
+    assert geometry.noise.toa_s is not None  # checked before
+    sigma_m = c * geometry.noise.toa_s
+    height = np.abs(geometry.position_m[:, 2] - geometry.emitter_height_m)
+    range_m = c * toa_s
+    slack = RANGE_DEFICIT_SIGMAS * sigma_m + _ROUNDING * (height + np.abs(range_m))
+    short = range_m < height - slack
+    if not short.any():
+        return
+    index = tuple(int(i) for i in np.argwhere(short)[0])
+    deficit = height[index[-1]] - range_m[index]
+    raise ValueError(
+        f"{entry_path('toa_s', index)}: the range c·τ = {range_m[index]:.6g} m is shorter than the "
+        f"height of the UAV above the emitter, |z − z_s| = {height[index[-1]]:.6g} m, by "
+        f"{deficit:.4g} m = {deficit / sigma_m:.4g} σ (c·σ_τ = {sigma_m:.3g} m; at most "
+        f"{RANGE_DEFICIT_SIGMAS:g} σ is noise, MATH §1); check the sign and unit of toa_s, "
+        "emitter_height_m, the z of position_m and noise.toa_s"
+    )
+
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
 class MeasurementSet:
@@ -319,6 +463,12 @@ class MeasurementSet:
         Required when ``rss_dbm`` is present.
     truth_emitter_m : (2,) or None
         The true emitter, when known (simulations). Estimators must not read it.
+    unknowns : tuple of str
+        The nuisance parameters the data carry and the receiver does not know (MATH §15):
+        ``"carrier_offset_hz"`` (every Doppler sample is off by δ) and ``"emission_time_s"``
+        (every ToA is late by b). Empty: a cooperative emitter.
+    truth_carrier_offset_hz, truth_emission_time_s : float or None
+        Their true values, when known (simulations). Estimators must not read them.
     """
 
     frame: NDArray[np.int64]
@@ -334,24 +484,32 @@ class MeasurementSet:
     emitter_height_m: float = 0.0
     rss_model: RssModel | None = None
     truth_emitter_m: FloatArray | None = None
+    unknowns: tuple[str, ...] = ()
+    truth_carrier_offset_hz: float | None = None
+    truth_emission_time_s: float | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
+        set_nuisance_fields(self, "truth_", "truth.")
         position = frozen_array(self.position_m, "position_m", (None, 3))
         n = len(position)
         if n == 0:
             raise ValueError("samples: need at least one sample")
-        set_(self, "position_m", position)
-        set_(self, "velocity_mps", frozen_array(self.velocity_mps, "velocity_mps", (n, 3)))
-        set_(self, "time_s", frozen_array(self.time_s, "time_s", (n,)))
-        frame_float = frozen_array(self.frame, "frame", (n,))
-        if np.any(frame_float != np.round(frame_float)) or np.any(frame_float < 0):
-            raise ValueError("frame: every frame index must be a whole number >= 0")
-        frame = frame_float.astype(np.int64)
-        if np.any(np.diff(frame) < 0):
-            raise ValueError("frame: samples must be ordered by frame (non-decreasing)")
-        frame.flags.writeable = False
-        set_(self, "frame", frame)
+        velocity = frozen_array(self.velocity_mps, "velocity_mps", (n, 3))
+        time = frozen_array(self.time_s, "time_s", (n,))
+        check_magnitude(position, "position_m", MAX_COORDINATE_M, "m", _FIX_POSITION, axes="xyz")
+        check_magnitude(velocity, "velocity_mps", MAX_SPEED_MPS, "m/s", _FIX_VELOCITY, axes="xyz")
+        check_magnitude(time, "time_s", MAX_TIME_S, "s", _FIX_TIME)
+        frame = _frame_indices(frozen_array(self.frame, "frame", (n,)))
+        check_order(frame, time)
+        check_straight_frames(frame, time, position, velocity)
+        for name, value in (
+            ("position_m", position),
+            ("velocity_mps", velocity),
+            ("time_s", time),
+            ("frame", frame),
+        ):
+            set_(self, name, value)
         for name in ("doppler_hz", "toa_s", "rss_dbm"):
             value = getattr(self, name)
             if value is not None:
@@ -360,29 +518,28 @@ class MeasurementSet:
             raise ValueError(
                 "doppler_hz/toa_s/rss_dbm: no measurements; give at least one modality"
             )
-        set_(self, "carrier_hz", positive_finite(self.carrier_hz, "carrier_hz"))
-        set_(
-            self,
-            "speed_of_light_mps",
-            positive_finite(self.speed_of_light_mps, "speed_of_light_mps"),
-        )
-        set_(self, "emitter_height_m", finite(self.emitter_height_m, "emitter_height_m"))
+        _set_constants(self)
         if not isinstance(self.noise, NoiseSigmas):
-            raise ValueError("noise: expected NoiseSigmas")
+            raise ValueError(f"noise: expected NoiseSigmas, got {type(self.noise).__name__}")
         for modality in self.modalities:
             if self.noise.for_modality(modality) is None:
                 raise ValueError(
                     f"noise.{_NOISE_FIELD[modality]}: {modality} measurements are present, so "
                     "their noise standard deviation is required"
                 )
+        if self.rss_model is not None and not isinstance(self.rss_model, RssModel):
+            raise ValueError(
+                f"rss_model: expected RssModel or None, got {type(self.rss_model).__name__}"
+            )
         if self.rss_dbm is not None and self.rss_model is None:
             raise ValueError(
                 "rss_model: RSS measurements are present, so the path-loss model is required"
             )
+        check_measured(self, self.doppler_hz, self.toa_s, self.rss_dbm)
         if self.truth_emitter_m is not None:
-            set_(
-                self, "truth_emitter_m", frozen_array(self.truth_emitter_m, "truth.emitter_m", (2,))
-            )
+            truth = frozen_array(self.truth_emitter_m, "truth.emitter_m", (2,))
+            check_magnitude(truth, "truth.emitter_m", MAX_COORDINATE_M, "m", _FIX_POSITION)
+            set_(self, "truth_emitter_m", truth)
 
     # -- views -----------------------------------------------------------------------------
 
@@ -457,7 +614,14 @@ class MeasurementSet:
         return replace(self, **{field_of[m]: None for m in modalities})
 
     def without_truth(self) -> MeasurementSet:
-        return replace(self, truth_emitter_m=None)
+        return replace(
+            self, truth_emitter_m=None, truth_carrier_offset_hz=None, truth_emission_time_s=None
+        )
+
+    def assuming_known(self) -> MeasurementSet:
+        """The same measurements with every nuisance parameter taken as known and zero: what
+        an estimator that ignores the unknowns sees (MATH §15), biased by the true offsets."""
+        return replace(self, unknowns=())
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
@@ -475,6 +639,10 @@ class MeasurementBatch:
     rss_dbm: FloatArray | None
 
     def __post_init__(self) -> None:
+        if not isinstance(self.geometry, MeasurementSet):
+            raise ValueError(
+                f"geometry: expected a MeasurementSet, got {type(self.geometry).__name__}"
+            )
         n = self.geometry.n_samples
         trials = {len(v) for v in (self.doppler_hz, self.toa_s, self.rss_dbm) if v is not None}
         if len(trials) != 1:
@@ -484,19 +652,39 @@ class MeasurementBatch:
             value = getattr(self, name)
             if value is not None:
                 object.__setattr__(self, name, frozen_array(value, name, (n_trials, n)))
+        for name, modality in (("doppler_hz", "doppler"), ("toa_s", "toa"), ("rss_dbm", "rss")):
+            if (
+                getattr(self, name) is not None
+                and self.geometry.noise.for_modality(modality) is None
+            ):
+                raise ValueError(
+                    f"noise.{_NOISE_FIELD[modality]}: {modality} measurements are present, so "
+                    "their noise standard deviation is required (in geometry.noise)"
+                )
+        if self.rss_dbm is not None and self.geometry.rss_model is None:
+            raise ValueError(
+                "rss_model: RSS measurements are present, so the path-loss model is required "
+                "(in geometry.rss_model)"
+            )
+        check_measured(self.geometry, self.doppler_hz, self.toa_s, self.rss_dbm)
 
     @property
     def n_trials(self) -> int:
         return len(next(v for v in (self.doppler_hz, self.toa_s, self.rss_dbm) if v is not None))
 
     def trial(self, index: int) -> MeasurementSet:
-        """Trial ``index`` as a :class:`MeasurementSet`."""
-        return replace(
-            self.geometry,
-            doppler_hz=None if self.doppler_hz is None else self.doppler_hz[index],
-            toa_s=None if self.toa_s is None else self.toa_s[index],
-            rss_dbm=None if self.rss_dbm is None else self.rss_dbm[index],
-        )
+        """Trial ``index`` as a :class:`MeasurementSet`.
+
+        The batch checked its geometry and every trial's measurements when it was built, so the
+        trial is assembled without checking them again (a copy of the geometry with the trial's
+        read-only measurement rows).
+        """
+        index = range(self.n_trials)[index]  # IndexError for a trial the batch does not hold
+        trial = copy.copy(self.geometry)
+        for name in ("doppler_hz", "toa_s", "rss_dbm"):
+            values = getattr(self, name)
+            object.__setattr__(trial, name, None if values is None else values[index])
+        return trial
 
     def __iter__(self) -> Iterator[MeasurementSet]:
         for index in range(self.n_trials):

@@ -60,7 +60,7 @@ from comparison.figures.frames import (
     rmse_vs_frame_figure,
     wrong_side_vs_frame_figure,
 )
-from comparison.figures.geometry import geometry_heatmap_figure
+from comparison.figures.geometry import CONTOUR_CELLS, centred_log_norm, geometry_heatmap_figure
 from comparison.figures.panels import (
     BOUND_COLUMNS,
     MAX_PANELS,
@@ -102,6 +102,7 @@ __all__ = [
     "BOUND_COLUMNS",
     "COINCIDENCE_NOTE",
     "COINCIDENCE_RTOL",
+    "CONTOUR_CELLS",
     "DASH_LENGTH",
     "ESTIMATOR_LABELS",
     "ESTIMATOR_MARKERS",
@@ -120,6 +121,7 @@ __all__ = [
     "PlainLogFormatter",
     "SparseLogLocator",
     "axis_label",
+    "centred_log_norm",
     "covariance_ellipse_m",
     "error_cdf_figure",
     "estimator_colors",

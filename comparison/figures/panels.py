@@ -34,20 +34,24 @@ BOUND_COLUMNS: dict[str, str] = {
 REFERENCE_BOUND = "crlb_rmse_toa_doppler_m"
 """The bound drawn in solid black."""
 
+KNOWN_BOUND = "crlb_rmse_known_toa_doppler_m"
+"""The same bound with a non-cooperative emitter's offsets known (MATH §15), dotted grey where
+it differs: the gap is the price of the unknowns."""
+
 MAX_PANELS = 12
 """Most panels a figure draws: the first ones in panel order."""
 
 
 def scenario_order(frame: pd.DataFrame) -> list[str]:
     """The scenarios of ``frame`` in their order of first appearance: the panel order."""
-    return list(dict.fromkeys(frame["scenario"].astype(str)))
+    return [str(name) for name in pd.unique(frame["scenario"].astype(str))]
 
 
 def scenario_rank(frame: pd.DataFrame, order: Sequence[str] | None = None) -> pd.Series:
     """Position of each row's scenario in ``order`` (default :func:`scenario_order`)."""
     order = list(order) if order is not None else scenario_order(frame)
     rank = {name: i for i, name in enumerate(order)}
-    return frame["scenario"].astype(str).map(lambda name: rank.get(name, len(rank)))
+    return frame["scenario"].astype(str).map(rank).fillna(len(rank)).astype(np.int64)
 
 
 # --------------------------------------------------------------------------------------------
@@ -205,6 +209,11 @@ def draw_bounds(
         curves.append(
             Curve("√CRLB, ToA+Doppler", "√CRLB", point_rows[x].to_numpy(float), reference)
         )
+        known = point_rows.get(KNOWN_BOUND)
+        if known is not None and not _same_bound(known.to_numpy(float), reference):
+            label = "√CRLB, ToA+Doppler, carrier and clock known (MATH §15)"
+            ax.plot(point_rows[x], known, color="grey", linewidth=1.6, linestyle=":", label=label)
+            curves.append(Curve(label, "√CRLB", point_rows[x].to_numpy(float), known.to_numpy()))
     # Bounds that differ from the reference, each drawn once for all estimators sharing it.
     groups: list[tuple[pd.Series, np.ndarray, list[str]]] = []
     for estimator, own in rows.groupby("estimator", sort=False):

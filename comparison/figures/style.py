@@ -18,6 +18,7 @@ from matplotlib.lines import Line2D
 from matplotlib.ticker import Formatter, Locator, LogLocator, MaxNLocator, NullFormatter
 
 from comparison.figures.curves import Curves
+from comparison.run_folder import atomic_file
 
 ESTIMATOR_LABELS: dict[str, str] = {
     "cls-as-printed": "cls-as-printed (paper's formulas as printed)",
@@ -64,14 +65,20 @@ def estimator_markers(names: Iterable[str]) -> dict[str, str]:
 
 
 def save_figure(figure: Figure, directory: str | Path, stem: str, *, dpi: int = 150) -> list[Path]:
-    """Write ``figure`` as ``<stem>.png`` (``dpi``) and ``<stem>.svg``; return both paths."""
+    """Write ``figure`` as ``<stem>.png`` (``dpi``) and ``<stem>.svg``; return both paths.
+
+    The SVG is vector graphics, with any rasterized artist (a dense heatmap) at ``dpi`` too.
+    Each file is replaced whole (:func:`comparison.run_folder.atomic_file`); a symbolic link
+    in the place of either is refused and its target left alone."""
     folder = Path(directory)
     folder.mkdir(parents=True, exist_ok=True)
     paths = [folder / f"{stem}.png", folder / f"{stem}.svg"]
-    figure.savefig(paths[0], dpi=dpi)
+    with atomic_file(paths[0], binary=True) as handle:  # whole or not at all, never a link
+        figure.savefig(handle, dpi=dpi, format="png")
     layout = figure.get_layout_engine()
     figure.set_layout_engine("none")  # keep the layout just computed: same positions in SVG
-    figure.savefig(paths[1])
+    with atomic_file(paths[1], binary=True) as handle:
+        figure.savefig(handle, dpi=dpi, format="svg")
     figure.set_layout_engine(layout)
     return paths
 

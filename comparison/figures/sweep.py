@@ -188,19 +188,29 @@ def plot_wrong_side(
 # --------------------------------------------------------------------------------------------
 
 
+def _point_keys(rows: pd.DataFrame, columns: Sequence[str]) -> pd.DataFrame:
+    """One line per sweep point of ``rows`` (which carry ``scenario_code``, the scenario's
+    integer code): its scenario, ``columns`` and mean √CRLB (``bound``). Grouped by the code,
+    not the name: a dense run has millions of rows."""
+    keys = rows.groupby(["scenario_code", "point"], sort=False).agg(
+        scenario=("scenario", "first"),
+        **{c: (c, "first") for c in columns},
+        bound=("crlb_rmse_m", "mean"),
+    )
+    return keys.reset_index()
+
+
 def _chosen_points(
-    trials: pd.DataFrame, x: str | None, n_points: int, columns: Sequence[str]
+    keys: pd.DataFrame, x: str | None, n_points: int, order: Sequence[str]
 ) -> pd.DataFrame:
-    """Up to ``n_points`` sweep points per scenario: lowest, middle and highest ``x``.
+    """Up to ``n_points`` sweep points per scenario of ``keys`` (:func:`_point_keys`): lowest,
+    middle and highest ``x``.
 
     Without ``x`` (a grid), the points of smallest, median and largest mean √CRLB: the
-    easiest, a middle and the hardest geometry. Scenarios in :func:`scenario_order`.
+    easiest, a middle and the hardest geometry. Scenarios in ``order``.
     """
-    keys = trials.groupby(["scenario", "point"], sort=False).agg(
-        **{c: (c, "first") for c in columns}, bound=("crlb_rmse_m", "mean")
-    )
-    keys = keys.reset_index()
-    keys["scenario_rank"] = scenario_rank(keys, scenario_order(trials))
+    keys = keys.copy()
+    keys["scenario_rank"] = scenario_rank(keys, order)
     keys = keys.sort_values(["scenario_rank", x or "bound", "point"], kind="stable")
     chosen = []
     for _, rows in keys.groupby("scenario", sort=False):
@@ -235,16 +245,23 @@ def error_cdf_figure(
     colors : mapping, optional
     """
     colors = default_colors(trials, colors)
-    latest = trials.groupby(["scenario", "point"], sort=False)["frame"].transform("max")
-    rows = trials[trials["frame"] == latest]
     columns = ["snr_db", *swept_columns_of(trials)]
-    varying = varying_columns(rows, columns)
-    chosen = _chosen_points(rows, x, n_points, columns)
+    drawn_columns = ["scenario", "point", "frame", "estimator", "success", "ambiguous"]
+    drawn_columns += ["error_m", "error_side_resolved_m", "crlb_rmse_m", *columns]
+    # only these columns, and the scenario as an integer code: a run has millions of rows
+    rows = trials[list(dict.fromkeys(drawn_columns))]
+    rows = rows.assign(scenario_code=pd.factorize(rows["scenario"], sort=False)[0])
+    latest = rows.groupby(["scenario_code", "point"], sort=False)["frame"].transform("max")
+    rows = rows[rows["frame"] == latest]
+    keys = _point_keys(rows, columns)  # the columns are constant within a point
+    varying = varying_columns(keys, columns)
+    chosen = _chosen_points(keys, x, n_points, scenario_order(keys))
+    code, point = rows["scenario_code"].to_numpy(), rows["point"].to_numpy()
     figure, axes = figure_grid(len(chosen), ncols=min(len(chosen), n_points), sharey=True)
     curves = Curves(notes=False)  # CDFs of one estimator family coincide by the dozen
     dashed = False
     for ax, (_, where) in zip(axes, chosen.iterrows(), strict=True):
-        at = rows[(rows["scenario"] == where["scenario"]) & (rows["point"] == where["point"])]
+        at = rows[(code == where["scenario_code"]) & (point == where["point"])]
         values = {c: float(where[c]) for c in (varying or ["snr_db"])}
         title = panel_title(str(where["scenario"]), values)
         drawn = []

@@ -437,7 +437,9 @@ def degenerate_data() -> dict[str, MeasurementSet]:
     """Valid but hopeless measurement sets: what a failure path must handle as data.
 
     ``hovering``: every sample at one point with zero velocity (no Doppler, no baseline);
-    ``short-ranges``: every ToA range (1 m) shorter than the UAV's 50 m height;
+    ``short-ranges``: every ToA range (1 m) shorter than the UAV's 50 m height, within the noise
+    of the paper's printed ``c σ_τ = 300 km`` (a shorter range beyond the noise is refused by
+    the data types);
     ``one-sample``: a single sample.
     """
     data = _noisy()
@@ -449,7 +451,11 @@ def degenerate_data() -> dict[str, MeasurementSet]:
             velocity_mps=np.zeros((n, 3)),
             doppler_hz=np.zeros(n),
         ),
-        "short-ranges": replace(data, toa_s=np.full(n, 1.0 / data.speed_of_light_mps)),
+        "short-ranges": replace(
+            data,
+            toa_s=np.full(n, 1.0 / data.speed_of_light_mps),
+            noise=replace(data.noise, toa_s=1e-3),
+        ),
         "one-sample": data.take(np.arange(n) == 0),
     }
 

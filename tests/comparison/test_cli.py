@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import shutil
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import pytest
@@ -303,7 +306,7 @@ def test_bad_names_and_options_exit_2(tmp_path: Path) -> None:
     [
         (("no-such-scenario", "--seed", "1"), "scenario"),
         (("paper", "--seed", "1", "--frames", "0"), "frames"),
-        (("paper", "--seed", "1", "--snr-db", "nan"), "snr_db"),
+        (("paper", "--seed", "1", "--snr-db", "nan"), "--snr-db"),
     ],
 )
 def test_simulate_failure_writes_nothing(tmp_path: Path, args: tuple[str, ...], field: str) -> None:
@@ -454,3 +457,208 @@ def test_validate_bad_input_exits_2_naming_the_field(tmp_path: Path) -> None:
     assert_clean_error(invoke("validate", "--estimator", "cls", "--replay", "1"), "--families")
     assert_clean_error(invoke("validate", "--estimator", "cls"), "--output")
     assert not out.exists()
+
+
+# --------------------------------------------------------------------------------------------
+# one line for every failure, the exit statuses, --version, help text, Ctrl-C, --resume
+# --------------------------------------------------------------------------------------------
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+HERE = "tests.comparison.test_cli"
+HELD_RUN = "EMITTERBENCH_TEST_HELD_RUN"
+CONSOLE = (sys.executable, "-c", "from comparison.cli import main; main()")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Held:
+    """``cls`` that waits while the file ``gate`` exists, having made ``<gate>.waiting``; only
+    in a process started with ``HELD_RUN`` set (a run the test interrupts)."""
+
+    name: ClassVar[str] = "held-cls"
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+    gate: str = ""
+
+    def estimate(self, data, *, rng=None):
+        from estimators.cls import Cls
+
+        held = bool(os.environ.get(HELD_RUN)) and os.path.exists(self.gate)
+        if held:
+            Path(self.gate + ".waiting").touch()
+        while held and os.path.exists(self.gate):
+            time.sleep(0.01)
+        return Cls().estimate(data, rng=rng)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Noisy:
+    """``cls`` after a numpy warning (division by zero) and a two-line user warning."""
+
+    name: ClassVar[str] = "noisy-cls"
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+
+    def estimate(self, data, *, rng=None):
+        import warnings
+
+        from estimators.cls import Cls
+
+        np.ones(1) / np.zeros(1)
+        warnings.warn("first line\nsecond line", UserWarning, stacklevel=1)
+        return Cls().estimate(data, rng=rng)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Refusing:
+    """Raises a library's message without a field, as numpy or cvxpy would."""
+
+    name: ClassVar[str] = "refusing"
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+
+    def estimate(self, data, *, rng=None):
+        raise ValueError("cannot reshape array of size 3 into shape (2,)")
+
+
+def smoke_definition(folder: Path, **changes: Any) -> Path:
+    from comparison.experiment import load_experiment
+
+    raw = load_experiment("smoke").to_dict()
+    raw.pop("swept_columns")
+    raw.update(changes)
+    path = folder / "smoke.json"
+    path.write_text(json.dumps(raw))
+    return path
+
+
+def test_version_is_the_installed_distribution_version() -> None:
+    from importlib.metadata import version
+
+    result = invoke("--version")
+    assert result.exit_code == 0
+    assert result.stdout == f"emitterbench {version('emitterbench')}\n"
+
+
+@pytest.mark.parametrize(
+    ("args", "field", "command"),
+    [
+        (("run", "smoke", "-o", "{tmp}/run", "--workers", "0"), "--workers", "run"),
+        (("run", "smoke", "-o", "{tmp}/run", "--trials", "0"), "--trials", "run"),
+        (("run", "smoke"), "--output", "run"),
+        (("estimate",), "file", "estimate"),
+        (("estimate", "m.json", "--estimatr", "cls"), "--estimatr", "estimate"),
+        (("simulate", "paper", "--seed", "-1", "-o", "{tmp}/m.json"), "--seed", "simulate"),
+        (("validate", "--instances", "0"), "--instances", "validate"),
+        (("validate", "--instances", "10000000"), "--instances", "validate"),
+        (("report", "{tmp}", "--bootstrap", "1000000000000"), "--bootstrap", "report"),
+        (("list", "extra"), "arguments", "list"),
+        (("no-such-command",), "command", ""),
+    ],
+)
+def test_usage_errors_are_one_line(tmp_path: Path, args: tuple[str, ...], field: str, command):
+    result = invoke(*(a.format(tmp=tmp_path) for a in args))
+    assert_clean_error(result, field)
+    assert result.stderr.rstrip().endswith(
+        f"(see `{' '.join(['emitterbench', command]).strip()} --help`)"
+    )
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_help_shows_brackets_that_rich_would_take_for_markup() -> None:
+    text = runner.invoke(app, ["run", "--help"], env={"COLUMNS": "200"}).stdout
+    assert "Local worker processes [all cores]." in text
+    assert "(extra emitterbench[cluster])" in text
+
+
+def test_an_unexpected_exception_is_one_line_with_exit_1(tmp_path: Path, monkeypatch) -> None:
+    import comparison.crlb
+
+    def broken(*args: Any, **kwargs: Any) -> None:
+        raise ZeroDivisionError("float division by zero")
+
+    monkeypatch.setattr(comparison.crlb, "crlb_table", broken)
+    path = simulated(tmp_path)
+    result = invoke("crlb", path, "--json")
+    assert result.exit_code == 1
+    assert result.stdout == ""
+    (line,) = result.stderr.splitlines()
+    assert line.startswith(
+        "error: internal: ZeroDivisionError: float division by zero (please report"
+    )
+    assert "Traceback" not in result.stderr
+    monkeypatch.setenv("EMITTERBENCH_TRACEBACK", "1")
+    traced = invoke("crlb", path, "--json")
+    assert traced.exit_code == 1 and "Traceback" in traced.stderr
+    assert traced.stderr.splitlines()[-1] == line
+
+
+def test_numpy_warnings_are_silenced_and_others_are_one_line(tmp_path: Path) -> None:
+    path = simulated(tmp_path)
+    result = invoke("estimate", path, "-e", f"{HERE}:Noisy", "--json")
+    assert result.exit_code == 0, result.output
+    assert result.stderr == "warning: first line second line\n"
+    assert json.loads(result.stdout)["success"] is True
+
+
+def test_a_library_message_without_a_field_gets_one(tmp_path: Path) -> None:
+    path = simulated(tmp_path)
+    result = invoke("estimate", path, "-e", f"{HERE}:Refusing", "--json")
+    assert_clean_error(result, "--estimator")
+    assert f"{HERE}:Refusing cannot estimate from {path}; try another estimator" in result.stderr
+    assert "(cannot reshape array of size 3 into shape (2,))" in result.stderr
+
+
+def test_messages_are_one_printable_line() -> None:
+    from comparison.cli_support import MAX_LINE, one_line
+
+    assert one_line("a\n  b\tc\x1b[31m\ud800") == "a b c\\x1b[31m\\ud800"
+    assert len(one_line("x" * 10 * MAX_LINE)) < MAX_LINE + 20
+
+
+def test_resume_keeps_the_trials_the_run_was_started_with(tmp_path: Path) -> None:
+    from comparison.engine import read_experiment, read_trials
+
+    out = tmp_path / "run"
+    assert invoke("run", "smoke", "-o", out, "--trials", "3", "--workers", "1").exit_code == 0
+    resumed = invoke("run", "smoke", "-o", out, "--resume", "--workers", "1")
+    assert resumed.exit_code == 0, resumed.output
+    assert read_experiment(out).trials == 3  # not the 20 of the built-in
+    assert len(read_trials(out)) == 3 * 2 * 2
+    grown = invoke("run", "smoke", "-o", out, "--resume", "--trials", "4", "--workers", "1")
+    assert grown.exit_code == 0, grown.output
+    assert len(read_trials(out)) == 4 * 2 * 2
+
+
+def test_ctrl_c_says_how_to_resume_and_exits_130(tmp_path: Path) -> None:
+    from comparison.engine import read_trials
+
+    gate = tmp_path / "gate"
+    gate.write_text("hold the run")
+    estimators = ["cls", {"name": f"{HERE}:Held", "options": {"gate": str(gate)}}]
+    definition = smoke_definition(tmp_path, trials=4, estimators=estimators)
+    out = tmp_path / "run"
+    process = subprocess.Popen(
+        [*CONSOLE, "run", str(definition), "-o", str(out), "--workers", "1"],
+        cwd=REPO_ROOT,
+        env={**os.environ, "PYTHONPATH": str(REPO_ROOT), HELD_RUN: "1"},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not (tmp_path / "gate.waiting").exists():
+            assert process.poll() is None, process.stderr.read()
+            assert time.monotonic() < deadline, "the run did not start in 120 s"
+            time.sleep(0.02)
+        process.send_signal(signal.SIGINT)
+        _, errors = process.communicate(timeout=120)
+    finally:
+        gate.unlink(missing_ok=True)
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 130
+    resume = f"emitterbench run {definition} -o {out} --resume"
+    assert errors.splitlines() == [
+        f"error: interrupted: the rows stored so far are kept; finish the run with `{resume}`"
+    ]
+    finished = invoke("run", definition, "-o", out, "--resume", "--workers", "1")
+    assert finished.exit_code == 0, finished.output
+    assert len(read_trials(out)) == 4 * 2 * 2

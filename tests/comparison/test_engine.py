@@ -151,6 +151,21 @@ class RenamedOptions:
 
 
 @dataclass_frozen
+class PerTrialCls:
+    """``cls`` one trial at a time (no batch path): the reference for wrappers that call
+    ``Cls().estimate``; the batch path agrees with it to rounding, not to the bit."""
+
+    name: ClassVar[str] = "per-trial-cls"
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+
+    def estimate(self, data, *, rng=None):
+        return Cls().estimate(data, rng=rng)
+
+
+PER_TRIAL_CLS = [{"name": f"{HERE}:PerTrialCls", "label": "cls"}, {"name": "cls-paper"}]
+
+
+@dataclass_frozen
 class DataDigest:
     """Fails on purpose, reporting a digest of the data it was given."""
 
@@ -289,7 +304,9 @@ def test_an_estimator_that_raises_gives_failed_rows(tmp_path):
 
 
 def test_batch_estimators_get_the_chunk_and_fall_back_per_trial(tmp_path):
-    reference = rows(run_experiment(smoke(chunk_size=8), tmp_path / "ref", workers=1))
+    reference = rows(
+        run_experiment(smoke(chunk_size=8, estimators=PER_TRIAL_CLS), tmp_path / "ref", workers=1)
+    )
     for broken in (False, True):
         experiment = smoke(
             chunk_size=8,
@@ -311,6 +328,26 @@ def test_batch_estimators_get_the_chunk_and_fall_back_per_trial(tmp_path):
             )
 
 
+def test_batch_rows_equal_one_at_a_time_rows_and_do_not_depend_on_the_chunking(tmp_path):
+    """cls runs in batch (estimate_columns): its rows do not depend on the chunk size or the
+    worker count, to the bit, and equal the rows of the one-at-a-time path to 1e-12."""
+    chunked = {
+        size: rows(run_experiment(smoke(chunk_size=size), tmp_path / f"c{size}", workers=1))
+        for size in (1, 7, 20)
+    }
+    pd.testing.assert_frame_equal(chunked[1], chunked[7])
+    pd.testing.assert_frame_equal(chunked[1], chunked[20])
+    single = rows(run_experiment(smoke(estimators=PER_TRIAL_CLS), tmp_path / "one", workers=1))
+    numeric = ["x_m", "y_m", "error_m", "error_side_resolved_m", "crlb_rmse_m"]
+    exact = [
+        c for c in single.columns if c not in {*numeric, "candidates_json", "diagnostics_json"}
+    ]
+    pd.testing.assert_frame_equal(chunked[7][exact], single[exact])
+    pd.testing.assert_frame_equal(
+        chunked[7][numeric], single[numeric], rtol=1e-12, check_exact=False
+    )
+
+
 def test_per_frame_runs_every_frame_and_streams_sequential_estimators(tmp_path):
     base = {"scenarios": ["turn"], "trials": 4, "chunk_size": 2}
     whole = rows(run_experiment(smoke(**base), tmp_path / "whole", workers=1))
@@ -328,6 +365,8 @@ def test_per_frame_runs_every_frame_and_streams_sequential_estimators(tmp_path):
         estimators=[{"name": f"{HERE}:StreamedCls", "label": "cls"}, {"name": "cls-paper"}],
     )
     trials = rows(run_experiment(streamed, tmp_path / "streamed", workers=1))
+    per_trial = smoke(**base, per_frame=True, estimators=PER_TRIAL_CLS)
+    per_frame = rows(run_experiment(per_trial, tmp_path / "pf-ref", workers=1))
     columns = [c for c in trials.columns if c != "diagnostics_json"]
     pd.testing.assert_frame_equal(trials[columns], per_frame[columns])
     seen = trials[trials.estimator == "cls"].diagnostics_json.map(json.loads)

@@ -1,6 +1,7 @@
 """Tests of comparison.experiment: loading, validation with key paths, exact serialisation."""
 
 import copy
+import json
 import pickle
 import textwrap
 
@@ -189,14 +190,17 @@ def test_range_sigma_sweep_columns():
         ({"scenarios": ["paper-1m", "paper-2m"]}, "scenarios[1]: unknown scenario 'paper-2m'"),
         ({"scenarios": ["paper-1m", "paper-1m"]}, "scenarios[1]: 'paper-1m' is listed twice"),
         ({"scenarios": []}, "scenarios: give at least one"),
-        ({"estimators": [{"name": "cls"}, {"name": "clss"}]}, "estimators[1].name: estimator"),
+        (
+            {"estimators": [{"name": "cls"}, {"name": "clss"}]},
+            "estimators[1].name: unknown name 'clss'",
+        ),
         (
             {"estimators": [{"name": "cls", "options": {"weighting": "bogus"}}]},
-            "estimators[0].options: weighting",
+            "estimators[0].options.weighting: expected 'optimal' or 'none'",
         ),
         (
             {"estimators": [{"name": "cls", "options": {"colour": "red"}}]},
-            "estimators[0].options: colour",
+            "estimators[0].options.colour: not an option of estimator 'cls'",
         ),
         ({"estimators": [{"name": "cls", "optoins": {}}]}, "estimators[0].optoins: unknown key"),
         (
@@ -214,8 +218,8 @@ def test_range_sigma_sweep_columns():
         ({"swept_columns": ["snr_db"]}, "swept_columns:"),
         (
             {"estimators": [{"name": f"{__name__}:NoRng"}]},
-            "estimators[0].options: estimator 'tests.comparison.test_experiment:NoRng': NoRng "
-            "lacks the Estimator interface: estimate must take the keyword rng",
+            "estimators[0].name: 'tests.comparison.test_experiment:NoRng' is the class NoRng, "
+            "which lacks the estimator interface: estimate must take the keyword rng",
         ),
         (
             {"estimators": [{"name": f"{__name__}:NeedsGhost"}]},
@@ -263,12 +267,12 @@ def test_a_malformed_file_fails_at_load(tmp_path):
     path.write_text(
         docstring_example().replace('name = "ml"', 'name = "mll"'),
     )
-    with pytest.raises(ValueError, match=r"^estimators\[1\]\.name: estimator: unknown name 'mll'"):
+    with pytest.raises(ValueError, match=r"^estimators\[1\]\.name: unknown name 'mll'"):
         load_experiment(path)
     path.write_text("name = \n")
     with pytest.raises(ValueError, match=r"^experiment: .*not valid TOML"):
         load_experiment(path)
-    with pytest.raises(ValueError, match=r"^experiment: cannot read"):
+    with pytest.raises(ValueError, match=r"^experiment: .*absent\.toml: no such file"):
         load_experiment(tmp_path / "absent.toml")
 
 
@@ -351,10 +355,10 @@ def test_planner_shorthand_labels_and_own_steering():
     ("changes", "prefix"),
     [
         ({"per_frame": False}, "per_frame: a closed loop estimates after every frame"),
-        ({"planners": ["constant", "orbits"]}, "planners[1].name: planner: unknown name 'orbits'"),
+        ({"planners": ["constant", "orbits"]}, "planners[1].name: unknown name 'orbits'"),
         (
             {"planners": [{"name": "orbit", "options": {"radius_m": -1}}]},
-            "planners[0].options: radius_m: must be finite and > 0",
+            "planners[0].options.radius_m: must be finite and > 0",
         ),
         ({"planners": [{"name": "orbit", "radius_m": 3}]}, "planners[0].radius_m: unknown key"),
         (
@@ -378,3 +382,118 @@ def test_malformed_closed_loops_name_the_key_path(changes, prefix):
 def test_steering_without_planners_is_an_error():
     with pytest.raises(ValueError, match=r"^steering_estimator: only a closed loop steers"):
         Experiment.from_dict({**BASE, "steering_estimator": "cls"})
+
+
+# --------------------------------------------------------------------------------------------
+# resource limits, every point flown at load, files read within the parsing limits
+# --------------------------------------------------------------------------------------------
+
+
+def test_trials_beyond_the_limit_are_refused_and_a_variable_raises_it(monkeypatch):
+    message = (
+        "trials: 1,000,000,000,000 trials per point, more than the limit of 1,000,000; ask for "
+        "fewer, or raise the limit with the environment variable EMITTERBENCH_MAX_TRIALS=N"
+    )
+    with pytest.raises(ValueError) as info:
+        Experiment.from_dict(modified(trials=10**12))
+    assert str(info.value) == message
+    monkeypatch.setenv("EMITTERBENCH_MAX_TRIALS", str(2 * 10**6))
+    assert Experiment.from_dict(modified(trials=1_500_000)).trials == 1_500_000
+
+
+@pytest.mark.parametrize(
+    ("changes", "prefix"),
+    [
+        ({"trials": 10**4000}, "trials: about 10^4000 trials per point, more than the limit"),
+        ({"trials": -(10**4000)}, "trials: must be a whole number >= 1, got about -10^4000"),
+        ({"trials": 1e300}, "trials: about 10^300 trials per point"),
+        ({"frames": 10**8}, "frames: 100,000,000 frames, more than the limit of 10,000"),
+        ({"chunk_size": 10**12}, "chunk_size: 1,000,000,000,000 trials per task"),
+        (
+            {"sweep": {"parameter": "snr_db", "values": list(range(10_001))}},
+            "sweep.values: 10,001 values, more than the limit of 10,000",
+        ),
+        (
+            {"sweep": {"parameter": "emitter_m", "x": list(range(200)), "y": list(range(1, 201))}},
+            "sweep: 40,000 points, more than the limit of 10,000",
+        ),
+        (
+            {"sweep": {"parameter": "frames", "values": [1, 10**8]}},
+            "sweep.values[1]: 100,000,000 frames, more than the limit",
+        ),
+        (
+            {"sweep": {"parameter": "samples_per_frame", "values": [10**9]}},
+            "sweep.values[0]: 1,000,000,000 samples per frame, more than the limit",
+        ),
+        (
+            {"frames": 10_000, "sweep": {"parameter": "samples_per_frame", "values": [10, 20]}},
+            "sweep.values[1]: point 1 of the sweep cannot be flown in scenarios[0] (paper-1m): "
+            "samples: 200,000 samples per trial, more than the limit of 100,000",
+        ),
+        (
+            {"trials": 10**6, "sweep": {"parameter": "snr_db", "values": list(range(-50, 100))}},
+            "trials: 300,000,000 estimates (1,000,000 trials × 150 points × 2 estimators), more "
+            "than the limit of 100,000,000",
+        ),
+        (
+            {"frames": 1000, "chunk_size": 10_000, "trials": 10_000},
+            "chunk_size: 10,000 trials of 10,000 samples, 100,000,000 samples simulated at once",
+        ),
+    ],
+    ids=lambda value: "" if isinstance(value, dict) else value.split(":")[0],
+)
+def test_requests_beyond_the_resource_limits_are_refused_at_load(changes, prefix):
+    with pytest.raises(ValueError) as info:
+        Experiment.from_dict(modified(**changes))
+    assert str(info.value).startswith(prefix), str(info.value)
+
+
+def test_a_repeated_value_far_down_a_long_sweep_is_found():
+    sweep = {"parameter": "emitter_x_m", "values": [*range(5000), 0]}
+    with pytest.raises(ValueError, match=r"^sweep\.values\[5000\]: 0 repeats values\[0\]"):
+        Experiment.from_dict(modified(sweep=sweep))
+
+
+@pytest.mark.parametrize(
+    ("sweep", "prefix"),
+    [
+        ({"parameter": "emitter_x_m", "values": [30, 1e160]}, r"sweep\.values\[1\]: point 1 "),
+        ({"parameter": "emitter_m", "x": [0, 1e200], "y": [15]}, r"sweep\.x\[1\]: point 1 "),
+        ({"parameter": "emitter_m", "x": [0], "y": [15, -1e200]}, r"sweep\.y\[1\]: point 1 "),
+        ({"fixed": {"speed_mps": 1e200}}, r"sweep\.fixed\.speed_mps: point 0 "),
+        (
+            {"parameter": "snr_db", "values": [0, -60], "fixed": {"doppler_sigma_hz": 1e28}},
+            r"sweep: point 1 of the sweep cannot be flown in scenarios\[0\] \(paper-1m\): snr_db",
+        ),
+    ],
+)
+def test_every_point_is_flown_at_load_naming_the_key_to_fix(sweep, prefix):
+    with pytest.raises(ValueError, match=f"^{prefix}"):
+        Experiment.from_dict(modified(sweep=sweep))
+
+
+def test_experiment_files_are_read_within_the_parsing_limits(tmp_path):
+    toml = tmp_path / "e.toml"
+    text = "\n".join(["name = 'limits'", "scenarios = ['paper-1m']", "estimators = ['cls']"])
+    toml.write_text(text + f"\ntrials = {'9' * 5000}\nseed = 1\n")
+    with pytest.raises(
+        ValueError, match=r"^trials: an integer of 5000 digits \(.*e\.toml, line 4\)"
+    ):
+        load_experiment(toml)
+    toml.write_text(text + "\ntrials = 3\nseed = 1\n[sweep]\nvalues = " + "[" * 5000 + "]" * 5000)
+    with pytest.raises(ValueError, match=r"^experiment: .*e\.toml: arrays and objects nest more"):
+        load_experiment(toml)
+    toml.write_bytes(b"\xef\xbb\xbf" + (text + "\ntrials = 3\nseed = 1\n").encode())
+    assert load_experiment(toml).trials == 3  # a byte order mark is no error
+    toml.write_bytes(b"#" * 2**20 + b"\n" + (text + "\ntrials = 3\nseed = 1\n").encode())
+    with pytest.raises(ValueError, match=r"^experiment: .*e\.toml: larger than the limit of 1 MiB"):
+        load_experiment(toml)
+    as_json = tmp_path / "e.json"
+    raw = json.dumps(modified())
+    as_json.write_text("\ufeff" + raw.replace('"trials": 3', f'"trials": {"9" * 5000}'))
+    with pytest.raises(ValueError, match=r"^trials: expected a whole number, got an integer of"):
+        load_experiment(as_json)
+    nested = {"name": "cls", "options": {"side_prior_m": json.loads("[" * 40 + "]" * 40)}}
+    as_json.write_text(json.dumps(modified(estimators=[nested])))
+    with pytest.raises(ValueError, match=r"^estimators\[0\]\.options\.side_prior_m: arrays"):
+        load_experiment(as_json)

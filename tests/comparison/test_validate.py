@@ -7,11 +7,11 @@ import json
 from dataclasses import dataclass
 from typing import ClassVar
 
-import cvxpy as cp
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+import estimators.sdp_solvers as sdp_solvers
 from comparison.cli import app
 from comparison.crosscheck import (
     FAMILIES,
@@ -130,10 +130,10 @@ def test_disagreements_are_listed_with_their_seed(tmp_path):
 
 
 def test_a_failing_solver_is_a_disagreement(monkeypatch):
-    def broken_solve(self, *args, **kwargs):
-        raise cp.error.SolverError("numerical trouble")
+    def broken_solve(*args, **kwargs):
+        raise RuntimeError("numerical trouble")
 
-    monkeypatch.setattr(cp.Problem, "solve", broken_solve)
+    monkeypatch.setattr(sdp_solvers, "run_clarabel", broken_solve)
     result = run_validation(instances=2, families=["straight"], seed=0)
     assert not result.ok
     assert result.families["straight"].statuses == {"solver_error": 2}
@@ -374,10 +374,10 @@ def test_an_estimator_that_raises_is_a_listed_disagreement():
 
 
 def test_a_failing_sdp_is_reported_as_sdp_failed_not_agreement(monkeypatch):
-    def broken_solve(self, *args, **kwargs):
-        raise cp.error.SolverError("numerical trouble")
+    def broken_solve(*args, **kwargs):
+        raise RuntimeError("numerical trouble")
 
-    monkeypatch.setattr(cp.Problem, "solve", broken_solve)
+    monkeypatch.setattr(sdp_solvers, "run_clarabel", broken_solve)
     result = run_validation(instances=2, families=["paper"], seed=0, estimator="cls")
     summary = result.families["paper"]
     assert not result.ok and summary.n_sdp_failed == summary.n_disagreements == 2

@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+import comparison.verdicts as verdicts_module
 from comparison.verdicts import (
     MIN_TRIALS,
     efficiency_verdicts,
@@ -105,6 +106,86 @@ def test_studentized_interval_covers_the_mean_about_95_percent_of_the_time() -> 
     assert 0.92 <= covered.mean() <= 0.98
     # width about 2·1.96·σ/√n of the mean, σ = 1 for exponential squared errors
     assert np.median(high - low) == pytest.approx(2 * 1.96 / math.sqrt(n), rel=0.15)
+
+
+def one_group_at_a_time(values, groups, n_groups, *, rng, pairs, n_bootstrap, confidence=0.95):
+    """The bootstrap-t interval as its docstring defines the draws, one group after another:
+    key seeds from ``rng`` in ascending key order, ``U`` of shape ``(n_bootstrap, size)`` per
+    key, a group of ``n`` values resampling ``⌊n U[:, :n]⌋``."""
+    values = np.asarray(values, dtype=float)
+    keep = np.isfinite(values)
+    values, groups = values[keep], np.asarray(groups)[keep]
+    order = np.argsort(groups, kind="stable")
+    values, groups = values[order], groups[order]
+    counts = np.bincount(groups, minlength=n_groups)
+    starts = np.cumsum(counts) - counts
+    keys = np.arange(n_groups) if pairs is None else np.asarray(pairs)
+    alpha = 1 - confidence
+    k_low = math.floor(alpha / 2 * n_bootstrap)
+    k_high = min(math.ceil((1 - alpha / 2) * n_bootstrap) - 1, n_bootstrap - 1)
+    low, high = np.full(n_groups, np.nan), np.full(n_groups, np.nan)
+    unique = np.unique(keys)
+    for key, seed in zip(unique, rng.integers(0, 2**63, size=unique.size), strict=True):
+        members = np.flatnonzero((keys == key) & (counts >= 2))
+        if members.size == 0:
+            continue
+        uniform = np.random.default_rng(int(seed)).random((n_bootstrap, counts[members].max()))
+        for group in members:
+            n = int(counts[group])
+            sample = values[starts[group] : starts[group] + n]
+            mean = float(sample.mean())
+            deviation = sample - mean
+            se = math.sqrt(float(deviation @ deviation) / (n - 1) / n)
+            resampled = deviation[(uniform[:, :n] * n).astype(np.int64)]
+            s1 = resampled.sum(axis=1)
+            shift = s1 / n
+            s2 = np.einsum("ij,ij->i", resampled, resampled)
+            se_star = np.sqrt(np.maximum(s2 - s1 * shift, 0.0) / (n - 1) / n)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = np.where(se_star > 0, shift / se_star, np.sign(shift) * np.inf)
+            t = np.sort(np.where(np.isnan(t), 0.0, t))
+            with np.errstate(invalid="ignore"):
+                low[group] = max(mean - t[k_high] * se, 0.0)
+                upper = mean - t[k_low] * se
+            high[group] = np.inf if np.isnan(upper) else upper
+    return low, high
+
+
+@pytest.mark.parametrize(
+    ("threads", "max_draws", "block_draws"),
+    [(1, 2**24, 2**19), (2, 2**24, 2**19), (2, 2**24, 5000), (1, 700, 2**19)],
+)
+def test_blocks_threads_and_chunks_give_the_numbers_of_one_group_at_a_time(
+    monkeypatch, threads, max_draws, block_draws
+) -> None:
+    """Bit for bit: the blocks of keys, the threads and the rows of draws worked at a time
+    change nothing (groups of 0 to 150 values, NaNs, constant groups, shared keys)."""
+    monkeypatch.setattr(verdicts_module, "BLOCK_DRAWS", block_draws)
+    rng = np.random.default_rng(12)
+    n_groups = 60
+    counts = rng.integers(0, 150, size=n_groups)
+    counts[:6] = [0, 1, 2, 3, 150, 150]
+    groups = rng.permutation(np.repeat(np.arange(n_groups), counts))
+    values = rng.exponential(size=groups.size) ** 3
+    values[rng.random(groups.size) < 0.03] = np.nan
+    values[groups == 5] = 2.0  # a constant group: se = 0
+    pairs = np.arange(n_groups) // 3  # three estimators on the same trials
+    for keys in (pairs, None):
+        got = studentized_bootstrap_interval(
+            values,
+            groups,
+            n_groups,
+            rng=np.random.default_rng(3),
+            pairs=keys,
+            n_bootstrap=300,
+            max_draws=max_draws,
+            threads=threads,
+        )
+        expected = one_group_at_a_time(
+            values, groups, n_groups, rng=np.random.default_rng(3), pairs=keys, n_bootstrap=300
+        )
+        for mine, theirs in zip(got, expected, strict=True):
+            assert np.array_equal(mine, theirs, equal_nan=True)
 
 
 def test_failures_and_heavy_tails_block_attains_and_say_why() -> None:

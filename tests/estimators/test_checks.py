@@ -373,19 +373,24 @@ class DeclaredCls(Cls):
             modalities=frozenset({"doppler", "toa"}),
             frames=self.frames,
             unit_invariant=self.weighting == "optimal",
+            batch=True,
         )
 
 
 @dataclass(frozen=True, kw_only=True)
 class DeclaredClsPaper(ClsPaper):
     def capabilities(self) -> Capabilities:
-        return Capabilities(modalities=frozenset({"doppler", "toa"}), frames=self.frames)
+        return Capabilities(
+            modalities=frozenset({"doppler", "toa"}), frames=self.frames, batch=True
+        )
 
 
 @dataclass(frozen=True, kw_only=True)
 class DeclaredClsAsPrinted(ClsAsPrinted):
     def capabilities(self) -> Capabilities:
-        return Capabilities(modalities=frozenset({"doppler", "toa"}), frames=self.frames)
+        return Capabilities(
+            modalities=frozenset({"doppler", "toa"}), frames=self.frames, batch=True
+        )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -405,16 +410,21 @@ class DeclaredMl(MaximumLikelihood):
     def capabilities(self) -> Capabilities:
         rss = {"rss"} if self.use_rss else set()
         return Capabilities(
-            modalities=frozenset({"doppler", "toa", *rss}), frames=self.frames, unit_invariant=True
+            modalities=frozenset({"doppler", "toa", *rss}),
+            frames=self.frames,
+            batch=True,
+            unit_invariant=True,
         )
 
 
 def sdp_capabilities(self) -> Capabilities:
+    """sdp-cls: batch exactly when the class has ``estimate_batch`` (it may be mid-edit)."""
     backend = "clarabel" if self.solver == "CLARABEL" else "scs"
     return Capabilities(
         modalities=frozenset({"doppler", "toa"}),
         frames=self.frames,
         modules=("cvxpy", backend),
+        batch=callable(getattr(self, "estimate_batch", None)),
         unit_invariant=self.weighting == "optimal",
         noise_free_tolerance_m=1e-5,
         tolerance_reason=(
@@ -588,6 +598,8 @@ class HidesItsRss(MaximumLikelihood):
 
 @dataclass(frozen=True, kw_only=True)
 class BadDeclarations(Cls):
+    estimate_batch: ClassVar[None] = None  # no batch path, whatever Cls has
+
     def capabilities(self) -> Capabilities:
         return Capabilities(
             modalities=frozenset({"doppler", "toa"}), modules=("no_such_module_xyz",), batch=True
@@ -646,7 +658,9 @@ def test_a_declared_module_must_import() -> None:
     @dataclass(frozen=True, kw_only=True)
     class NeedsAMissingModule(Cls):
         def capabilities(self) -> Capabilities:
-            return Capabilities(modalities=self.requires, modules=("no_such_module_xyz",))
+            return Capabilities(
+                modalities=self.requires, modules=("no_such_module_xyz",), batch=True
+            )
 
     with pytest.raises(AssertionError, match="'no_such_module_xyz', which does not import"):
         checks.check_capabilities_declared(NeedsAMissingModule())

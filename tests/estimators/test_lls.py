@@ -181,7 +181,7 @@ def test_lls_rss_straight_track_is_rank_one():
 
 def test_lls_rss_needs_two_samples_and_rss():
     data = noise_free(get_scenario("paper-1m"))
-    with pytest.raises(ValueError, match=r"^rss_dbm: LLS-RSS needs at least two samples"):
+    with pytest.raises(ValueError, match=r"^position_m: every sample is at one horizontal point"):
         LlsRss().estimate(data.take(np.arange(data.n_samples) == 0))
     with pytest.raises(ValueError, match=r"^rss_dbm: estimator 'lls-rss'"):
         LlsRss().estimate(data.without("rss"))

@@ -11,11 +11,11 @@ from scipy.optimize import minimize
 from comparison.crlb import crlb_m2, fisher_information
 from estimators.ml import (
     MaximumLikelihood,
-    doppler_frame_starts,
-    ranges_uninformative,
+    _distinct_minima,
     whitened_residual_jacobian,
     whitened_residuals,
 )
+from estimators.ml_starts import doppler_frame_starts, ranges_uninformative
 from estimators.registry import make_estimator
 from scenarios.catalog import get_scenario
 from scenarios.simulate import noise_free, simulate, simulate_trials, trial_seeds
@@ -126,14 +126,23 @@ def test_ml_auto_doppler_start_only_when_the_ranges_are_useless():
 
 
 def test_ml_falls_back_to_lls_toa_when_the_cls_cannot_start():
-    # a hovering first sample: the Doppler rows of the CLS need a moving UAV, the ML does not
+    # a hovering first frame: the Doppler rows of the CLS need a moving UAV, the ML does not
     scenario = get_scenario("orbit")
     data = noise_free(scenario)
-    velocity = np.array(data.velocity_mps)
-    velocity[0] = 0.0
-    doppler = np.array(data.doppler_hz)
-    doppler[0] = 0.0
-    hovering = dataclasses.replace(data, velocity_mps=velocity, doppler_hz=doppler)
+    first = data.frame == data.frame[0]
+    velocity, position = np.array(data.velocity_mps), np.array(data.position_m)
+    doppler, toa, rss = np.array(data.doppler_hz), np.array(data.toa_s), np.array(data.rss_dbm)
+    velocity[first] = 0.0
+    doppler[first] = 0.0
+    position[first], toa[first], rss[first] = position[0], toa[0], rss[0]
+    hovering = dataclasses.replace(
+        data,
+        velocity_mps=velocity,
+        position_m=position,
+        doppler_hz=doppler,
+        toa_s=toa,
+        rss_dbm=rss,
+    )
     estimate = MaximumLikelihood().estimate(hovering)
     assert estimate.success
     assert estimate.diagnostics["start_method"] == "lls-toa"
@@ -189,6 +198,23 @@ def test_ml_reaches_the_brute_force_global_minimum(name, snr_db, trials):
         on_track += int(len(estimate.candidates_m) == 1 and estimate.ambiguous)
     if name == "paper-10m":
         assert on_track >= 2  # the on-track branch of MATH §5 was exercised
+
+
+def test_one_minimum_from_two_starts_keeps_the_earlier_start_at_a_tie():
+    """``paper-10m`` trial 4: the on-plane CLS start ends on the plane, its off-plane copy
+    0.2 µm off it at a cost lower by rounding only (3e-15 relative); within ``xtol`` the
+    costs are one cost and the earlier start's point is kept: one on-track candidate."""
+    data = simulate_trials(get_scenario("paper-10m"), snr_db=0.0, seeds=trial_seeds(1, 5)).trial(4)
+    estimate = MaximumLikelihood().estimate(data)
+    assert estimate.diagnostics["n_starts"] == 2 and estimate.diagnostics["n_minima"] == 1
+    assert len(estimate.candidates_m) == 1 and estimate.ambiguous
+    assert estimate.position_m[1] == 0.0  # the track is the x axis
+    points = np.array([[0.0, 0.0], [1e-7, 0.0], [5.0, 0.0]])
+    tied = _distinct_minima(points, np.array([2.0 + 1e-12, 2.0, 1.0]), 1.0, 1e-10)
+    np.testing.assert_array_equal(tied[0], [[5.0, 0.0], [0.0, 0.0]])
+    np.testing.assert_array_equal(tied[1], [1.0, 2.0 + 1e-12])
+    apart = _distinct_minima(points, np.array([2.0 + 1e-9, 2.0, 1.0]), 1.0, 1e-10)
+    np.testing.assert_array_equal(apart[0], [[5.0, 0.0], [1e-7, 0.0]])
 
 
 # --------------------------------------------------------------------------------------------

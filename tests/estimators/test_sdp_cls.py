@@ -2,23 +2,24 @@
 
 from __future__ import annotations
 
+import math
 import pickle
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
+from types import SimpleNamespace
 
 import cvxpy as cp
 import numpy as np
 import pytest
 
-import estimators.sdp_cls as sdp_cls
+import estimators.sdp_lift as sdp_lift
+import estimators.sdp_solvers as sdp_solvers
 from estimators.cls import Cls, cls_rows
 from estimators.cls_rows import LocalFrame
 from estimators.gtrs import constrained_cost, solve_gtrs
-from estimators.sdp_cls import (
-    SdpCls,
-    compress_rows,
-    relaxation_problem,
-    solve_sdp_relaxation,
-)
+from estimators.sdp_cls import SdpCls, solve_sdp_relaxation
+from estimators.sdp_lift import compress_rows, whiten_relaxation
+from estimators.sdp_solvers import relaxation_problem, solver_attempts
 from scenarios.catalog import get_scenario
 from scenarios.geometry import mirror_across_line, straight_track_line
 from scenarios.simulate import noise_free, simulate
@@ -30,6 +31,24 @@ def local_rows(data, rows="weighted"):
     frame = LocalFrame.fit(data.position_m, data.range_m)
     A, b = cls_rows(data, frame, rows)
     return frame, A, b
+
+
+ORIGINAL_RUN = sdp_solvers.run_clarabel
+
+
+def forged(solution, **changes):
+    """A stand-in for Clarabel's DefaultSolution with some fields replaced."""
+    fields = {
+        name: getattr(solution, name) for name in ("status", "x", "z", "iterations", "solve_time")
+    }
+    return SimpleNamespace(**(fields | changes))
+
+
+def status_forced(name):
+    def run(program, q, constraint_row, settings):
+        return forged(ORIGINAL_RUN(program, q, constraint_row, settings), status=name)
+
+    return run
 
 
 # --------------------------------------------------------------------------------------------
@@ -107,8 +126,11 @@ def test_malformed_rows_raise_value_error_naming_the_field():
     A[0, 0] = np.nan
     with pytest.raises(ValueError, match=r"^A/b: "):
         solve_sdp_relaxation(A, np.ones(4))
+    for build in (relaxation_problem, sdp_solvers.clarabel_program):
+        with pytest.raises(ValueError, match=r"^relaxation: "):
+            build("convex")
     with pytest.raises(ValueError, match=r"^relaxation: "):
-        relaxation_problem("convex")
+        solve_sdp_relaxation(np.ones((4, 3)), np.ones(4), relaxation="convex")
 
 
 # --------------------------------------------------------------------------------------------
@@ -227,66 +249,242 @@ def test_max_iter_one_gives_a_failed_estimate_with_the_status():
     assert SdpCls().estimate(data).success
 
 
-def test_solver_error_gives_a_failed_estimate(monkeypatch):
-    def broken_solve(self, *args, **kwargs):
-        raise cp.error.SolverError("numerical trouble")
+# --------------------------------------------------------------------------------------------
+# the direct Clarabel program: the same program as cvxpy's, solved the same way
+# --------------------------------------------------------------------------------------------
 
-    monkeypatch.setattr(cp.Problem, "solve", broken_solve)
+
+def whitened_instances():
+    """Whitened data of a few real row systems: unique minimisers, the hard case, λ* < 0."""
+    systems = [
+        local_rows(simulate(get_scenario(name), snr_db=10.0, seed=seed))[1:]
+        for name, seed in (("turn", 0), ("orbit", 1), ("paper-1m", 4), ("paper-10m", 2))
+    ]
+    systems.append(biased_range_rows(+5.0))
+    return [whiten_relaxation(*compress_rows(A, b)) for A, b in systems]
+
+
+@pytest.mark.parametrize("relaxation", ["equality", "inequality"])
+def test_direct_program_is_the_one_cvxpy_compiles(relaxation):
+    """q, A (values and pattern), b and the cones equal cvxpy's Clarabel data entry for entry."""
+    program = sdp_solvers.clarabel_program(relaxation)
+    built = relaxation_problem(relaxation)
+    for whitened in whitened_instances():
+        built.set_data(whitened)
+        data, _, _ = built.problem.get_problem_data(cp.CLARABEL)
+        q = sdp_solvers.inner_product_coefficients(whitened.objective)
+        row = sdp_solvers.inner_product_coefficients(whitened.constraint)
+        A = program.A.copy()
+        A.data[program.constraint_slots] = row
+        np.testing.assert_array_equal(q, data["c"])
+        np.testing.assert_array_equal(A.indptr, data["A"].indptr)
+        np.testing.assert_array_equal(A.indices, data["A"].indices)
+        np.testing.assert_array_equal(A.data, data["A"].data)
+        np.testing.assert_array_equal(program.b, data["b"])
+        dims = data["dims"]
+        assert (dims.zero, dims.nonneg, dims.psd) == (
+            (2, 0, [4]) if relaxation == "equality" else (1, 1, [4])
+        )
+
+
+@pytest.mark.parametrize("relaxation", ["equality", "inequality"])
+def test_direct_solve_equals_the_cvxpy_solve(relaxation):
+    """Same program, same settings: same status, iterations, lift and dual as Problem.solve."""
+    settings = solver_attempts("CLARABEL", None)[0]
+    for whitened in whitened_instances():
+        direct = sdp_solvers.solve_with_clarabel(whitened, relaxation, settings)
+        through = sdp_solvers.solve_with_cvxpy(whitened, relaxation, "CLARABEL", settings)
+        assert direct.status == through.status == "optimal"
+        assert direct.iterations == through.iterations
+        np.testing.assert_allclose(direct.lift, through.lift, rtol=0.0, atol=1e-12)
+        assert direct.dual == pytest.approx(through.dual, rel=1e-10, abs=1e-12)
+        assert direct.solve_time_s > 0.0 and through.solve_time_s > 0.0
+
+
+def test_solution_reports_the_solver_time_of_every_rung_and_stage(monkeypatch):
+    """``rungs_solve_time_s`` sums the rungs; the estimate sums the stages."""
+    calls = []
+
+    def fake_clock(program, q, constraint_row, settings):
+        solution = ORIGINAL_RUN(program, q, constraint_row, settings)
+        calls.append(settings.tol_gap_abs)
+        status = "AlmostSolved" if len(calls) == 1 else str(solution.status)
+        return forged(solution, status=status, solve_time=1e-3 * len(calls))
+
+    monkeypatch.setattr(sdp_solvers, "run_clarabel", fake_clock)
+    data = simulate(get_scenario("turn"), snr_db=10.0, seed=0)
+    estimate = SdpCls().estimate(data)
+    # stage 1: rung 1 (1 ms, AlmostSolved) then rung 2 (2 ms); stage 2: rung 1 (3 ms)
+    assert calls == [1e-10, 1e-8, 1e-10]
+    assert estimate.success and estimate.diagnostics["tolerance_rung"] == 1
+    assert estimate.diagnostics["estimate_solve_time_s"] == pytest.approx(6e-3, rel=1e-12)
+    assert estimate.diagnostics["rungs_solve_time_s"] == pytest.approx(3e-3, rel=1e-12)
+    calls.clear()
+    _, A, b = local_rows(data)
+    sdp = solve_sdp_relaxation(A, b)
+    assert sdp.rung == 2 and sdp.solve_time_s == pytest.approx(2e-3)
+    assert sdp.rungs_solve_time_s == pytest.approx(3e-3, rel=1e-12)
+
+
+def test_every_setting_is_passed_on_every_solve(monkeypatch):
+    """A fresh DefaultSettings per solve, with every setting of its rung: none leaks."""
+    seen = []
+
+    def spy(program, q, constraint_row, settings):
+        seen.append(
+            (
+                settings.tol_gap_abs,
+                settings.tol_gap_rel,
+                settings.tol_feas,
+                settings.max_iter,
+                settings.verbose,
+            )
+        )
+        return ORIGINAL_RUN(program, q, constraint_row, settings)
+
+    monkeypatch.setattr(sdp_solvers, "run_clarabel", spy)
+    _, A, b = local_rows(simulate(get_scenario("turn"), snr_db=10.0, seed=0))
+    limited = solve_sdp_relaxation(A, b, max_iter=1)
+    default = solve_sdp_relaxation(A, b)
+    assert limited.status == "user_limit" and limited.iterations == 1
+    assert default.status == "optimal" and default.iterations > 1
+    assert seen == [(1e-10, 1e-10, 1e-9, 1, False), (1e-10, 1e-10, 1e-9, 200, False)]
+    # the first solve leaves nothing behind: same lift as a solve in a fresh program
+    sdp_solvers.clarabel_program.cache_clear()
+    fresh = solve_sdp_relaxation(A, b)
+    np.testing.assert_array_equal(fresh.lift, default.lift)
+
+
+def test_settings_reject_an_unknown_name():
+    with pytest.raises(TypeError, match="tol_gap"):
+        sdp_solvers.clarabel_settings({"tol_gap": 1e-8})
+
+
+def test_concurrent_solves_equal_sequential_ones():
+    """The shared pattern is filled under a lock: threads get the sequential answers."""
+    systems = [
+        local_rows(simulate(get_scenario("turn"), snr_db=10.0, seed=s))[1:] for s in range(12)
+    ]
+    sequential = [solve_sdp_relaxation(A, b).lift for A, b in systems]
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        threaded = list(pool.map(lambda system: solve_sdp_relaxation(*system).lift, systems * 3))
+    for index, lift in enumerate(threaded):
+        np.testing.assert_array_equal(lift, sequential[index % len(systems)])
+
+
+def test_compression_of_short_systems_and_the_residual():
+    """m < 3 pads with zero rows; m = 3 leaves no residual; ρ² is the least-squares misfit."""
+    rng = np.random.default_rng(7)
+    for m in (1, 2, 3, 4, 25):
+        A, b = rng.normal(size=(m, 3)), rng.normal(size=m)
+        R, c, residual_sq = compress_rows(A, b)
+        assert np.all(np.tril(R, -1) == 0.0) and np.all(R[m:] == 0.0) and np.all(c[m:] == 0.0)
+        least_squares = np.linalg.lstsq(A, b, rcond=None)[0]
+        expected = float(np.sum((A @ least_squares - b) ** 2))
+        assert residual_sq == pytest.approx(expected, rel=1e-10, abs=1e-24)
+        assert (residual_sq == 0.0) == (m <= 3)
+        for r in rng.normal(size=(3, 3)):
+            full = np.sum((A @ r - b) ** 2)
+            assert np.sum((R @ r - c) ** 2) + residual_sq == pytest.approx(full, rel=1e-10)
+
+
+def test_whitened_data_reproduce_the_cost_and_the_constraint():
+    """tr(H_w W) · s = ‖A r − b‖² and tr(C_w W) · κ = ‖y‖² − r_z on rank-one lifts of (w, 1)."""
+    _, A, b = local_rows(simulate(get_scenario("orbit"), snr_db=10.0, seed=3))
+    whitened = whiten_relaxation(*compress_rows(A, b))
+    for w in np.random.default_rng(1).normal(size=(5, 3)):
+        lift = np.outer(np.append(w, 1.0), np.append(w, 1.0))
+        r = whitened.points(w)
+        cost = np.sum((A @ r - b) ** 2)
+        assert whitened.objective_scale * np.sum(whitened.objective * lift) == pytest.approx(
+            cost, rel=1e-9
+        )
+        assert whitened.constraint_scale * np.sum(whitened.constraint * lift) == pytest.approx(
+            r[0] ** 2 + r[1] ** 2 - r[2], rel=1e-9, abs=1e-12
+        )
+        np.testing.assert_allclose(
+            whitened.to_local(lift), np.outer(*[np.append(r, 1.0)] * 2), rtol=1e-12, atol=1e-12
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# failures: every status but optimal is one, nothing raises for a solver failure
+# --------------------------------------------------------------------------------------------
+
+
+def test_solver_exception_gives_a_failed_estimate(monkeypatch):
+    def broken(*args, **kwargs):
+        raise RuntimeError("numerical trouble")
+
+    monkeypatch.setattr(sdp_solvers, "run_clarabel", broken)
     estimate = SdpCls().estimate(simulate(get_scenario("turn"), snr_db=10.0, seed=0))
     assert not estimate.success
-    assert "solver_error" in estimate.diagnostics["status"]
-    assert "numerical trouble" in estimate.message
+    assert estimate.diagnostics["status"] == "solver_error"
+    assert estimate.diagnostics["tolerance_rung"] == 2  # both rungs were tried
+    assert "numerical trouble" in estimate.message and "SCS" in estimate.message
+
+
+@pytest.mark.parametrize("name", ["NumericalError", "InsufficientProgress", "SomethingNew"])
+def test_clarabel_error_statuses_are_solver_errors(monkeypatch, name):
+    monkeypatch.setattr(sdp_solvers, "run_clarabel", status_forced(name))
+    _, A, b = local_rows(simulate(get_scenario("turn"), snr_db=10.0, seed=0))
+    sdp = solve_sdp_relaxation(A, b)
+    assert sdp.status == "solver_error" and sdp.rung == 2 and not sdp.has_solution
+    assert name in sdp.message
+    assert np.isnan(sdp.value) and sdp.points.shape == (0, 3)
 
 
 def test_malformed_problem_gives_a_failed_estimate(monkeypatch):
-    def nan_rows(data, frame, rows, **kwargs):
-        A, b = cls_rows(data, frame, rows, **kwargs)
-        return A, np.full_like(b, np.nan)
+    original = sdp_lift.ChunkRows.systems
 
-    monkeypatch.setattr(sdp_cls, "cls_rows", nan_rows)
+    def nan_rows(self, rows, weights_at):
+        systems = original(self, rows, weights_at)
+        systems[:, :, 3] = np.nan
+        return systems
+
+    monkeypatch.setattr(sdp_lift.ChunkRows, "systems", nan_rows)
     estimate = SdpCls().estimate(simulate(get_scenario("turn"), snr_db=10.0, seed=0))
     assert not estimate.success
-    assert estimate.message.startswith("rows: ")
-
-
-def _status_forced(status):
-    original = cp.Problem.solve
-
-    def solve(self, *args, **kwargs):
-        value = original(self, *args, **kwargs)
-        self._status = status
-        return value
-
-    return solve
+    assert estimate.message.startswith("rows: the stage-1 CLS system")
+    assert estimate.diagnostics == {"stage": 1}
 
 
 def test_optimal_inaccurate_is_not_a_success_by_default(monkeypatch):
-    monkeypatch.setattr(cp.Problem, "solve", _status_forced(cp.OPTIMAL_INACCURATE))
+    """AlmostSolved on every rung: optimal_inaccurate, rejected unless accepted (flagged)."""
+    monkeypatch.setattr(sdp_solvers, "run_clarabel", status_forced("AlmostSolved"))
     data = simulate(get_scenario("turn"), snr_db=10.0, seed=0)
     rejected = SdpCls().estimate(data)
     assert not rejected.success and "optimal_inaccurate" in rejected.message
+    assert rejected.diagnostics["tolerance_rung"] == 2
     accepted = SdpCls(accept_inaccurate=True).estimate(data)
     assert accepted.success and "optimal_inaccurate" in accepted.message
     assert accepted.diagnostics["status"] == "optimal_inaccurate"
+    assert accepted.diagnostics["stage_statuses"] == ["optimal_inaccurate"] * 2
+    monkeypatch.undo()
+    # the accepted answer is that of rung 2 (Clarabel's default tolerances)
+    np.testing.assert_allclose(
+        accepted.position_m, SdpCls().estimate(data).position_m, rtol=0.0, atol=1e-5
+    )
 
 
-def test_problem_is_dpp_and_built_once_per_relaxation():
+def test_programs_are_built_once_per_relaxation():
     for relaxation in ("equality", "inequality"):
+        assert sdp_solvers.clarabel_program(relaxation) is sdp_solvers.clarabel_program(relaxation)
         built = relaxation_problem(relaxation)
         assert built.problem.is_dpp()
         assert relaxation_problem(relaxation) is built
 
 
-def test_resolve_reuses_the_built_problem():
+def test_resolve_reuses_the_built_program():
     data = simulate(get_scenario("turn"), snr_db=10.0, seed=5)
     estimator = SdpCls()
     estimator.estimate(data)
-    built = relaxation_problem("equality")
-    misses = relaxation_problem.cache_info().misses
+    program = sdp_solvers.clarabel_program("equality")
+    misses = sdp_solvers.clarabel_program.cache_info().misses
     first = estimator.estimate(data)
     second = estimator.estimate(simulate(get_scenario("turn"), snr_db=10.0, seed=6))
-    assert relaxation_problem.cache_info().misses == misses
-    assert relaxation_problem("equality") is built
+    assert sdp_solvers.clarabel_program.cache_info().misses == misses
+    assert sdp_solvers.clarabel_program("equality") is program
     assert first.success and second.success
     # same data, same answer, whatever was solved in between
     np.testing.assert_array_equal(first.position_m, estimator.estimate(data).position_m)
@@ -322,23 +520,35 @@ def test_scs_cross_check_agrees_with_clarabel():
     np.testing.assert_allclose(scs.position_m, clarabel.position_m, atol=1e-3)
 
 
+def test_scs_solver_error_gives_a_failed_solution(monkeypatch):
+    """SCS still goes through cvxpy: its SolverError is a failure, not an exception."""
+
+    def broken_solve(self, *args, **kwargs):
+        raise cp.error.SolverError("numerical trouble")
+
+    monkeypatch.setattr(cp.Problem, "solve", broken_solve)
+    _, A, b = local_rows(simulate(get_scenario("turn"), snr_db=10.0, seed=0))
+    sdp = solve_sdp_relaxation(A, b, solver="SCS")
+    assert sdp.status == "solver_error" and "numerical trouble" in sdp.message
+    assert solve_sdp_relaxation(A, b).status == "optimal"  # Clarabel does not use cvxpy
+
+
 def test_an_inaccurate_tight_solve_is_retried_at_the_default_tolerances(monkeypatch):
-    """Rung 1 ending ``optimal_inaccurate`` is re-solved at rung 2, and the rung is recorded."""
-    original = cp.Problem.solve
-    tight_gap = sdp_cls.CLARABEL_TOLERANCES[0][0]
+    """Rung 1 ending ``AlmostSolved`` is re-solved at rung 2, and the rung is recorded."""
+    tight_gap = sdp_solvers.CLARABEL_TOLERANCES[0][0]
     calls = []
 
-    def solve(self, *args, **kwargs):
-        calls.append(kwargs["tol_gap_abs"])
-        value = original(self, *args, **kwargs)
-        if kwargs["tol_gap_abs"] == tight_gap:
-            self._status = cp.OPTIMAL_INACCURATE
-        return value
+    def run(program, q, constraint_row, settings):
+        calls.append((settings.tol_gap_abs, settings.tol_feas))
+        solution = ORIGINAL_RUN(program, q, constraint_row, settings)
+        if settings.tol_gap_abs == tight_gap:
+            return forged(solution, status="AlmostSolved")
+        return solution
 
-    monkeypatch.setattr(cp.Problem, "solve", solve)
+    monkeypatch.setattr(sdp_solvers, "run_clarabel", run)
     _, A, b = local_rows(simulate(get_scenario("turn"), snr_db=10.0, seed=0))
     sdp = solve_sdp_relaxation(A, b)
-    assert calls == [tight_gap, sdp_cls.CLARABEL_TOLERANCES[1][0]]
+    assert calls == list(sdp_solvers.CLARABEL_TOLERANCES)
     assert sdp.status == "optimal" and sdp.rung == 2
     assert abs(sdp.value - solve_gtrs(A, b).costs.min()) <= 1e-6 * sdp.value
 
@@ -348,35 +558,63 @@ def test_success_records_the_status_of_every_stage():
     assert estimate.success and estimate.diagnostics["status"] == "optimal"
     assert estimate.diagnostics["stage_statuses"] == ["optimal", "optimal"]
     assert np.all(np.isfinite(estimate.candidates_m))
+    assert estimate.diagnostics["estimate_solve_time_s"] > 0.0
+    eigenvalues = estimate.diagnostics["lift_eigenvalues"]
+    assert len(eigenvalues) == 4 and eigenvalues[1] < 1e-6 * eigenvalues[0]  # rank one
 
 
-@pytest.mark.parametrize("status", [cp.OPTIMAL, cp.OPTIMAL_INACCURATE])
+@pytest.mark.parametrize("status", ["optimal", "optimal_inaccurate"])
 def test_non_finite_lift_with_a_success_status_is_a_failed_estimate(monkeypatch, status):
     """A solver that claims success but returns NaN in the lift gives a failure with status
     ``non_finite``, never a success with a NaN position (even when inaccurate is accepted)."""
-    original = sdp_cls._solve_built
+    original = sdp_solvers.clarabel_outcome
 
     def nan_lift(*args, **kwargs):
         outcome = original(*args, **kwargs)
-        lift = np.full((4, 4), np.nan)
-        return replace(outcome, status=status, lift=lift)
+        return replace(outcome, status=status, lift=np.full((4, 4), np.nan))
 
-    monkeypatch.setattr(sdp_cls, "_solve_built", nan_lift)
+    monkeypatch.setattr(sdp_solvers, "clarabel_outcome", nan_lift)
     data = simulate(get_scenario("turn"), snr_db=10.0, seed=0)
     for estimator in (SdpCls(), SdpCls(accept_inaccurate=True)):
         estimate = estimator.estimate(data)
         assert not estimate.success and np.all(np.isnan(estimate.position_m))
-        assert estimate.diagnostics["status"] == sdp_cls.NON_FINITE
+        assert estimate.diagnostics["status"] == sdp_solvers.NON_FINITE
         assert "not finite" in estimate.message
-        assert estimate.diagnostics["stage_statuses"] == [sdp_cls.NON_FINITE]
+        assert estimate.diagnostics["stage_statuses"] == [sdp_solvers.NON_FINITE]
 
 
-def test_user_limit_and_infeasible_statuses_are_failures(monkeypatch):
-    """Every status other than ``optimal`` (or the accepted ``optimal_inaccurate``) fails."""
+def test_non_finite_clarabel_primal_is_a_failed_solution(monkeypatch):
+    """NaN in Clarabel's x with status Solved: non_finite, not a solution."""
+
+    def nan_x(program, q, constraint_row, settings):
+        solution = ORIGINAL_RUN(program, q, constraint_row, settings)
+        return forged(solution, x=[math.nan] * len(solution.x))
+
+    monkeypatch.setattr(sdp_solvers, "run_clarabel", nan_x)
+    _, A, b = local_rows(simulate(get_scenario("turn"), snr_db=10.0, seed=0))
+    sdp = solve_sdp_relaxation(A, b)
+    assert sdp.status == sdp_solvers.NON_FINITE and not sdp.has_solution
+    assert np.all(np.isnan(sdp.lift))
+
+
+@pytest.mark.parametrize(
+    ("name", "status"),
+    [
+        ("MaxIterations", "user_limit"),
+        ("MaxTime", "user_limit"),
+        ("PrimalInfeasible", "infeasible"),
+        ("DualInfeasible", "unbounded"),
+        ("AlmostPrimalInfeasible", "infeasible_inaccurate"),
+        ("AlmostDualInfeasible", "unbounded_inaccurate"),
+    ],
+)
+def test_other_statuses_are_failures(monkeypatch, name, status):
+    """Every status other than ``optimal`` (or the accepted ``optimal_inaccurate``) fails,
+    with cvxpy's name for it, after one rung (only inaccuracy and errors are retried)."""
+    monkeypatch.setattr(sdp_solvers, "run_clarabel", status_forced(name))
     data = simulate(get_scenario("turn"), snr_db=10.0, seed=0)
-    for status in (cp.USER_LIMIT, cp.INFEASIBLE, cp.UNBOUNDED, cp.INFEASIBLE_INACCURATE):
-        monkeypatch.setattr(cp.Problem, "solve", _status_forced(status))
-        estimate = SdpCls(accept_inaccurate=True).estimate(data)
-        assert not estimate.success, status
-        assert estimate.diagnostics["status"] == status
-        assert status in estimate.message
+    estimate = SdpCls(accept_inaccurate=True).estimate(data)
+    assert not estimate.success
+    assert estimate.diagnostics["status"] == status
+    assert estimate.diagnostics["tolerance_rung"] == 1
+    assert status in estimate.message

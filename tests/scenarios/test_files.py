@@ -446,3 +446,140 @@ def test_reading_does_not_modify_the_input_dict() -> None:
     before = copy.deepcopy(obj)
     measurements_from_dict(obj)
     assert obj == before
+
+
+# --------------------------------------------------------------------------------------------
+# parsing and resource limits (scenarios.limits)
+# --------------------------------------------------------------------------------------------
+
+
+def huge(digits: int) -> str:
+    return "9" * digits
+
+
+def raw_at(path: tuple[Any, ...], literal: str) -> str:
+    """The valid file's JSON with the value at ``path`` written as the raw ``literal``."""
+    return mutated(set_in(path, "@raw@")).replace('"@raw@"', literal)
+
+
+@pytest.mark.parametrize(
+    ("path", "literal", "message"),
+    [
+        (("carrier_hz",), huge(5000), "carrier_hz: an integer of 5000 digits is too large"),
+        (("samples", 1, "frame"), huge(5000), r"samples\[1\]\.frame: an integer of 5000 digits"),
+        (("samples", 0, "time_s"), "-" + huge(4400), r"samples\[0\]\.time_s: an integer of 4400"),
+        (("samples", 3, "frame"), str(2**64), r"samples\[3\]\.frame: frame .* is too large"),
+        (("carrier_hz",), "1" + "0" * 400, "carrier_hz: too large for a float"),
+    ],
+)
+def test_huge_integers_name_their_field(path, literal: str, message: str) -> None:
+    with pytest.raises(ValueError, match=f"^{message}") as caught:
+        measurements_from_json(raw_at(path, literal))
+    assert len(str(caught.value)) < 300  # the size, not the digits
+
+
+def test_nesting_is_refused_at_a_documented_depth_without_recursion() -> None:
+    from scenarios.limits import MAX_NESTING_DEPTH, check_nesting
+
+    inner = "[" * 40 + "1" + "]" * 40
+    with pytest.raises(
+        ValueError, match=r"^samples\[0\]\.toa_s\[0\]: arrays and objects nest more"
+    ):
+        measurements_from_json(raw_at(("samples", 0, "toa_s"), inner))
+    with pytest.raises(
+        ValueError, match=rf"^json: arrays and objects nest more than {MAX_NESTING_DEPTH}"
+    ):
+        measurements_from_json("[" * 100_000 + "]" * 100_000)  # beyond Python's recursion limit
+    deep: Any = 1
+    for _ in range(200_000):  # deeper than any recursive walk could go
+        deep = [deep]
+    with pytest.raises(ValueError, match=r"^\[0\]\[0\]\[0\]\[0\]: arrays"):
+        check_nesting(deep)
+    check_nesting(json.loads(json.dumps(valid_dict())))  # the format itself is well inside
+
+
+def test_a_key_with_spaces_is_quoted_as_its_field() -> None:
+    with pytest.raises(ValueError, match=r'^noise\["a b"\]: unknown key'):
+        measurements_from_json(mutated(set_in(("noise", "a b"), 1.0)))
+    with pytest.raises(ValueError, match=r'^\[""\]: unknown key'):
+        measurements_from_json(mutated(set_in(("",), 1.0)))
+
+
+@pytest.mark.parametrize("suffix", [".json", ".csv"])
+def test_a_byte_order_mark_is_ignored(tmp_path: Path, suffix: str) -> None:
+    data = simulate(get_scenario("turn"), snr_db=4.0, seed=9)
+    plain = tmp_path / f"plain{suffix}"
+    if suffix == ".json":
+        write_measurements(data, plain)
+        constants: dict[str, Any] = {}
+    else:
+        write_csv(data, plain)
+        constants = csv_constants(data)
+    marked = tmp_path / f"marked{suffix}"
+    marked.write_bytes(b"\xef\xbb\xbf" + plain.read_bytes())
+    assert_bit_identical(
+        read_measurements(marked, **constants), read_measurements(plain, **constants)
+    )
+
+
+def test_an_oversized_file_is_refused_before_it_is_read(tmp_path: Path, monkeypatch) -> None:
+    from scenarios.limits import MAX_FILE_MB
+
+    path = tmp_path / "big.json"
+    with path.open("wb") as handle:  # sparse, all NUL bytes: the size alone refuses it
+        handle.truncate(MAX_FILE_MB * 2**20 + 1)
+    with pytest.raises(ValueError, match=rf"big\.json: larger than the limit of {MAX_FILE_MB} MiB"):
+        read_measurements(path)
+    monkeypatch.setenv("EMITTERBENCH_MAX_FILE_MB", str(MAX_FILE_MB + 1))
+    with pytest.raises(ValueError, match=r"big\.json: invalid JSON at line 1"):  # read now
+        read_measurements(path)
+
+
+def test_samples_and_frames_beyond_the_limits_are_refused(tmp_path: Path, monkeypatch) -> None:
+    text = mutated(lambda obj: None)  # four samples in two frames
+    measurements_from_json(text)
+    monkeypatch.setenv("EMITTERBENCH_MAX_SAMPLES", "3")
+    with pytest.raises(
+        ValueError,
+        match=r"^samples: 4 samples, more than the limit of 3; split the file, or "
+        r"raise the limit with the environment variable EMITTERBENCH_MAX_SAMPLES=N",
+    ):
+        measurements_from_json(text)
+    data = simulate(get_scenario("turn"), snr_db=4.0, seed=9)
+    path = write_csv(data, tmp_path / "m.csv")
+    with pytest.raises(ValueError, match=r"^samples: 4 rows or more, more than the limit of 3"):
+        read_measurements_csv(path, **csv_constants(data))
+    monkeypatch.setenv("EMITTERBENCH_MAX_SAMPLES", "4")
+    monkeypatch.setenv("EMITTERBENCH_MAX_FRAMES", "1")
+    with pytest.raises(ValueError, match=r"^samples: 2 frames, more than the limit of 1"):
+        measurements_from_json(text)
+    monkeypatch.setenv("EMITTERBENCH_MAX_FRAMES", "0")
+    with pytest.raises(ValueError, match=r"^EMITTERBENCH_MAX_FRAMES: expected a whole number"):
+        measurements_from_json(text)
+
+
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [
+        (
+            lambda lines: [*lines[:2], '"' + lines[2], *lines[3:]],
+            r"samples \(CSV line 3\): a quoted",
+        ),
+        (
+            lambda lines: [lines[0], lines[1].replace("0.0", "1" * 200_000, 1), *lines[2:]],
+            r"samples \(CSV line 2\): a cell longer",
+        ),
+        (
+            lambda lines: [lines[0], lines[1].replace("0.0", "x" * 5000, 1), *lines[2:]],
+            r"time_s \(CSV line 2\): 'xxx",
+        ),
+    ],
+    ids=["unclosed-quote", "cell-over-the-csv-limit", "long-cell"],
+)
+def test_csv_problems_name_the_line(tmp_path: Path, change, field: str) -> None:
+    data = simulate(get_scenario("turn"), snr_db=4.0, seed=9)
+    path = write_csv(data, tmp_path / "m.csv")
+    path.write_text("\n".join(change(path.read_text().splitlines())) + "\n")
+    with pytest.raises(ValueError, match=f"^{field}") as caught:
+        read_measurements_csv(path, **csv_constants(data))
+    assert len(str(caught.value)) < 400

@@ -379,6 +379,51 @@ def test_registry_and_options():
         PaperPlanner().plan(flight, TRUTH, data.up_to_frame(0))
 
 
+class PlanWithoutRng:
+    """A planner whose plan cannot take the closed loop's keywords."""
+
+    name = "no-rng"
+    built = False
+
+    def __init__(self):
+        PlanWithoutRng.built = True
+
+    def plan(self, flight, candidates_m, data):
+        raise AssertionError("never called")
+
+
+def test_the_registry_refuses_anything_but_a_planner_class_before_calling_it(tmp_path):
+    marker = tmp_path / "marker"
+    with pytest.raises(ValueError, match=r"^planner: 'os:system' is a function, not a planner cl"):
+        get_planner("os:system", command=f"touch {marker}")
+    assert not marker.exists()
+    with pytest.raises(ValueError, match=r"^planner: 'scenarios.planners:PLANNERS' is a dict obj"):
+        get_planner("scenarios.planners:PLANNERS")
+    with pytest.raises(ValueError, match=r"^planner: cannot import 'no_such_planner_module' \("):
+        get_planner("no_such_planner_module:Planner")
+    name = f"{__name__}:PlanWithoutRng"
+    with pytest.raises(
+        ValueError,
+        match=r"lacks the planner interface: plan must take the keyword covariance_m2; "
+        r"plan must take the keyword rng; give a class",
+    ):
+        get_planner(name)
+    assert not PlanWithoutRng.built
+
+
+def test_planner_options_are_checked_against_their_annotations():
+    with pytest.raises(ValueError, match=r"^radius_m: expected a number in metres, got 'big'$"):
+        get_planner("orbit", radius_m="big")
+    with pytest.raises(ValueError, match=r"^max_turn_rate_dps: expected a number in degrees per"):
+        get_planner("paper", max_turn_rate_dps=[40])
+    with pytest.raises(ValueError, match=r"^n_headings: expected a whole number, got 360.0$"):
+        get_planner("fisher", n_headings=360.0)
+    with pytest.raises(ValueError, match=r"^criterion: expected 'A' or 'D', got True$"):
+        get_planner("fisher", criterion=True)
+    assert get_planner("orbit", radius_m=25).radius_m == 25  # an int is a number
+    assert get_planner("paper", speed_mps=None).speed_mps is None
+
+
 def test_flight_is_reconstructed_from_the_samples():
     _, flight, data = flown([0.0, 75.0, 150.0], seed=2)
     rebuilt = flight_from_measurements(data)
@@ -388,8 +433,8 @@ def test_flight_is_reconstructed_from_the_samples():
     assert rebuilt.sample_positions_m() == pytest.approx(data.position_m, abs=1e-9)
     with pytest.raises(ValueError, match=r"^frame: frames hold \[5, 10\] samples"):
         flight_from_measurements(data.take(data.time_s < 0.05 * 25))
-    moved = dataclasses.replace(
-        data, position_m=data.position_m + np.array([[0.0, 0.0, 0.0]] * 29 + [[1.0, 0.0, 0.0]])
-    )
+    shift = np.zeros((30, 3))
+    shift[10:, 0] = 1.0  # a jump between frames: each frame straight, the flight not one path
+    moved = dataclasses.replace(data, position_m=data.position_m + shift)
     with pytest.raises(ValueError, match=r"^position_m: the samples depart"):
         flight_from_measurements(moved)

@@ -1,0 +1,354 @@
+"""What the commands of :mod:`comparison.cli` share: one-line errors, ``key=value`` options, JSON.
+
+Every failure a user sees is one line on stderr, ``error: <field>: <what is wrong and the fix>``,
+never a traceback, and nothing is printed before it (numpy's floating-point warnings are
+silenced; any other warning is one line ``warning: ...``). The exit statuses:
+
+====  ==========================================================================================
+0     success
+1     ``validate`` found a disagreement; or an internal error, a bug of emitterbench or of an
+      estimator: ``error: internal: <type>: <message> (please report ...)``
+      (``EMITTERBENCH_TRACEBACK=1`` prints the traceback before that line)
+2     a usage or input error: a bad option, a malformed file, a request beyond a limit
+130   interrupted (Ctrl-C); ``run`` says how to finish the run with ``--resume``
+====  ==========================================================================================
+
+:class:`OneLineErrors` is the command group of :data:`comparison.cli.app`: it turns click's
+usage errors (an unknown option, a value out of range, a missing argument) into the same one
+line, and any exception a command lets escape into the internal error. :func:`clean_errors`
+wraps each command: a ``ValueError`` (the library's errors name the field and the fix) becomes
+the one line, a message without a field gets the command's main input as its field.
+
+:func:`parse_estimator_options` reads the ``--option key=value`` pairs (JSON values within the
+limits of :mod:`scenarios.limits`), :func:`print_json` prints the one JSON object of ``--json``;
+``@with_csv_options`` gives a command the options of a CSV file's constants
+(:data:`CSV_OPTIONS`), and :func:`load_measurements` reads a measurement file with them.
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+import json
+import math
+import os
+import re
+import sys
+import traceback
+import warnings
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn, TypeVar
+
+import typer
+from typer.core import TyperGroup
+
+try:  # typer 0.2x carries its own copy of click
+    from typer._click import exceptions as click_errors
+except ImportError:  # pragma: no cover - an older typer runs on click itself
+    from click import exceptions as click_errors  # type: ignore[no-redef]
+
+if TYPE_CHECKING:
+    from scenarios.types import MeasurementSet
+
+USAGE_ERROR_STATUS = 2
+"""Exit status of a malformed file, an unknown name, a bad option or a request over a limit."""
+INTERNAL_ERROR_STATUS = 1
+"""Exit status of an unexpected exception (a bug): ``error: internal: ...``."""
+INTERRUPTED_STATUS = 130
+"""Exit status after Ctrl-C (128 + SIGINT, as shells report it)."""
+TRACEBACK_VARIABLE = "EMITTERBENCH_TRACEBACK"
+"""Set to 1 to print the traceback of an internal error before its line."""
+MAX_LINE = 2000
+"""Longest error line printed, characters; a longer message is cut."""
+
+_FIELD = re.compile(r'(?:[^\s"]|"(?:[^"\\]|\\.)*")+(?: \([^)]*\))?: \S')
+"""A message that starts with its field: ``samples[2].toa_s: ``, ``x_m (CSV line 3): ``,
+``noise["a b"]: ``."""
+
+Command = TypeVar("Command", bound=Callable[..., Any])
+
+
+def one_line(text: str) -> str:
+    """``text`` on one line: whitespace runs as one space, unprintable characters escaped."""
+    text = " ".join(text.split())
+    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    return text if len(text) <= MAX_LINE else text[:MAX_LINE] + "... (cut)"
+
+
+def fail(message: str, status: int = USAGE_ERROR_STATUS) -> NoReturn:
+    """Print ``error: <message>`` on one line to stderr and exit with ``status`` (2)."""
+    typer.echo(f"error: {one_line(message)}", err=True)
+    raise typer.Exit(status)
+
+
+def with_field(message: str, field: str) -> str:
+    """``message`` if it starts with a field, else ``field: message``."""
+    return message if _FIELD.match(message) else f"{field}: {message}"
+
+
+@contextmanager
+def blame(field: str, what: str) -> Iterator[None]:
+    """Re-raise a ``ValueError`` of the block as ``field: what (message)``.
+
+    For a step whose errors are not the user's fields, e.g. an estimator that rejects the
+    data it was given: the user learns which choice to change.
+    """
+    try:
+        yield
+    except ValueError as error:
+        raise ValueError(f"{field}: {what} ({error})") from None
+
+
+def clean_errors(
+    function: Command, *, field: str, interrupted: Callable[[dict[str, Any]], str] | None = None
+) -> Command:
+    """``function`` with :func:`fail` for a ``ValueError`` and exit 130 on Ctrl-C.
+
+    A message without a field gets ``field``; ``interrupted(kwargs)`` says what to do after
+    Ctrl-C. Numpy's warnings are silenced (an input they come from fails cleanly or is a
+    failed estimate); any other warning is printed as one line.
+    """
+
+    @functools.wraps(function)
+    def run(*args: Any, **kwargs: Any) -> Any:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            warnings.showwarning = _show_warning
+            try:
+                return function(*args, **kwargs)
+            except ValueError as error:
+                fail(with_field(str(error), field))
+            except KeyboardInterrupt:
+                hint = interrupted(kwargs) if interrupted else "stopped before the end"
+                fail(f"interrupted: {hint}", INTERRUPTED_STATUS)
+
+    return run  # type: ignore[return-value]
+
+
+def _show_warning(message: Any, category: Any, *args: Any, **kwargs: Any) -> None:
+    typer.echo(f"warning: {one_line(str(message))}", err=True)
+
+
+class OneLineErrors(TyperGroup):
+    """The command group: usage errors and unexpected exceptions as one line each."""
+
+    def main(  # type: ignore[override]
+        self,
+        args: Any = None,
+        prog_name: str | None = None,
+        complete_var: str | None = None,
+        standalone_mode: bool = True,
+        **extra: Any,
+    ) -> Any:
+        parent = super()
+
+        def invoke() -> Any:
+            return parent.main(args, prog_name, complete_var, standalone_mode=False, **extra)
+
+        status = run_guarded(invoke)
+        if standalone_mode:
+            sys.exit(status)
+        return status
+
+
+def run_guarded(invoke: Callable[[], Any]) -> int:
+    """Call ``invoke`` (click's ``main`` with ``standalone_mode=False``); its exit status.
+
+    Nothing escapes: a usage error, Ctrl-C outside a command and any exception become one
+    line on stderr.
+    """
+    try:
+        status = invoke()
+    except click_errors.NoArgsIsHelpError as error:
+        help_text = error.ctx.get_help() if error.ctx else ""  # rich prints it itself
+        if help_text:
+            typer.echo(help_text, err=True)
+        return USAGE_ERROR_STATUS
+    except click_errors.UsageError as error:
+        typer.echo(f"error: {one_line(usage_message(error))}", err=True)
+        return USAGE_ERROR_STATUS
+    except click_errors.ClickException as error:
+        typer.echo(f"error: {one_line(with_field(error.format_message(), 'input'))}", err=True)
+        return USAGE_ERROR_STATUS
+    except (KeyboardInterrupt, typer.Abort):
+        typer.echo("error: interrupted: stopped before the end", err=True)
+        return INTERRUPTED_STATUS
+    except Exception as error:
+        if os.environ.get(TRACEBACK_VARIABLE) == "1":
+            traceback.print_exc()
+        text = one_line(f"{type(error).__name__}: {error}")
+        typer.echo(
+            f"error: internal: {text} (please report it with the command that caused it; "
+            f"{TRACEBACK_VARIABLE}=1 prints where it happened)",
+            err=True,
+        )
+        return INTERNAL_ERROR_STATUS
+    return status if isinstance(status, int) and not isinstance(status, bool) else 0
+
+
+def usage_message(error: Any) -> str:
+    """``<field>: <what is wrong> (see `emitterbench CMD --help`)`` for a click usage error."""
+    command = error.ctx.command_path if error.ctx else "emitterbench"
+    text = error.message.rstrip(".")
+    if isinstance(error, click_errors.MissingParameter) and error.param is not None:
+        field, text = _parameter_name(error.param), "missing; it is required"
+    elif isinstance(error, click_errors.BadParameter) and error.param is not None:
+        field = _parameter_name(error.param)
+    elif isinstance(error, click_errors.NoSuchOption):
+        field, text = error.option_name, "no such option"
+        if error.possibilities:
+            text += f"; did you mean {' or '.join(sorted(error.possibilities))}?"
+    elif isinstance(error, click_errors.BadOptionUsage):
+        field = error.option_name
+        text = text.removeprefix(f"Option {field!r} ")
+    elif text.startswith("No such command"):
+        field = "command"
+    else:
+        field = "arguments"
+    return f"{field}: {text} (see `{command} --help`)"
+
+
+def _parameter_name(parameter: Any) -> str:
+    """``--workers`` for an option (its longest name), ``file`` for an argument."""
+    names = [name for name in getattr(parameter, "opts", ()) if name.startswith("-")]
+    return max(names, key=len) if names else parameter.name or "argument"
+
+
+# --------------------------------------------------------------------------------------------
+# options and output
+# --------------------------------------------------------------------------------------------
+
+
+def parse_estimator_options(pairs: list[str]) -> dict[str, Any]:
+    """``key=value`` strings to keyword arguments; values are JSON where they parse.
+
+    ``side_prior_m=[30,10]`` gives the tuple ``(30, 10)`` (JSON arrays become tuples, so the
+    frozen estimator stays hashable), ``frames=last`` the string ``"last"``.
+    """
+
+    def frozen(value: Any) -> Any:
+        return tuple(frozen(item) for item in value) if isinstance(value, list) else value
+
+    from scenarios.limits import TOO_DEEP, check_nesting, clip
+
+    options: dict[str, Any] = {}
+    for pair in pairs:
+        key, separator, text = pair.partition("=")
+        key = key.strip()
+        if not separator or not key.isidentifier():
+            raise ValueError(f"--option: expected key=value, got {clip(pair)!r}")
+        if key in options:
+            raise ValueError(f"--option: {key!r} given twice; keep one")
+        try:
+            value = json.loads(text, parse_int=_option_integer)
+            check_nesting(value)
+        except json.JSONDecodeError:
+            options[key] = text  # not JSON: the text itself, e.g. frames=last
+            continue
+        except RecursionError:
+            raise ValueError(f"--option: {key}: {TOO_DEEP}") from None
+        except ValueError as error:  # too deep, or an integer too long
+            problem = str(error).partition(": ")[2] or str(error)
+            raise ValueError(f"--option: {key}: {problem}") from None
+        options[key] = frozen(value)
+    return options
+
+
+def _option_integer(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:  # beyond sys.get_int_max_str_digits()
+        raise ValueError(f"value: an integer of {len(text)} digits; write a smaller one") from None
+
+
+def json_ready(value: Any) -> Any:
+    """Nested dicts, sequences and numpy values as plain JSON; non-finite floats as null."""
+    import numpy as np
+
+    if isinstance(value, dict):
+        return {str(key): json_ready(item) for key, item in value.items()}
+    if isinstance(value, list | tuple | np.ndarray):
+        return [json_ready(item) for item in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if value is None or isinstance(value, bool | int | str):
+        return value
+    return str(value)
+
+
+def print_json(obj: Any) -> None:
+    """Print one JSON object on stdout (strict: NaN was already turned into null)."""
+    typer.echo(json.dumps(json_ready(obj), allow_nan=False))
+
+
+# --------------------------------------------------------------------------------------------
+# the constants of a CSV file, as options
+# --------------------------------------------------------------------------------------------
+
+_CSV_PANEL = "CSV constants (a JSON file carries its own)"
+
+CSV_OPTIONS: dict[str, tuple[str, str]] = {
+    "carrier_hz": ("--carrier-hz", "Carrier frequency f0, Hz."),
+    "speed_of_light_mps": ("--speed-of-light-mps", "Propagation speed c, m/s (default 299792458)."),
+    "emitter_height_m": ("--emitter-height-m", "Known emitter height z_s, m (default 0)."),
+    "noise.doppler_hz": ("--sigma-doppler-hz", "Doppler noise σ, Hz."),
+    "noise.toa_s": ("--sigma-toa-s", "ToA noise σ, s."),
+    "noise.rss_db": ("--sigma-rss-db", "RSS noise σ, dB."),
+    "rss_model.reference_power_dbm": ("--rss-reference-power-dbm", "RSS model P0, dBm."),
+    "rss_model.reference_distance_m": ("--rss-reference-distance-m", "RSS model d0, m."),
+    "rss_model.path_loss_exponent": ("--rss-path-loss-exponent", "RSS model η."),
+}
+"""The options that give a CSV file its constants: field of the file (JSON path) → option, help."""
+
+CsvConstants = dict[str, float | None]
+"""The CSV options a command was given: field of the file → value (None: not given)."""
+
+_CSV_PARAMETERS = {
+    field: inspect.Parameter(
+        option.lstrip("-").replace("-", "_"),
+        inspect.Parameter.KEYWORD_ONLY,
+        default=None,
+        annotation=Annotated[
+            float | None, typer.Option(option, help=text, rich_help_panel=_CSV_PANEL)
+        ],
+    )
+    for field, (option, text) in CSV_OPTIONS.items()
+}
+_OPTION_OF_FIELD = {field: option for field, (option, _) in CSV_OPTIONS.items()}
+_OPTION_OF_FIELD["rss_model"] = "/".join(
+    option for field, option in _OPTION_OF_FIELD.items() if field.startswith("rss_model.")
+)
+
+
+def with_csv_options(function: Command) -> Command:
+    """Give a command the options of :data:`CSV_OPTIONS`, after its own.
+
+    ``function`` ends with the keyword-only parameter ``constants: CsvConstants``; typer sees the
+    nine options in its place, and ``function`` receives their values in that one mapping.
+    """
+    signature = inspect.signature(function, eval_str=True)
+    parameters = [p for p in signature.parameters.values() if p.name != "constants"]
+    parameters += _CSV_PARAMETERS.values()
+
+    @functools.wraps(function)
+    def run(*args: Any, **kwargs: Any) -> Any:
+        constants = {field: kwargs.pop(p.name) for field, p in _CSV_PARAMETERS.items()}
+        return function(*args, constants=constants, **kwargs)
+
+    run.__signature__ = signature.replace(parameters=parameters)  # type: ignore[attr-defined]
+    run.__annotations__ = {p.name: p.annotation for p in parameters}
+    return run  # type: ignore[return-value]
+
+
+def load_measurements(file: Path, constants: CsvConstants) -> MeasurementSet:
+    """Read a measurement file; a CSV one with the constants of the CSV options.
+
+    Errors about a CSV constant name the command-line option to fix (``--sigma-toa-s``).
+    """
+    from scenarios.files import read_measurements_with
+
+    return read_measurements_with(file, constants, names=_OPTION_OF_FIELD)

@@ -1,0 +1,375 @@
+"""Estimates of a whole batch of trials as columns, and the mirror rule applied to columns.
+
+:class:`BatchEstimates` holds what a list of :class:`~estimators.base.Estimate` holds, one
+array per field with the trials along the first axis, so that a run can store a batch's
+results without building an object per trial. :meth:`BatchEstimates.estimate` builds the
+per-trial :class:`~estimators.base.Estimate` on demand; ``estimate_batch`` of a batch-capable
+estimator returns :meth:`BatchEstimates.to_estimates`.
+
+:func:`finalize_columns` is :func:`estimators.base.finalize_estimate` and
+:func:`estimators.base.choose_position` for every trial at once: the mirror images on a
+straight track, the merging of coincident candidates, ``cost_rtol``, ``side_prior_m`` and the
+tie-break (which trials draw ``rng.integers(n_candidates)``: exactly those where the one-trial
+path draws; the caller draws them, in trial order). Where rounding could decide a comparison
+either way it flags the trial, for the caller to finalize that trial one at a time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from estimators.base import Estimate, check_rng
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+IntArray = NDArray[np.int64]
+
+MERGE_RTOL = 1e-9
+"""Candidates closer than this times the scale of the points are one (``finalize_estimate``)."""
+
+DOUBT_FACTOR = 2.0
+"""A distance within this factor of the merge threshold is too close to call."""
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class BatchEstimates:
+    """The estimates of ``n`` trials, field by field (see :class:`~estimators.base.Estimate`).
+
+    Attributes
+    ----------
+    estimator : str
+    position_m : (n, 2)
+        NaN where ``success`` is false.
+    candidates_m : (n, k, 2)
+        Trial ``i``'s candidates are ``candidates_m[i, :n_candidates[i]]``; NaN beyond.
+    n_candidates : (n,)
+    ambiguous, success : (n,) bool
+    message_code : (n,) int
+        Trial ``i``'s message is ``messages[message_code[i]]``.
+    messages : tuple of str
+    diagnostics : mapping of str to (n,) arrays
+        One column per diagnostics key, in the estimator's key order; a failed trial has
+        no diagnostics.
+    recomputed : (n,) bool
+        Trials solved one at a time because a choice of the batch solver was within rounding
+        of its threshold (their values are the one-trial path's own).
+    covariance_m2 : (n, 2, 2) or None
+
+    The arrays are made read-only (not copied): a result is a value.
+    """
+
+    estimator: str
+    position_m: FloatArray
+    candidates_m: FloatArray
+    n_candidates: IntArray
+    ambiguous: BoolArray
+    success: BoolArray
+    message_code: IntArray
+    messages: tuple[str, ...]
+    diagnostics: Mapping[str, NDArray[Any]] = field(default_factory=dict)
+    recomputed: BoolArray | None = None
+    covariance_m2: FloatArray | None = None
+
+    def __post_init__(self) -> None:
+        n = len(self.position_m)
+        if self.recomputed is None:
+            object.__setattr__(self, "recomputed", np.zeros(n, dtype=bool))
+        columns = {
+            "position_m": (self.position_m, (n, 2)),
+            "candidates_m": (self.candidates_m, (n, None, 2)),
+            "n_candidates": (self.n_candidates, (n,)),
+            "ambiguous": (self.ambiguous, (n,)),
+            "success": (self.success, (n,)),
+            "message_code": (self.message_code, (n,)),
+            "recomputed": (self.recomputed, (n,)),
+        }
+        if self.covariance_m2 is not None:
+            columns["covariance_m2"] = (self.covariance_m2, (n, 2, 2))
+        for key, value in self.diagnostics.items():
+            columns[f"diagnostics[{key!r}]"] = (value, (n,))
+        for name, (value, shape) in columns.items():
+            if np.ndim(value) != len(shape) or any(
+                want is not None and got != want
+                for got, want in zip(np.shape(value), shape, strict=True)
+            ):
+                raise ValueError(f"{name}: expected shape {shape}, got {np.shape(value)}")
+        for value, _ in columns.values():
+            if isinstance(value, np.ndarray):
+                value.flags.writeable = False
+        if np.any(self.n_candidates > self.candidates_m.shape[1]):
+            raise ValueError("n_candidates: more candidates than candidates_m holds")
+        if len(self.message_code) and (
+            np.min(self.message_code) < 0 or np.max(self.message_code) >= len(self.messages)
+        ):
+            raise ValueError("message_code: an index outside messages")
+
+    @classmethod
+    def from_estimates(cls, estimator: str, estimates: Sequence[Estimate]) -> BatchEstimates:
+        """The columns of per-trial estimates of one estimator (the diagnostics keys of the
+        successful ones must agree)."""
+        n = len(estimates)
+        first = next((e for e in estimates if e.success), None)
+        keys = [] if first is None else list(first.diagnostics)
+        covariance = any(e.covariance_m2 is not None for e in estimates)
+        empty = cls(
+            estimator=estimator,
+            position_m=np.full((n, 2), np.nan),
+            candidates_m=np.full((n, 0, 2), np.nan),
+            n_candidates=np.zeros(n, dtype=np.int64),
+            ambiguous=np.zeros(n, dtype=bool),
+            success=np.zeros(n, dtype=bool),
+            message_code=np.zeros(n, dtype=np.int64),
+            messages=("",),
+            diagnostics={key: _column(first.diagnostics[key], n) for key in keys},
+            covariance_m2=np.full((n, 2, 2), np.nan) if covariance else None,
+        )
+        filled = empty.with_trials(range(n), estimates)
+        return replace(filled, recomputed=np.zeros(n, dtype=bool))
+
+    def __len__(self) -> int:
+        return len(self.position_m)
+
+    def message(self, index: int) -> str:
+        return self.messages[int(self.message_code[index])]
+
+    def estimate(self, index: int) -> Estimate:
+        """Trial ``index`` as an :class:`~estimators.base.Estimate`."""
+        success = bool(self.success[index])
+        diagnostics = (
+            {key: _python_scalar(value[index]) for key, value in self.diagnostics.items()}
+            if success
+            else {}
+        )
+        return Estimate(
+            estimator=self.estimator,
+            position_m=self.position_m[index],
+            candidates_m=self.candidates_m[index, : self.n_candidates[index]],
+            ambiguous=bool(self.ambiguous[index]),
+            covariance_m2=None if self.covariance_m2 is None else self.covariance_m2[index],
+            success=success,
+            message=self.message(index),
+            diagnostics=diagnostics,
+        )
+
+    def to_estimates(self) -> list[Estimate]:
+        """One :class:`~estimators.base.Estimate` per trial, in trial order."""
+        return [self.estimate(index) for index in range(len(self))]
+
+    def with_trials(self, index: Sequence[int], estimates: Sequence[Estimate]) -> BatchEstimates:
+        """A copy with trials ``index`` replaced by ``estimates`` (e.g. solved one at a time).
+
+        A successful replacement must carry the same diagnostics keys as the columns.
+        """
+        if len(index) == 0:
+            return self
+        width = max([self.candidates_m.shape[1], *(len(e.candidates_m) for e in estimates)])
+        candidates = np.full((len(self), width, 2), np.nan)
+        candidates[:, : self.candidates_m.shape[1]] = self.candidates_m
+        position = self.position_m.copy()
+        n_candidates = self.n_candidates.copy()
+        ambiguous = self.ambiguous.copy()
+        success = self.success.copy()
+        code = self.message_code.copy()
+        recomputed = self.recomputed.copy()
+        messages = list(self.messages)
+        diagnostics = {key: value.copy() for key, value in self.diagnostics.items()}
+        covariance = None if self.covariance_m2 is None else self.covariance_m2.copy()
+        for i, estimate in zip(index, estimates, strict=True):
+            position[i] = estimate.position_m
+            count = len(estimate.candidates_m)
+            candidates[i] = np.nan
+            candidates[i, :count] = estimate.candidates_m
+            n_candidates[i] = count
+            ambiguous[i] = estimate.ambiguous
+            success[i] = estimate.success
+            recomputed[i] = True
+            if estimate.message not in messages:
+                messages.append(estimate.message)
+            code[i] = messages.index(estimate.message)
+            if covariance is not None:
+                covariance[i] = np.nan if estimate.covariance_m2 is None else estimate.covariance_m2
+            if estimate.success:
+                if set(estimate.diagnostics) != set(diagnostics):
+                    raise ValueError(
+                        f"diagnostics: trial {i} has keys {sorted(estimate.diagnostics)}, "
+                        f"the columns {sorted(diagnostics)}"
+                    )
+                for key, value in estimate.diagnostics.items():
+                    diagnostics[key][i] = value
+        return BatchEstimates(
+            estimator=self.estimator,
+            position_m=position,
+            candidates_m=candidates,
+            n_candidates=n_candidates,
+            ambiguous=ambiguous,
+            success=success,
+            message_code=code,
+            messages=tuple(messages),
+            diagnostics=diagnostics,
+            recomputed=recomputed,
+            covariance_m2=covariance,
+        )
+
+
+def _column(example: Any, n: int) -> NDArray[Any]:
+    """An empty diagnostics column for values like ``example`` (numbers typed, else objects)."""
+    dtype = np.asarray(example).dtype
+    return np.zeros(n, dtype=dtype if dtype.kind in "biuf" else object)
+
+
+def _python_scalar(value: Any) -> Any:
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def check_rngs(rngs: Sequence[np.random.Generator | None] | None, n: int) -> list[Any]:
+    """One generator (or None) per trial; ``None`` for all when ``rngs`` is None."""
+    if rngs is None:
+        return [None] * n
+    if isinstance(rngs, np.random.Generator) or not isinstance(rngs, Sequence):
+        raise TypeError(
+            f"rngs: expected a list of numpy.random.Generator (one per trial) or None, got "
+            f"{type(rngs).__name__}"
+        )
+    if len(rngs) != n:
+        raise ValueError(f"rngs: expected one generator per trial ({n}), got {len(rngs)}")
+    if not set(map(type, rngs)) <= {np.random.Generator, type(None)}:
+        for rng in rngs:
+            check_rng(rng)
+    return list(rngs)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FinalizedColumns:
+    """What :func:`finalize_columns` decides for each trial (``draw`` still to be drawn)."""
+
+    candidates: FloatArray
+    n_candidates: IntArray
+    chosen: IntArray
+    draw: BoolArray
+    ambiguous: BoolArray
+    uncertain: BoolArray
+
+
+def finalize_columns(
+    candidates_m: FloatArray,
+    count: IntArray,
+    costs: FloatArray,
+    mean_position_m: ArrayLike,
+    line: tuple[FloatArray, FloatArray] | None,
+    *,
+    side_prior_m: ArrayLike | None = None,
+    cost_rtol: float = 1e-6,
+) -> FinalizedColumns:
+    """:func:`~estimators.base.finalize_estimate` for ``n`` trials of one geometry.
+
+    Parameters
+    ----------
+    candidates_m : (n, k, 2)
+        Each trial's candidates, the first ``count[i]`` valid, in the order the one-trial
+        path passes them.
+    costs : (n, k)
+    mean_position_m : (2,)
+        The mean horizontal sample position (the one-trial path's reference for its scale).
+    line : the track's ``(origin, direction)`` or None (``straight_track_line``).
+
+    Returns the kept candidates in the one-trial path's order, the index chosen when no draw
+    is needed, and which trials need ``rng.integers(n_candidates)`` (ambiguous, no prior).
+    """
+    n, k, _ = candidates_m.shape
+    # one (n,) array per candidate slot: the candidates, then (straight track) their mirrors
+    xs = [candidates_m[:, j, 0] for j in range(k)]
+    ys = [candidates_m[:, j, 1] for j in range(k)]
+    valid = [count > j for j in range(k)]
+    cost = [np.where(valid[j], costs[:, j], np.inf) for j in range(k)]
+    if line is not None:  # each candidate's mirror image, at its cost, after the candidates
+        (ox, oy), (dx, dy) = (np.asarray(v, dtype=float) for v in line)
+        for j in range(k):
+            along = (xs[j] - ox) * dx + (ys[j] - oy) * dy
+            xs.append(ox + 2.0 * along * dx - (xs[j] - ox))
+            ys.append(oy + 2.0 * along * dy - (ys[j] - oy))
+        cost, valid = cost + cost, valid + valid
+    width = len(xs)
+    mean = np.asarray(mean_position_m, dtype=float)
+    scale = np.full(n, -np.inf)
+    uncertain = np.zeros(n, dtype=bool)
+    for j in range(width):
+        spread = np.maximum(np.abs(xs[j] - mean[0]), np.abs(ys[j] - mean[1]))
+        scale = np.where(valid[j], np.maximum(scale, spread), scale)
+        uncertain |= valid[j] & ~np.isfinite(xs[j] + ys[j] + cost[j])
+    scale = np.maximum(scale, 1e-300)
+    threshold = MERGE_RTOL * scale
+
+    # stable sort by cost, unless every trial's valid costs are in slot order already
+    in_order = all(
+        np.all(~valid[i] | ~valid[j] | (cost[i] <= cost[j])) for j in range(width) for i in range(j)
+    )
+    if not in_order:  # (invalid slots are skipped wherever they stand)
+        order = np.argsort(np.column_stack(cost), axis=1, kind="stable")
+
+        def sort(columns: list[NDArray[Any]]) -> list[NDArray[Any]]:
+            stacked = np.take_along_axis(np.column_stack(columns), order, axis=1)
+            return [stacked[:, j] for j in range(width)]
+
+        xs, ys, cost, valid = sort(xs), sort(ys), sort(cost), sort(valid)
+
+    # greedy merge in cost order: a point within the threshold of a kept one is dropped
+    kept = [valid[0].copy()]
+    for i in range(1, width):
+        keep = valid[i].copy()
+        for j in range(i):
+            distance = np.hypot(xs[i] - xs[j], ys[i] - ys[j])
+            compared = valid[i] & kept[j]
+            keep &= ~(compared & (distance <= threshold))
+            uncertain |= (
+                compared
+                & (distance > threshold / DOUBT_FACTOR)
+                & (distance < threshold * DOUBT_FACTOR)
+            )
+        kept.append(keep)
+
+    # choose_position: the kept points are in cost order; those above the tolerance go. A
+    # cost equal to the best stays whatever the rounding; another near the limit is in doubt
+    best = cost[0]
+    floor = np.finfo(float).eps * 64 * np.maximum(np.abs(best), 1.0)
+    limit = best + cost_rtol * np.abs(best) + floor
+    band = 1e-9 * np.abs(limit) + floor
+    out = np.full((n, width, 2), np.nan)
+    n_final = np.zeros(n, dtype=np.int64)
+    rows = np.arange(n)
+    for j in range(width):
+        uncertain |= kept[j] & (cost[j] != best) & (np.abs(cost[j] - limit) <= band)
+        final = kept[j] & (cost[j] <= limit)
+        at = rows[final]
+        out[at, n_final[final], 0] = xs[j][final]
+        out[at, n_final[final], 1] = ys[j][final]
+        n_final += final
+
+    ambiguous = n_final > 1
+    chosen = np.zeros(n, dtype=np.int64)
+    draw = np.zeros(n, dtype=bool)
+    if side_prior_m is not None:
+        prior = np.asarray(side_prior_m, dtype=float).reshape(2)
+        distance = np.hypot(out[..., 0] - prior[0], out[..., 1] - prior[1])
+        distance = np.where(np.arange(width)[None, :] < n_final[:, None], distance, np.inf)
+        chosen = np.argmin(distance, axis=1).astype(np.int64)
+        nearest = np.take_along_axis(distance, chosen[:, None], axis=1)[:, 0]
+        others = np.where(np.arange(width)[None, :] == chosen[:, None], np.inf, distance)
+        runner_up = np.min(others, axis=1)
+        uncertain |= np.isfinite(runner_up) & (
+            runner_up - nearest <= 1e-6 * np.maximum(nearest, scale)
+        )
+    else:
+        draw = ambiguous
+    return FinalizedColumns(
+        candidates=out,
+        n_candidates=n_final,
+        chosen=chosen,
+        draw=draw,
+        ambiguous=ambiguous | (line is not None),
+        uncertain=uncertain,
+    )

@@ -1,0 +1,100 @@
+"""The nuisance parameters of a non-cooperative emitter (MATH §15).
+
+A cooperative emitter's carrier and emission time are known. An unknown transmitter (a lost
+beacon, an interferer) gives neither:
+
+- ``carrier_offset_hz``, δ: its carrier is off the nominal ``f0`` by an unknown constant, so every
+  Doppler sample carries it, ``f_k = −γ v_kᵀu_k + δ + w_k``;
+- ``emission_time_s``, b: it emits at an unknown time, so every one-way ToA carries it,
+  ``τ_k = ρ_k/c + b + n_k`` (pseudo-ranges ``c τ_k = ρ_k + c b``).
+
+Both are constant over a pass. A scenario sets their true values and which of them the
+estimators must treat as unknown; a :class:`~scenarios.types.MeasurementSet` carries the names
+of the unknown ones (``unknowns``) and, in simulations, their true values. A known offset is
+one the receiver corrects for, so a simulation applies an offset only when it is declared
+unknown: with ``unknowns`` empty every estimator sees a cooperative emitter, as before.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
+
+from scenarios.fields import bounded
+
+NUISANCE_PARAMETERS: tuple[str, ...] = ("carrier_offset_hz", "emission_time_s")
+"""The nuisance parameters, in the order of their columns in the Fisher information (MATH §15)."""
+
+AFFECTED_MODALITY: dict[str, str] = {"carrier_offset_hz": "doppler", "emission_time_s": "toa"}
+"""The one modality each nuisance parameter enters."""
+
+MAX_CARRIER_OFFSET_HZ = 1e12
+"""Largest accepted ``|δ|``: beyond the carrier range of :mod:`scenarios.types`."""
+
+MAX_EMISSION_TIME_S = 1e12
+"""Largest accepted ``|b|``, the time limit of :mod:`scenarios.types`."""
+
+
+def parse_unknowns(value: Iterable[str] | str | None, field: str = "unknowns") -> tuple[str, ...]:
+    """``value`` as a tuple of nuisance parameter names in the canonical order.
+
+    ``None`` and an empty list mean both are known (a cooperative emitter). Raises
+    ``ValueError`` naming ``field`` for anything but a list of names of
+    :data:`NUISANCE_PARAMETERS`.
+    """
+    if value is None:
+        return ()
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, list | tuple | set | frozenset):
+        raise ValueError(
+            f"{field}: expected a list of any of {list(NUISANCE_PARAMETERS)}, got "
+            f"{type(value).__name__}"
+        )
+    names = list(value)
+    wrong = [name for name in names if not isinstance(name, str) or name not in AFFECTED_MODALITY]
+    if wrong:
+        raise ValueError(
+            f"{field}: expected a list of any of {list(NUISANCE_PARAMETERS)}, got {wrong[0]!r}"
+        )
+    return tuple(name for name in NUISANCE_PARAMETERS if name in names)
+
+
+def unknowns_used(unknowns: Iterable[str], modalities: Iterable[str]) -> tuple[str, ...]:
+    """The unknowns that enter the given modalities (δ only with Doppler, b only with ToA)."""
+    used = set(modalities)
+    return tuple(name for name in parse_unknowns(unknowns) if AFFECTED_MODALITY[name] in used)
+
+
+def describe_unknowns(unknowns: Iterable[str]) -> str:
+    """``"carrier offset and emission time"``: the unknowns in words, or ``"none"``."""
+    words = {"carrier_offset_hz": "carrier offset", "emission_time_s": "emission time"}
+    names = [words[name] for name in parse_unknowns(unknowns)]
+    return " and ".join(names) if names else "none"
+
+
+def set_nuisance_fields(obj: Any, prefix: str, label: str) -> None:
+    """Check and store, on a frozen ``Scenario`` or ``MeasurementSet``, ``unknowns`` and the
+    values ``<prefix>carrier_offset_hz`` and ``<prefix>emission_time_s`` (None: not given);
+    errors name them ``<label>carrier_offset_hz``."""
+    object.__setattr__(obj, "unknowns", parse_unknowns(obj.unknowns))
+    for name, limit, unit in (
+        ("carrier_offset_hz", MAX_CARRIER_OFFSET_HZ, "Hz"),
+        ("emission_time_s", MAX_EMISSION_TIME_S, "s"),
+    ):
+        value = getattr(obj, prefix + name)
+        if value is not None:
+            number = bounded(value, label + name, -limit, limit, unit, "check the unit")
+            object.__setattr__(obj, prefix + name, number)
+
+
+__all__ = [
+    "AFFECTED_MODALITY",
+    "MAX_CARRIER_OFFSET_HZ",
+    "MAX_EMISSION_TIME_S",
+    "NUISANCE_PARAMETERS",
+    "describe_unknowns",
+    "parse_unknowns",
+    "set_nuisance_fields",
+    "unknowns_used",
+]

@@ -1,0 +1,139 @@
+"""results.sqlite: a damaged or linked store is one line with the way out, for a resume, a
+report and every reader, and a refused resume changes nothing in the folder."""
+
+from __future__ import annotations
+
+import os
+import sqlite3
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from comparison.cli import app
+from comparison.engine import run_experiment
+from comparison.experiment import load_experiment
+from comparison.store import read_flights, read_points, read_trials, store_error
+
+runner = CliRunner()
+TRIALS = 4
+DAMAGED = r"^results.sqlite: .* is not a readable SQLite database of a run \(.+\); move it away"
+
+
+def invoke(*args: str | Path) -> Any:
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def clean_error(result: Any, start: str) -> str:
+    """Exit 2, nothing on stdout, one line ``error: <start>...`` on stderr; that line."""
+    assert result.exit_code == 2, result.output
+    assert result.stdout == ""
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith(f"error: {start}"), lines[0]
+    return lines[0]
+
+
+def files(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory) -> Path:
+    """A finished run of ``smoke`` with TRIALS trials (no report); copy it to change it."""
+    out = tmp_path_factory.mktemp("store") / "run"
+    return run_experiment(load_experiment("smoke"), out, workers=1, trials=TRIALS)
+
+
+def copy_of(run: Path, folder: Path) -> Path:
+    copy = folder / "run"
+    copy.mkdir()
+    for name, content in files(run).items():
+        (copy / name).write_bytes(content)
+    return copy
+
+
+def damage(database: Path, how: str) -> None:
+    size = database.stat().st_size
+    page = 4096
+    assert size >= 4 * page  # a header page, tables, rows: something to damage in the middle
+    with database.open("r+b") as handle:
+        if how == "truncated to half":
+            handle.truncate(size // 2)
+        elif how == "a garbage page in the middle":
+            handle.seek((size // 2) // page * page)
+            handle.write(bytes(range(256)) * (page // 256))
+        elif how == "a zeroed header":
+            handle.write(bytes(100))
+
+
+HOW = ["truncated to half", "a garbage page in the middle", "a zeroed header"]
+
+
+@pytest.mark.parametrize("how", HOW)
+def test_a_damaged_store_is_one_line_for_resume_report_and_readers(finished_run, tmp_path, how):
+    run = copy_of(finished_run, tmp_path)
+    damage(run / "results.sqlite", how)
+    before = files(run)
+    resumed = invoke("run", "smoke", "-o", run, "--trials", TRIALS + 2, "--resume")
+    line = clean_error(resumed, f"results.sqlite: {run / 'results.sqlite'} is not a readable")
+    way_out = "move it away and rerun the experiment with --resume (its trials run again)"
+    assert line.endswith(f"{way_out}, or restore it from a backup")
+    assert files(run) == before  # not even experiment.json's trials or run.json changed
+    clean_error(invoke("report", run), "results.sqlite: ")
+    assert files(run) == before
+    for read in (read_trials, read_points, read_flights):
+        with pytest.raises(ValueError, match=DAMAGED):
+            read(run)
+
+
+def test_moving_a_damaged_store_away_and_resuming_gives_the_run_again(finished_run, tmp_path):
+    run = copy_of(finished_run, tmp_path)
+    damage(run / "results.sqlite", "a zeroed header")
+    (run / "results.sqlite").rename(tmp_path / "damaged.sqlite")
+    run_experiment(load_experiment("smoke"), run, workers=1, trials=TRIALS, resume=True)
+    keep = [c for c in read_trials(run).columns if c != "runtime_s"]
+    pd.testing.assert_frame_equal(read_trials(run)[keep], read_trials(finished_run)[keep])
+
+
+def test_a_store_without_tables_is_one_line(finished_run, tmp_path):
+    run = copy_of(finished_run, tmp_path)
+    (run / "results.sqlite").write_bytes(b"")  # SQLite reads an empty file as no tables
+    clean_error(invoke("report", run), "results.sqlite: ")
+    with pytest.raises(ValueError, match=r"\(no such table: trials\)"):
+        read_trials(run)
+
+
+def test_a_linked_store_is_refused_and_its_target_untouched(finished_run, tmp_path):
+    run = copy_of(finished_run, tmp_path)
+    target = tmp_path / "elsewhere.sqlite"
+    (run / "results.sqlite").rename(target)
+    (run / "results.sqlite").symlink_to(target)
+    content = target.read_bytes()
+    resumed = invoke("run", "smoke", "-o", run, "--trials", TRIALS + 2, "--resume")
+    clean_error(resumed, f"results.sqlite: {run / 'results.sqlite'} is a symbolic link")
+    clean_error(invoke("report", run), "results.sqlite: ")
+    with pytest.raises(ValueError, match=r"^results.sqlite: .* is a symbolic link"):
+        read_points(run)
+    assert target.read_bytes() == content
+    assert not any(p.name.startswith("elsewhere.sqlite-") for p in tmp_path.iterdir())
+
+
+def test_only_sqlite_failures_of_the_file_are_turned_into_a_line(tmp_path):
+    path = tmp_path / "results.sqlite"
+    locked = store_error(path, sqlite3.OperationalError("database is locked"))
+    assert str(locked).startswith(f"results.sqlite: cannot use {path} (database is locked)")
+    damaged = store_error(path, sqlite3.DatabaseError("database disk image is malformed"))
+    assert str(damaged).startswith(f"results.sqlite: {path} is not a readable SQLite database")
+    assert (
+        store_error(path, sqlite3.ProgrammingError("Cannot operate on a closed database.")) is None
+    )
+
+
+def test_readers_see_the_rows_of_a_sound_store(finished_run):
+    assert len(read_trials(finished_run)) == 2 * TRIALS * 2
+    assert len(read_points(finished_run)) == 2
+    assert read_flights(finished_run).empty
+    assert not any(name.endswith(("-wal", "-shm")) for name in os.listdir(finished_run))

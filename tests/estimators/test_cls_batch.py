@@ -1,0 +1,425 @@
+"""The batch path of the closed-form CLS (``estimate_batch``, ``estimate_columns``) against the
+one-at-a-time path, trial by trial, with each trial's own generator.
+
+Equal means: the same estimator name, ``success``, ``ambiguous``, message and diagnostics keys;
+the same integer and boolean diagnostics; the candidates in the same order and the returned
+position within 1e-9 of the problem's length scale (``max(‖p‖, L)``, ``L`` the local frame's
+scale, MATH §5); the multiplier within 1e-9 of the scale of ``M = AᵀA``. The families cover
+one straight frame (every trial the hard case, every trial a mirror pair and a tie-break
+draw), turns, the paper's 300 km ToA noise, an emitter a centimetre from the track's plane
+(hard case and unique root side by side) and two headings a millidegree apart.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import estimators.gtrs_batch as gtrs_batch
+from estimators.base import Estimate, capabilities_of, protocol_problems
+from estimators.batch import BatchEstimates
+from estimators.cls import Cls, ClsAsPrinted, ClsPaper, _estimate
+from estimators.cls_batch import estimate_columns
+from estimators.cls_rows import LocalFrame
+from scenarios.catalog import get_scenario, heading_velocities_mps
+from scenarios.simulate import simulate_trials, trial_seeds
+from scenarios.types import FlightPlan, MeasurementBatch, Scenario
+
+RTOL = 1e-9
+
+
+def rotated(scenario: Scenario, angle_deg: float) -> Scenario:
+    """The scenario turned about the vertical through the origin (no axis-aligned track)."""
+    a = np.deg2rad(angle_deg)
+    turn = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0, 0, 1.0]])
+    flight = scenario.flight
+    return scenario.replace(
+        emitter_m=turn[:2, :2] @ scenario.emitter_m,
+        flight=replace(
+            flight,
+            start_position_m=turn @ flight.start_position_m,
+            frame_velocities_mps=flight.frame_velocities_mps @ turn.T,
+        ),
+    )
+
+
+def near_plane() -> Scenario:
+    """The emitter 1 cm from the vertical plane of the track, on a track at 37°."""
+    return rotated(get_scenario("paper-1m").replace(emitter_m=[35.0, 0.01]), 37.0)
+
+
+def millidegree() -> Scenario:
+    """Two frames whose headings differ by 0.001°."""
+    scenario = get_scenario("paper-1m")
+    velocities = heading_velocities_mps(10.0, [0.0, 0.001])
+    return scenario.replace(flight=replace(scenario.flight, frame_velocities_mps=velocities))
+
+
+FAMILIES: dict[str, tuple[Callable[[], Scenario], float]] = {
+    "paper-1m": (lambda: get_scenario("paper-1m"), 0.0),
+    "paper-1m-turn": (lambda: get_scenario("paper-1m-turn"), 0.0),
+    "turn-rotated": (lambda: rotated(get_scenario("turn"), 123.0), 10.0),
+    "paper": (lambda: get_scenario("paper"), 0.0),
+    "near-plane": (near_plane, 20.0),
+    "millidegree": (millidegree, 60.0),
+}
+
+
+def family_batch(name: str, n: int, seed: int = 0) -> MeasurementBatch:
+    build, snr_db = FAMILIES[name]
+    return simulate_trials(build(), snr_db=snr_db, seeds=trial_seeds(seed, n))
+
+
+def generators(n: int, seed: int = 100) -> list[np.random.Generator]:
+    return [np.random.default_rng(seed + i) for i in range(n)]
+
+
+def differences(estimator, batch: MeasurementBatch, columns: BatchEstimates) -> list[str]:
+    """Every way ``columns`` differs from ``estimate`` trial by trial (empty: equal)."""
+    found = []
+    rngs = generators(batch.n_trials)
+    for i in range(batch.n_trials):
+        trial = batch.trial(i)
+        single = estimator.estimate(trial, rng=rngs[i])
+        got = columns.estimate(i)
+        problems = _estimate_differences(estimator, trial, single, got)
+        if problems:
+            found.append(f"trial {i}: {'; '.join(problems)}")
+    return found
+
+
+def _estimate_differences(estimator, trial, single: Estimate, got: Estimate) -> list[str]:
+    problems = [
+        f"{field} {getattr(single, field)!r} vs {getattr(got, field)!r}"
+        for field in ("estimator", "success", "ambiguous", "message")
+        if getattr(single, field) != getattr(got, field)
+    ]
+    used = trial.select_frames(estimator.frames)
+    length = LocalFrame.fit(used.position_m, used.range_m).scale_m
+    scale = max(float(np.max(np.abs(single.position_m), initial=0.0)), length)
+    if single.candidates_m.shape != got.candidates_m.shape:
+        problems.append(f"candidates {single.candidates_m.tolist()} vs {got.candidates_m.tolist()}")
+    elif np.any(np.abs(single.candidates_m - got.candidates_m) > RTOL * scale):
+        problems.append(f"candidates {single.candidates_m.tolist()} vs {got.candidates_m.tolist()}")
+    if not np.allclose(
+        single.position_m, got.position_m, rtol=0.0, atol=RTOL * scale, equal_nan=True
+    ):
+        problems.append(f"position {single.position_m.tolist()} vs {got.position_m.tolist()}")
+    if list(single.diagnostics) != list(got.diagnostics):
+        return [
+            *problems,
+            f"diagnostics keys {list(single.diagnostics)} vs {list(got.diagnostics)}",
+        ]
+    for key, value in single.diagnostics.items():
+        other = got.diagnostics[key]
+        if type(value) is not type(other):
+            problems.append(f"{key}: {type(value).__name__} vs {type(other).__name__}")
+        elif key == "multiplier":
+            if abs(value - other) > RTOL * max(abs(value), abs(other)):
+                m_scale = float(np.sum(estimator.constrained_ls(trial).A ** 2))
+                if abs(value - other) > RTOL * m_scale:
+                    problems.append(f"multiplier {value!r} vs {other!r} (‖A‖² {m_scale:g})")
+        elif value != other:
+            problems.append(f"{key} {value!r} vs {other!r}")
+    return problems
+
+
+# --------------------------------------------------------------------------------------------
+# batch = one at a time
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("family", sorted(FAMILIES))
+@pytest.mark.parametrize(
+    ("estimator", "n"),
+    [(Cls(), 2000), (ClsPaper(), 2000), (ClsPaper(frames="all"), 2000), (ClsAsPrinted(), 500)],
+    ids=repr,
+)
+def test_batch_equals_one_at_a_time(family: str, estimator, n: int) -> None:
+    batch = family_batch(family, n)
+    columns = estimator.estimate_columns(batch, rngs=generators(n))
+    assert len(columns) == n
+    assert differences(estimator, batch, columns) == []
+    # the families hold the cases the batch must handle itself
+    if family == "paper-1m":
+        assert columns.diagnostics["hard_case"].all()
+        assert (columns.n_candidates == 2).all() and columns.ambiguous.all()
+    if family == "millidegree" and estimator.frames == "all":
+        # the second heading resolves the side, if barely: one point, near the pole
+        assert not columns.diagnostics["hard_case"].any() and not columns.ambiguous.any()
+        assert (columns.diagnostics["rank"] == 3).all()
+    if family == "near-plane" and estimator.name != "cls-as-printed":
+        # (without the height term the pair sits 50 m off the track: always the hard case)
+        hard = columns.diagnostics["hard_case"]
+        assert 0.2 < hard.mean() < 0.8, hard.mean()
+
+
+@pytest.mark.parametrize(
+    "estimator",
+    [
+        Cls(frames="last"),
+        Cls(weighting="none"),
+        ClsPaper(frames="all"),
+        Cls(side_prior_m=(30.0, -10.0)),
+        ClsPaper(side_prior_m=(40.0, 5.0)),
+        ClsPaper(frames="all", side_prior_m=(-20.0, 15.0)),
+    ],
+    ids=repr,
+)
+@pytest.mark.parametrize("family", ["paper-1m", "paper-1m-turn", "near-plane"])
+def test_options_batch_equals_one_at_a_time(family: str, estimator) -> None:
+    batch = family_batch(family, 400, seed=1)
+    columns = estimator.estimate_columns(batch, rngs=generators(400))
+    assert differences(estimator, batch, columns) == []
+
+
+def sub_batch(batch: MeasurementBatch, trials: slice) -> MeasurementBatch:
+    return MeasurementBatch(
+        geometry=batch.geometry,
+        doppler_hz=batch.doppler_hz[trials],
+        toa_s=batch.toa_s[trials],
+        rss_dbm=None if batch.rss_dbm is None else batch.rss_dbm[trials],
+    )
+
+
+@pytest.mark.parametrize("estimator", [Cls(), ClsPaper(), Cls(weighting="none")], ids=repr)
+@pytest.mark.parametrize("family", ["paper-1m", "turn-rotated", "near-plane"])
+def test_a_trials_result_does_not_depend_on_its_batch_to_the_bit(family, estimator) -> None:
+    """Batches of 1, 2, 3 and 7 trials give every trial exactly what the batch of 40 gives it
+    (candidates, position, multiplier), recomputed trials included: a run's rows do not depend
+    on how it is chunked."""
+    batch = family_batch(family, 40, seed=13)
+    whole = estimator.estimate_columns(batch, rngs=generators(40))
+    for size in (1, 2, 3, 7):
+        for start in range(0, 40, size):
+            part = slice(start, min(start + size, 40))
+            rngs = generators(40)[part]
+            columns = estimator.estimate_columns(sub_batch(batch, part), rngs=rngs)
+            for i, trial in enumerate(range(40)[part]):
+                a, b = columns.estimate(i), whole.estimate(trial)
+                assert np.array_equal(a.candidates_m, b.candidates_m), (size, trial)
+                assert np.array_equal(a.position_m, b.position_m), (size, trial)
+                assert a.diagnostics == b.diagnostics, (size, trial)
+
+
+@pytest.mark.parametrize("estimator", [Cls(), ClsPaper()], ids=repr)
+def test_standard_families_are_solved_by_the_batch_itself(estimator) -> None:
+    """On the benchmark's families no trial is left to the one-at-a-time path."""
+    for family in ("paper-1m", "paper-1m-turn", "turn-rotated", "paper"):
+        columns = estimator.estimate_columns(family_batch(family, 2000, seed=2))
+        assert int(columns.recomputed.sum()) == 0, family
+
+
+def test_estimate_batch_is_the_columns_as_estimates() -> None:
+    batch = family_batch("paper-1m-turn", 50)
+    estimator = Cls()
+    listed = estimator.estimate_batch(batch, rngs=generators(50))
+    columns = estimator.estimate_columns(batch, rngs=generators(50))
+    assert len(listed) == 50
+    for i, estimate in enumerate(listed):
+        assert isinstance(estimate, Estimate)
+        assert _estimate_differences(estimator, batch.trial(i), columns.estimate(i), estimate) == []
+    assert [e.position_m.tolist() for e in columns.to_estimates()] == [
+        e.position_m.tolist() for e in listed
+    ]
+
+
+# --------------------------------------------------------------------------------------------
+# tie-breaking: the same draw from the same generator, only where the one-trial path draws
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("estimator", [Cls(), ClsPaper(), Cls(side_prior_m=(35.0, 20.0))], ids=repr)
+def test_each_generator_is_drawn_exactly_as_one_at_a_time(estimator) -> None:
+    """After the batch, every generator is in the state the one-trial path leaves it in: drawn
+    once on an ambiguous trial without a prior, untouched otherwise."""
+    batch = family_batch("near-plane", 300, seed=3)
+    batch_rngs, single_rngs = generators(300), generators(300)
+    estimator.estimate_columns(batch, rngs=batch_rngs)
+    for i in range(300):
+        estimator.estimate(batch.trial(i), rng=single_rngs[i])
+    untouched = generators(300)
+    drawn = 0
+    for a, b, fresh in zip(batch_rngs, single_rngs, untouched, strict=True):
+        assert a.bit_generator.state == b.bit_generator.state
+        drawn += a.bit_generator.state != fresh.bit_generator.state
+    if estimator.side_prior_m is None:
+        assert 50 < drawn < 300  # hard-case pairs draw, unique roots on the plane do not
+    else:
+        assert drawn == 0
+
+
+def test_one_generator_shared_by_every_trial_is_drawn_in_trial_order() -> None:
+    batch = family_batch("paper-1m", 200, seed=4)
+    shared_batch, shared_single = np.random.default_rng(7), np.random.default_rng(7)
+    columns = Cls().estimate_columns(batch, rngs=[shared_batch] * 200)
+    singles = [Cls().estimate(batch.trial(i), rng=shared_single) for i in range(200)]
+    np.testing.assert_allclose(
+        columns.position_m, [s.position_m for s in singles], rtol=0.0, atol=1e-9 * 60.0
+    )
+    sides = np.sign(columns.position_m[:, 1])
+    assert 0.3 < np.mean(sides > 0) < 0.7  # a fair coin over the mirror pair
+
+
+def test_without_generators_the_first_candidate_is_returned_and_nothing_is_drawn() -> None:
+    batch = family_batch("paper-1m", 100, seed=5)
+    columns = ClsPaper().estimate_columns(batch)
+    np.testing.assert_array_equal(columns.position_m, columns.candidates_m[:, 0])
+    # left of the eastbound heading first: the candidate north of the track
+    assert (columns.candidates_m[:, 0, 1] > 0).all()
+    assert (columns.candidates_m[:, 1, 1] < 0).all()
+    assert differences_without_rng(ClsPaper(), batch, columns) == []
+
+
+def differences_without_rng(estimator, batch, columns) -> list[str]:
+    return [
+        f"trial {i}"
+        for i in range(batch.n_trials)
+        if _estimate_differences(
+            estimator, batch.trial(i), estimator.estimate(batch.trial(i)), columns.estimate(i)
+        )
+    ]
+
+
+# --------------------------------------------------------------------------------------------
+# what the batch leaves to the one-at-a-time path, and failures
+# --------------------------------------------------------------------------------------------
+
+
+def test_decisions_within_rounding_are_left_to_the_one_trial_path() -> None:
+    """The emitter exactly in the track's plane at 200 dB: φ(−μ₁) is rounding, so whether the
+    pair exists is rounding's choice; those trials are solved one at a time, and all agree."""
+    scenario = get_scenario("paper-1m").replace(emitter_m=[35.0, 0.0])
+    batch = simulate_trials(scenario, snr_db=200.0, seeds=trial_seeds(6, 100))
+    for estimator in (Cls(), ClsPaper()):
+        columns = estimator.estimate_columns(batch, rngs=generators(100))
+        assert 10 < int(columns.recomputed.sum()) <= 100
+        assert differences(estimator, batch, columns) == []
+
+
+def test_every_trial_recomputed_still_equals_one_at_a_time(monkeypatch) -> None:
+    """With no rounding tolerated every trial takes the one-trial path, draws included."""
+    monkeypatch.setattr(gtrs_batch, "POSITION_RTOL", 0.0)
+    batch = family_batch("paper-1m-turn", 60, seed=7)
+    columns = Cls(frames="last").estimate_columns(batch, rngs=generators(60))
+    assert columns.recomputed.all()
+    assert differences(Cls(frames="last"), batch, columns) == []
+
+
+def test_a_trial_whose_one_trial_solve_raises_is_a_failed_row(monkeypatch) -> None:
+    """A trial left to the one-trial path that raises becomes data: success false, NaN
+    position, no candidates, no diagnostics, the exception in the message."""
+    monkeypatch.setattr(gtrs_batch, "POSITION_RTOL", 0.0)
+    batch = family_batch("paper-1m", 6, seed=8)
+
+    def solve_one(data, rng):
+        if data.doppler_hz[0] == batch.doppler_hz[2, 0]:
+            raise ArithmeticError("overflow in trial 2")
+        return _estimate("cls", "weighted", "all", data, rng, None)
+
+    columns = estimate_columns("cls", "weighted", "all", batch, None, None, solve_one)
+    failed = columns.estimate(2)
+    assert not failed.success and not failed.ambiguous
+    assert failed.message == "ArithmeticError: overflow in trial 2"
+    assert np.isnan(failed.position_m).all() and failed.candidates_m.shape == (0, 2)
+    assert failed.diagnostics == {}
+    assert columns.success.tolist() == [True, True, False, True, True, True]
+    assert columns.estimate(3).message == "hard case: mirror pair (MATH §5)"
+
+
+def test_a_geometry_the_one_trial_path_refuses_is_refused_for_the_batch() -> None:
+    """The geometry is shared: a sample without horizontal motion fails every trial alike, with
+    the one-trial path's ValueError (a batch holds finite data only, MeasurementBatch checks)."""
+    scenario = get_scenario("turn").replace(
+        flight=FlightPlan(
+            start_position_m=[0.0, 0.0, 50.0],
+            frame_velocities_mps=[[0.0, 0.0, 2.0], [10.0, 0.0, 0.0]],
+            samples_per_frame=10,
+            sample_interval_s=0.05,
+        )
+    )
+    batch = simulate_trials(scenario, snr_db=0.0, seeds=trial_seeds(9, 3))
+    with pytest.raises(ValueError) as single:
+        Cls().estimate(batch.trial(0))
+    with pytest.raises(ValueError) as batched:
+        Cls().estimate_batch(batch)
+    assert str(batched.value) == str(single.value)
+    with pytest.raises(ValueError, match=r"^toa_s: "):
+        Cls().estimate_batch(replace(batch, toa_s=None))
+    with pytest.raises(TypeError, match=r"^batch: expected a scenarios.types.MeasurementBatch"):
+        Cls().estimate_batch(batch.trial(0))
+    with pytest.raises(ValueError, match=r"^rngs: expected one generator per trial \(3\), got 2"):
+        Cls().estimate_batch(batch, rngs=generators(2))
+    with pytest.raises(TypeError, match=r"^rng: expected a numpy.random.Generator"):
+        Cls().estimate_batch(batch, rngs=[np.random.default_rng(0), 1, None])
+
+
+# --------------------------------------------------------------------------------------------
+# the protocol and the columnar type
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("estimator", [Cls(), ClsPaper(), ClsAsPrinted()], ids=repr)
+def test_the_batch_capability_is_declared(estimator) -> None:
+    assert capabilities_of(estimator).batch
+    assert protocol_problems(estimator) == []
+
+
+def test_columns_hold_arrays_and_build_estimates_on_demand() -> None:
+    batch = family_batch("paper-1m-turn", 40, seed=10)
+    columns = ClsPaper(frames="all").estimate_columns(batch, rngs=generators(40))
+    assert columns.position_m.shape == (40, 2)
+    assert columns.candidates_m.shape[0] == 40 and columns.candidates_m.shape[2] == 2
+    assert list(columns.diagnostics) == [
+        "multiplier",
+        "hard_case",
+        "rank",
+        "stages",
+        "n_samples",
+        "straight_track",
+    ]
+    assert (columns.diagnostics["rank"] == 3).all()
+    assert (columns.diagnostics["n_samples"] == 100).all()
+    assert (columns.n_candidates == 1).all() and not columns.ambiguous.any()
+    assert np.isnan(columns.candidates_m[:, 1:]).all()
+    assert columns.messages[columns.message_code[0]] == ""
+    estimate = columns.estimate(0)
+    assert estimate.candidates_m.shape == (1, 2)
+    assert isinstance(estimate.diagnostics["rank"], int)
+    assert isinstance(estimate.diagnostics["multiplier"], float)
+    assert isinstance(estimate.diagnostics["hard_case"], bool)
+
+
+def test_with_trials_replaces_rows_and_checks_keys() -> None:
+    batch = family_batch("paper-1m", 5, seed=11)
+    columns = Cls().estimate_columns(batch)
+    failed = Estimate.failed("cls", "refused")
+    replaced = columns.with_trials([1], [failed])
+    assert replaced.recomputed.tolist() == [False, True, False, False, False]
+    assert replaced.estimate(1).message == "refused"
+    assert replaced.messages[-1] == "refused" and not replaced.success[1]
+    assert replaced.estimate(0).message == columns.estimate(0).message
+    other = replace(columns.estimate(2), diagnostics={"iterations": 3})
+    with pytest.raises(ValueError, match=r"^diagnostics: trial 2 has keys \['iterations'\]"):
+        columns.with_trials([2], [other])
+    with pytest.raises(ValueError, match=r"^ambiguous: expected shape \(5,\), got \(4,\)"):
+        replace(columns, ambiguous=np.zeros(4, dtype=bool))
+
+
+def test_columns_from_per_trial_estimates_round_trip() -> None:
+    batch = family_batch("paper-1m", 8, seed=12)
+    estimates = Cls().estimate_batch(batch, rngs=generators(8))
+    estimates[3] = Estimate.failed("cls", "refused")
+    columns = BatchEstimates.from_estimates("cls", estimates)
+    assert not columns.recomputed.any()
+    assert columns.success.tolist() == [True] * 3 + [False] + [True] * 4
+    assert columns.diagnostics["rank"].dtype == np.int64
+    for i, estimate in enumerate(estimates):
+        again = columns.estimate(i)
+        assert again.message == estimate.message and again.diagnostics == estimate.diagnostics
+        np.testing.assert_array_equal(again.candidates_m, estimate.candidates_m)
+        np.testing.assert_array_equal(again.position_m, estimate.position_m)
+    assert not columns.position_m.flags.writeable
