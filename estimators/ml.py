@@ -74,7 +74,7 @@ from estimators.convergence import DECREMENT_TOL, stationarity_decrement
 from estimators.lls import solve_lls_toa
 from estimators.minpack_batch import ordered_sum
 from estimators.ml_residuals import ResidualModel, profiled_offsets
-from estimators.ml_starts import doppler_frame_starts, ranges_uninformative
+from estimators.ml_starts import doppler_frame_starts, doppler_grid_starts, ranges_uninformative
 from estimators.pseudorange_cls import solve_pseudorange_cls
 from scenarios.fisher import fisher_information, inverse_2x2, regular_2x2
 from scenarios.geometry import cross_track_m, mirror_across_line, straight_track_line
@@ -150,9 +150,9 @@ def on_start_grid(local_xy: ArrayLike) -> FloatArray:
     return np.round(np.asarray(local_xy, dtype=float) / START_GRID) * START_GRID
 
 
-def _modalities(use_rss: bool) -> tuple[str, ...]:
-    """The rows of the residual, in order: Doppler, ToA and (``use_rss``) RSS."""
-    return ("doppler", "toa", "rss") if use_rss else ("doppler", "toa")
+def _modalities(use_rss: bool, toa: bool = True) -> tuple[str, ...]:
+    """The rows of the residual, in order: Doppler, ToA (``toa``) and (``use_rss``) RSS."""
+    return ("doppler", *(("toa",) if toa else ()), *(("rss",) if use_rss else ()))
 
 
 # --------------------------------------------------------------------------------------------
@@ -411,7 +411,7 @@ def fisher_covariance_m2(
 
     ``J`` is the Gram matrix of :func:`whitened_residual_jacobian`, from :mod:`scenarios.fisher`.
     """
-    information = fisher_information(data, emitter_m, _modalities(use_rss))
+    information = fisher_information(data, emitter_m, _modalities(use_rss, data.toa_s is not None))
     if not regular_2x2(information):
         return None
     return inverse_2x2(information)
@@ -465,6 +465,9 @@ class MaximumLikelihood:
         Use every frame so far, or only the last.
     use_rss : bool
         Add the RSS residuals (needs ``rss_dbm`` in the data).
+    use_toa : bool
+        Use the ToA residuals (the default; needs ``toa_s``). False: Doppler alone, started
+        from the minima of the profiled Doppler cost on a grid (MATH §15).
     cost_rtol : float
         Minima within this relative cost gap of the best are all candidates (MATH §7).
     side_prior_m : (x, y) or None
@@ -484,10 +487,11 @@ class MaximumLikelihood:
     """
 
     name: ClassVar[str] = "ml"
-    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler"})
 
     frames: Frames = "all"
     use_rss: bool = False
+    use_toa: bool = True
     cost_rtol: float = 1e-6
     side_prior_m: tuple[float, float] | None = None
     fallback_lls: bool = True
@@ -498,7 +502,7 @@ class MaximumLikelihood:
     def __post_init__(self) -> None:
         if self.frames not in ("all", "last"):
             raise ValueError(f"frames: expected 'all' or 'last', got {self.frames!r}")
-        for option in ("use_rss", "fallback_lls"):
+        for option in ("use_rss", "use_toa", "fallback_lls"):
             if not isinstance(getattr(self, option), bool):
                 raise ValueError(f"{option}: expected true or false, got {getattr(self, option)!r}")
         if not (isinstance(self.cost_rtol, int | float) and 0.0 <= self.cost_rtol < np.inf):
@@ -515,8 +519,9 @@ class MaximumLikelihood:
         check_side_prior(self.side_prior_m)
 
     def capabilities(self) -> Capabilities:
-        """Doppler and ToA, and RSS with ``use_rss``; whitened residuals: unit-invariant."""
-        modalities = self.requires | ({"rss"} if self.use_rss else set())
+        """Doppler, ToA unless ``use_toa=False``, RSS with ``use_rss``; unit-invariant."""
+        modalities = self.requires | ({"toa"} if self.use_toa else set())
+        modalities |= {"rss"} if self.use_rss else set()
         return Capabilities(
             modalities=modalities,
             frames=self.frames,
@@ -538,11 +543,9 @@ class MaximumLikelihood:
 
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)
-        if self.use_rss and data.rss_dbm is None:
-            raise ValueError(
-                "rss_dbm: estimator 'ml' with use_rss=True needs RSS measurements; add them "
-                "or set use_rss=False"
-            )
+        self.check_measurements(data.toa_s is not None, data.rss_dbm is not None)
+        if not self.use_toa and data.toa_s is not None:
+            data = data.without("toa")
         used = data.select_frames(self.frames)
         starts, start_method, start_note, frame = self.search_starts(used)
         if starts is None:
@@ -617,14 +620,30 @@ class MaximumLikelihood:
             return dataclasses.replace(estimate, message=message)
         return dataclasses.replace(estimate, covariance_m2=covariance)
 
+    def check_measurements(self, has_toa: bool, has_rss: bool) -> None:
+        """Raise ``ValueError`` naming ``toa_s`` or ``rss_dbm`` when an option needs them."""
+        if self.use_toa and not has_toa:
+            raise ValueError(
+                "toa_s: estimator 'ml' needs ToA measurements; add them or set use_toa=False "
+                "to locate from Doppler alone"
+            )
+        if self.use_rss and not has_rss:
+            raise ValueError(
+                "rss_dbm: estimator 'ml' with use_rss=True needs RSS measurements; add them "
+                "or set use_rss=False"
+            )
+
     def search_starts(self, used: MeasurementSet) -> tuple[FloatArray | None, str, str, LocalFrame]:
         """The starts (world) ``estimate`` searches from, how they were found, a note, and the
         local frame: :meth:`_starts`, the Doppler pair (``doppler_start``) and, on a straight
         track, :func:`straight_track_starts` (module text, "Starts")."""
         starts, start_method, start_note = self._starts(used)
-        frame = LocalFrame.fit(used.position_m, used.range_m)
-        if starts is None:
-            return None, start_method, start_note, frame
+        ranges = used.range_m
+        if ranges is None:  # Doppler alone: the height sets the scale
+            ranges = used.position_m[:, 2] - used.emitter_height_m
+        frame = LocalFrame.fit(used.position_m, ranges)
+        if starts is None or used.toa_s is None:
+            return starts, start_method, start_note, frame
         if self.doppler_start is True or (
             self.doppler_start == "auto" and ranges_uninformative(used)
         ):
@@ -637,7 +656,10 @@ class MaximumLikelihood:
 
     def _starts(self, data: MeasurementSet) -> tuple[FloatArray | None, str, str]:
         """The CLS candidates, or the LLS-ToA solution when the CLS fails and fallback is on;
-        with an unknown emission time the pseudo-range closed form's (MATH §15)."""
+        with an unknown emission time the pseudo-range closed form's; from Doppler alone the
+        local minima of the profiled cost on a grid (MATH §15)."""
+        if data.toa_s is None:
+            return doppler_grid_starts(data), "doppler-grid", ""
         try:
             if "emission_time_s" in data.unknowns:
                 unknown_offset = "carrier_offset_hz" in data.unknowns

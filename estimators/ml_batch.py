@@ -186,6 +186,10 @@ class _Context:
         return np.concatenate(jx, axis=0), np.concatenate(jy, axis=0)
 
 
+def _uses_toa(estimator: MaximumLikelihood, batch: MeasurementBatch) -> bool:
+    return estimator.use_toa and batch.toa_s is not None
+
+
 def estimate_columns(
     estimator: MaximumLikelihood,
     batch: MeasurementBatch,
@@ -198,15 +202,12 @@ def estimate_columns(
         )
     n = batch.n_trials
     require_modalities(estimator, batch.trial(0) if n else batch.geometry)
-    if estimator.use_rss and batch.rss_dbm is None:
-        raise ValueError(
-            "rss_dbm: estimator 'ml' with use_rss=True needs RSS measurements; add them "
-            "or set use_rss=False"
-        )
+    estimator.check_measurements(batch.toa_s is not None, batch.rss_dbm is not None)
     generators = check_rngs(rngs, n)
     out = _Columns(n)
     context = None
-    if estimator.method == "lm" and not batch.geometry.unknowns:  # nuisance (§15): one by one
+    # nuisance parameters or Doppler alone (MATH §15): one trial at a time
+    if estimator.method == "lm" and not batch.geometry.unknowns and _uses_toa(estimator, batch):
         try:
             context = _Context.of(estimator, batch)
         except ValueError:  # e.g. a hovering sample: the one-trial path says what it does

@@ -54,6 +54,7 @@ class ResidualModel:
     rss: tuple[float, float, float]  # P0, 10 η, d0
     centred: tuple[bool, bool] = (False, False)  # Doppler, ToA blocks profiled (MATH §15)
     sample_axis: int = -1
+    toa: bool = True  # a ToA block (False: Doppler alone, MATH §15)
 
     @classmethod
     def of(cls, data: MeasurementSet) -> ResidualModel:
@@ -82,6 +83,7 @@ class ResidualModel:
                 "carrier_offset_hz" in data.unknowns,
                 "emission_time_s" in data.unknowns,
             ),
+            toa=data.toa_s is not None,
         )
 
     def by_sample(self) -> ResidualModel:
@@ -92,9 +94,10 @@ class ResidualModel:
 
     def _profiled(self, blocks: list[FloatArray]) -> list[FloatArray]:
         """The Doppler and ToA blocks centred over the samples where their offset is unknown."""
+        centred = [self.centred[0], *([self.centred[1]] if self.toa else [])]
         return [
             block - block.mean(axis=self.sample_axis, keepdims=True)
-            if index < 2 and self.centred[index]
+            if index < len(centred) and centred[index]
             else block
             for index, block in enumerate(blocks)
         ]
@@ -110,10 +113,9 @@ class ResidualModel:
         """The Doppler, ToA and (``rss`` given) RSS blocks of ``e`` at ``(x, y)``."""
         _, _, distance, radial = self._geometry(x, y)
         sigma_f, sigma_t, sigma_p = self.sigma
-        blocks = [
-            (doppler + self.gamma * radial / distance) / sigma_f,
-            (toa - distance / self.light) / sigma_t,
-        ]
+        blocks = [(doppler + self.gamma * radial / distance) / sigma_f]
+        if self.toa:
+            blocks.append((toa - distance / self.light) / sigma_t)
         if rss is not None:
             p0, ten_eta, d0 = self.rss
             blocks.append((rss - (p0 - ten_eta * np.log10(distance / d0))) / sigma_p)
@@ -127,14 +129,11 @@ class ResidualModel:
         sigma_f, sigma_t, sigma_p = self.sigma
         ux, uy, along = dx / distance, dy / distance, radial / distance
         gamma, light = self.gamma, self.light
-        jx = [
-            -(gamma * (self.vx - along * ux) / distance) / sigma_f,
-            ux / light / sigma_t,
-        ]
-        jy = [
-            -(gamma * (self.vy - along * uy) / distance) / sigma_f,
-            uy / light / sigma_t,
-        ]
+        jx = [-(gamma * (self.vx - along * ux) / distance) / sigma_f]
+        jy = [-(gamma * (self.vy - along * uy) / distance) / sigma_f]
+        if self.toa:
+            jx.append(ux / light / sigma_t)
+            jy.append(uy / light / sigma_t)
         if use_rss:
             slope = self.rss[1] / np.log(10.0)
             distance_sq = distance * distance

@@ -196,7 +196,7 @@ CATALOG: dict[str, CatalogEntry] = {
         CatalogEntry(
             "beacon-pass-doppler",
             lambda: beacon_pass_scenario(toa=False, name="beacon-pass-doppler"),
-            "the beacon pass from Doppler alone, carrier offset unknown",
+            "the beacon pass from Doppler alone, carrier offset unknown (ml with use_toa=false)",
         ),
         CatalogEntry(
             "turn-noncooperative",

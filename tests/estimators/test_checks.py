@@ -589,7 +589,7 @@ class HidesItsRss(MaximumLikelihood):
     use_rss: bool = True
 
     def capabilities(self) -> Capabilities:
-        return Capabilities(modalities=self.requires)
+        return Capabilities(modalities=frozenset({"doppler", "toa"}))
 
     def estimate(self, data, *, rng=None) -> Estimate:
         inner = MaximumLikelihood(use_rss=data.rss_dbm is not None)

@@ -86,3 +86,33 @@ def test_ml_sample_covariance_matches_the_nuisance_crlb_at_high_snr() -> None:
     sample_axis = np.linalg.eigh(sample)[1][:, -1]
     bound_axis = np.linalg.eigh(bound)[1][:, -1]
     assert abs(sample_axis @ bound_axis) > np.cos(np.radians(5.0))
+
+
+@pytest.mark.parametrize("name", ["beacon-pass-doppler", "beacon-pass", "turn-noncooperative"])
+def test_from_doppler_alone_ml_finds_the_emitter_and_the_carrier_offset(name) -> None:
+    """use_toa=False: the grid of profiled-cost minima starts the search (MATH §15)."""
+    scenario = get_scenario(name)
+    estimate = make_estimator("ml", use_toa=False).estimate(noise_free(scenario))
+    assert estimate.success and not estimate.ambiguous
+    assert estimate.diagnostics["start_method"] == "doppler-grid"
+    np.testing.assert_allclose(estimate.candidates_m, [scenario.emitter_m], atol=1e-6)
+    assert estimate.diagnostics[OFFSET] == pytest.approx(scenario.carrier_offset_hz, abs=1e-6)
+    assert EMISSION not in estimate.diagnostics  # ToA unused: its offset does not enter
+
+
+def test_from_doppler_alone_ml_attains_the_doppler_bound() -> None:
+    scenario = get_scenario("beacon-pass-doppler")
+    batch = simulate_trials(scenario, snr_db=20.0, seeds=trial_seeds(4, 600))
+    ml = make_estimator("ml", use_toa=False)
+    errors = np.array(
+        [ml.estimate(batch.trial(i)).position_m - scenario.emitter_m for i in range(600)]
+    )
+    bound = inverse_2x2(fisher_information(batch.geometry, scenario.emitter_m, "doppler"))
+    rmse = np.sqrt(np.mean(np.sum(errors**2, axis=1)))
+    assert rmse / np.sqrt(np.trace(bound)) == pytest.approx(1.0, abs=0.12)  # 600 trials
+
+
+def test_ml_with_toa_refuses_doppler_only_data_and_says_how() -> None:
+    data = noise_free(get_scenario("beacon-pass-doppler"))
+    with pytest.raises(ValueError, match=r"toa_s: .*use_toa=False"):
+        make_estimator("ml").estimate(data)
