@@ -13,6 +13,7 @@ import time
 from typing import ClassVar
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from comparison.engine import run_experiment
@@ -27,6 +28,8 @@ from estimators.cls import Cls
 from scenarios.catalog import get_scenario
 from scenarios.simulate import simulate_trials
 from scenarios.types import MeasurementBatch
+from tests.comparison.plugins import PER_TRIAL_CLS
+from tests.comparison.test_engine import rows, smoke
 
 HERE = "tests.comparison.test_columnar"
 RUNTIME = ESTIMATE_COLUMNS.index("runtime_s")
@@ -261,3 +264,23 @@ def test_the_columns_call_has_the_limit_times_the_trials():
     rows = run_task(task_of(over, time_limit_s=0.1)).rows
     assert len(rows) == 12 and all(r.values[SUCCESS] for r in rows)
     assert not any("via_columns" in r.values[DIAGNOSTICS] for r in rows)
+
+
+def test_batch_rows_equal_one_at_a_time_rows_and_do_not_depend_on_the_chunking(tmp_path):
+    """cls runs in batch (estimate_columns): its rows do not depend on the chunk size or the
+    worker count, to the bit, and equal the rows of the one-at-a-time path to 1e-12."""
+    chunked = {
+        size: rows(run_experiment(smoke(chunk_size=size), tmp_path / f"c{size}", workers=1))
+        for size in (1, 7, 20)
+    }
+    pd.testing.assert_frame_equal(chunked[1], chunked[7])
+    pd.testing.assert_frame_equal(chunked[1], chunked[20])
+    single = rows(run_experiment(smoke(estimators=PER_TRIAL_CLS), tmp_path / "one", workers=1))
+    numeric = ["x_m", "y_m", "error_m", "error_side_resolved_m", "crlb_rmse_m"]
+    exact = [
+        c for c in single.columns if c not in {*numeric, "candidates_json", "diagnostics_json"}
+    ]
+    pd.testing.assert_frame_equal(chunked[7][exact], single[exact])
+    pd.testing.assert_frame_equal(
+        chunked[7][numeric], single[numeric], rtol=1e-12, check_exact=False
+    )

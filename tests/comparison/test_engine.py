@@ -36,6 +36,7 @@ from estimators.ml import MaximumLikelihood
 from estimators.registry import make_estimator
 from scenarios.catalog import get_scenario
 from scenarios.simulate import noise_free, simulate_trials, trial_seeds
+from tests.comparison.plugins import PER_TRIAL_CLS
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 HERE = "tests.comparison.test_engine"
@@ -148,21 +149,6 @@ class RenamedOptions:
         return MaximumLikelihood(use_rss=self.with_power, frames=self.window).estimate(
             data, rng=rng
         )
-
-
-@dataclass_frozen
-class PerTrialCls:
-    """``cls`` one trial at a time (no batch path): the reference for wrappers that call
-    ``Cls().estimate``; the batch path agrees with it to rounding, not to the bit."""
-
-    name: ClassVar[str] = "per-trial-cls"
-    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
-
-    def estimate(self, data, *, rng=None):
-        return Cls().estimate(data, rng=rng)
-
-
-PER_TRIAL_CLS = [{"name": f"{HERE}:PerTrialCls", "label": "cls"}, {"name": "cls-paper"}]
 
 
 @dataclass_frozen
@@ -326,26 +312,6 @@ def test_batch_estimators_get_the_chunk_and_fall_back_per_trial(tmp_path):
             assert sorted(sizes.map(lambda d: d["batch_size"]).to_list()) == sorted(
                 [8] * 16 + [4] * 4 + [8] * 16 + [4] * 4
             )
-
-
-def test_batch_rows_equal_one_at_a_time_rows_and_do_not_depend_on_the_chunking(tmp_path):
-    """cls runs in batch (estimate_columns): its rows do not depend on the chunk size or the
-    worker count, to the bit, and equal the rows of the one-at-a-time path to 1e-12."""
-    chunked = {
-        size: rows(run_experiment(smoke(chunk_size=size), tmp_path / f"c{size}", workers=1))
-        for size in (1, 7, 20)
-    }
-    pd.testing.assert_frame_equal(chunked[1], chunked[7])
-    pd.testing.assert_frame_equal(chunked[1], chunked[20])
-    single = rows(run_experiment(smoke(estimators=PER_TRIAL_CLS), tmp_path / "one", workers=1))
-    numeric = ["x_m", "y_m", "error_m", "error_side_resolved_m", "crlb_rmse_m"]
-    exact = [
-        c for c in single.columns if c not in {*numeric, "candidates_json", "diagnostics_json"}
-    ]
-    pd.testing.assert_frame_equal(chunked[7][exact], single[exact])
-    pd.testing.assert_frame_equal(
-        chunked[7][numeric], single[numeric], rtol=1e-12, check_exact=False
-    )
 
 
 def test_per_frame_runs_every_frame_and_streams_sequential_estimators(tmp_path):

@@ -1,0 +1,28 @@
+"""Test plug-in estimators shared by the engine's tests (named ``tests.comparison.plugins:Name``
+in experiments)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import ClassVar
+
+from estimators.cls import Cls
+
+
+@dataclasses.dataclass(frozen=True)
+class PerTrialCls:
+    """``cls`` one trial at a time (no batch path): the reference for wrappers that call
+    ``Cls().estimate``; the batch path agrees with it to rounding, not to the bit."""
+
+    name: ClassVar[str] = "per-trial-cls"
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+
+    def estimate(self, data, *, rng=None):
+        return Cls().estimate(data, rng=rng)
+
+
+PER_TRIAL_CLS = [
+    {"name": "tests.comparison.plugins:PerTrialCls", "label": "cls"},
+    {"name": "cls-paper"},
+]
+"""The smoke experiment's estimators with ``cls`` called one trial at a time."""
