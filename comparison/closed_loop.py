@@ -28,7 +28,7 @@ Data flows one way: this module imports ``scenarios``, ``estimators`` and
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -115,6 +115,7 @@ def fly_closed_loop(
     n_frames: int | None = None,
     estimate_rng: Callable[[str], np.random.Generator | None] | None = None,
     planner_rng: np.random.Generator | None = None,
+    ignoring_unknowns: Collection[str] = (),
 ) -> ClosedLoopTrial:
     """Fly ``n_frames`` frames of ``scenario``, steering each by ``planner`` (module docstring).
 
@@ -137,6 +138,9 @@ def fly_closed_loop(
         None gives ``rng=None``.
     planner_rng : Generator, optional
         Passed to the planner (the built-ins are deterministic and do not draw from it).
+    ignoring_unknowns : collection of str
+        Labels of the estimators fed the data as if the emitter's nuisance parameters were
+        known (``MeasurementSet.assuming_known``, MATH §15).
 
     Returns
     -------
@@ -173,11 +177,12 @@ def fly_closed_loop(
             data = measure_flight(scenario, flight, snr_db=snr_db, draws=draws)
         seen = data.without_truth()
         for label, estimator in estimators:
+            fed = seen.assuming_known() if label in ignoring_unknowns else seen
             if label in streams:
-                newest = seen.take(seen.frame == frame)
+                newest = fed.take(fed.frame == frame)
                 results[label].append(streams[label].step(newest, rng_for(label)))
             else:
-                results[label].append(timed_call(estimator.estimate, seen, rng=rng_for(label)))
+                results[label].append(timed_call(estimator.estimate, fed, rng=rng_for(label)))
         if frame == total - 1:
             break
         plan = _plan_next(planner, flight, seen, results[steering][-1][0], planner_rng)

@@ -514,8 +514,7 @@ class Experiment:
         for path, spec, estimator in built_specs(
             specs, "estimators", EstimatorSpec, estimator_class
         ):
-            for name, scenario in scenarios.items():
-                check_estimator_fits(path, spec, estimator, name, scenario)
+            check_estimator_fits(path, spec, estimator, scenarios)
         object.__setattr__(self, "estimators", specs)
 
     def _check_planners(self) -> None:

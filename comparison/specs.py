@@ -214,10 +214,10 @@ def built_specs(
 
 
 def check_estimator_fits(
-    path: str, spec: EstimatorSpec, estimator: Any, name: str, scenario: Any
+    path: str, spec: EstimatorSpec, estimator: Any, scenarios: Mapping[str, Any]
 ) -> None:
-    """Raise ``ValueError`` (naming ``path``) unless the estimator can run on the scenario:
-    its modules installed, the modalities it uses simulated, and every nuisance parameter the
+    """Raise ``ValueError`` (naming ``path``) unless the estimator can run on every scenario:
+    its modules installed, the modalities it uses simulated, and every nuisance parameter a
     scenario declares unknown (MATH §15) estimated, or ``ignore_unknowns`` set."""
     capabilities = capabilities_of(estimator)
     absent = [m for m in capabilities.modules if importlib.util.find_spec(m) is None]
@@ -226,16 +226,17 @@ def check_estimator_fits(
             f"{path}: {spec.label!r} needs the module(s) {', '.join(absent)}, which "
             "are not installed; install them or drop the estimator"
         )
-    missing = sorted(capabilities.modalities - set(scenario.modalities))
-    if missing:
-        raise ValueError(
-            f"{path}: {spec.label!r} needs {', '.join(missing)} measurements, "
-            f"which scenario {name!r} does not simulate; drop one of the two"
-        )
-    if spec.ignore_unknowns:
-        return
-    used = capabilities.modalities & set(scenario.modalities)
     hint = "ignore_unknowns = true on the estimator"
-    problem = unknowns_problem(estimator, scenario.unknowns, used, ignore_hint=hint)
-    if problem is not None:
-        raise ValueError(f"{path}: scenario {name!r}: {problem}")
+    for name, scenario in scenarios.items():
+        missing = sorted(capabilities.modalities - set(scenario.modalities))
+        if missing:
+            raise ValueError(
+                f"{path}: {spec.label!r} needs {', '.join(missing)} measurements, "
+                f"which scenario {name!r} does not simulate; drop one of the two"
+            )
+        if spec.ignore_unknowns:
+            continue
+        used = capabilities.modalities & set(scenario.modalities)
+        problem = unknowns_problem(estimator, scenario.unknowns, used, ignore_hint=hint)
+        if problem is not None:
+            raise ValueError(f"{path}: scenario {name!r}: {problem}")

@@ -364,6 +364,7 @@ def run_closed_loop_task(task: Task) -> TaskResult:
                 seed=trial_seed(task.seed, *key),
                 estimate_rng=lambda label, key=key: tie_rng(task.seed, *key, label),
                 planner_rng=tie_rng(task.seed, *key, f"planner:{planner_spec.label}"),
+                ignoring_unknowns={s.label for s in task.estimators if s.ignore_unknowns},
             )
             information = information_at_truth(flown.data, truth, {m for m, _ in crlb_keys})
             for frame in range(flown.n_frames):

@@ -445,6 +445,18 @@ def require_modalities(estimator: Estimator, data: MeasurementSet) -> None:
         raise ValueError(problem)
 
 
+def require_batch(estimator: Estimator, batch: MeasurementBatch) -> MeasurementBatch:
+    """:func:`require_modalities` for a whole batch: ``TypeError`` naming ``batch`` for
+    anything but a :class:`~scenarios.types.MeasurementBatch`, then the checks of its first
+    trial (the trials share their geometry and modalities). Returns the batch."""
+    if not isinstance(batch, MeasurementBatch):
+        raise TypeError(
+            f"batch: expected a scenarios.types.MeasurementBatch, got {type(batch).__name__}"
+        )
+    require_modalities(estimator, batch.trial(0) if batch.n_trials else batch.geometry)
+    return batch
+
+
 def unknowns_problem(
     estimator: Any,
     unknowns: Iterable[str],

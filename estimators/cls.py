@@ -50,6 +50,7 @@ from estimators.base import (
     Estimate,
     check_side_prior,
     finalize_estimate,
+    require_batch,
     require_modalities,
 )
 from estimators.batch import BatchEstimates, check_rngs
@@ -337,14 +338,7 @@ def _estimate_columns(
     rngs: Sequence[np.random.Generator | None] | None,
 ) -> BatchEstimates:
     """``estimate`` of every trial of ``batch`` at once (:mod:`estimators.cls_batch`)."""
-    if not isinstance(batch, MeasurementBatch):
-        raise TypeError(
-            f"batch: expected a scenarios.types.MeasurementBatch, got {type(batch).__name__}"
-        )
-    if batch.n_trials:
-        require_modalities(estimator, batch.trial(0))
-    else:
-        require_modalities(estimator, batch.geometry)
+    require_batch(estimator, batch)
     name, frames, prior = estimator.name, estimator.frames, estimator.side_prior_m
 
     def solve_one(data: MeasurementSet, rng: np.random.Generator | None) -> Estimate:

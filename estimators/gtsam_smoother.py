@@ -105,7 +105,7 @@ from estimators.mirror_hypotheses import (
     MERGE_RTOL,
     StraightTrack,
     first_frame_candidates,
-    hypotheses_estimate,
+    smoother_estimate,
     surviving_hypotheses,
 )
 from estimators.nuisance_states import NUISANCE_UNKNOWNS, check_same_unknowns, nuisance_names
@@ -331,22 +331,14 @@ class GtsamSmoother:
                     f"({state.fallback_reason}); fell back to the batch solve "
                     f"(Levenberg-Marquardt on all {state.n_frames} frames)"
                 )
-        return hypotheses_estimate(
+        return smoother_estimate(
             self.name,
-            [h.estimates_m[-1] for h in hypotheses],
-            [h.covariance_m2 for h in hypotheses],
-            [h.log_weight for h in hypotheses],
-            [h.data_information for h in hypotheses],
-            straight_track=state.track is not None,
-            length_scale_m=state.length_scale_m,
+            state,
+            hypotheses,
             rng=rng,
             notes=notes,
-            diagnostics={
-                **diagnostics,
-                "frames": state.n_frames,
-                "iterations": state.iterations,
-                "random_walk": self.random_walk,
-            },
+            diagnostics=diagnostics,
+            random_walk=self.random_walk,
         )
 
     # -- streaming internals ----------------------------------------------------------------------

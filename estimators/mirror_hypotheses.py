@@ -325,3 +325,35 @@ def hypotheses_estimate(
             straight_track=straight_track,
         ),
     )
+
+
+def smoother_estimate(
+    name: str,
+    state: Any,
+    hypotheses: Sequence[Any],
+    *,
+    rng: np.random.Generator | None,
+    notes: list[str],
+    diagnostics: dict[str, Any],
+    random_walk: bool,
+) -> Estimate:
+    """:func:`hypotheses_estimate` of a smoother's state (its hypotheses' last positions,
+    covariances, weights and data information), with the state's frame and iteration counts
+    in the diagnostics; shared by the cooperative and the nuisance smoother (MATH §7, §15)."""
+    return hypotheses_estimate(
+        name,
+        [h.estimates_m[-1] for h in hypotheses],
+        [h.covariance_m2 for h in hypotheses],
+        [h.log_weight for h in hypotheses],
+        [h.data_information for h in hypotheses],
+        straight_track=state.track is not None,
+        length_scale_m=state.length_scale_m,
+        rng=rng,
+        notes=notes,
+        diagnostics={
+            **diagnostics,
+            "frames": state.n_frames,
+            "iterations": state.iterations,
+            "random_walk": random_walk,
+        },
+    )

@@ -47,7 +47,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from estimators.base import Estimate, finalize_estimate, require_modalities
+from estimators.base import Estimate, finalize_estimate, require_batch
 from estimators.batch import BatchEstimates, FinalizedColumns, check_rngs, finalize_columns
 from estimators.cls_batch import SharedGeometry, _draw_and_redo
 from estimators.convergence import DECREMENT_TOL
@@ -196,12 +196,8 @@ def estimate_columns(
     rngs: Sequence[np.random.Generator | None] | None,
 ) -> BatchEstimates:
     """``estimator.estimate`` of every trial of ``batch`` as columns (module text)."""
-    if not isinstance(batch, MeasurementBatch):
-        raise TypeError(
-            f"batch: expected a scenarios.types.MeasurementBatch, got {type(batch).__name__}"
-        )
+    require_batch(estimator, batch)
     n = batch.n_trials
-    require_modalities(estimator, batch.trial(0) if n else batch.geometry)
     estimator.check_measurements(batch.toa_s is not None, batch.rss_dbm is not None)
     generators = check_rngs(rngs, n)
     out = _Columns(n)

@@ -75,6 +75,7 @@ from estimators.base import (
     Estimate,
     check_side_prior,
     finalize_estimate,
+    require_batch,
     require_modalities,
 )
 from estimators.batch import BatchEstimates, FinalizedColumns, check_rngs, finalize_columns
@@ -343,7 +344,7 @@ class SdpCls:
     ) -> list[Estimate]:
         """``estimate`` of every trial (trial ``i`` with ``rngs[i]``), solved together; a
         failed trial is its failed estimate, diagnostics included."""
-        batch = _checked_batch(self, batch)
+        batch = require_batch(self, batch)
         if batch.n_trials == 0:
             check_rngs(rngs, 0)
             return []
@@ -363,20 +364,11 @@ class SdpCls:
     ) -> BatchEstimates:
         """``estimate_batch`` as columns, without an object per trial (a failed trial keeps
         its message, not its diagnostics)."""
-        batch = _checked_batch(self, batch)
+        batch = require_batch(self, batch)
         if batch.n_trials == 0:
             check_rngs(rngs, 0)
             return BatchEstimates.from_estimates(self.name, [])
         return _columns(self, _solve_batch(self, batch, rngs), batch.n_trials)
-
-
-def _checked_batch(estimator: SdpCls, batch: MeasurementBatch) -> MeasurementBatch:
-    if not isinstance(batch, MeasurementBatch):
-        raise TypeError(
-            f"batch: expected a scenarios.types.MeasurementBatch, got {type(batch).__name__}"
-        )
-    require_modalities(estimator, batch.trial(0) if batch.n_trials else batch.geometry)
-    return batch
 
 
 @dataclass(frozen=True, slots=True, eq=False)

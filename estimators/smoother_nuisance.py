@@ -64,7 +64,7 @@ from estimators.mirror_hypotheses import (
     DIFFUSE_PRIOR_SCALE,
     MERGE_RTOL,
     StraightTrack,
-    hypotheses_estimate,
+    smoother_estimate,
     surviving_hypotheses,
 )
 from estimators.nuisance_graph import (
@@ -532,22 +532,14 @@ def estimate_state(
                 f"the update of frame {state.n_frames - 1} failed from the previous optimum "
                 f"({state.fallback_reason}); solved again from the hypothesis's start"
             )
-    result = hypotheses_estimate(
+    result = smoother_estimate(
         name,
-        [h.estimates_m[-1] for h in hypotheses],
-        [h.covariance_m2 for h in hypotheses],
-        [h.log_weight for h in hypotheses],
-        [h.data_information for h in hypotheses],
-        straight_track=state.track is not None,
-        length_scale_m=state.length_scale_m,
+        state,
+        hypotheses,
         rng=rng,
         notes=notes,
-        diagnostics={
-            **diagnostics,
-            "frames": state.n_frames,
-            "iterations": state.iterations,
-            "random_walk": options["process_noise_mps"] > 0.0,
-        },
+        diagnostics=diagnostics,
+        random_walk=options["process_noise_mps"] > 0.0,
     )
     if not result.success:
         return result

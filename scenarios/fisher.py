@@ -174,17 +174,13 @@ def per_sample_information(
     emitter_m: ArrayLike,
     data: MeasurementSet,
     modalities: str | Iterable[str] = "toa+doppler",
-    *,
-    unknowns: Iterable[str] = (),
 ) -> FloatArray:
     """Each sample's term ``J_k = Σ_modalities ∇h_k∇h_kᵀ/σ²`` of MATH §8, shape ``(..., N, 2, 2)``.
 
     Arguments as for :func:`whitened_gradients`; summed over ``N`` it is
     :func:`information_at_samples`.
     """
-    blocks = np.stack(
-        _whitened_blocks(position_m, velocity_mps, emitter_m, data, modalities, unknowns)
-    )
+    blocks = np.stack(_whitened_blocks(position_m, velocity_mps, emitter_m, data, modalities))
     return np.einsum("m...ki,m...kj->...kij", blocks, blocks)
 
 
@@ -194,8 +190,6 @@ def information_at_samples(
     emitter_m: ArrayLike,
     data: MeasurementSet,
     modalities: str | Iterable[str] = "toa+doppler",
-    *,
-    unknowns: Iterable[str] = (),
 ) -> FloatArray:
     """``J`` of MATH §8 over the given samples, units 1/m², shape ``(..., 2, 2)``.
 
@@ -203,7 +197,7 @@ def information_at_samples(
     many headings at once), the constants are ``data``'s.
     """
     return gram_information(
-        whitened_gradients(position_m, velocity_mps, emitter_m, data, modalities, unknowns=unknowns)
+        whitened_gradients(position_m, velocity_mps, emitter_m, data, modalities)
     )
 
 

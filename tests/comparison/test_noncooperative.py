@@ -123,3 +123,25 @@ def test_the_builtin_noncooperative_experiment_loads() -> None:
 @pytest.fixture(autouse=True)
 def _in_tmp(tmp_path: Path, monkeypatch) -> None:
     monkeypatch.chdir(tmp_path)
+
+
+def test_a_closed_loop_feeds_ignore_unknowns_estimators_the_data_taken_as_known(tmp_path):
+    closed = Experiment.from_dict(
+        {
+            "name": "nc-loop",
+            "scenarios": ["turn-noncooperative"],
+            "estimators": ["ml", {"name": "cls", "label": "cls-ignoring", "ignore_unknowns": True}],
+            "planners": ["constant"],
+            "per_frame": True,
+            "frames": 2,
+            "trials": 4,
+            "seed": 5,
+        }
+    )
+    trials = read_trials(run_experiment(closed, tmp_path / "loop", workers=1, progress=False))
+    ignoring = trials[trials["estimator"] == "cls-ignoring"]
+    assert not ignoring["message"].fillna("").str.contains("unknowns:").any()
+    # the 800 Hz offset and 0.3 ms taken as zero: answers far off (90 km of range error)
+    assert (ignoring["error_m"].fillna(np.inf) > 1e3).all()
+    known = trials[(trials["estimator"] == "ml") & (trials["frame"] == 1)]
+    assert (known["error_m"] < 50.0).all()

@@ -2,17 +2,16 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 
 from comparison.crlb import fisher_information, rmse_bound_m
+from estimators.checks.invariance import in_kilometres
 from estimators.cls import Cls, ClsAsPrinted, ClsPaper
 from estimators.registry import make_estimator
 from scenarios.catalog import get_scenario
 from scenarios.simulate import noise_free, simulate, simulate_trials, trial_seeds
-from scenarios.types import FlightPlan, MeasurementSet, Scenario
+from scenarios.types import FlightPlan, Scenario
 
 
 def sorted_rows(points: np.ndarray) -> np.ndarray:
@@ -88,18 +87,6 @@ def test_as_printed_rows_put_the_height_into_r_z() -> None:
 # --------------------------------------------------------------------------------------------
 # invariances of the weighted CLS (MATH §6)
 # --------------------------------------------------------------------------------------------
-
-
-def in_kilometres(data: MeasurementSet) -> MeasurementSet:
-    """The same measurements in km: lengths and c divided by 1000; τ, f and every σ unchanged."""
-    return replace(
-        data,
-        position_m=data.position_m / 1000.0,
-        velocity_mps=data.velocity_mps / 1000.0,
-        speed_of_light_mps=data.speed_of_light_mps / 1000.0,
-        emitter_height_m=data.emitter_height_m / 1000.0,
-        truth_emitter_m=None,
-    )
 
 
 @pytest.mark.parametrize("name", ["paper-1m", "turn", "orbit"])

@@ -42,23 +42,9 @@ from scenarios.catalog import get_scenario
 from scenarios.geometry import straight_track_line
 from scenarios.simulate import simulate_trials, trial_seeds
 from scenarios.types import MeasurementBatch, Scenario
+from tests.estimators.scenario_transforms import rotated
 
 RTOL = 1e-9
-
-
-def rotated(scenario: Scenario, angle_deg: float) -> Scenario:
-    """The scenario turned about the vertical through the origin (no axis-aligned track)."""
-    a = np.deg2rad(angle_deg)
-    turn = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0, 0, 1.0]])
-    flight = scenario.flight
-    return scenario.replace(
-        emitter_m=turn[:2, :2] @ scenario.emitter_m,
-        flight=replace(
-            flight,
-            start_position_m=turn @ flight.start_position_m,
-            frame_velocities_mps=flight.frame_velocities_mps @ turn.T,
-        ),
-    )
 
 
 def near_plane() -> Scenario:
