@@ -223,6 +223,9 @@ def _column(example: Any, n: int) -> NDArray[Any]:
 
 
 def _python_scalar(value: Any) -> Any:
+    """A numpy scalar as Python's; a list (a column may share one among trials) copied."""
+    if isinstance(value, list):
+        return list(value)
     return value.item() if isinstance(value, np.generic) else value
 
 

@@ -49,7 +49,15 @@ INFO_CODES = {1: "ftol", 2: "xtol", 3: "ftol+xtol", 4: "gtol", 5: "max_nfev"}
 
 
 def ordered_sum(values: FloatArray) -> FloatArray:
-    """The sum over the first axis in order, ``s = 0; s += v[i]``, as MINPACK's loops add."""
+    """The sum over the first axis in order, ``s = 0; s += v[i]``, as MINPACK's loops add.
+
+    For a C-contiguous ``(m, k)`` array with ``k ≥ 2`` numpy's reduction over the first axis
+    adds row after row into the ``k`` totals, which is this order (checked against the loop in
+    ``tests/estimators/test_minpack_batch.py``); a single column or another layout would be
+    summed pairwise, so those take the loop."""
+    values = np.asarray(values)
+    if values.ndim == 2 and values.shape[1] > 1 and values.flags.c_contiguous:
+        return np.add.reduce(values, axis=0, initial=0.0)
     total = np.add(0.0, values[0]) if len(values) else np.zeros(np.shape(values)[1:])
     for value in values[1:]:
         total += value
@@ -58,10 +66,20 @@ def ordered_sum(values: FloatArray) -> FloatArray:
 
 def enorm_rows(values: FloatArray) -> tuple[FloatArray, BoolArray]:
     """MINPACK's ``enorm`` of each column ``(m, k)``, and where its scaled branches (or a
-    non-finite value) would be needed."""
-    size = np.abs(values)
-    odd = np.any(((size <= RDWARF) & (size != 0.0)) | ~(size < RGIANT / len(values)), axis=0)
-    return np.sqrt(ordered_sum(values * values)), odd
+    non-finite value) would be needed: a component ``0 < |v| ≤ RDWARF`` or not below
+    ``RGIANT / m``. Screened on the squares (two reductions, no full-size test) with a margin
+    for their rounding, and only the columns the screen flags tested component by component."""
+    squares = values * values
+    limit = RGIANT / len(values)
+    screen = (np.min(squares, axis=0) <= 2.0 * RDWARF * RDWARF) | ~(
+        np.max(squares, axis=0) < 0.5 * limit * limit
+    )
+    odd = np.zeros(screen.shape, dtype=bool)
+    flagged = np.flatnonzero(screen)
+    if flagged.size:
+        size = np.abs(values.take(flagged, axis=-1))
+        odd[flagged] = np.any(((size <= RDWARF) & (size != 0.0)) | ~(size < limit), axis=0)
+    return np.sqrt(ordered_sum(squares)), odd
 
 
 def enorm2(a: FloatArray, b: FloatArray) -> tuple[FloatArray, BoolArray]:
@@ -143,6 +161,36 @@ class _Factor:
         temp = -ordered_sum(tail * rest) / tail[0]
         rest = rest + tail * temp
         self.q1 = np.where(full, rest[0], work[1])
+
+
+class _LatestResiduals:
+    """Each problem's residuals at its current point, ``(m, P)``, kept as the blocks the
+    evaluations returned: accepted columns are appended, never written into one array (numpy
+    writes columns of a rows-first array twenty times slower than it gathers them)."""
+
+    def __init__(self, first: FloatArray) -> None:
+        self.blocks = [first]
+        self.column = np.arange(first.shape[1])  # of each problem, in the blocks side by side
+        self.size = first.shape[1]
+
+    def accept(self, problems: IntArray, values: FloatArray) -> None:
+        """``values`` ``(m, len(problems))`` are now the residuals of ``problems``."""
+        self.blocks.append(values)
+        self.column[problems] = self.size + np.arange(len(problems))
+        self.size += len(problems)
+
+    def take(self, problems: IntArray) -> FloatArray:
+        """The residuals of ``problems``, ``(m, k)``, C-contiguous."""
+        last = self.blocks[-1]
+        where = self.column[problems] - (self.size - last.shape[1])
+        if where.size == 0 or where.min() >= 0:
+            return last.take(where, axis=1)
+        return self.all().take(self.column[problems], axis=1)
+
+    def all(self) -> FloatArray:
+        if len(self.blocks) > 1:
+            self.blocks = [np.concatenate(self.blocks, axis=1)]
+        return self.blocks[0]
 
 
 def _givens(rkk: FloatArray, sk: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -328,6 +376,7 @@ def lmder_batch(
     with np.errstate(all="ignore"):
         fvec = np.array(residuals(everyone, x))
         fnorm, odd = enorm_rows(fvec)
+    latest = _LatestResiduals(fvec)
     nfev = np.ones(n, dtype=np.int64)
     info = np.zeros(n, dtype=np.int64)
     par = np.zeros(n)
@@ -344,7 +393,7 @@ def lmder_batch(
         idx = np.flatnonzero(active & need_jacobian)
         if idx.size:
             with np.errstate(all="ignore"):
-                factor = _Factor(*jacobian(idx, x[idx]), fvec[:, idx])
+                factor = _Factor(*jacobian(idx, x[idx]), latest.take(idx))
                 for name in names:
                     stored[name][idx] = getattr(factor, name)
                 acn0, acn1 = factor.acnorm
@@ -422,7 +471,7 @@ def lmder_batch(
             accept = ratio >= 0.0001
             moved = idx[accept]
             x[moved] = xt[accept]
-            fvec[:, moved] = ft[:, accept]
+            latest.accept(moved, ft.take(np.flatnonzero(accept), axis=1))
             xn, odd_x = enorm2(diag[moved, 0] * x[moved, 0], diag[moved, 1] * x[moved, 1])
             odd[moved] |= odd_x
             xnorm[moved] = xn
@@ -443,4 +492,5 @@ def lmder_batch(
             info[idx] = code
         active &= (info == 0) & ~odd
     info = np.where(odd, 0, info)
+    fvec = latest.all().take(latest.column, axis=1)
     return LmderBatch(x=x, fvec=fvec, info=info, nfev=nfev, odd=odd)

@@ -76,7 +76,7 @@ from estimators.minpack_batch import ordered_sum
 from estimators.ml_residuals import ResidualModel, profiled_offsets
 from estimators.ml_starts import doppler_frame_starts, doppler_grid_starts, ranges_uninformative
 from estimators.pseudorange_cls import solve_pseudorange_cls
-from scenarios.fisher import fisher_information, inverse_2x2, regular_2x2
+from scenarios.fisher import gram_information, inverse_2x2, regular_2x2
 from scenarios.geometry import cross_track_m, mirror_across_line, straight_track_line
 from scenarios.nuisance import NUISANCE_PARAMETERS
 from scenarios.types import MeasurementBatch, MeasurementSet
@@ -148,11 +148,6 @@ def whitened_residual_jacobian(
 def on_start_grid(local_xy: ArrayLike) -> FloatArray:
     """Starts in local units rounded to ``START_GRID`` (module text, "Reproducibility")."""
     return np.round(np.asarray(local_xy, dtype=float) / START_GRID) * START_GRID
-
-
-def _modalities(use_rss: bool, toa: bool = True) -> tuple[str, ...]:
-    """The rows of the residual, in order: Doppler, ToA (``toa``) and (``use_rss``) RSS."""
-    return ("doppler", *(("toa",) if toa else ()), *(("rss",) if use_rss else ()))
 
 
 # --------------------------------------------------------------------------------------------
@@ -409,9 +404,13 @@ def fisher_covariance_m2(
 ) -> FloatArray | None:
     """``J⁻¹``, the CRLB at ``emitter_m`` of the modalities used (MATH §8); None if singular.
 
-    ``J`` is the Gram matrix of :func:`whitened_residual_jacobian`, from :mod:`scenarios.fisher`.
+    ``J`` is :func:`scenarios.fisher.gram_information` of :func:`whitened_residual_jacobian`:
+    the rows of :func:`scenarios.fisher.whitened_jacobian` up to sign, centred where a
+    nuisance parameter is profiled (MATH §15), so ``J`` is the information of
+    :func:`scenarios.fisher.fisher_information` to rounding; formed from the residual model so
+    that :mod:`estimators.ml_batch` reproduces it bit for bit.
     """
-    information = fisher_information(data, emitter_m, _modalities(use_rss, data.toa_s is not None))
+    information = gram_information(whitened_residual_jacobian(data, emitter_m, use_rss=use_rss))
     if not regular_2x2(information):
         return None
     return inverse_2x2(information)

@@ -57,12 +57,11 @@ from estimators.ml import (
     MERGE_RTOL,
     START_GRID,
     ResidualModel,
-    _modalities,
     on_start_grid,
 )
 from estimators.ml_batch_starts import DISTANCE_RTOL, batch_starts
 from estimators.ml_starts import ranges_uninformative
-from scenarios.fisher import SINGULAR_RTOL, fisher_information, inverse_2x2, regular_2x2
+from scenarios.fisher import SINGULAR_RTOL, gram_information, inverse_2x2, regular_2x2
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 if TYPE_CHECKING:
@@ -72,8 +71,10 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
-CHUNK_TRIALS = 4096
-"""Trials solved together: large enough that numpy's per-call cost is small."""
+CHUNK_TRIALS = 1024
+"""Trials solved together: large enough that numpy's per-call cost is small, small enough
+that an array of residuals of a hundred samples (~1.6 MB) stays near the core's cache (4096
+was 1.6× slower on ``paper-1m-turn``)."""
 
 DECREMENT_MARGIN = 8.0
 """A start is converged for certain when its Gauss-Newton decrement is below
@@ -173,17 +174,23 @@ class _Context:
     def residuals(self, trials: IntArray, world: FloatArray) -> FloatArray:
         """:func:`~estimators.ml.whitened_residuals` of trials ``trials`` at ``world`` (k, 2),
         rows first: ``(m, k)``."""
-        rss = None if self.rss_t is None else self.rss_t[:, trials]
-        blocks = self.model.residuals(
-            world[:, 0], world[:, 1], self.doppler_t[:, trials], self.toa_t[:, trials], rss
-        )
-        return np.concatenate(blocks, axis=0)
+        rss = None if self.rss_t is None else self.rss_t.take(trials, axis=1)
+        doppler, toa = self.doppler_t.take(trials, axis=1), self.toa_t.take(trials, axis=1)
+        out = np.empty((self.n_rows, len(trials)))
+        self.model.residuals(world[:, 0], world[:, 1], doppler, toa, rss, out=out)
+        return out
 
     def jacobian(self, world: FloatArray) -> tuple[FloatArray, FloatArray]:
         """:func:`~estimators.ml.whitened_residual_jacobian` at ``world`` (k, 2): its two
         columns, each ``(m, k)``."""
-        jx, jy = self.model.jacobian(world[:, 0], world[:, 1], self.use_rss)
-        return np.concatenate(jx, axis=0), np.concatenate(jy, axis=0)
+        out = (np.empty((self.n_rows, len(world))), np.empty((self.n_rows, len(world))))
+        self.model.jacobian(world[:, 0], world[:, 1], self.use_rss, out=out)
+        return out
+
+    @property
+    def n_rows(self) -> int:
+        """Rows of the residual: Doppler and ToA (and RSS) blocks of every sample."""
+        return self.doppler_t.shape[0] * (2 + self.use_rss)
 
 
 def _uses_toa(estimator: MaximumLikelihood, batch: MeasurementBatch) -> bool:
@@ -265,14 +272,16 @@ class _Columns:
         information = self.information[rows, chosen]
         singular = ~regular_2x2(information)
         covariance = inverse_2x2(information)
+        # one status list per distinct pattern of codes (a few for many trials), shared by its
+        # trials; BatchEstimates.estimate hands each trial a copy
+        width = self.info.shape[1]
+        pattern = np.where(np.arange(width)[None, :] < self.n_starts[:, None], self.info, -1)
+        keys, which = np.unique(pattern[ok], axis=0, return_inverse=True)
+        templates = np.empty(len(keys), dtype=object)
+        for j, key in enumerate(keys.tolist()):
+            templates[j] = [f"converged ({INFO_CODES[c]})" for c in key if c >= 0]
         statuses = np.empty(n, dtype=object)
-        templates: dict[tuple[int, ...], tuple[str, ...]] = {}
-        for i in np.flatnonzero(ok).tolist():
-            key = tuple(self.info[i, : self.n_starts[i]].tolist())
-            template = templates.get(key)
-            if template is None:
-                template = templates[key] = tuple(f"converged ({INFO_CODES[c]})" for c in key)
-            statuses[i] = list(template)
+        statuses[ok] = templates[which.ravel()]
         n_samples = 0 if context is None else context.used.n_samples
         straight = context is not None and context.line is not None
         diagnostics = {
@@ -329,9 +338,11 @@ def _solve_trials(context: _Context, trials: IntArray, out: _Columns) -> None:
         gridded[problem_trial, problem_slot],
         scale[problem_trial],
     )
-    points, costs, info, nfev, fine = result
+    points, costs, info, nfev, fine, ends = result
     width = gridded.shape[1]
     point_of = np.full((n, width, 2), np.nan)
+    problem_of = np.full((n, width), -1)
+    problem_of[problem_trial, problem_slot] = np.arange(len(problem_trial))
     cost_of = np.full((n, width), np.inf)
     info_of = np.zeros((n, width), dtype=np.int64)
     nfev_of = np.zeros((n, width), dtype=np.int64)
@@ -347,7 +358,9 @@ def _solve_trials(context: _Context, trials: IntArray, out: _Columns) -> None:
     doubt |= merge_doubt
     final = _finalize(context, minima, minimum_costs, np.where(doubt, 0, n_minima))
     doubt |= final.uncertain
-    information, unsure = _information(context, final.candidates, final.n_candidates, ~doubt)
+    information, unsure = _information(
+        context, final.candidates, final.n_candidates, ~doubt, (point_of, problem_of, ends)
+    )
     doubt |= unsure
     out.widen("candidates", final.candidates.shape[1], np.nan)
     out.widen("information", final.candidates.shape[1], np.nan)
@@ -464,16 +477,33 @@ def _finalize(
 
 
 def _information(
-    context: _Context, candidates: FloatArray, count: IntArray, wanted: BoolArray
+    context: _Context,
+    candidates: FloatArray,
+    count: IntArray,
+    wanted: BoolArray,
+    ends: tuple[FloatArray, IntArray, tuple[FloatArray, FloatArray]],
 ) -> tuple[FloatArray, BoolArray]:
-    """The Fisher information (MATH §8) at each kept candidate of the ``wanted`` trials, and
+    """The Fisher information (MATH §8) at each kept candidate of the ``wanted`` trials (the
+    Gram matrix of the residuals' Jacobian, as :func:`~estimators.ml.fisher_covariance_m2`
+    forms it), and
     the trials where its regularity test (:func:`scenarios.fisher.regular_2x2`) is within
     rounding of its threshold at any candidate (whichever the draw picks)."""
     n, width, _ = candidates.shape
     information = np.full((n, width, 2, 2), np.nan)
     slots = (np.arange(width)[None, :] < count[:, None]) & wanted[:, None]
-    modalities = _modalities(context.use_rss)
-    information[slots] = fisher_information(context.used, candidates[slots], modalities)
+    # a candidate that is a search's end point (all but mirror images) has its Jacobian from
+    # the convergence audit: the same point, so the same bits
+    point_of, problem_of, (end_x, end_y) = ends
+    same = np.all(candidates[:, :, None, :] == point_of[:, None, :, :], axis=-1)
+    problem = np.where(same.any(-1), np.take_along_axis(problem_of, same.argmax(-1), 1), -1)
+    known = slots & (problem >= 0)
+    columns = problem[known]
+    jx, jy = end_x.take(columns, axis=1), end_y.take(columns, axis=1)
+    information[known] = gram_information(np.stack([jx, jy], axis=-1), row_axis=0)
+    new = slots & ~known
+    if new.any():
+        jx, jy = context.jacobian(candidates[new])
+        information[new] = gram_information(np.stack([jx, jy], axis=-1), row_axis=0)
     a, b, d = information[..., 0, 0], information[..., 0, 1], information[..., 1, 1]
     with np.errstate(all="ignore"):
         det = a * d - b * b
@@ -484,13 +514,15 @@ def _information(
 
 def _search(
     context: _Context, trial: IntArray, start: FloatArray, scale: FloatArray
-) -> tuple[FloatArray, FloatArray, IntArray, IntArray, BoolArray]:
+) -> tuple[FloatArray, FloatArray, IntArray, IntArray, BoolArray, tuple[FloatArray, FloatArray]]:
     """Levenberg-Marquardt from each start (local units) of ``trial`` with its frame's
-    ``scale``: world points, costs, MINPACK's info, evaluations, and whether the start
-    converged for certain."""
+    ``scale``: world points, costs, MINPACK's info, evaluations, whether the start converged
+    for certain, and the residuals' Jacobian at the points (columns ``(m, P)``)."""
     if len(trial) == 0:
         empty = np.empty(0)
-        return np.empty((0, 2)), empty, empty.astype(np.int64), empty.astype(np.int64), empty > 0
+        none = np.empty((context.n_rows, 0))
+        integers = empty.astype(np.int64)
+        return np.empty((0, 2)), empty, integers, integers, empty > 0, (none, none)
     origin = context.origin
     problem_scale = scale
 
@@ -511,7 +543,8 @@ def _search(
         costs = ordered_sum(result.fvec**2)
         finite = np.all(np.isfinite(world), axis=1) & np.isfinite(costs)
         fine = ~result.odd & (result.info >= 1) & (result.info <= 4) & finite
-        decrement, unsure = _gauss_newton_decrement(context.jacobian(world), result.fvec)
+        at_end = context.jacobian(world)
+        decrement, unsure = _gauss_newton_decrement(at_end, result.fvec)
         small = ~unsure & (decrement <= DECREMENT_TOL / DECREMENT_MARGIN)
         # near a track's plane the Gauss-Newton decrement can stay large where the Newton
         # decrement (the one-trial path takes the smaller) is tiny: evaluate it there
@@ -519,7 +552,7 @@ def _search(
         if rest.size:
             newton, sure = _newton_decrement(context, trial[rest], world[rest], scale[rest])
             small[rest] = sure & (newton <= DECREMENT_TOL / DECREMENT_MARGIN)
-    return world, costs, result.info, result.nfev, fine & small
+    return world, costs, result.info, result.nfev, fine & small, at_end
 
 
 def _gauss_newton_decrement(

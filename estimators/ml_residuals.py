@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -95,53 +96,104 @@ class ResidualModel:
     def _profiled(self, blocks: list[FloatArray]) -> list[FloatArray]:
         """The Doppler and ToA blocks centred over the samples where their offset is unknown."""
         centred = [self.centred[0], *([self.centred[1]] if self.toa else [])]
-        return [
-            block - block.mean(axis=self.sample_axis, keepdims=True)
-            if index < len(centred) and centred[index]
-            else block
-            for index, block in enumerate(blocks)
-        ]
+        for index, block in enumerate(blocks[: len(centred)]):
+            if centred[index]:
+                block -= block.mean(axis=self.sample_axis, keepdims=True)
+        return blocks
 
     def _geometry(self, x: ArrayLike, y: ArrayLike) -> tuple[FloatArray, ...]:
+        """``p_k − s`` in the plane, ``ρ_k`` and ``v_kᵀ(p_k − s)`` (in-place where possible)."""
         dx, dy = self.px - x, self.py - y
-        distance = np.sqrt(dx * dx + dy * dy + self.dz_sq)
-        return dx, dy, distance, self.vx * dx + self.vy * dy + self.vz_dz
+        distance = dx * dx
+        distance += dy * dy
+        distance += self.dz_sq
+        np.sqrt(distance, out=distance)
+        radial = self.vx * dx
+        radial += self.vy * dy
+        radial += self.vz_dz
+        return dx, dy, distance, radial
+
+    def _blocks(self, out: FloatArray | None, count: int, shape: tuple[int, ...]) -> list[Any]:
+        """``count`` outputs of ``shape``: consecutive row slices of ``out`` (rows first,
+        ``(count·N, k)``) so that no concatenation follows, or new arrays."""
+        if out is None:
+            return [None] * count
+        n = shape[0]
+        return [out[i * n : (i + 1) * n] for i in range(count)]
 
     def residuals(
-        self, x: ArrayLike, y: ArrayLike, doppler: ArrayLike, toa: ArrayLike, rss: ArrayLike | None
+        self,
+        x: ArrayLike,
+        y: ArrayLike,
+        doppler: ArrayLike,
+        toa: ArrayLike,
+        rss: ArrayLike | None,
+        *,
+        out: FloatArray | None = None,
     ) -> list[FloatArray]:
-        """The Doppler, ToA and (``rss`` given) RSS blocks of ``e`` at ``(x, y)``."""
+        """The Doppler, ToA and (``rss`` given) RSS blocks of ``e`` at ``(x, y)``; with
+        ``out`` (rows first) written into its consecutive row slices."""
         _, _, distance, radial = self._geometry(x, y)
         sigma_f, sigma_t, sigma_p = self.sigma
-        blocks = [(doppler + self.gamma * radial / distance) / sigma_f]
+        count = 1 + self.toa + (rss is not None)
+        slots = self._blocks(out, count, distance.shape)
+        predicted = np.multiply(self.gamma, radial, out=radial)
+        predicted /= distance
+        predicted = np.add(doppler, predicted, out=_same(predicted, doppler))
+        blocks = [np.divide(predicted, sigma_f, out=slots[0])]
         if self.toa:
-            blocks.append((toa - distance / self.light) / sigma_t)
+            delay = np.divide(distance, self.light, out=slots[1])
+            delay = np.subtract(toa, delay, out=_same(delay, toa))
+            blocks.append(np.divide(delay, sigma_t, out=delay))
         if rss is not None:
             p0, ten_eta, d0 = self.rss
-            blocks.append((rss - (p0 - ten_eta * np.log10(distance / d0))) / sigma_p)
+            power = p0 - ten_eta * np.log10(distance / d0)
+            blocks.append(np.divide(np.subtract(rss, power), sigma_p, out=slots[-1]))
         return self._profiled(blocks) if any(self.centred) else blocks
 
     def jacobian(
-        self, x: ArrayLike, y: ArrayLike, use_rss: bool
+        self,
+        x: ArrayLike,
+        y: ArrayLike,
+        use_rss: bool,
+        *,
+        out: tuple[FloatArray, FloatArray] | None = None,
     ) -> tuple[list[FloatArray], list[FloatArray]]:
-        """``∂e/∂x_s`` and ``∂e/∂y_s``, each as the blocks of :meth:`residuals`."""
+        """``∂e/∂x_s`` and ``∂e/∂y_s``, each as the blocks of :meth:`residuals`; with ``out``
+        (two rows-first arrays) written into their consecutive row slices."""
         dx, dy, distance, radial = self._geometry(x, y)
         sigma_f, sigma_t, sigma_p = self.sigma
-        ux, uy, along = dx / distance, dy / distance, radial / distance
-        gamma, light = self.gamma, self.light
-        jx = [-(gamma * (self.vx - along * ux) / distance) / sigma_f]
-        jy = [-(gamma * (self.vy - along * uy) / distance) / sigma_f]
+        count = 1 + self.toa + use_rss
+        slots_x = self._blocks(None if out is None else out[0], count, distance.shape)
+        slots_y = self._blocks(None if out is None else out[1], count, distance.shape)
+        inverse = np.divide(1.0, distance, out=distance)  # ρ is not needed after this
+        ux, uy = dx * inverse, dy * inverse
+        along = np.multiply(radial, inverse, out=radial)
+        # ∂e_f/∂s = −γ (v − (vᵀu) u)_xy / (ρ σ_f)
+        weight = np.multiply(inverse, -self.gamma / sigma_f)
+        jx, jy = [], []
+        for unit, speed, slots, into in ((ux, self.vx, slots_x, jx), (uy, self.vy, slots_y, jy)):
+            across = np.multiply(along, unit)
+            np.subtract(speed, across, out=across)
+            into.append(
+                np.multiply(across, weight, out=slots[0] if slots[0] is not None else across)
+            )
         if self.toa:
-            jx.append(ux / light / sigma_t)
-            jy.append(uy / light / sigma_t)
+            jx.append(np.multiply(ux, 1.0 / (self.light * sigma_t), out=slots_x[1]))
+            jy.append(np.multiply(uy, 1.0 / (self.light * sigma_t), out=slots_y[1]))
         if use_rss:
-            slope = self.rss[1] / np.log(10.0)
-            distance_sq = distance * distance
-            jx.append(-(slope * dx / distance_sq) / sigma_p)
-            jy.append(-(slope * dy / distance_sq) / sigma_p)
+            slope = np.multiply(inverse, inverse)
+            slope *= -self.rss[1] / (np.log(10.0) * sigma_p)
+            jx.append(np.multiply(dx, slope, out=slots_x[-1]))
+            jy.append(np.multiply(dy, slope, out=slots_y[-1]))
         if any(self.centred):
             return self._profiled(jx), self._profiled(jy)
         return jx, jy
+
+
+def _same(result: FloatArray, other: ArrayLike) -> FloatArray | None:
+    """``result`` as the output of an operation with ``other`` when that keeps its shape."""
+    return result if np.shape(other) == result.shape or np.ndim(other) == 0 else None
 
 
 def profiled_offsets(data: MeasurementSet, emitter_m: ArrayLike) -> dict[str, float]:

@@ -158,14 +158,36 @@ def whitened_gradients(
     return np.concatenate(blocks, axis=-2)
 
 
-def gram_information(whitened_rows: ArrayLike) -> FloatArray:
-    """``J = Σ_rows g gᵀ`` of whitened gradient rows ``(..., n_rows, 2)``: shape ``(..., 2, 2)``.
+def gram_information(whitened_rows: ArrayLike, *, row_axis: int = -2) -> FloatArray:
+    """``J = Σ_rows g gᵀ`` of whitened gradient rows ``(..., n_rows, p)``: shape ``(..., p, p)``.
 
-    With the rows of :func:`whitened_gradients` this is the information of MATH §8; any other
-    stack of rows ``∇h/σ`` of independent Gaussian measurements gives its information too.
+    With the rows of :func:`whitened_gradients` (``p = 2``) this is the information of MATH §8;
+    any other stack of rows ``∇h/σ`` of independent Gaussian measurements gives its information
+    too (a filter's state of ``p`` entries). ``row_axis`` names the axis of the rows when it is
+    not the one before the last (``0``: rows first, ``(n_rows, ..., p)``). The rows are added
+    in order, ``s = 0; s += g gᵀ``, so an entry depends on its own stack of rows alone, whatever
+    the other stacks, their number or the layout: the batch and one-trial paths of an
+    estimator get the same bits.
     """
     rows = np.asarray(whitened_rows, dtype=float)
-    return np.einsum("...ki,...kj->...ij", rows, rows)
+    axis = row_axis % max(rows.ndim, 1)
+    if rows.ndim < 2 or axis == rows.ndim - 1:
+        raise ValueError(
+            f"whitened_rows: expected rows along axis {row_axis} and the gradient last, got "
+            f"shape {rows.shape}"
+        )
+    p = rows.shape[-1]
+    pairs = [(i, j) for i in range(p) for j in range(i, p)]
+    products = np.stack([rows[..., i] * rows[..., j] for i, j in pairs], axis=-1)
+    if products.shape[axis] == 0:
+        sums = np.zeros(products.shape[:axis] + products.shape[axis + 1 :])
+    else:  # a reduction over an outer axis of a contiguous array adds row after row
+        sums = np.add.reduce(products, axis=axis, initial=0.0)
+    information = np.empty((*sums.shape[:-1], p, p))
+    for k, (i, j) in enumerate(pairs):
+        information[..., i, j] = sums[..., k]
+        information[..., j, i] = sums[..., k]
+    return information
 
 
 def per_sample_information(

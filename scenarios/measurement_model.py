@@ -93,6 +93,21 @@ def rss_dbm(
     )
 
 
+def _offset_components(
+    position_m: ArrayLike, emitter_m: ArrayLike, emitter_height_m: float
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The components of ``p_k − s`` and ``ρ_k``, each ``(..., N)``: the Jacobians below work
+    on these planes rather than on a trailing axis of three (a reduction over three entries
+    costs as much as over thousands)."""
+    position = np.asarray(position_m, dtype=float)
+    emitter = np.asarray(emitter_m, dtype=float)
+    dx = position[..., 0] - emitter[..., 0, None]
+    dy = position[..., 1] - emitter[..., 1, None]
+    dz = position[..., 2] - float(emitter_height_m)
+    distance = np.sqrt(dx * dx + dy * dy + dz * dz)
+    return dx, dy, dz, distance
+
+
 def toa_jacobian(
     position_m: ArrayLike,
     emitter_m: ArrayLike,
@@ -100,9 +115,8 @@ def toa_jacobian(
     emitter_height_m: float = 0.0,
 ) -> FloatArray:
     """``∂τ_k/∂(x_s, y_s) = −u_k,xy / c`` (MATH §8), shape ``(..., N, 2)``."""
-    offset = emitter_offsets_m(position_m, emitter_m, emitter_height_m)
-    unit = offset / np.linalg.norm(offset, axis=-1, keepdims=True)
-    return -unit[..., :2] / speed_of_light_mps
+    dx, dy, _, distance = _offset_components(position_m, emitter_m, emitter_height_m)
+    return np.stack([-(dx / distance), -(dy / distance)], axis=-1) / speed_of_light_mps
 
 
 def doppler_jacobian(
@@ -113,12 +127,13 @@ def doppler_jacobian(
     emitter_height_m: float = 0.0,
 ) -> FloatArray:
     """``∂f_k/∂(x_s, y_s) = γ (v_k − (v_kᵀu_k) u_k)_xy / ρ_k`` (MATH §8), shape ``(..., N, 2)``."""
-    offset = emitter_offsets_m(position_m, emitter_m, emitter_height_m)
-    distance = np.linalg.norm(offset, axis=-1, keepdims=True)
-    unit = offset / distance
-    velocity = np.broadcast_to(np.asarray(velocity_mps, dtype=float), unit.shape)
-    radial = np.einsum("...i,...i->...", velocity, unit)[..., None]
-    return gamma_per_m * (velocity - radial * unit)[..., :2] / distance
+    dx, dy, dz, distance = _offset_components(position_m, emitter_m, emitter_height_m)
+    velocity = np.asarray(velocity_mps, dtype=float)
+    vx, vy, vz = velocity[..., 0], velocity[..., 1], velocity[..., 2]
+    ux, uy, uz = dx / distance, dy / distance, dz / distance
+    radial = vx * ux + vy * uy + vz * uz
+    scale = gamma_per_m / distance
+    return np.stack([(vx - radial * ux) * scale, (vy - radial * uy) * scale], axis=-1)
 
 
 def rss_jacobian(
@@ -128,6 +143,6 @@ def rss_jacobian(
     emitter_height_m: float = 0.0,
 ) -> FloatArray:
     """``∂P_k/∂(x_s, y_s) = (10 η / ln 10) u_k,xy / ρ_k`` (MATH §8), shape ``(..., N, 2)``."""
-    offset = emitter_offsets_m(position_m, emitter_m, emitter_height_m)
-    distance_sq = np.einsum("...i,...i->...", offset, offset)[..., None]
-    return _TEN_OVER_LN10 * rss_model.path_loss_exponent * offset[..., :2] / distance_sq
+    dx, dy, _, distance = _offset_components(position_m, emitter_m, emitter_height_m)
+    slope = _TEN_OVER_LN10 * rss_model.path_loss_exponent / (distance * distance)
+    return np.stack([dx * slope, dy * slope], axis=-1)

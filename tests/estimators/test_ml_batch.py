@@ -26,7 +26,14 @@ import estimators.ml_batch_starts as ml_batch_starts
 from estimators.base import Estimate, capabilities_of, protocol_problems
 from estimators.cls import solve_doppler_toa_cls
 from estimators.cls_rows import LocalFrame
-from estimators.minpack_batch import INFO_CODES, lmder_batch, ordered_sum
+from estimators.minpack_batch import (
+    INFO_CODES,
+    RDWARF,
+    RGIANT,
+    enorm_rows,
+    lmder_batch,
+    ordered_sum,
+)
 from estimators.ml import (
     MINPACK_STATUS,
     MaximumLikelihood,
@@ -435,7 +442,7 @@ def test_the_engine_handles_a_zero_jacobian_column_as_minpack_does() -> None:
 def test_ordered_sums_add_in_order() -> None:
     """``s = 0; s += v[i]`` column by column, for any layout (a pairwise sum would differ)."""
     rng = np.random.default_rng(12)
-    for shape in [(1, 1), (7, 1), (40, 2), (300, 5), (33, 1000)]:
+    for shape in [(1, 1), (7, 1), (40, 2), (300, 5), (33, 1000), (200, 1024), (4099, 3)]:
         values = rng.standard_normal(shape) * 10.0 ** rng.uniform(-8, 8, shape)
         for layout in (values, np.asfortranarray(values)):
             expected = np.zeros(shape[1])
@@ -448,3 +455,25 @@ def test_ordered_sums_add_in_order() -> None:
     for value in big:
         total += value
     assert ordered_sum(big) == total
+
+
+def test_enorm_flags_exactly_the_columns_minpack_would_scale() -> None:
+    """The screen on the squares misses no column with a component in ``(0, RDWARF]`` or not
+    below ``RGIANT / m``, and flags none that has none; the norm is the ordered one."""
+    rng = np.random.default_rng(5)
+    m, k = 50, 12
+    values = rng.standard_normal((m, k))
+    values[3, 0] = RDWARF  # the edge itself: scaled
+    values[4, 1] = RDWARF * (1.0 + 1e-15)  # just above: not scaled
+    values[5, 2] = 1e-200  # its square underflows to zero
+    values[6, 3] = 0.0  # zero is not small
+    values[7, 4] = RGIANT / m  # the upper edge: scaled
+    values[8, 5] = np.nextafter(RGIANT / m, 0.0)  # just below: not scaled
+    values[9, 6] = np.nan
+    values[10, 7] = -np.inf
+    norm, odd = enorm_rows(values)
+    size = np.abs(values)
+    expected = np.any(((size <= RDWARF) & (size != 0.0)) | ~(size < RGIANT / m), axis=0)
+    np.testing.assert_array_equal(odd, expected)
+    assert odd.tolist()[:8] == [True, False, True, False, True, False, True, True]
+    np.testing.assert_array_equal(norm[~odd], np.sqrt(ordered_sum(values**2))[~odd])
