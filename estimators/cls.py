@@ -333,23 +333,26 @@ def _constrained_ls(rows: Rows, frames: Frames, data: MeasurementSet) -> Constra
 
 def _estimate_columns(
     estimator: Cls | ClsPaper | ClsAsPrinted,
-    rows: Rows,
     batch: MeasurementBatch,
     rngs: Sequence[np.random.Generator | None] | None,
 ) -> BatchEstimates:
     """``estimate`` of every trial of ``batch`` at once (:mod:`estimators.cls_batch`)."""
     require_batch(estimator, batch)
-    name, frames, prior = estimator.name, estimator.frames, estimator.side_prior_m
-
-    def solve_one(data: MeasurementSet, rng: np.random.Generator | None) -> Estimate:
-        return _estimate(name, rows, frames, data, rng, prior)
-
     if batch.geometry.unknowns:  # not vectorised (MATH §15): one trial at a time
         rngs = check_rngs(rngs, batch.n_trials)
         return BatchEstimates.from_estimates(
-            name, [estimator.estimate(batch.trial(i), rng=rngs[i]) for i in range(batch.n_trials)]
+            estimator.name,
+            [estimator.estimate_one_trial(batch.trial(i), rng=rngs[i]) for i in range(len(rngs))],
         )
-    return estimate_columns(name, rows, frames, batch, rngs, prior, solve_one)
+    return estimate_columns(
+        estimator.name,
+        estimator._rows(),
+        estimator.frames,
+        batch,
+        rngs,
+        estimator.side_prior_m,
+        estimator._solve_one,
+    )
 
 
 def _check_options(frames: str, side_prior_m: object) -> None:
@@ -359,10 +362,58 @@ def _check_options(frames: str, side_prior_m: object) -> None:
 
 
 class _Batches:
-    """``estimate_batch`` and ``estimate_columns`` of the closed forms (:mod:`estimators.cls_batch`)."""
+    """``estimate``, ``estimate_batch`` and ``estimate_columns`` of the closed forms.
+
+    ``estimate`` is the batch's answer for a batch of one (:mod:`estimators.cls_batch`), so a
+    run's row, a batch's column and ``estimate`` of the same trial are the same bits however
+    the trials were chunked or called. :meth:`estimate_one_trial` is the one-trial solver (the
+    eigen-decomposition of MATH §5), to which the batch leaves the trials its rounding bounds
+    cannot decide; the two agree to 1e-9 of the problem's length scale
+    (``tests/estimators/test_cls_batch.py``). With nuisance parameters (MATH §15) there is no
+    batch: every path is the one-trial solver.
+    """
+
+    name: ClassVar[str]
+    frames: Frames
+    side_prior_m: tuple[float, float] | None
 
     def _rows(self) -> Rows:
         raise NotImplementedError
+
+    def _options(self, data: MeasurementSet) -> dict[str, Any]:
+        return {}
+
+    def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
+        require_modalities(self, data)
+        if data.unknowns:
+            return self.estimate_one_trial(data, rng=rng)
+        return estimate_columns(
+            self.name,
+            self._rows(),
+            self.frames,
+            MeasurementBatch.of_one(data),
+            [rng],
+            self.side_prior_m,
+            self._solve_one,
+        ).estimate(0)
+
+    def estimate_one_trial(
+        self, data: MeasurementSet, *, rng: np.random.Generator | None = None
+    ) -> Estimate:
+        """The one-trial solver on ``data`` (class text): ``estimate`` to 1e-9, not to the bit."""
+        require_modalities(self, data)
+        return self._solve_one(data, rng)
+
+    def _solve_one(self, data: MeasurementSet, rng: np.random.Generator | None) -> Estimate:
+        return _estimate(
+            self.name,
+            self._rows(),
+            self.frames,
+            data,
+            rng,
+            self.side_prior_m,
+            **self._options(data),
+        )
 
     def estimate_batch(
         self,
@@ -380,7 +431,7 @@ class _Batches:
         rngs: Sequence[np.random.Generator | None] | None = None,
     ) -> BatchEstimates:
         """``estimate_batch`` as columns, without an object per trial."""
-        return _estimate_columns(self, self._rows(), batch, rngs)
+        return _estimate_columns(self, batch, rngs)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -441,14 +492,8 @@ class Cls(_Batches):
             ),
         )
 
-    def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
-        require_modalities(self, data)
-        options = (
-            {"offset_method": self.offset_method} if "emission_time_s" in data.unknowns else {}
-        )
-        return _estimate(
-            self.name, self._rows(), self.frames, data, rng, self.side_prior_m, **options
-        )
+    def _options(self, data: MeasurementSet) -> dict[str, Any]:
+        return {"offset_method": self.offset_method} if "emission_time_s" in data.unknowns else {}
 
     def constrained_ls(self, data: MeasurementSet) -> ConstrainedLS:
         """The system ``estimate`` minimises: with ``optimal`` weighting, stage 2's rows."""
@@ -483,10 +528,6 @@ class ClsPaper(_Batches):
     def _rows(self) -> Rows:
         return "per-frame"
 
-    def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
-        require_modalities(self, data)
-        return _estimate(self.name, "per-frame", self.frames, data, rng, self.side_prior_m)
-
     def constrained_ls(self, data: MeasurementSet) -> ConstrainedLS:
         """The system ``estimate`` minimises (unweighted, SI-unit rows, frames used)."""
         require_modalities(self, data)
@@ -514,10 +555,6 @@ class ClsAsPrinted(_Batches):
 
     def _rows(self) -> Rows:
         return "as-printed"
-
-    def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
-        require_modalities(self, data)
-        return _estimate(self.name, "as-printed", self.frames, data, rng, self.side_prior_m)
 
     def constrained_ls(self, data: MeasurementSet) -> ConstrainedLS:
         """The system ``estimate`` minimises (the printed rows, frames used)."""

@@ -45,21 +45,17 @@ RANK_RTOL = 1e-10
 def row_dot(left: FloatArray, right: FloatArray, n: int) -> FloatArray:
     """``Σ_rows left·right`` for each of ``n`` systems, (R, n) arrays or (R, 1) columns.
 
-    Always the sequential sum over the rows, system by system: numpy's reductions and BLAS
-    change their order of summation with the shape (a single system, a column shared by all,
-    the size of the batch), and a system's result must not depend on its batch, to the bit.
+    Always the sequential sum over the rows, system by system, ``s = 0; s += l_i r_i``:
+    numpy's own sums change their order with the shape (a single column is summed pairwise),
+    and a system's result must not depend on its batch, to the bit. A reduction over the
+    outer axis of a row-major ``(R, n ≥ 2)`` array adds row after row; a single column is
+    summed by ``cumsum``, which adds in order too.
     """
-    if left.shape[1] == 1 and right.shape[1] == 1:  # shared by every system
-        value = np.einsum("ij,ij->j", np.repeat(left, 2, axis=1), np.repeat(right, 2, axis=1))
-        return np.full(n, value[0])
-    if n == 1:
-        pair = np.einsum("ij,ij->j", np.repeat(left, 2, axis=1), np.repeat(right, 2, axis=1))
-        return pair[:1]
-    # row-major operands: einsum then sums each column row by row (a column-major one would
-    # be summed pairwise, along its contiguous axis)
-    left = np.broadcast_to(np.ascontiguousarray(left), (left.shape[0], n))
-    right = np.broadcast_to(np.ascontiguousarray(right), (right.shape[0], n))
-    return np.einsum("ij,ij->j", left, right)
+    product = np.multiply(left, right)
+    if product.shape[1] == 1:
+        total = np.cumsum(product[:, 0])[-1] + 0.0 if len(product) else 0.0
+        return np.full(n, total)
+    return np.add.reduce(product, axis=0, initial=0.0)
 
 
 @dataclass(frozen=True, slots=True, eq=False)

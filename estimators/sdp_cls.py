@@ -325,11 +325,7 @@ class SdpCls:
 
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)
-        assert data.doppler_hz is not None and data.toa_s is not None
-        batch = MeasurementBatch(
-            geometry=data, doppler_hz=data.doppler_hz[None], toa_s=data.toa_s[None], rss_dbm=None
-        )
-        decided = _solve_batch(self, batch, [rng])
+        decided = _solve_batch(self, MeasurementBatch.of_one(data), [rng])
         if decided.index.size == 0:
             return decided.failures[0]
         if decided.redone:

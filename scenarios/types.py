@@ -668,6 +668,20 @@ class MeasurementBatch:
             )
         check_measured(self.geometry, self.doppler_hz, self.toa_s, self.rss_dbm)
 
+    @classmethod
+    def of_one(cls, data: MeasurementSet) -> MeasurementBatch:
+        """``data`` as a batch of one trial: its measurements the batch's only row."""
+
+        def row(values: FloatArray | None) -> FloatArray | None:
+            return None if values is None else values[None]
+
+        return cls(
+            geometry=data,
+            doppler_hz=row(data.doppler_hz),
+            toa_s=row(data.toa_s),
+            rss_dbm=row(data.rss_dbm),
+        )
+
     @property
     def n_trials(self) -> int:
         return len(next(v for v in (self.doppler_hz, self.toa_s, self.rss_dbm) if v is not None))

@@ -11,8 +11,8 @@ from estimators.cls import Cls
 
 @dataclasses.dataclass(frozen=True)
 class PerTrialCls:
-    """``cls`` one trial at a time (no batch path): the reference for wrappers that call
-    ``Cls().estimate``; the batch path agrees with it to rounding, not to the bit."""
+    """``cls`` one trial at a time (no batch capability): what a wrapper calling
+    ``Cls().estimate`` records; the batch's rows equal it to the bit."""
 
     name: ClassVar[str] = "per-trial-cls"
     requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})

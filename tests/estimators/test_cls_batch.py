@@ -1,5 +1,6 @@
 """The batch path of the closed-form CLS (``estimate_batch``, ``estimate_columns``) against the
-one-at-a-time path, trial by trial, with each trial's own generator.
+one-trial solver (``estimate_one_trial``), trial by trial, with each trial's own generator;
+and ``estimate``, the batch of one, against the batch to the bit.
 
 Equal means: the same estimator name, ``success``, ``ambiguous``, message and diagnostics keys;
 the same integer and boolean diagnostics; the candidates in the same order and the returned
@@ -24,6 +25,7 @@ from estimators.batch import BatchEstimates
 from estimators.cls import Cls, ClsAsPrinted, ClsPaper, _estimate
 from estimators.cls_batch import estimate_columns
 from estimators.cls_rows import LocalFrame
+from estimators.gtrs_rounding import row_dot
 from scenarios.catalog import get_scenario, heading_velocities_mps
 from scenarios.simulate import simulate_trials, trial_seeds
 from scenarios.types import FlightPlan, MeasurementBatch, Scenario
@@ -64,12 +66,12 @@ def generators(n: int, seed: int = 100) -> list[np.random.Generator]:
 
 
 def differences(estimator, batch: MeasurementBatch, columns: BatchEstimates) -> list[str]:
-    """Every way ``columns`` differs from ``estimate`` trial by trial (empty: equal)."""
+    """Every way ``columns`` differs from the one-trial solver trial by trial (empty: equal)."""
     found = []
     rngs = generators(batch.n_trials)
     for i in range(batch.n_trials):
         trial = batch.trial(i)
-        single = estimator.estimate(trial, rng=rngs[i])
+        single = estimator.estimate_one_trial(trial, rng=rngs[i])
         got = columns.estimate(i)
         problems = _estimate_differences(estimator, trial, single, got)
         if problems:
@@ -191,6 +193,64 @@ def test_a_trials_result_does_not_depend_on_its_batch_to_the_bit(family, estimat
                 assert a.diagnostics == b.diagnostics, (size, trial)
 
 
+@pytest.mark.parametrize(
+    "estimator", [Cls(), ClsPaper(), ClsAsPrinted(), Cls(weighting="none")], ids=repr
+)
+@pytest.mark.parametrize("family", sorted(FAMILIES))
+def test_estimate_is_the_batchs_row_to_the_bit(family, estimator) -> None:
+    """``estimate`` of a trial is its row of any batch (a run's row, whatever the chunking or
+    a fallback to one call per trial): position, candidates, message, diagnostics and the
+    generator's state, trials the batch leaves to the one-trial solver included."""
+    batch = family_batch(family, 60, seed=14)
+    columns = estimator.estimate_columns(batch, rngs=generators(60))
+    rngs = generators(60)
+    for i in range(60):
+        single, row = estimator.estimate(batch.trial(i), rng=rngs[i]), columns.estimate(i)
+        assert np.array_equal(single.position_m, row.position_m, equal_nan=True), i
+        assert np.array_equal(single.candidates_m, row.candidates_m), i
+        assert (single.message, single.success, single.ambiguous) == (
+            row.message,
+            row.success,
+            row.ambiguous,
+        )
+        assert single.diagnostics == row.diagnostics, i
+    drawn = generators(60)
+    estimator.estimate_columns(batch, rngs=drawn)
+    assert [r.bit_generator.state for r in rngs] == [r.bit_generator.state for r in drawn]
+
+
+def test_estimate_of_a_trial_in_doubt_is_the_one_trial_solvers() -> None:
+    """Where the batch defers (the emitter in the track's plane at 200 dB), ``estimate`` is the
+    one-trial solver's answer itself."""
+    scenario = get_scenario("paper-1m").replace(emitter_m=[35.0, 0.0])
+    batch = simulate_trials(scenario, snr_db=200.0, seeds=trial_seeds(6, 40))
+    columns = Cls().estimate_columns(batch)
+    deferred = np.flatnonzero(columns.recomputed)
+    assert deferred.size > 0
+    for i in deferred.tolist():
+        single, alone = Cls().estimate(batch.trial(i)), Cls().estimate_one_trial(batch.trial(i))
+        assert np.array_equal(single.candidates_m, alone.candidates_m)
+        assert single.diagnostics == alone.diagnostics
+
+
+def test_single_columns_are_summed_in_the_order_of_many() -> None:
+    """:func:`~estimators.gtrs_rounding.row_dot` sums one system by ``cumsum`` and many by an
+    outer-axis reduction: both add row after row, so a system's sums do not depend on how many
+    share its batch."""
+    rng = np.random.default_rng(15)
+    for rows in (1, 2, 7, 8, 9, 17, 100, 1000):
+        for _ in range(50):
+            values = rng.standard_normal(rows) * np.exp(8.0 * rng.standard_normal(rows))
+            ones = np.ones((rows, 1))
+            alone = row_dot(values[:, None], ones, 1)[0]
+            many = row_dot(np.column_stack([values, values[::-1], values]), ones, 3)
+            assert alone == many[0] == many[2]
+            total = 0.0
+            for value in values:
+                total += value
+            assert alone == total
+
+
 @pytest.mark.parametrize("estimator", [Cls(), ClsPaper()], ids=repr)
 def test_standard_families_are_solved_by_the_batch_itself(estimator) -> None:
     """On the benchmark's families no trial is left to the one-at-a-time path."""
@@ -226,7 +286,7 @@ def test_each_generator_is_drawn_exactly_as_one_at_a_time(estimator) -> None:
     batch_rngs, single_rngs = generators(300), generators(300)
     estimator.estimate_columns(batch, rngs=batch_rngs)
     for i in range(300):
-        estimator.estimate(batch.trial(i), rng=single_rngs[i])
+        estimator.estimate_one_trial(batch.trial(i), rng=single_rngs[i])
     untouched = generators(300)
     drawn = 0
     for a, b, fresh in zip(batch_rngs, single_rngs, untouched, strict=True):
@@ -242,7 +302,7 @@ def test_one_generator_shared_by_every_trial_is_drawn_in_trial_order() -> None:
     batch = family_batch("paper-1m", 200, seed=4)
     shared_batch, shared_single = np.random.default_rng(7), np.random.default_rng(7)
     columns = Cls().estimate_columns(batch, rngs=[shared_batch] * 200)
-    singles = [Cls().estimate(batch.trial(i), rng=shared_single) for i in range(200)]
+    singles = [Cls().estimate_one_trial(batch.trial(i), rng=shared_single) for i in range(200)]
     np.testing.assert_allclose(
         columns.position_m, [s.position_m for s in singles], rtol=0.0, atol=1e-9 * 60.0
     )
@@ -265,7 +325,10 @@ def differences_without_rng(estimator, batch, columns) -> list[str]:
         f"trial {i}"
         for i in range(batch.n_trials)
         if _estimate_differences(
-            estimator, batch.trial(i), estimator.estimate(batch.trial(i)), columns.estimate(i)
+            estimator,
+            batch.trial(i),
+            estimator.estimate_one_trial(batch.trial(i)),
+            columns.estimate(i),
         )
     ]
 
@@ -329,7 +392,7 @@ def test_a_geometry_the_one_trial_path_refuses_is_refused_for_the_batch() -> Non
     )
     batch = simulate_trials(scenario, snr_db=0.0, seeds=trial_seeds(9, 3))
     with pytest.raises(ValueError) as single:
-        Cls().estimate(batch.trial(0))
+        Cls().estimate_one_trial(batch.trial(0))
     with pytest.raises(ValueError) as batched:
         Cls().estimate_batch(batch)
     assert str(batched.value) == str(single.value)
