@@ -331,30 +331,6 @@ def _constrained_ls(rows: Rows, frames: Frames, data: MeasurementSet) -> Constra
     return ConstrainedLS.in_frame(solution.A, solution.b, solution.frame)
 
 
-def _estimate_columns(
-    estimator: Cls | ClsPaper | ClsAsPrinted,
-    batch: MeasurementBatch,
-    rngs: Sequence[np.random.Generator | None] | None,
-) -> BatchEstimates:
-    """``estimate`` of every trial of ``batch`` at once (:mod:`estimators.cls_batch`)."""
-    require_batch(estimator, batch)
-    if batch.geometry.unknowns:  # not vectorised (MATH §15): one trial at a time
-        rngs = check_rngs(rngs, batch.n_trials)
-        return BatchEstimates.from_estimates(
-            estimator.name,
-            [estimator.estimate_one_trial(batch.trial(i), rng=rngs[i]) for i in range(len(rngs))],
-        )
-    return estimate_columns(
-        estimator.name,
-        estimator._rows(),
-        estimator.frames,
-        batch,
-        rngs,
-        estimator.side_prior_m,
-        estimator._solve_one,
-    )
-
-
 def _check_options(frames: str, side_prior_m: object) -> None:
     if frames not in ("all", "last"):
         raise ValueError(f"frames: expected 'all' or 'last', got {frames!r}")
@@ -387,15 +363,7 @@ class _Batches:
         require_modalities(self, data)
         if data.unknowns:
             return self.estimate_one_trial(data, rng=rng)
-        return estimate_columns(
-            self.name,
-            self._rows(),
-            self.frames,
-            MeasurementBatch.of_one(data),
-            [rng],
-            self.side_prior_m,
-            self._solve_one,
-        ).estimate(0)
+        return self._columns(MeasurementBatch.of_one(data), [rng]).estimate(0)
 
     def estimate_one_trial(
         self, data: MeasurementSet, *, rng: np.random.Generator | None = None
@@ -431,7 +399,28 @@ class _Batches:
         rngs: Sequence[np.random.Generator | None] | None = None,
     ) -> BatchEstimates:
         """``estimate_batch`` as columns, without an object per trial."""
-        return _estimate_columns(self, batch, rngs)
+        require_batch(self, batch)
+        if batch.geometry.unknowns:  # not vectorised (MATH §15): one trial at a time
+            rngs = check_rngs(rngs, batch.n_trials)
+            return BatchEstimates.from_estimates(
+                self.name,
+                [self.estimate_one_trial(batch.trial(i), rng=rng) for i, rng in enumerate(rngs)],
+            )
+        return self._columns(batch, rngs)
+
+    def _columns(
+        self, batch: MeasurementBatch, rngs: Sequence[np.random.Generator | None] | None
+    ) -> BatchEstimates:
+        """:func:`estimators.cls_batch.estimate_columns` with this estimator's options."""
+        return estimate_columns(
+            self.name,
+            self._rows(),
+            self.frames,
+            batch,
+            rngs,
+            self.side_prior_m,
+            self._solve_one,
+        )
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -53,7 +53,7 @@ def ordered_sum(values: FloatArray) -> FloatArray:
 
     For a C-contiguous ``(m, k)`` array with ``k ≥ 2`` numpy's reduction over the first axis
     adds row after row into the ``k`` totals, which is this order (checked against the loop in
-    ``tests/estimators/test_minpack_batch.py``); a single column or another layout would be
+    ``tests/estimators/test_ml_batch.py``); a single column or another layout would be
     summed pairwise, so those take the loop."""
     values = np.asarray(values)
     if values.ndim == 2 and values.shape[1] > 1 and values.flags.c_contiguous:

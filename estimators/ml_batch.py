@@ -485,9 +485,10 @@ def _information(
 ) -> tuple[FloatArray, BoolArray]:
     """The Fisher information (MATH §8) at each kept candidate of the ``wanted`` trials (the
     Gram matrix of the residuals' Jacobian, as :func:`~estimators.ml.fisher_covariance_m2`
-    forms it), and
-    the trials where its regularity test (:func:`scenarios.fisher.regular_2x2`) is within
-    rounding of its threshold at any candidate (whichever the draw picks)."""
+    forms it), and the trials where its regularity test (:func:`scenarios.fisher.regular_2x2`)
+    is within rounding of its threshold at any candidate (whichever the draw picks). ``ends``
+    holds the searches' end points by trial and slot, their problem numbers and the Jacobian
+    columns there."""
     n, width, _ = candidates.shape
     information = np.full((n, width, 2, 2), np.nan)
     slots = (np.arange(width)[None, :] < count[:, None]) & wanted[:, None]

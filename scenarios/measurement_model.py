@@ -29,22 +29,34 @@ FloatArray = NDArray[np.float64]
 _TEN_OVER_LN10 = 10.0 / np.log(10.0)
 
 
+def _offset_components(
+    position_m: ArrayLike, emitter_m: ArrayLike, emitter_height_m: float
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The components of ``p_k − s`` and ``ρ_k``, each ``(..., N)`` (``dz`` broadcasts): the
+    functions below work on these planes rather than on a trailing axis of three (numpy
+    reduces over three entries as slowly as over thousands)."""
+    position = np.asarray(position_m, dtype=float)
+    emitter = np.asarray(emitter_m, dtype=float)
+    dx = position[..., 0] - emitter[..., 0, None]
+    dy = position[..., 1] - emitter[..., 1, None]
+    dz = position[..., 2] - float(emitter_height_m)
+    distance = np.sqrt(dx * dx + dy * dy + dz * dz)
+    return dx, dy, dz, distance
+
+
 def emitter_offsets_m(
     position_m: ArrayLike, emitter_m: ArrayLike, emitter_height_m: float = 0.0
 ) -> FloatArray:
     """``p_k − s`` in 3-D, shape ``(..., N, 3)`` (MATH §0)."""
-    position = np.asarray(position_m, dtype=float)
-    emitter = np.asarray(emitter_m, dtype=float)
-    height = np.full((*emitter.shape[:-1], 1), float(emitter_height_m))
-    emitter_3d = np.concatenate([emitter, height], axis=-1)
-    return position - emitter_3d[..., None, :]
+    dx, dy, dz, _ = _offset_components(position_m, emitter_m, emitter_height_m)
+    return np.stack(np.broadcast_arrays(dx, dy, dz), axis=-1)
 
 
 def slant_range_m(
     position_m: ArrayLike, emitter_m: ArrayLike, emitter_height_m: float = 0.0
 ) -> FloatArray:
     """``ρ_k = ‖p_k − s‖`` (MATH §0), shape ``(..., N)``."""
-    return np.linalg.norm(emitter_offsets_m(position_m, emitter_m, emitter_height_m), axis=-1)
+    return _offset_components(position_m, emitter_m, emitter_height_m)[3]
 
 
 def doppler_hz(
@@ -91,21 +103,6 @@ def rss_dbm(
     return rss_model.reference_power_dbm - 10.0 * rss_model.path_loss_exponent * np.log10(
         distance / rss_model.reference_distance_m
     )
-
-
-def _offset_components(
-    position_m: ArrayLike, emitter_m: ArrayLike, emitter_height_m: float
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """The components of ``p_k − s`` and ``ρ_k``, each ``(..., N)``: the Jacobians below work
-    on these planes rather than on a trailing axis of three (a reduction over three entries
-    costs as much as over thousands)."""
-    position = np.asarray(position_m, dtype=float)
-    emitter = np.asarray(emitter_m, dtype=float)
-    dx = position[..., 0] - emitter[..., 0, None]
-    dy = position[..., 1] - emitter[..., 1, None]
-    dz = position[..., 2] - float(emitter_height_m)
-    distance = np.sqrt(dx * dx + dy * dy + dz * dz)
-    return dx, dy, dz, distance
 
 
 def toa_jacobian(
