@@ -50,15 +50,14 @@ from numpy.typing import NDArray
 from estimators.base import Estimate, finalize_estimate, require_batch
 from estimators.batch import BatchEstimates, FinalizedColumns, check_rngs, finalize_columns
 from estimators.cls_batch import SharedGeometry, _draw_and_redo
-from estimators.convergence import DECREMENT_TOL
 from estimators.minpack_batch import INFO_CODES, lmder_batch, ordered_sum
 from estimators.ml import (
-    HESSIAN_STEP_RTOL,
     MERGE_RTOL,
     START_GRID,
     ResidualModel,
     on_start_grid,
 )
+from estimators.ml_batch_audit import converged_for_certain
 from estimators.ml_batch_starts import DISTANCE_RTOL, batch_starts
 from estimators.ml_starts import ranges_uninformative
 from scenarios.fisher import SINGULAR_RTOL, gram_information, inverse_2x2, regular_2x2
@@ -75,16 +74,6 @@ CHUNK_TRIALS = 1024
 """Trials solved together: large enough that numpy's per-call cost is small, small enough
 that an array of residuals of a hundred samples (~1.6 MB) stays near the core's cache (4096
 was 1.6× slower on ``paper-1m-turn``)."""
-
-DECREMENT_MARGIN = 8.0
-"""A start is converged for certain when its Gauss-Newton decrement is below
-``DECREMENT_TOL / DECREMENT_MARGIN`` (the one-trial decrement is never larger)."""
-HESSIAN_MARGIN = 1e-6
-"""A Hessian is positive definite for certain when ``det H > HESSIAN_MARGIN · H₁₁ H₂₂`` (its
-central differences carry ~1e-11 relative rounding)."""
-RANK_RTOL = 1e-10
-"""A Jacobian whose second column, orthogonalised, is below this fraction of the first (but
-not zero) leaves the decrement to the one-trial path."""
 
 XTOL = 1e-10
 """``xtol``, ``ftol`` and ``gtol`` of :func:`~estimators.ml.solve_maximum_likelihood` as
@@ -545,67 +534,8 @@ def _search(
         finite = np.all(np.isfinite(world), axis=1) & np.isfinite(costs)
         fine = ~result.odd & (result.info >= 1) & (result.info <= 4) & finite
         at_end = context.jacobian(world)
-        decrement, unsure = _gauss_newton_decrement(at_end, result.fvec)
-        small = ~unsure & (decrement <= DECREMENT_TOL / DECREMENT_MARGIN)
-        # near a track's plane the Gauss-Newton decrement can stay large where the Newton
-        # decrement (the one-trial path takes the smaller) is tiny: evaluate it there
-        rest = np.flatnonzero(fine & ~small)
-        if rest.size:
-            newton, sure = _newton_decrement(context, trial[rest], world[rest], scale[rest])
-            small[rest] = sure & (newton <= DECREMENT_TOL / DECREMENT_MARGIN)
-    return world, costs, result.info, result.nfev, fine & small, at_end
-
-
-def _gauss_newton_decrement(
-    jac: tuple[FloatArray, FloatArray], residual: FloatArray
-) -> tuple[FloatArray, BoolArray]:
-    """``‖P_J e‖²`` per problem (:func:`~estimators.ml.ml_decrement`'s Gauss-Newton part), and
-    where the rank of ``J`` is too close to call for the one-trial ``lstsq`` to agree. ``J``'s
-    columns and ``e`` are ``(m, k)``."""
-    c0, c1 = jac
-    n0, n1 = np.sqrt(np.sum(c0 * c0, axis=0)), np.sqrt(np.sum(c1 * c1, axis=0))
-    swap = n1 > n0
-    a = np.where(swap, c1, c0)
-    b = np.where(swap, c0, c1)
-    norm = np.maximum(n0, n1)
-    with np.errstate(all="ignore"):
-        unit = a / norm
-        v = b - np.sum(unit * b, axis=0) * unit
-        v = v - np.sum(unit * v, axis=0) * unit
-        r22 = np.sqrt(np.sum(v * v, axis=0))
-        first = np.sum(unit * residual, axis=0)
-        second = np.sum(v * residual, axis=0) / r22
-    rank_two = r22 > RANK_RTOL * norm
-    zero_column = ~np.any(b != 0.0, axis=0)
-    value = np.where(norm > 0.0, first * first, 0.0) + np.where(rank_two, second * second, 0.0)
-    unsure = ~(rank_two | zero_column) | ~np.isfinite(value)
-    return value, unsure
-
-
-def _newton_decrement(
-    context: _Context, trial: IntArray, world: FloatArray, scale: FloatArray
-) -> tuple[FloatArray, BoolArray]:
-    """``gᵀH⁻¹g`` with :func:`~estimators.ml.ml_decrement`'s central-difference Hessian, and
-    where ``H`` is positive definite by a margin the one-trial rounding cannot close."""
-
-    def gradient(at: FloatArray) -> FloatArray:
-        e = context.residuals(trial, at)
-        return np.column_stack([np.sum(column * e, axis=0) for column in context.jacobian(at)])
-
-    step = HESSIAN_STEP_RTOL * scale
-    columns = []
-    for axis in np.eye(2):
-        shift = step[:, None] * axis
-        columns.append((gradient(world + shift) - gradient(world - shift)) / (2.0 * step[:, None]))
-    hessian = np.stack(columns, axis=-1)
-    hessian = 0.5 * (hessian + np.swapaxes(hessian, -1, -2))
-    g = gradient(world)
-    a, b, d = hessian[:, 0, 0], hessian[:, 0, 1], hessian[:, 1, 1]
-    det = a * d - b * b
-    with np.errstate(all="ignore"):
-        value = (d * g[:, 0] ** 2 - 2.0 * b * g[:, 0] * g[:, 1] + a * g[:, 1] ** 2) / det
-    sure = (a > 0.0) & (det > HESSIAN_MARGIN * np.abs(a * d)) & np.isfinite(value)
-    return value, sure
+        converged = converged_for_certain(context, trial, world, scale, at_end, result.fvec, fine)
+    return world, costs, result.info, result.nfev, fine & converged, at_end
 
 
 # --------------------------------------------------------------------------------------------

@@ -75,6 +75,8 @@ SPEED_OF_LIGHT_MPS = 299_792_458.0
 
 MODALITIES = ("doppler", "toa", "rss")
 """Measurement kinds, in the order noise is drawn for them (MATH §1)."""
+MEASURED = ("doppler_hz", "toa_s", "rss_dbm")
+"""The measurement fields, one per modality in that order."""
 
 FloatArray = NDArray[np.float64]
 
@@ -510,7 +512,7 @@ class MeasurementSet:
             ("frame", frame),
         ):
             set_(self, name, value)
-        for name in ("doppler_hz", "toa_s", "rss_dbm"):
+        for name in MEASURED:
             value = getattr(self, name)
             if value is not None:
                 set_(self, name, frozen_array(value, name, (n,)))
@@ -581,7 +583,7 @@ class MeasurementSet:
             name: getattr(self, name)[mask]
             for name in ("frame", "time_s", "position_m", "velocity_mps")
         }
-        for name in ("doppler_hz", "toa_s", "rss_dbm"):
+        for name in MEASURED:
             value = getattr(self, name)
             changes[name] = None if value is None else value[mask]
         return replace(self, **changes)
@@ -644,19 +646,16 @@ class MeasurementBatch:
                 f"geometry: expected a MeasurementSet, got {type(self.geometry).__name__}"
             )
         n = self.geometry.n_samples
-        trials = {len(v) for v in (self.doppler_hz, self.toa_s, self.rss_dbm) if v is not None}
+        trials = {len(getattr(self, name)) for name in MEASURED if getattr(self, name) is not None}
         if len(trials) != 1:
             raise ValueError("batch: every modality needs the same number of trials")
         (n_trials,) = trials
-        for name in ("doppler_hz", "toa_s", "rss_dbm"):
+        for name, modality in zip(MEASURED, MODALITIES, strict=True):
             value = getattr(self, name)
-            if value is not None:
-                object.__setattr__(self, name, frozen_array(value, name, (n_trials, n)))
-        for name, modality in (("doppler_hz", "doppler"), ("toa_s", "toa"), ("rss_dbm", "rss")):
-            if (
-                getattr(self, name) is not None
-                and self.geometry.noise.for_modality(modality) is None
-            ):
+            if value is None:
+                continue
+            object.__setattr__(self, name, frozen_array(value, name, (n_trials, n)))
+            if self.geometry.noise.for_modality(modality) is None:
                 raise ValueError(
                     f"noise.{_NOISE_FIELD[modality]}: {modality} measurements are present, so "
                     "their noise standard deviation is required (in geometry.noise)"
@@ -671,20 +670,12 @@ class MeasurementBatch:
     @classmethod
     def of_one(cls, data: MeasurementSet) -> MeasurementBatch:
         """``data`` as a batch of one trial: its measurements the batch's only row."""
-
-        def row(values: FloatArray | None) -> FloatArray | None:
-            return None if values is None else values[None]
-
-        return cls(
-            geometry=data,
-            doppler_hz=row(data.doppler_hz),
-            toa_s=row(data.toa_s),
-            rss_dbm=row(data.rss_dbm),
-        )
+        rows = {name: getattr(data, name) for name in MEASURED}
+        return cls(geometry=data, **{k: None if v is None else v[None] for k, v in rows.items()})
 
     @property
     def n_trials(self) -> int:
-        return len(next(v for v in (self.doppler_hz, self.toa_s, self.rss_dbm) if v is not None))
+        return len(next(getattr(self, n) for n in MEASURED if getattr(self, n) is not None))
 
     def trial(self, index: int) -> MeasurementSet:
         """Trial ``index`` as a :class:`MeasurementSet`.
@@ -695,7 +686,7 @@ class MeasurementBatch:
         """
         index = range(self.n_trials)[index]  # IndexError for a trial the batch does not hold
         trial = copy.copy(self.geometry)
-        for name in ("doppler_hz", "toa_s", "rss_dbm"):
+        for name in MEASURED:
             values = getattr(self, name)
             object.__setattr__(trial, name, None if values is None else values[index])
         return trial
