@@ -215,6 +215,25 @@ def test_whitened_rows_are_modality_blocks_and_their_gram_is_the_information() -
     )
 
 
+def test_gram_information_adds_the_rows_in_order_whatever_the_stack_or_layout() -> None:
+    """Each entry is ``s = 0; s += g_i g_j`` over the rows: the same bits for one stack alone,
+    among many, rows first (``row_axis=0``) or with ``p`` columns; ``JᵀJ`` to rounding."""
+    rng = np.random.default_rng(16)
+    rows = rng.standard_normal((6, 41, 3)) * np.exp(4.0 * rng.standard_normal((6, 41, 3)))
+    together = gram_information(rows)
+    alone = np.stack([gram_information(stack) for stack in rows])
+    rows_first = gram_information(np.ascontiguousarray(np.moveaxis(rows, 1, 0)), row_axis=0)
+    np.testing.assert_array_equal(together, alone)
+    np.testing.assert_array_equal(together, rows_first)
+    expected = np.zeros((6, 3, 3))
+    for row in np.moveaxis(rows, 1, 0):
+        expected = expected + row[:, :, None] * row[:, None, :]
+    np.testing.assert_array_equal(together, expected)
+    np.testing.assert_allclose(together, np.einsum("ski,skj->sij", rows, rows), rtol=1e-12)
+    with pytest.raises(ValueError, match=r"^whitened_rows: expected rows along axis -1"):
+        gram_information(rows, row_axis=-1)
+
+
 # --------------------------------------------------------------------------------------------
 # vectorised equals a loop
 # --------------------------------------------------------------------------------------------
