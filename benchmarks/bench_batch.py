@@ -45,6 +45,7 @@ import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_variable, "1")  # one core, before numpy loads its BLAS
@@ -358,6 +359,53 @@ def _cpu_us(run: Callable[[], object], count: int) -> float:
     return (time.process_time() - start) / count * 1e6
 
 
+def _generators(n: int) -> list[np.random.Generator]:
+    """One generator per trial, made afresh for every timed call (the draws then match)."""
+    return [np.random.default_rng(i) for i in range(n)]
+
+
+Path = Callable[[list[np.random.Generator]], object]
+
+
+def _best_times(paths: dict[str, tuple[Path, int]], n: int) -> dict[str, float]:
+    """Microseconds per estimate of each path ``(run(rngs), estimates per call)``: the best of
+    ``REPEATS`` interleaved rounds, so that every path sees the same machine load."""
+    best = dict.fromkeys(paths, np.inf)
+    for _ in range(REPEATS):
+        for key, (run, count) in paths.items():
+            rngs = _generators(n)
+            best[key] = min(best[key], _cpu_us(lambda r=run, g=rngs: r(g), count))
+    return best
+
+
+def _one_by_one(solve: Callable[..., object], inputs: list, *, keyword: bool = True) -> Path:
+    """A path calling ``solve`` on each input with its trial's generator (``rng=`` or second
+    argument)."""
+    if keyword:
+        return lambda g: [solve(x, rng=g[i]) for i, x in enumerate(inputs)]
+    return lambda g: [solve(x, g[i]) for i, x in enumerate(inputs)]
+
+
+def _agreements(
+    estimator: Any,
+    trials: list[MeasurementSet],
+    answers: list,
+    same_extra: Callable[..., bool],
+) -> int:
+    """How many trials ``estimator.estimate`` answers as the transcription did: the position
+    (1e-6 m), the candidate set, and ``same_extra(estimate, answer[2])`` (rank, covariance)."""
+    rngs = _generators(len(trials))
+    agree = 0
+    for i, (trial, (position, candidates, extra)) in enumerate(zip(trials, answers, strict=True)):
+        estimate = estimator.estimate(trial, rng=rngs[i])
+        agree += bool(
+            np.allclose(estimate.position_m, position, rtol=0.0, atol=1e-6)
+            and _same_sets(estimate.candidates_m, candidates)
+            and same_extra(estimate, extra)
+        )
+    return agree
+
+
 def _same_sets(a: np.ndarray, b: np.ndarray) -> bool:
     a, b = np.asarray(a).reshape(-1, 2), np.asarray(b).reshape(-1, 2)
     return len(a) == len(b) and all(np.min(np.linalg.norm(b - p, axis=1)) < 1e-6 for p in a)
@@ -369,60 +417,28 @@ def bench(scenario: str, n: int) -> None:
     trials = [batch.trial(i) for i in range(m)]
     arrays = [Trial.of(t) for t in trials]
     for estimator, transcription in ((Cls(), numpy_cls), (ClsPaper(), numpy_cls_paper)):
-
-        def generators() -> list[np.random.Generator]:
-            return [np.random.default_rng(i) for i in range(n)]
-
-        rngs = generators()
-        answers = [transcription(a, rngs[i]) for i, a in enumerate(arrays)]
-        rngs = generators()
-        agree = 0
-        for i, (trial, (position, candidates, rank)) in enumerate(
-            zip(trials, answers, strict=True)
-        ):
-            estimate = estimator.estimate(trial, rng=rngs[i])
-            agree += bool(
-                np.allclose(estimate.position_m, position, rtol=0.0, atol=1e-6)
-                and _same_sets(estimate.candidates_m, candidates)
-                and estimate.diagnostics["rank"] == rank
-            )
-        # interleaved repeats, best of each: the paths see the same machine load
-        best = dict.fromkeys(("single", "solver", "numpy", "columns", "list"), np.inf)
-        for _ in range(REPEATS):
-            for key, solve in (
-                ("single", estimator.estimate),
-                ("solver", estimator.estimate_one_trial),
-            ):
-                rngs = generators()
-                best[key] = min(
-                    best[key],
-                    _cpu_us(
-                        lambda f=solve, g=rngs: [f(t, rng=g[i]) for i, t in enumerate(trials)],
-                        m,
-                    ),
-                )
-            rngs = generators()
-            best["numpy"] = min(
-                best["numpy"],
-                _cpu_us(
-                    lambda f=transcription, g=rngs: [f(a, g[i]) for i, a in enumerate(arrays)], m
-                ),
-            )
-            rngs = generators()
-            best["columns"] = min(
-                best["columns"],
-                _cpu_us(lambda e=estimator, g=rngs: e.estimate_columns(batch, rngs=g), n),
-            )
-            rngs = generators()
-            best["list"] = min(
-                best["list"],
-                _cpu_us(lambda e=estimator, g=rngs: e.estimate_batch(batch, rngs=g), n),
-            )
-        recomputed = int(estimator.estimate_columns(batch, rngs=generators()).recomputed.sum())
+        agree = _agreements(
+            estimator,
+            trials,
+            _one_by_one(transcription, arrays, keyword=False)(_generators(n)),
+            lambda estimate, rank: estimate.diagnostics["rank"] == rank,
+        )
+        best = _best_times(
+            {
+                "single": (_one_by_one(estimator.estimate, trials), m),
+                "solver": (_one_by_one(estimator.estimate_one_trial, trials), m),
+                "numpy": (_one_by_one(transcription, arrays, keyword=False), m),
+                "columns": (lambda g, e=estimator: e.estimate_columns(batch, rngs=g), n),
+                "list": (lambda g, e=estimator: e.estimate_batch(batch, rngs=g), n),
+            },
+            n,
+        )
+        recomputed = int(estimator.estimate_columns(batch, rngs=_generators(n)).recomputed.sum())
         single, plain, columns_us = best["single"], best["numpy"], best["columns"]
         print(
             f"{scenario:9s} {estimator.name:9s} N={n:6d} | one-at-a-time {single:7.1f} us"
-            f" | one-trial solver {best['solver']:6.1f} us | numpy {plain:6.1f} us | columns {columns_us:5.2f} us"
+            f" | one-trial solver {best['solver']:6.1f} us | numpy {plain:6.1f} us"
+            f" | columns {columns_us:5.2f} us"
             f" | list {best['list']:5.2f} us | numpy/columns {plain / columns_us:5.1f}x"
             f" | one-at-a-time/columns {single / columns_us:5.1f}x"
             f" | recomputed {recomputed}/{n} | transcription agrees {agree}/{m}",
@@ -438,47 +454,22 @@ def bench_ml(scenario: str, n: int) -> None:
     trials = [batch.trial(i) for i in range(m)]
     arrays = [Trial.of(t) for t in trials]
     estimator = MaximumLikelihood()
-
-    def generators() -> list[np.random.Generator]:
-        return [np.random.default_rng(i) for i in range(n)]
-
-    rngs = generators()
-    answers = [numpy_ml(a, rngs[i]) for i, a in enumerate(arrays)]
-    rngs = generators()
-    agree = 0
-    for i, (trial, (position, candidates, covariance)) in enumerate(
-        zip(trials, answers, strict=True)
-    ):
-        estimate = estimator.estimate(trial, rng=rngs[i])
-        agree += bool(
-            np.allclose(estimate.position_m, position, rtol=0.0, atol=1e-6)
-            and _same_sets(estimate.candidates_m, candidates)
-            and np.allclose(estimate.covariance_m2, covariance, rtol=1e-6)
-        )
-    best = dict.fromkeys(("single", "numpy", "columns", "list"), np.inf)
-    for _ in range(REPEATS):
-        rngs = generators()
-        best["single"] = min(
-            best["single"],
-            _cpu_us(
-                lambda g=rngs: [estimator.estimate(t, rng=g[i]) for i, t in enumerate(trials)], m
-            ),
-        )
-        rngs = generators()
-        best["numpy"] = min(
-            best["numpy"],
-            _cpu_us(lambda g=rngs: [numpy_ml(a, g[i]) for i, a in enumerate(arrays)], m),
-        )
-        rngs = generators()
-        best["columns"] = min(
-            best["columns"],
-            _cpu_us(lambda g=rngs: estimator.estimate_columns(batch, rngs=g), n),
-        )
-        rngs = generators()
-        best["list"] = min(
-            best["list"], _cpu_us(lambda g=rngs: estimator.estimate_batch(batch, rngs=g), n)
-        )
-    recomputed = int(estimator.estimate_columns(batch, rngs=generators()).recomputed.sum())
+    agree = _agreements(
+        estimator,
+        trials,
+        _one_by_one(numpy_ml, arrays, keyword=False)(_generators(n)),
+        lambda estimate, covariance: np.allclose(estimate.covariance_m2, covariance, rtol=1e-6),
+    )
+    best = _best_times(
+        {
+            "single": (_one_by_one(estimator.estimate, trials), m),
+            "numpy": (_one_by_one(numpy_ml, arrays, keyword=False), m),
+            "columns": (lambda g: estimator.estimate_columns(batch, rngs=g), n),
+            "list": (lambda g: estimator.estimate_batch(batch, rngs=g), n),
+        },
+        n,
+    )
+    recomputed = int(estimator.estimate_columns(batch, rngs=_generators(n)).recomputed.sum())
     single, plain, columns_us = best["single"], best["numpy"], best["columns"]
     print(
         f"{scenario:13s} ml N={n:6d} | one-at-a-time {single:7.1f} us"

@@ -48,6 +48,30 @@ COST_RISE_RTOL = 1e-9
 """A cost above the starting cost by more than this (relative) is a rise, not rounding."""
 
 
+def gtsam_levenberg_marquardt(
+    graph: Any, initial: Any, max_iterations: int
+) -> tuple[Any, float, float, int]:
+    """GTSAM's Levenberg-Marquardt on ``graph`` from ``initial``, run to ``max_iterations`` (the
+    error tolerances at 1e-15, the damping bounded by ``LM_LAMBDA_UPPER_BOUND``): the result,
+    the error before and after and the iterations. A GTSAM error is an
+    :class:`EstimationFailure`."""
+    import gtsam
+
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(max_iterations)
+    params.setRelativeErrorTol(1e-15)
+    params.setAbsoluteErrorTol(1e-15)
+    params.setlambdaUpperBound(LM_LAMBDA_UPPER_BOUND)
+    try:
+        start_error = float(graph.error(initial))
+        optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
+        result = optimizer.optimize()
+        end_error = float(graph.error(result))
+    except RuntimeError as error:
+        raise EstimationFailure(f"GTSAM failed in the batch solve ({error})") from None
+    return result, start_error, end_error, int(optimizer.iterations())
+
+
 def lm_solve(
     frames: tuple[FrameModel, ...],
     initial_m: FloatArray,
@@ -85,19 +109,9 @@ def lm_solve(
         prior_mean_m=prior_mean_m,
         prior_sigma_m=prior_sigma_m,
     )
-    initial = values_of(initial_m)
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(max_iterations)
-    params.setRelativeErrorTol(1e-15)
-    params.setAbsoluteErrorTol(1e-15)
-    params.setlambdaUpperBound(LM_LAMBDA_UPPER_BOUND)
-    try:
-        start_error = float(graph.error(initial))
-        optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
-        result = optimizer.optimize()
-        end_error = float(graph.error(result))
-    except RuntimeError as error:
-        raise EstimationFailure(f"GTSAM failed in the batch solve ({error})") from None
+    result, start_error, end_error, iterations = gtsam_levenberg_marquardt(
+        graph, values_of(initial_m), max_iterations
+    )
     estimates = np.array([result.atPoint2(X(i)) for i in range(n_variables)])
     covariance = marginal_covariance(
         lambda: gtsam.Marginals(graph, result).marginalCovariance(X(n_variables - 1))
@@ -111,7 +125,6 @@ def lm_solve(
         steps,
         random_walk=random_walk,
     )
-    iterations = int(optimizer.iterations())
     report = convergence_report(
         iterations,
         max_iterations,

@@ -44,7 +44,6 @@ the hypotheses (its weight decides; ``diagnostics["misfit_restart"]`` and the me
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from functools import partial
@@ -83,8 +82,9 @@ from estimators.nuisance_states import (
     nuisance_names,
     profile_nuisance,
 )
-from estimators.smoother_batch import COST_RISE_RTOL, LM_LAMBDA_UPPER_BOUND
+from estimators.smoother_batch import COST_RISE_RTOL, gtsam_levenberg_marquardt
 from estimators.smoother_graph import newton_descent, step_sigmas_m
+from estimators.smoother_hypotheses import SmootherState
 from scenarios.types import MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -176,8 +176,6 @@ def lm_solve(
     """Levenberg-Marquardt on the whole graph from the flat state ``start``, checked (module
     text). Returns ``(hypothesis, iterations, fallback)`` (``""``, ``"newton"`` or
     ``"saddle-escape"``); raises :class:`EstimationFailure` when it did not converge."""
-    import gtsam
-
     n_var = problem.n_variables
     graph = nuisance_graph(
         problem.frames,
@@ -186,20 +184,9 @@ def lm_solve(
         problem.steps,
         random_walk=problem.random_walk,
     )
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(problem.max_iterations)
-    params.setRelativeErrorTol(1e-15)
-    params.setAbsoluteErrorTol(1e-15)
-    params.setlambdaUpperBound(LM_LAMBDA_UPPER_BOUND)
-    initial = nuisance_values(start, n_var)
-    try:
-        start_error = float(graph.error(initial))
-        optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
-        result = optimizer.optimize()
-        end_error = float(graph.error(result))
-    except RuntimeError as error:
-        raise EstimationFailure(f"GTSAM failed in the batch solve ({error})") from None
-    iterations = int(optimizer.iterations())
+    result, start_error, end_error, iterations = gtsam_levenberg_marquardt(
+        graph, nuisance_values(start, n_var), problem.max_iterations
+    )
     if not end_error <= start_error * (1.0 + COST_RISE_RTOL):
         raise EstimationFailure("Levenberg-Marquardt raised the cost")
     theta = read_values(result, n_var)
@@ -303,30 +290,12 @@ def best_solve(
 
 
 @dataclass(frozen=True, slots=True, eq=False)
-class NuisanceSmootherState:
-    """The frames seen and each hypothesis's optimum; an immutable, picklable value (no GTSAM
-    object). While ``track`` is not None the second hypothesis is the reflection of the first.
-    """
+class NuisanceSmootherState(SmootherState):
+    """:class:`~estimators.smoother_hypotheses.SmootherState` with nuisance frames and
+    hypotheses (MATH §15) and the prior's standard deviations of the nuisance variables; an
+    immutable, picklable value (no GTSAM object)."""
 
-    frames: tuple[NuisanceFrame, ...] = ()
-    hypotheses: tuple[NuisanceHypothesis, ...] = ()
-    track: StraightTrack | None = None
-    length_scale_m: float = math.nan
     prior_sigmas: FloatArray = field(default_factory=lambda: np.empty(0))
-    iterations: int = 0
-    failure: str = ""
-    diagnostics: dict[str, Any] = field(default_factory=dict)
-    fallback_reason: str = ""
-    fallbacks: int = 0
-
-    @property
-    def n_frames(self) -> int:
-        return len(self.frames)
-
-    def all_hypotheses(self) -> tuple[NuisanceHypothesis, ...]:
-        if self.track is None or not self.hypotheses:
-            return self.hypotheses
-        return (*self.hypotheses, self.hypotheses[0].mirrored(self.track))
 
 
 def _problem(

@@ -15,7 +15,6 @@ from typing import Any, ClassVar
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
 
 from comparison.cli import app
 from comparison.crlb import MODALITY_SETS, crlb_m2, fisher_information, rmse_bound_m
@@ -24,8 +23,7 @@ from scenarios.catalog import CATALOG, get_scenario
 from scenarios.files import measurements_to_dict, read_measurements, write_measurements
 from scenarios.simulate import simulate
 from scenarios.types import MeasurementSet, NoiseSigmas
-
-runner = CliRunner()
+from tests.comparison.cli_support import clean_error, invoke, runner
 
 ESTIMATE_KEYS = {
     "estimator",
@@ -39,10 +37,6 @@ ESTIMATE_KEYS = {
 }
 
 
-def invoke(*args: str | Path) -> Any:
-    return runner.invoke(app, [str(a) for a in args])
-
-
 def simulated(folder: Path, scenario: str = "paper-1m", *, seed: int = 1, snr_db: float = 20.0):
     path = folder / f"{scenario}.json"
     result = invoke("simulate", scenario, "--seed", seed, "--snr-db", snr_db, "-o", path)
@@ -52,11 +46,7 @@ def simulated(folder: Path, scenario: str = "paper-1m", *, seed: int = 1, snr_db
 
 def assert_clean_error(result: Any, field: str) -> None:
     """Exit 2, nothing on stdout, one line ``error: <field>: ...`` on stderr."""
-    assert result.exit_code == 2, result.output
-    assert result.stdout == ""
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1, result.stderr
-    assert lines[0].startswith(f"error: {field}: "), lines[0]
+    clean_error(result, f"{field}: ")
 
 
 def test_simulate_writes_the_library_simulation_with_truth(tmp_path: Path) -> None:

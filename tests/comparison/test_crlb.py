@@ -13,41 +13,18 @@ from comparison.crlb import (
     whitened_jacobian,
 )
 from scenarios import measurement_model as model
-from scenarios.catalog import get_scenario, heading_velocities_mps
+from scenarios.catalog import get_scenario
 from scenarios.simulate import noise_free
-from scenarios.types import FlightPlan, MeasurementSet, NoiseSigmas, RssModel, Scenario
+from scenarios.types import MeasurementSet, NoiseSigmas
+from tests.scenarios.random_flights import random_data
 
 MODALITY_SETS = ["toa", "doppler", "rss", "toa+doppler", ("toa", "doppler", "rss")]
 
 
 def random_geometry(seed: int) -> tuple[MeasurementSet, np.ndarray]:
     """A random two-heading flight, its noise-free data and the emitter."""
-    rng = np.random.default_rng(seed)
-    speed = rng.uniform(5.0, 30.0)
-    heading = rng.uniform(0.0, 360.0)
-    scenario = Scenario(
-        name="random",
-        emitter_m=rng.uniform(-300.0, 300.0, 2),
-        flight=FlightPlan(
-            start_position_m=[*rng.uniform(-300.0, 300.0, 2), rng.uniform(20.0, 200.0)],
-            frame_velocities_mps=heading_velocities_mps(
-                speed, [heading, heading + rng.uniform(30.0, 150.0)]
-            ),
-            samples_per_frame=int(rng.integers(3, 12)),
-            sample_interval_s=rng.uniform(0.05, 1.0),
-        ),
-        carrier_hz=rng.uniform(1e8, 5e9),
-        emitter_height_m=rng.uniform(-5.0, 5.0),
-        noise=NoiseSigmas(
-            doppler_hz=rng.uniform(0.01, 2.0),
-            toa_s=rng.uniform(0.3, 30.0) / 299_792_458.0,
-            rss_db=rng.uniform(1.0, 8.0),
-        ),
-        rss_model=RssModel(
-            reference_power_dbm=-20.0, reference_distance_m=1.0, path_loss_exponent=2.5
-        ),
-    )
-    return noise_free(scenario), scenario.emitter_m
+    data = random_data(seed, n_frames=2)
+    return data, data.truth_emitter_m
 
 
 def finite_difference_fisher(data: MeasurementSet, emitter: np.ndarray, modalities) -> np.ndarray:

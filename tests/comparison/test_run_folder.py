@@ -19,9 +19,7 @@ from typing import Any, ClassVar
 
 import pytest
 from matplotlib.figure import Figure
-from typer.testing import CliRunner
 
-from comparison.cli import app
 from comparison.engine import run_experiment
 from comparison.experiment import Experiment, load_experiment
 from comparison.figures import save_figure
@@ -36,11 +34,11 @@ from comparison.run_folder import (
 )
 from comparison.store import read_trials
 from estimators.cls import Cls
+from tests.comparison.cli_support import clean_error, invoke
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 HERE = "tests.comparison.test_run_folder"
 GATED_RUN = "EMITTERBENCH_TEST_GATED_RUN"
-runner = CliRunner()
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -67,20 +65,6 @@ def smoke(**changes: Any) -> Experiment:
     raw.pop("swept_columns")
     raw.update(changes)
     return Experiment.from_dict(raw)
-
-
-def invoke(*args: str | Path) -> Any:
-    return runner.invoke(app, [str(a) for a in args])
-
-
-def clean_error(result: Any, start: str) -> str:
-    """Exit 2, nothing on stdout, one line ``error: <start>...`` on stderr; that line."""
-    assert result.exit_code == 2, result.output
-    assert result.stdout == ""
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1, result.stderr
-    assert lines[0].startswith(f"error: {start}"), lines[0]
-    return lines[0]
 
 
 def snapshot(folder: Path) -> dict[str, bytes]:

@@ -6,34 +6,17 @@ from __future__ import annotations
 import os
 import sqlite3
 from pathlib import Path
-from typing import Any
 
 import pandas as pd
 import pytest
-from typer.testing import CliRunner
 
-from comparison.cli import app
 from comparison.engine import run_experiment
 from comparison.experiment import load_experiment
 from comparison.store import read_flights, read_points, read_trials, store_error
+from tests.comparison.cli_support import clean_error, invoke
 
-runner = CliRunner()
 TRIALS = 4
 DAMAGED = r"^results.sqlite: .* is not a readable SQLite database of a run \(.+\); move it away"
-
-
-def invoke(*args: str | Path) -> Any:
-    return runner.invoke(app, [str(a) for a in args])
-
-
-def clean_error(result: Any, start: str) -> str:
-    """Exit 2, nothing on stdout, one line ``error: <start>...`` on stderr; that line."""
-    assert result.exit_code == 2, result.output
-    assert result.stdout == ""
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1, result.stderr
-    assert lines[0].startswith(f"error: {start}"), lines[0]
-    return lines[0]
 
 
 def files(folder: Path) -> dict[str, bytes]:

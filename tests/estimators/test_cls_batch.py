@@ -24,12 +24,12 @@ from estimators.base import Estimate, capabilities_of, protocol_problems
 from estimators.batch import BatchEstimates
 from estimators.cls import Cls, ClsAsPrinted, ClsPaper, _estimate
 from estimators.cls_batch import estimate_columns
-from estimators.cls_rows import LocalFrame
 from estimators.gtrs_rounding import row_dot
 from scenarios.catalog import get_scenario, heading_velocities_mps
 from scenarios.simulate import simulate_trials, trial_seeds
 from scenarios.types import FlightPlan, MeasurementBatch, Scenario
-from tests.estimators.scenario_transforms import rotated
+from tests.estimators import batch_support
+from tests.estimators.batch_support import answer_differences, generators, rotated
 
 RTOL = 1e-9
 
@@ -57,12 +57,7 @@ FAMILIES: dict[str, tuple[Callable[[], Scenario], float]] = {
 
 
 def family_batch(name: str, n: int, seed: int = 0) -> MeasurementBatch:
-    build, snr_db = FAMILIES[name]
-    return simulate_trials(build(), snr_db=snr_db, seeds=trial_seeds(seed, n))
-
-
-def generators(n: int, seed: int = 100) -> list[np.random.Generator]:
-    return [np.random.default_rng(seed + i) for i in range(n)]
+    return batch_support.family_batch(FAMILIES, name, n, seed)
 
 
 def differences(estimator, batch: MeasurementBatch, columns: BatchEstimates) -> list[str]:
@@ -80,22 +75,7 @@ def differences(estimator, batch: MeasurementBatch, columns: BatchEstimates) -> 
 
 
 def _estimate_differences(estimator, trial, single: Estimate, got: Estimate) -> list[str]:
-    problems = [
-        f"{field} {getattr(single, field)!r} vs {getattr(got, field)!r}"
-        for field in ("estimator", "success", "ambiguous", "message")
-        if getattr(single, field) != getattr(got, field)
-    ]
-    used = trial.select_frames(estimator.frames)
-    length = LocalFrame.fit(used.position_m, used.range_m).scale_m
-    scale = max(float(np.max(np.abs(single.position_m), initial=0.0)), length)
-    if single.candidates_m.shape != got.candidates_m.shape:
-        problems.append(f"candidates {single.candidates_m.tolist()} vs {got.candidates_m.tolist()}")
-    elif np.any(np.abs(single.candidates_m - got.candidates_m) > RTOL * scale):
-        problems.append(f"candidates {single.candidates_m.tolist()} vs {got.candidates_m.tolist()}")
-    if not np.allclose(
-        single.position_m, got.position_m, rtol=0.0, atol=RTOL * scale, equal_nan=True
-    ):
-        problems.append(f"position {single.position_m.tolist()} vs {got.position_m.tolist()}")
+    problems = answer_differences(estimator, trial, single, got, RTOL)
     if list(single.diagnostics) != list(got.diagnostics):
         return [
             *problems,

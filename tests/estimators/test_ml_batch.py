@@ -47,9 +47,9 @@ from estimators.ml_batch_starts import batch_starts
 from estimators.ml_starts import doppler_frame_starts, ranges_uninformative
 from scenarios.catalog import get_scenario
 from scenarios.geometry import straight_track_line
-from scenarios.simulate import simulate_trials, trial_seeds
 from scenarios.types import MeasurementBatch, Scenario
-from tests.estimators.scenario_transforms import rotated
+from tests.estimators import batch_support
+from tests.estimators.batch_support import answer_differences, generators, rotated
 
 RTOL = 1e-9
 
@@ -69,12 +69,7 @@ FAMILIES: dict[str, tuple[Callable[[], Scenario], float]] = {
 
 
 def family_batch(name: str, n: int, seed: int = 0) -> MeasurementBatch:
-    build, snr_db = FAMILIES[name]
-    return simulate_trials(build(), snr_db=snr_db, seeds=trial_seeds(seed, n))
-
-
-def generators(n: int, seed: int = 100) -> list[np.random.Generator]:
-    return [np.random.default_rng(seed + i) for i in range(n)]
+    return batch_support.family_batch(FAMILIES, name, n, seed)
 
 
 def differences(estimator, batch: MeasurementBatch, columns) -> list[str]:
@@ -90,22 +85,7 @@ def differences(estimator, batch: MeasurementBatch, columns) -> list[str]:
 
 
 def estimate_differences(estimator, trial, single: Estimate, got: Estimate) -> list[str]:
-    problems = [
-        f"{field} {getattr(single, field)!r} vs {getattr(got, field)!r}"
-        for field in ("estimator", "success", "ambiguous", "message")
-        if getattr(single, field) != getattr(got, field)
-    ]
-    used = trial.select_frames(estimator.frames)
-    length = LocalFrame.fit(used.position_m, used.range_m).scale_m
-    scale = max(float(np.max(np.abs(single.position_m), initial=0.0)), length)
-    if single.candidates_m.shape != got.candidates_m.shape or np.any(
-        np.abs(single.candidates_m - got.candidates_m) > RTOL * scale
-    ):
-        problems.append(f"candidates {single.candidates_m.tolist()} vs {got.candidates_m.tolist()}")
-    if not np.allclose(
-        single.position_m, got.position_m, rtol=0.0, atol=RTOL * scale, equal_nan=True
-    ):
-        problems.append(f"position {single.position_m.tolist()} vs {got.position_m.tolist()}")
+    problems = answer_differences(estimator, trial, single, got, RTOL)
     a, b = single.covariance_m2, got.covariance_m2
     if b is not None and np.isnan(b).all():
         b = None  # the columns' NaN is "no covariance"

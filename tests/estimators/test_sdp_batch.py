@@ -33,6 +33,7 @@ from scenarios.catalog import get_scenario
 from scenarios.geometry import mirror_across_line, straight_track_line
 from scenarios.simulate import simulate_trials, trial_seeds
 from scenarios.types import MeasurementBatch
+from tests.estimators.batch_support import field_differences, generators
 
 FAMILIES = {"paper-1m": 10.0, "paper-1m-turn": 10.0, "paper": 0.0, "turn": 10.0}
 """Scenario and SNR (dB) of each family; ``paper`` is the paper's 300 km ToA noise."""
@@ -45,17 +46,9 @@ def family_batch(name: str, n: int, seed: int = 0) -> MeasurementBatch:
     return simulate_trials(get_scenario(name), snr_db=FAMILIES[name], seeds=trial_seeds(seed, n))
 
 
-def generators(n: int, seed: int = 100) -> list[np.random.Generator]:
-    return [np.random.default_rng(seed + i) for i in range(n)]
-
-
 def differences(single: Estimate, got: Estimate) -> list[str]:
     """Every way two estimates differ, the solver's timings aside (empty: equal)."""
-    found = [
-        f"{field} {getattr(single, field)!r} vs {getattr(got, field)!r}"
-        for field in ("estimator", "success", "ambiguous", "message")
-        if getattr(single, field) != getattr(got, field)
-    ]
+    found = field_differences(single, got)
     if not np.array_equal(single.candidates_m, got.candidates_m):
         found.append(f"candidates {single.candidates_m.tolist()} vs {got.candidates_m.tolist()}")
     if not np.array_equal(single.position_m, got.position_m, equal_nan=True):
