@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from comparison.crlb import fisher_information_per_frame, rmse_bound_m
+from comparison.crlb import crlb_m2, fisher_information_per_frame, rmse_bound_m
 from comparison.trial_rows import POINT_CRLB_SETS, POINT_KNOWN_CRLB_SETS
 from estimators.base import Estimator, capabilities_of
 from scenarios.measurement_model import slant_range_m
@@ -57,23 +57,46 @@ class PointInfo:
         """√trace(CRLB) of ``modalities`` over the frames an estimator uses up to ``frame``."""
         return bound_of(self.information.get(modalities), frame, frames)
 
+    def bound_columns(
+        self, modalities: tuple[str, ...], frame: int, frames: Any = "all"
+    ) -> tuple[float, ...]:
+        """:func:`bound_columns` of ``modalities`` over the frames an estimator uses."""
+        return bound_columns(self.information.get(modalities), frame, frames)
 
-def bound_of(info: Information | None, frame: int, frames: Any = "all") -> float:
-    """√trace(CRLB) from ``(per_frame, accumulated)`` information over the frames an
-    estimator uses up to ``frame`` (``"all"``, ``"last"`` or listed frames; MATH §8)."""
+
+def information_of(info: Information | None, frame: int, frames: Any = "all") -> np.ndarray:
+    """The 2×2 Fisher information of the frames an estimator uses up to ``frame`` (``"all"``,
+    ``"last"`` or listed frames; MATH §8), from ``(per_frame, accumulated)``; NaN where there
+    is none."""
     if info is None:
-        return math.nan
+        return np.full((2, 2), np.nan)
     per_frame, accumulated = info
     if isinstance(frames, str) and frames == "last":
-        information = per_frame[frame]
-    elif isinstance(frames, Sequence) and not isinstance(frames, str):
+        return per_frame[frame]
+    if isinstance(frames, Sequence) and not isinstance(frames, str):
         chosen = [f for f in frames if 0 <= int(f) <= frame]
         if not chosen:
-            return math.nan
-        information = per_frame[np.asarray(chosen, dtype=int)].sum(axis=0)
-    else:
-        information = accumulated[frame]
-    return float(rmse_bound_m(information))
+            return np.full((2, 2), np.nan)
+        return per_frame[np.asarray(chosen, dtype=int)].sum(axis=0)
+    return accumulated[frame]
+
+
+def bound_of(info: Information | None, frame: int, frames: Any = "all") -> float:
+    """√trace(CRLB) over the frames an estimator uses up to ``frame`` (:func:`information_of`)."""
+    return float(rmse_bound_m(information_of(info, frame, frames)))
+
+
+def bound_columns(info: Information | None, frame: int, frames: Any = "all") -> tuple[float, ...]:
+    """The :data:`~comparison.trial_rows.BOUND_COLUMNS` of a row: ``√trace(CRLB)`` and the
+    CRLB's ``xx, xy, yy`` in m² (MATH §8), over the frames an estimator uses up to ``frame``;
+    NaN where the information is singular or absent."""
+    crlb = crlb_m2(information_of(info, frame, frames))
+    return (
+        float(np.sqrt(crlb[0, 0] + crlb[1, 1])),
+        float(crlb[0, 0]),
+        float(crlb[0, 1]),
+        float(crlb[1, 1]),
+    )
 
 
 def _modality_key(modalities: Iterable[str]) -> tuple[str, ...]:

@@ -25,6 +25,9 @@ MAX_EXPERIMENT_MB = 1
 """Largest experiment file read, MiB: an experiment is a few dozen lines, and a sweep of the
 largest number of points allowed (comparison.experiment.MAX_POINTS) fits in a tenth of it."""
 
+CALIBRATION = "comparison.calibration:KnownEfficiency"
+"""The estimator of known efficiency and bias the ``calibration`` experiment runs."""
+
 BUILTIN_DEFINITIONS: dict[str, dict[str, Any]] = {
     "paper-fig2": {
         "name": "paper-fig2",
@@ -141,6 +144,34 @@ BUILTIN_DEFINITIONS: dict[str, dict[str, Any]] = {
         "trials": 500,
         "seed": 20_240_607,
     },
+    "calibration": {
+        "name": "calibration",
+        "description": (
+            "the verdicts' own check: estimators of known efficiency and bias (the truth plus "
+            "N(0, scale^2 CRLB) plus bias_ratio sqrt(trace CRLB) along the CRLB's major axis; "
+            "comparison.calibration) on one straight frame and on a turn; how often does the "
+            "suite say attains for an efficient estimator, and never for a biased one"
+        ),
+        "scenarios": ["paper-1m", "turn"],
+        "sweep": {"parameter": "snr_db", "values": [-10, -5, 0, 5, 10, 15, 20, 25, 30]},
+        "estimators": [
+            {"name": CALIBRATION, "label": "efficient", "options": {}},
+            {
+                "name": CALIBRATION,
+                "label": "biased (s=0.8, b=0.6)",
+                "options": {"scale": 0.8, "bias_ratio": 0.6},
+            },
+            {
+                "name": CALIBRATION,
+                "label": "small bias (s=0.98, b=0.2)",
+                "options": {"scale": 0.98, "bias_ratio": 0.2},
+            },
+            {"name": CALIBRATION, "label": "above (s=1.2)", "options": {"scale": 1.2}},
+            {"name": CALIBRATION, "label": "below (s=0.8)", "options": {"scale": 0.8}},
+        ],
+        "trials": 500,
+        "seed": 20_261_204,
+    },
     "smoke": {
         "name": "smoke",
         "description": "a tiny run for tests: two SNR points, two CLS variants, 20 trials",
@@ -161,6 +192,7 @@ BUILTIN_EXPERIMENTS: dict[str, str] = {
     "geometry-map-dense": "RMSE/CRLB of cls, cls-paper over a 100 x 100 emitter grid, 100 trials",
     "paper-fig3": "closed loop: 4 planners x 10 frames, ml and per-frame cls vs flown CRLB",
     "noncooperative": "unknown carrier offset and emission time: a beacon pass and a turn",
+    "calibration": "the verdicts checked: estimators of known efficiency and bias, 500 trials",
     "smoke": "2 SNR points, cls and cls-paper, 20 trials (for tests)",
 }
 """Built-in experiments by name: one-line summaries (``emitterbench list``)."""

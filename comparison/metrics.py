@@ -37,6 +37,9 @@ from numpy.typing import NDArray
 from comparison.trial_rows import REQUIRED_TRIAL_COLUMNS, TRIAL_COLUMNS
 from comparison.verdicts import (
     DEFAULT_N_BOOTSTRAP,
+    AxisEfficiencies,
+    axis_squared_errors,
+    bias_intervals,
     efficiency_verdicts,
     nees_band,
     nees_verdicts,
@@ -64,7 +67,7 @@ CONTRACT_METRIC_NAMES: tuple[str, ...] = (
     "wrong_side_rate",
     "ambiguous_rate",
     "success_rate",
-    "nees_mean",
+    "nees_judged_mean",
     "runtime_median_s",
 )
 """The metric columns every summary has, in this order."""
@@ -77,16 +80,29 @@ EXTRA_METRIC_NAMES: tuple[str, ...] = (
     "n_nees",
     "nees_band_low",
     "nees_band_high",
+    "nees_verdict",
     "nees_side_resolved_mean",
+    "nees_returned_incl_wrong_side_mean",
     "crlb_rmse_median_m",
     "verdict_basis",
     "efficiency_judged",
     "efficiency_judged_ci_low",
     "efficiency_judged_ci_high",
+    "bias_judged_x_m",
+    "bias_judged_y_m",
+    "bias_judged_m",
+    "bias_ratio",
+    "bias_ratio_ci_low",
+    "bias_ratio_ci_high",
+    "efficiency_major_axis",
+    "efficiency_major_axis_ci_low",
+    "efficiency_major_axis_ci_high",
+    "efficiency_minor_axis",
+    "efficiency_minor_axis_ci_low",
+    "efficiency_minor_axis_ci_high",
     "tail_share",
     "verdict",
     "verdict_reason",
-    "nees_verdict",
 )
 """Columns that follow the contracted ones: counts beside the rates, intervals, verdicts."""
 
@@ -125,11 +141,14 @@ METRIC_DESCRIPTIONS: dict[str, str] = {
     "n_side_judged": "successful estimates off the track plane: the wrong-side rate's count",
     "ambiguous_rate": "fraction of successful estimates flagged ambiguous (MATH §7)",
     "success_rate": "fraction of the n_trials trials with a returned position",
-    "n_nees": "successful trials with a covariance: the count of both NEES means",
-    "nees_mean": "mean NEES eᵀP⁻¹e of the returned position against its covariance (2 when "
-    "consistent; wrong-side estimates make it large)",
+    "n_nees": "successful trials with a covariance: the count of the judged NEES mean",
+    "nees_judged_mean": "mean NEES eᵀP⁻¹e of verdict_basis's error against its covariance (the "
+    "one nees_verdict judges; 2 when consistent)",
     "nees_side_resolved_mean": "mean NEES of the candidate nearest to the truth against that "
     "candidate's covariance (the returned one reflected across the track for the mirror image)",
+    "nees_returned_incl_wrong_side_mean": "mean NEES of the returned position against its "
+    "covariance, wrong-side trials included (each a mirror image away: huge when the side is "
+    "a coin toss)",
     "nees_band_low": "2.5% point of the mean of n_nees consistent 2-dof NEES values",
     "nees_band_high": "97.5% point of the mean of n_nees consistent 2-dof NEES values",
     "crlb_rmse_median_m": "median over trials of √trace(CRLB); equals crlb_rmse_m in an open "
@@ -139,12 +158,28 @@ METRIC_DESCRIPTIONS: dict[str, str] = {
     "efficiency_judged": "the efficiency of verdict_basis",
     "efficiency_judged_ci_low": "lower end of its 95% interval",
     "efficiency_judged_ci_high": "upper end of its 95% interval",
+    "bias_judged_x_m": "mean x error of verdict_basis (side-resolved where ambiguous)",
+    "bias_judged_y_m": "mean y error of verdict_basis",
+    "bias_judged_m": "norm of the mean error of verdict_basis: the bias the verdict judges",
+    "bias_ratio": "bias_judged_m / crlb_rmse_m; attains needs its whole 95% interval at most "
+    "0.3, beyond 0.3 is biased",
+    "bias_ratio_ci_low": "lower end of its 95% interval (Hotelling's region for the mean)",
+    "bias_ratio_ci_high": "upper end of its 95% interval",
+    "efficiency_major_axis": "RMSE/√CRLB along the CRLB's major principal axis (the judged "
+    "error); an unbiased estimator is at or above 1 along every axis",
+    "efficiency_major_axis_ci_low": "lower end of its 95% interval",
+    "efficiency_major_axis_ci_high": "upper end of its 95% interval",
+    "efficiency_minor_axis": "RMSE/√CRLB along the CRLB's minor principal axis",
+    "efficiency_minor_axis_ci_low": "lower end of its 95% interval",
+    "efficiency_minor_axis_ci_high": "upper end of its 95% interval",
     "tail_share": "share of the judged squared error carried by the largest 1% of the trials",
-    "verdict": "attains, above, below or inconclusive (comparison.verdicts)",
+    "verdict": "attains, above, below, biased or inconclusive (comparison.verdicts)",
     "verdict_reason": "the numbers behind the verdict",
     "nees_verdict": "consistent, optimistic (covariance too small), pessimistic or inconclusive "
     "for the judged NEES against its chi-square band; 'no covariance' when there is none",
-    "runtime_median_s": "median wall time of one estimate",
+    "runtime_median_s": "median wall time of one estimate: one call's time for an estimator "
+    "called per trial; a batch call's time divided by its trials for a batch estimator; the "
+    "frame's update and estimate_state for a streamed one",
 }
 """One line per metric column, for captions and the report."""
 
@@ -255,16 +290,27 @@ def summarize(
     def successful(column: str) -> FloatArray:
         return np.where(success, trials[column].to_numpy(dtype=float), np.nan)
 
+    def optional(column: str) -> FloatArray:  # NaN in run folders of earlier versions
+        if column not in trials.columns:
+            return np.full(len(trials), np.nan)
+        return trials[column].to_numpy(dtype=float)
+
     error = successful("error_m")
     side_error = successful("error_side_resolved_m")
+    truth = trials[["truth_x_m", "truth_y_m"]].to_numpy(dtype=float)
+    returned_vector = np.stack([successful("x_m"), successful("y_m")], axis=1) - truth
+    side_vector = np.stack([optional("x_side_resolved_m"), optional("y_side_resolved_m")], 1)
+    side_vector = np.where(success[:, None], side_vector - truth, np.nan)
+    xx, xy, yy = (optional(f"crlb_{k}_m2") for k in ("xx", "xy", "yy"))
+    crlb_matrix = np.stack([xx, xy, xy, yy], axis=1).reshape(-1, 2, 2)
     work = pd.DataFrame(
         {
             "group": group,
             "error": error,
             "squared_error": error**2,
             "squared_side_error": side_error**2,
-            "error_x": successful("x_m") - trials["truth_x_m"].to_numpy(dtype=float),
-            "error_y": successful("y_m") - trials["truth_y_m"].to_numpy(dtype=float),
+            "error_x": returned_vector[:, 0],
+            "error_y": returned_vector[:, 1],
             "wrong_side": successful("wrong_side"),
             "ambiguous": np.where(success, trials["ambiguous"].to_numpy(dtype=float), np.nan),
             "success": success.astype(float),
@@ -350,6 +396,15 @@ def summarize(
     judged_low = per_bound(judged(side_low, rmse_low))
     judged_high = per_bound(judged(side_high, rmse_high))
     tail = tail_share(judged_squared, group, n_groups)
+    judged_vector = np.where(side[group][:, None], side_vector, returned_vector)
+    bias = bias_intervals(judged_vector, group, n_groups, crlb, confidence)
+    axis_squared = axis_squared_errors(judged_vector, crlb_matrix)
+    axis_intervals = [interval_m(pd.Series(q)) for q in axis_squared.T]
+    axes = AxisEfficiencies(
+        efficiency=np.sqrt(pd.DataFrame(axis_squared).groupby(group, sort=True).mean().to_numpy()),
+        low=np.stack([low for low, _ in axis_intervals], axis=1),
+        high=np.stack([high for _, high in axis_intervals], axis=1),
+    )
     verdict, verdict_reason = efficiency_verdicts(
         n_judged=n_judged,
         n_trials=stats_frame["n_trials"].to_numpy(),
@@ -357,6 +412,8 @@ def summarize(
         low=judged_low,
         high=judged_high,
         tail=tail,
+        bias=bias,
+        axes=axes,
     )
     n_nees = judged(stats_frame["n_nees_side"].to_numpy(), stats_frame["n_nees"].to_numpy())
     band_low, band_high = nees_band(n_nees, confidence)
@@ -380,7 +437,7 @@ def summarize(
             "wrong_side_rate": stats_frame["wrong_side_rate"].to_numpy(),
             "ambiguous_rate": stats_frame["ambiguous_rate"].to_numpy(),
             "success_rate": stats_frame["success_rate"].to_numpy(),
-            "nees_mean": stats_frame["nees_mean"].to_numpy(),
+            "nees_judged_mean": np.asarray(nees_judged, dtype=float),
             "runtime_median_s": stats_frame["runtime_median_s"].to_numpy(),
             "n_successes": stats_frame["n_successes"].to_numpy(dtype=np.int64),
             "rmse_side_resolved_ci_low_m": side_low,
@@ -389,16 +446,29 @@ def summarize(
             "n_nees": n_nees.astype(np.int64),
             "nees_band_low": band_low,
             "nees_band_high": band_high,
+            "nees_verdict": nees_verdicts(nees_judged, n_nees, band_low, band_high),
             "nees_side_resolved_mean": stats_frame["nees_side_mean"].to_numpy(),
+            "nees_returned_incl_wrong_side_mean": stats_frame["nees_mean"].to_numpy(),
             "crlb_rmse_median_m": stats_frame["crlb_median"].to_numpy(),
             "verdict_basis": np.where(side, "side-resolved", "returned"),
             "efficiency_judged": efficiency_judged,
             "efficiency_judged_ci_low": judged_low,
             "efficiency_judged_ci_high": judged_high,
+            "bias_judged_x_m": bias.mean_m[:, 0],
+            "bias_judged_y_m": bias.mean_m[:, 1],
+            "bias_judged_m": bias.norm_m,
+            "bias_ratio": bias.ratio,
+            "bias_ratio_ci_low": bias.low,
+            "bias_ratio_ci_high": bias.high,
+            "efficiency_major_axis": axes.efficiency[:, 0],
+            "efficiency_major_axis_ci_low": axes.low[:, 0],
+            "efficiency_major_axis_ci_high": axes.high[:, 0],
+            "efficiency_minor_axis": axes.efficiency[:, 1],
+            "efficiency_minor_axis_ci_low": axes.low[:, 1],
+            "efficiency_minor_axis_ci_high": axes.high[:, 1],
             "tail_share": tail,
             "verdict": verdict,
             "verdict_reason": verdict_reason,
-            "nees_verdict": nees_verdicts(nees_judged, n_nees, band_low, band_high),
         }
     )
     # The key columns of each group: its first row (they are constant within a group).

@@ -76,7 +76,8 @@ def estimate_columns(
     """The per-estimate columns of a trial row, in the order of
     :data:`~comparison.trial_rows.ESTIMATE_COLUMNS`.
 
-    ``error_side_resolved_m`` uses the candidate nearest to the truth (MATH §7). ``nees`` is
+    ``error_side_resolved_m`` uses the candidate nearest to the truth (MATH §7), whose
+    coordinates are ``x_side_resolved_m`` and ``y_side_resolved_m``. ``nees`` is
     the returned position's error against the estimator's covariance; ``nees_side_resolved``
     the nearest candidate's error against *that candidate's* covariance: the covariance
     reflected across ``track`` when the candidate lies on the other side of it than the
@@ -91,11 +92,12 @@ def estimate_columns(
     position = np.asarray(estimate.position_m, dtype=float) if success else np.full(2, nan)
     candidates = np.asarray(estimate.candidates_m, dtype=float).reshape(-1, 2)
     error_m = float(np.hypot(*(position - truth)))
-    side_resolved_m, nearest = nan, position
+    side_resolved_m, nearest, found = nan, position, False
     if success:
         pool = candidates if len(candidates) else position[None, :]
         distances = np.hypot(*(pool - truth).T)
-        if np.isfinite(distances).any():
+        found = bool(np.isfinite(distances).any())
+        if found:
             nearest = pool[int(np.nanargmin(distances))]
             side_resolved_m = float(np.nanmin(distances))
     side_of = _signed_cross_track(track)
@@ -120,6 +122,8 @@ def estimate_columns(
         "y_m": float(position[1]),
         "error_m": error_m,
         "error_side_resolved_m": side_resolved_m,
+        "x_side_resolved_m": float(nearest[0]) if found else nan,
+        "y_side_resolved_m": float(nearest[1]) if found else nan,
         "wrong_side": wrong_side,
         "ambiguous": bool(estimate.ambiguous),
         "success": success,
@@ -350,6 +354,8 @@ def score_outcomes(
         "y_m": position[:, 1].tolist(),
         "error_m": error_m.tolist(),
         "error_side_resolved_m": side_resolved_m.tolist(),
+        "x_side_resolved_m": np.where(found, nearest[:, 0], nan).tolist(),
+        "y_side_resolved_m": np.where(found, nearest[:, 1], nan).tolist(),
         "wrong_side": wrong_side.tolist(),
         "ambiguous": np.asarray(columns.ambiguous, dtype=bool).tolist(),
         "success": success.tolist(),

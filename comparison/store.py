@@ -49,7 +49,7 @@ from comparison.run_folder import (
 )
 from comparison.tasks import TaskResult
 from comparison.trial_rows import (
-    BOUND_COLUMN,
+    BOUND_COLUMNS,
     ESTIMATE_COLUMNS,
     FLIGHT_VALUE_COLUMNS,
     FLIGHTS,
@@ -61,7 +61,19 @@ from comparison.trial_rows import (
 )
 
 _ADDED_LATER: tuple[tuple[Table, tuple[str, ...]], ...] = (
-    (TRIALS, ("planner", "planner_index", "nees_side_resolved")),
+    (
+        TRIALS,
+        (
+            "planner",
+            "planner_index",
+            "nees_side_resolved",
+            "x_side_resolved_m",
+            "y_side_resolved_m",
+            "crlb_xx_m2",
+            "crlb_xy_m2",
+            "crlb_yy_m2",
+        ),
+    ),
     (POINTS, ("range_scale_m",)),
 )
 """Columns that files written by earlier versions lack, added when such a run is resumed."""
@@ -284,19 +296,19 @@ def write_task(
     scenario = experiment.scenarios[result.scenario_index]
     labels = experiment.labels
     planners = experiment.planner_labels or ("",)
-    bounds: dict[tuple[int, int], float] = {}
+    bounds: dict[tuple[int, int], tuple[float, ...]] = {}
     trial_columns = [name for name, _ in TRIALS.stored()]
     # each row's fields in this order, then picked in the table's order
-    fields = (*_ROW_KEYS, *ESTIMATE_COLUMNS, BOUND_COLUMN)
+    fields = (*_ROW_KEYS, *ESTIMATE_COLUMNS, *BOUND_COLUMNS)
     pick = operator.itemgetter(*(fields.index(c) for c in trial_columns))
     rows = []
     for row in result.rows:
-        bound = row.crlb_rmse_m
+        bound = row.bound
         if bound is None:  # open loop: the same flight in every trial
             key = (row.estimator_index, row.frame)
             if key not in bounds:
                 modalities, frames = crlb_keys[row.estimator_index]
-                bounds[key] = info.rmse_bound_m(modalities, row.frame, frames)
+                bounds[key] = info.bound_columns(modalities, row.frame, frames)
             bound = bounds[key]
         if len(row.values) != len(ESTIMATE_COLUMNS):
             raise ValueError(
@@ -313,7 +325,7 @@ def write_task(
             row.planner_index,
             row.estimator_index,
         )
-        rows.append(pick((*keys, *row.values, bound)))
+        rows.append(pick((*keys, *row.values, *bound)))
     flight_columns = [name for name, _ in FLIGHTS.stored()]
     flights = []
     for flown in result.flights:

@@ -52,7 +52,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from comparison.bounds import PointInfo, bound_of, crlb_key, information_at_truth
+from comparison.bounds import PointInfo, bound_columns, crlb_key, information_at_truth
 from comparison.closed_loop import ClosedLoopTrial, fly_closed_loop
 from comparison.estimator_calls import Stream, call_batch, call_columns, call_limits, timed_call
 from comparison.scoring import (
@@ -121,7 +121,9 @@ class ScoredRow(NamedTuple):
     estimator_index: int
     frame: int
     trial: int
-    crlb_rmse_m: float | None  # None in an open loop: the main process adds the common bound
+    bound: tuple[float, ...] | None
+    """:data:`~comparison.trial_rows.BOUND_COLUMNS` (``√trace``, then the CRLB's ``xx, xy,
+    yy``); None in an open loop, where the main process adds the common bound."""
     values: tuple[Any, ...]
 
 
@@ -342,7 +344,7 @@ def _run_estimator(
 def run_closed_loop_task(task: Task) -> TaskResult:
     """Fly the task's trials once per planner (:mod:`comparison.closed_loop`) and score them.
 
-    Every row carries ``crlb_rmse_m`` of the trajectory its trial flew, at the truth, for the
+    Every row carries the CRLB of the trajectory its trial flew, at the truth, for the
     estimator's modalities and frames (MATH §8).
     """
     start = time.perf_counter()
@@ -372,7 +374,7 @@ def run_closed_loop_task(task: Task) -> TaskResult:
                     estimate, runtime_s = flown.estimates[label][frame]
                     modalities, frames = crlb_keys[index]
                     track = ambiguity_track(flown.data, frame, frames)
-                    bound = bound_of(information.get(modalities), frame, frames)
+                    bound = bound_columns(information.get(modalities), frame, frames)
                     values = estimate_columns(estimate, truth, track, runtime_s)
                     rows.append(ScoredRow(planner_index, index, frame, trial, bound, values))
             flights.extend(_flight_rows(planner_index, trial, flown))

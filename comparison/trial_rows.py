@@ -174,6 +174,8 @@ TRIALS = Table(
         _real("y_m", "estimate"),
         _real("error_m", "estimate"),
         _real("error_side_resolved_m", "estimate"),
+        _real("x_side_resolved_m", "estimate", required=False),
+        _real("y_side_resolved_m", "estimate", required=False),
         _real("wrong_side", "estimate"),
         _estimate("ambiguous", "INTEGER", "bool"),
         _estimate("success", "INTEGER", "bool"),
@@ -185,6 +187,9 @@ TRIALS = Table(
         _real("nees", "estimate"),
         _real("nees_side_resolved", "estimate"),
         _real("crlb_rmse_m", "bound"),
+        _real("crlb_xx_m2", "bound", required=False),
+        _real("crlb_xy_m2", "bound", required=False),
+        _real("crlb_yy_m2", "bound", required=False),
         _real("runtime_s", "estimate"),
         _estimate("message", "TEXT", None, required=False),
         _estimate("diagnostics_json", "TEXT", None, required=False),
@@ -209,8 +214,9 @@ REQUIRED_TRIAL_COLUMNS: tuple[str, ...] = tuple(c.name for c in TRIALS.columns i
 ESTIMATE_COLUMNS: tuple[str, ...] = tuple(c.name for c in TRIALS.columns if c.source == "estimate")
 """The columns computed from one estimate (:func:`comparison.scoring.estimate_columns`)."""
 
-BOUND_COLUMN = next(c.name for c in TRIALS.columns if c.source == "bound")
-"""The CRLB an estimate is scored against (MATH §8)."""
+BOUND_COLUMNS: tuple[str, ...] = tuple(c.name for c in TRIALS.columns if c.source == "bound")
+"""The CRLB an estimate is scored against (MATH §8): ``√trace`` first, then the matrix's
+entries ``xx, xy, yy`` (m²), from which the verdicts take its principal axes."""
 
 POINT_COLUMNS: tuple[str, ...] = tuple(c.name for c in TRIALS.columns if c.source == "points")
 """The trial columns joined from the points table (on its key)."""

@@ -7,16 +7,27 @@ Efficiency verdict (one per summary row)
     The efficiency is ``η = RMSE / √CRLB`` (MATH §8), with the side-resolved RMSE (MATH §7)
     where the estimator flagged any estimate of the row as ambiguous. Its 95% interval comes
     from a studentized bootstrap of the mean squared error (:func:`studentized_bootstrap_interval`).
-    The verdict is
+    The CRLB bounds unbiased estimators only, so two more numbers are judged: the bias
+    ``β = ‖E[e]‖ / √CRLB`` with its interval (:func:`bias_intervals`), and the efficiency along
+    each principal axis of the CRLB (:func:`axis_squared_errors`), since an unbiased estimator
+    is at or above the bound in every direction (``E[eeᵀ] ⪰ CRLB``). The verdict is
 
-    - ``attains``: the whole interval lies inside :data:`EFFICIENCY_BAND`, at least
+    - ``attains``: the whole interval of η lies inside :data:`EFFICIENCY_BAND`, the whole
+      interval of ``β`` at or below :data:`BIAS_LIMIT`, no axis wholly above the band, at least
       :data:`MIN_TRIALS` successful trials, a success rate of at least :data:`MIN_SUCCESS_RATE`,
       and no heavy tail (the largest 1% of the trials carry at most :data:`TAIL_SHARE_LIMIT` of
       the squared error);
-    - ``above`` / ``below``: the whole interval lies above / below the band (below: a biased
-      estimate, which the unbiased bound does not cover);
+    - ``biased``: the whole interval of ``β`` lies beyond :data:`BIAS_LIMIT`, or along an axis
+      the whole interval lies below the band (only a biased estimator gets there): η is then
+      no claim on the bound, whatever its value (unless η lies above the band by more than the
+      bias explains, which stays ``above``);
+    - ``above``: the whole interval of η, or of the efficiency along an axis, lies above the
+      band;
+    - ``below``: the whole interval of η lies below the band, with no bias resolved (only a
+      biased estimator can be below the bound);
     - ``inconclusive``: anything else: too few trials, too many failures, heavy tails, an
-      interval that straddles an edge of the band, or no finite bound.
+      interval that straddles an edge of the band or a bias interval that reaches past the
+      limit, or no finite bound.
 
 Why a studentized bootstrap
     The squared errors of an estimator are skewed (χ²-like when it is efficient) and, at low
@@ -78,7 +89,15 @@ An efficient estimator's largest 1% carry about 6% (exponential squared errors, 
 DEFAULT_N_BOOTSTRAP = 2000
 """Bootstrap resamples per group."""
 
-VERDICTS = ("attains", "above", "below", "inconclusive")
+BIAS_LIMIT = 0.3
+"""``attains`` needs the whole 95% interval of the bias ``‖E[e]‖ / √trace(CRLB)`` at or below
+this; a row whose whole interval lies beyond it is ``biased``. A bias of 0.3 √CRLB adds 9% of
+the bound's mean squared error (docs/math.md, Verdicts and intervals)."""
+
+AXIS_NAMES = ("major", "minor")
+"""The principal axes of the CRLB, largest variance first."""
+
+VERDICTS = ("attains", "above", "below", "biased", "inconclusive")
 NEES_VERDICTS = ("consistent", "optimistic", "pessimistic", "inconclusive", "no covariance")
 
 
@@ -323,6 +342,171 @@ def tail_share(
         return np.where(total > 0, top_sum / total, np.nan)
 
 
+@dataclass(frozen=True, slots=True, eq=False)
+class BiasIntervals:
+    """The mean error (bias) of every group, its norm's interval, and the bound it is judged
+    against; the relative values (``ratio``, ``low``, ``high``) are in units of √trace(CRLB).
+
+    Attributes
+    ----------
+    mean_m : (m, 2)
+        The mean error vector.
+    low_m, high_m : (m,)
+        The 95% interval of its norm (:func:`bias_intervals`).
+    bound_m : (m,)
+        √trace(CRLB) of each group.
+    """
+
+    mean_m: FloatArray
+    low_m: FloatArray
+    high_m: FloatArray
+    bound_m: FloatArray
+
+    @property
+    def norm_m(self) -> FloatArray:
+        return np.hypot(self.mean_m[:, 0], self.mean_m[:, 1])
+
+    def _relative(self, value_m: FloatArray) -> FloatArray:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(self.bound_m > 0, value_m / self.bound_m, np.nan)
+
+    @property
+    def ratio(self) -> FloatArray:
+        return self._relative(self.norm_m)
+
+    @property
+    def low(self) -> FloatArray:
+        return self._relative(self.low_m)
+
+    @property
+    def high(self) -> FloatArray:
+        return self._relative(self.high_m)
+
+    def text(self, i: int) -> str:
+        """Row ``i``'s bias in words, with its interval."""
+        if not np.isfinite(self.high[i]):
+            return "the bias (not measured: fewer than 3 errors, or no side-resolved position)"
+        return (
+            f"bias {_fmt(self.norm_m[i])} m = {_fmt(self.ratio[i])} √CRLB, 95% interval "
+            f"[{_fmt(self.low[i])}, {_fmt(self.high[i])}]"
+        )
+
+
+def bias_intervals(
+    error_m: ArrayLike,
+    groups: ArrayLike,
+    n_groups: int,
+    bound_m: ArrayLike,
+    confidence: float = 0.95,
+) -> BiasIntervals:
+    """The mean error of every group and a confidence interval of its norm.
+
+    Hotelling's region for the mean of ``n`` 2-vectors with sample covariance ``S`` is the
+    ellipse ``n (b − b̄)ᵀ S⁻¹ (b − b̄) ≤ T²``, ``T² = 2(n − 1)/(n − 2) F₂,ₙ₋₂(confidence)``
+    (Anderson 2003, sec. 5.3). It reaches at most ``r = √(T² λ_max(S)/n)`` from its centre, so
+    ``‖b‖`` lies in ``[max(‖b̄‖ − r, 0), ‖b̄‖ + r]`` with at least that confidence (the interval
+    of the norm over the ellipse's enclosing circle: conservative where ``S`` is elongated).
+
+    Parameters
+    ----------
+    error_m : (n, 2)
+        Each trial's error vector; rows with a NaN (failed trials) are left out.
+    groups : (n,) int
+    n_groups : int
+    bound_m : (n_groups,)
+        √trace(CRLB) of each group, which the relative values are in units of.
+    confidence : float
+
+    Returns
+    -------
+    BiasIntervals
+        NaN for a group with fewer than three finite errors.
+    """
+    error = np.asarray(error_m, dtype=float).reshape(-1, 2)
+    codes = np.asarray(groups, dtype=np.int64)
+    keep = np.isfinite(error).all(axis=1)
+    error, codes = error[keep], codes[keep]
+    count = np.bincount(codes, minlength=n_groups).astype(float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mean = np.stack(
+            [np.bincount(codes, weights=error[:, k], minlength=n_groups) / count for k in (0, 1)],
+            axis=1,
+        )
+        d = error - mean[codes]  # centred, so the covariance does not cancel
+        sxx, sxy, syy = (
+            np.bincount(codes, weights=a * b, minlength=n_groups) / (count - 1)
+            for a, b in ((d[:, 0], d[:, 0]), (d[:, 0], d[:, 1]), (d[:, 1], d[:, 1]))
+        )
+        largest = 0.5 * (sxx + syy) + np.hypot(0.5 * (sxx - syy), sxy)
+        valid = count >= 3
+        t2 = np.where(
+            valid,
+            2 * (count - 1) / (count - 2) * stats.f.ppf(confidence, 2, np.maximum(count - 2, 1)),
+            np.nan,
+        )
+        reach = np.sqrt(t2 * np.maximum(largest, 0.0) / count)
+    norm = np.hypot(mean[:, 0], mean[:, 1])
+    mean[~valid] = np.nan
+    return BiasIntervals(
+        mean_m=mean,
+        low_m=np.where(valid, np.maximum(norm - reach, 0.0), np.nan),
+        high_m=np.where(valid, norm + reach, np.nan),
+        bound_m=np.asarray(bound_m, dtype=float),
+    )
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class AxisEfficiencies:
+    """The efficiency along each principal axis of the CRLB (:data:`AXIS_NAMES`), with its
+    95% interval: arrays of shape ``(m, 2)``."""
+
+    efficiency: FloatArray
+    low: FloatArray
+    high: FloatArray
+
+
+def axis_squared_errors(error_m: ArrayLike, crlb_m2: ArrayLike) -> FloatArray:
+    """Each error's squared component along each principal axis of its CRLB, over that axis's
+    variance: ``(uₖᵀe)²/λₖ`` for the eigenpairs of the CRLB, largest ``λ`` first.
+
+    For an unbiased efficient estimator each has mean 1; for any unbiased estimator at least
+    1, since ``E[eeᵀ] ⪰ CRLB``. Shapes: ``error_m (n, 2)``, ``crlb_m2 (n, 2, 2)`` → ``(n, 2)``;
+    NaN where the CRLB is not finite. Rows with the same CRLB (one flight for all trials) share
+    one eigen-decomposition.
+    """
+    error = np.asarray(error_m, dtype=float).reshape(-1, 2)
+    crlb = np.asarray(crlb_m2, dtype=float).reshape(-1, 2, 2)
+    out = np.full((len(error), 2), np.nan)
+    finite = np.isfinite(crlb).all(axis=(1, 2))
+    if not finite.any():
+        return out
+    distinct, inverse = np.unique(crlb[finite].reshape(-1, 4), axis=0, return_inverse=True)
+    variances, axes = np.linalg.eigh(distinct.reshape(-1, 2, 2))
+    variances, axes = variances[:, ::-1], axes[:, :, ::-1]  # largest variance first
+    along = np.einsum("nk,nkj->nj", error[finite], axes[inverse.reshape(-1)])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out[finite] = along**2 / variances[inverse.reshape(-1)]
+    return out
+
+
+def _above_along(axes: AxisEfficiencies, i: int, band_high: float) -> str:
+    """Along which principal axis of the CRLB row ``i`` lies wholly above the band, in words;
+    empty when along none. The trace efficiency can sit in the band while the error along the
+    bound's thin axis is several times the bound there (a curved likelihood valley)."""
+    return "; ".join(
+        f"along the CRLB's {name} axis its RMSE is {_fmt(axes.efficiency[i, k])} of the bound's, "
+        f"95% interval [{_fmt(axes.low[i, k])}, {_fmt(axes.high[i, k])}], above {band_high:g}"
+        for k, name in enumerate(AXIS_NAMES)
+        if axes.low[i, k] > band_high
+    )
+
+
+def _bias_explains(efficiency: float, bias: BiasIntervals, i: int, band_high: float) -> bool:
+    """Whether the bias alone lifts row ``i`` above the band: without it (``η² − β²``, the
+    variance's share of the efficiency) the row would not lie above ``band_high``."""
+    return bool(efficiency**2 - bias.ratio[i] ** 2 <= band_high**2)
+
+
 def nees_band(n: ArrayLike, confidence: float = 0.95) -> tuple[FloatArray, FloatArray]:
     """Two-sided interval for the mean of ``n`` independent 2-dof NEES values.
 
@@ -371,6 +555,8 @@ def efficiency_verdicts(
     low: ArrayLike,
     high: ArrayLike,
     tail: ArrayLike,
+    bias: BiasIntervals,
+    axes: AxisEfficiencies,
     band: tuple[float, float] = EFFICIENCY_BAND,
 ) -> tuple[NDArray[np.str_], list[str]]:
     """The efficiency verdict of every row and its reason (module docstring).
@@ -385,6 +571,11 @@ def efficiency_verdicts(
         The judged efficiency and its 95% interval (NaN: no finite bound or no estimate).
     tail : (m,)
         :func:`tail_share` of the judged squared errors.
+    bias : BiasIntervals
+        The judged error's mean and its interval, relative to √trace(CRLB)
+        (:func:`bias_intervals`, :meth:`BiasIntervals.relative_to`).
+    axes : AxisEfficiencies
+        The efficiency along each principal axis of the CRLB, with intervals.
     band : (low, high)
 
     Returns
@@ -412,6 +603,7 @@ def efficiency_verdicts(
             "squared error"
         )
         rate = n[i] / total[i] if total[i] > 0 else math.nan
+        biased_by = _bias_finding(bias, axes, i, band_low)
         if n[i] == 0:
             verdict, reason = "inconclusive", "no successful estimate"
         elif not (np.isfinite(eta[i]) and np.isfinite(lo[i])):
@@ -419,15 +611,25 @@ def efficiency_verdicts(
         elif n[i] < MIN_TRIALS:
             verdict = "inconclusive"
             reason = f"too few trials: {int(n[i])} < {MIN_TRIALS} ({interval})"
-        elif lo[i] > band_high:
+        elif lo[i] > band_high and not (biased_by and _bias_explains(eta[i], bias, i, band_high)):
             verdict = "above"
             reason = f"{interval} lies above {band_high:g} ({counted})"
             reason += f"; {tail_note}" if heavy else ""
+            reason += f"; also {biased_by}" if biased_by else ""
+        elif biased_by:
+            verdict = "biased"
+            reason = (
+                f"{biased_by}; the CRLB bounds only unbiased estimators, so its {interval} "
+                f"says nothing about the bound ({counted})"
+            )
+        elif above_along := _above_along(axes, i, band_high):
+            verdict = "above"
+            reason = f"{above_along}, though its {interval} ({counted})"
         elif hi[i] < band_low:
             verdict = "below"
             reason = (
-                f"{interval} lies below {band_low:g} ({counted}): a biased estimate, which "
-                "the unbiased bound does not cover"
+                f"{interval} lies below {band_low:g} ({counted}): only a biased estimator can "
+                "be below the bound, and these trials do not resolve its bias"
             )
         elif rate < MIN_SUCCESS_RATE:
             verdict = "inconclusive"
@@ -437,9 +639,18 @@ def efficiency_verdicts(
             )
         elif heavy:
             verdict, reason = "inconclusive", f"{tail_note} ({interval}, {counted})"
+        elif not bias.high[i] <= BIAS_LIMIT:
+            verdict = "inconclusive"
+            reason = (
+                f"{bias.text(i)} may reach past {BIAS_LIMIT:g} √CRLB ({interval}, {counted}); "
+                "more trials would tell whether it is negligible"
+            )
         elif band_low <= lo[i] and hi[i] <= band_high:
             verdict = "attains"
-            reason = f"{interval} inside [{band_low:g}, {band_high:g}] ({counted})"
+            reason = (
+                f"{interval} inside [{band_low:g}, {band_high:g}], {bias.text(i)} within "
+                f"{BIAS_LIMIT:g} √CRLB ({counted})"
+            )
         else:
             verdict = "inconclusive"
             reason = (
@@ -449,6 +660,26 @@ def efficiency_verdicts(
         verdicts.append(verdict)
         reasons.append(reason)
     return np.asarray(verdicts, dtype=str), reasons
+
+
+def _bias_finding(bias: BiasIntervals, axes: AxisEfficiencies, i: int, band_low: float) -> str:
+    """What shows row ``i``'s estimator biased, in words; empty when nothing does.
+
+    Either its mean error is beyond :data:`BIAS_LIMIT` √CRLB (the whole interval), or along a
+    principal axis of the CRLB its error is below the bound (the whole interval below the
+    band's low edge), which no unbiased estimator can reach (``E[eeᵀ] ⪰ CRLB``).
+    """
+    found = []
+    if bias.low[i] > BIAS_LIMIT:
+        found.append(f"{bias.text(i)} lies beyond {BIAS_LIMIT:g} √CRLB")
+    for k, name in enumerate(AXIS_NAMES):
+        if axes.high[i, k] < band_low:
+            found.append(
+                f"along the CRLB's {name} axis its RMSE is {_fmt(axes.efficiency[i, k])} of the "
+                f"bound's, 95% interval [{_fmt(axes.low[i, k])}, {_fmt(axes.high[i, k])}], "
+                "below what any unbiased estimator reaches"
+            )
+    return "; ".join(found)
 
 
 def nees_verdicts(
@@ -469,13 +700,17 @@ def verdict_criterion(band: tuple[float, float] = EFFICIENCY_BAND) -> str:
     """The efficiency verdict's rule in words (for reports and captions)."""
     return (
         f"attains: the whole 95% interval of the efficiency (RMSE/√CRLB, side-resolved where "
-        f"the estimator flags ambiguity, MATH §7) lies inside [{band[0]:g}, {band[1]:g}], with "
-        f"at least {MIN_TRIALS} successful trials, {100 * MIN_SUCCESS_RATE:g}% successes and "
-        f"no heavy tail (the largest 1% of the trials carrying more than "
-        f"{100 * TAIL_SHARE_LIMIT:g}% of the squared error); above / below: the whole interval "
-        "lies outside the band (below: a biased estimate); inconclusive: anything else. The "
-        "interval is a studentized bootstrap of the mean squared error, honest when a few "
-        "trials land far away (docs/math.md, Verdicts and intervals)."
+        f"the estimator flags ambiguity, MATH §7) lies inside [{band[0]:g}, {band[1]:g}], the "
+        f"bias (the mean error over √CRLB) is at most {BIAS_LIMIT:g} over its whole interval, "
+        f"no principal axis of the CRLB is wholly above the band, with at least {MIN_TRIALS} "
+        f"successful trials, {100 * MIN_SUCCESS_RATE:g}% successes and no heavy tail (the "
+        f"largest 1% of the trials carrying more than {100 * TAIL_SHARE_LIMIT:g}% of the "
+        f"squared error); biased: the bias lies beyond {BIAS_LIMIT:g}, or along an axis the "
+        "error is below the bound (the CRLB bounds only unbiased estimators, so the efficiency "
+        "of a biased one says nothing about it); above / below: the whole interval lies outside "
+        "the band; inconclusive: anything else. The intervals are a studentized bootstrap of "
+        "the mean squared error, honest when a few trials land far away, and Hotelling's region "
+        "for the mean error (docs/math.md, Verdicts and intervals)."
     )
 
 

@@ -32,7 +32,8 @@ def trial_rows(
     ambiguous: bool = False,
     covariance_m2: np.ndarray | None = None,
 ) -> pd.DataFrame:
-    """Contract rows for the errors ``(n, 2)`` of the returned position (truth at (35, 15)).
+    """Contract rows for the errors ``(n, 2)`` of the returned position (truth at (35, 15)),
+    scored against an isotropic CRLB of √trace ``crlb_rmse_m``.
 
     Ambiguous rows carry the mirror image across the track y = 0 as a second candidate.
     """
@@ -41,7 +42,10 @@ def trial_rows(
     position = TRUTH_M + errors_m
     mirror = position * [1.0, -1.0]
     error = np.linalg.norm(errors_m, axis=1)
-    side = np.minimum(error, np.linalg.norm(mirror - TRUTH_M, axis=1)) if ambiguous else error
+    mirror_error = np.linalg.norm(mirror - TRUTH_M, axis=1)
+    nearer = ambiguous & (mirror_error < error)
+    side = np.where(nearer, mirror_error, error)
+    nearest = np.where(nearer[:, None], mirror, position)
     if covariance_m2 is None:
         nees = np.full(n, np.nan)
         cov = np.full((n, 3), np.nan)
@@ -67,6 +71,8 @@ def trial_rows(
             "y_m": masked(position[:, 1]),
             "error_m": masked(error),
             "error_side_resolved_m": masked(side),
+            "x_side_resolved_m": masked(nearest[:, 0]),
+            "y_side_resolved_m": masked(nearest[:, 1]),
             "wrong_side": masked((position[:, 1] < 0).astype(float)),
             "ambiguous": ok & ambiguous,
             "success": ok,
@@ -78,6 +84,9 @@ def trial_rows(
             "nees": masked(nees),
             "nees_side_resolved": masked(nees),
             "crlb_rmse_m": crlb_rmse_m,
+            "crlb_xx_m2": crlb_rmse_m**2 / 2,
+            "crlb_xy_m2": 0.0,
+            "crlb_yy_m2": crlb_rmse_m**2 / 2,
             "runtime_s": np.linspace(1e-3, 3e-3, n),
             "message": "",
             "diagnostics_json": "{}",
@@ -160,7 +169,7 @@ def test_rates_are_exact_on_constructed_rows():
     assert row["rmse_side_resolved_m"] == pytest.approx(math.sqrt(5 / 8))
     assert row["efficiency"] == pytest.approx(math.sqrt((3 * 900 + 5) / 8) / 0.5)
     assert row["efficiency_side_resolved"] == pytest.approx(math.sqrt(5 / 8) / 0.5)
-    assert row["nees_mean"] != row["nees_mean"]  # NaN: no covariance given
+    assert row["nees_judged_mean"] != row["nees_judged_mean"]  # NaN: no covariance given
     assert row["n_nees"] == 0
     assert row["nees_verdict"] == "no covariance"
     # ten trials, eight successes: no verdict, and the reason says why
@@ -234,10 +243,12 @@ def test_nees_mean_of_a_consistent_covariance_lies_in_the_band():
     good, bad = summary.loc["consistent"], summary.loc["optimistic"]
     assert good["n_nees"] == 400
     assert (good["nees_verdict"], bad["nees_verdict"]) == ("consistent", "optimistic")
-    assert good["nees_band_low"] <= good["nees_mean"] <= good["nees_band_high"]
-    assert good["nees_mean"] == pytest.approx(2.0, abs=0.25)
-    assert bad["nees_mean"] == pytest.approx(2 * good["nees_mean"])
-    assert bad["nees_mean"] > bad["nees_band_high"]
+    assert good["nees_band_low"] <= good["nees_judged_mean"] <= good["nees_band_high"]
+    assert good["nees_judged_mean"] == pytest.approx(2.0, abs=0.25)
+    assert bad["nees_judged_mean"] == pytest.approx(2 * good["nees_judged_mean"])
+    assert bad["nees_judged_mean"] > bad["nees_band_high"]
+    # not ambiguous: the judged NEES is the returned position's
+    assert good["nees_judged_mean"] == good["nees_returned_incl_wrong_side_mean"]
 
 
 def test_bad_input_names_the_field():
@@ -264,6 +275,8 @@ def test_planners_are_grouped_and_their_bounds_averaged_as_rms():
     second = trial_rows(rng.normal(0, 2.0, (200, 2)))
     second["planner"] = "fisher"
     second["crlb_rmse_m"] = np.where(np.arange(200) % 2 == 0, 1.0, 3.0)  # per-trial bounds
+    for entry in ("crlb_xx_m2", "crlb_yy_m2"):
+        second[entry] = second["crlb_rmse_m"] ** 2 / 2
     summary = summarize(pd.concat([first, second], ignore_index=True), n_bootstrap=10)
     assert list(summary.columns[:5]) == ["scenario", "snr_db", "frame", "planner", "estimator"]
     assert summary["planner"].tolist() == ["constant", "fisher"]
@@ -277,3 +290,46 @@ def test_planners_are_grouped_and_their_bounds_averaged_as_rms():
     plain = summarize(first, n_bootstrap=10)
     assert "planner" not in plain.columns
     assert plain["crlb_rmse_m"].tolist() == [1.0]
+
+
+def test_the_bias_is_judged_on_the_side_resolved_error():
+    """An ambiguous estimator returning the mirror image half the time: the returned bias is
+    about -15 m in y (half of the 30 m mirror jump); the side-resolved one is the offset of
+    the nearest candidate, (0.8, 0.1) m here, 0.8 √CRLB: biased, with its interval."""
+    rng = np.random.default_rng(12)
+    n = 400
+    errors = rng.normal(0.0, 0.5, (n, 2)) + [0.8, 0.1]
+    mirrored = TRUTH_M + errors
+    flip = np.arange(n) % 2 == 1
+    returned = np.where(flip[:, None], mirrored * [1.0, -1.0], mirrored) - TRUTH_M
+    rows = trial_rows(returned, ambiguous=True, crlb_rmse_m=1.0)
+    row = summarize(rows, n_bootstrap=200).iloc[0]
+    assert row["bias_y_m"] == pytest.approx(returned[:, 1].mean())
+    assert row["bias_y_m"] < -14.0
+    assert row["bias_judged_x_m"] == pytest.approx(errors[:, 0].mean(), rel=1e-12)
+    assert row["bias_judged_y_m"] == pytest.approx(errors[:, 1].mean(), rel=1e-12)
+    assert row["bias_judged_m"] == pytest.approx(np.hypot(*errors.mean(axis=0)), rel=1e-12)
+    assert row["bias_ratio"] == pytest.approx(row["bias_judged_m"] / 1.0)
+    assert row["bias_ratio_ci_low"] < row["bias_ratio"] < row["bias_ratio_ci_high"]
+    assert row["bias_ratio_ci_low"] > 0.3
+    assert row["verdict"] == "biased"
+    assert row["verdict_reason"].startswith(f"bias {row['bias_judged_m']:.3g} m = ")
+
+
+def test_axis_efficiencies_follow_the_crlb_s_principal_axes():
+    """Errors N(0, diag(2, 0.5)) against a CRLB diag(2, 0.5) rotated by 90°: along the
+    bound's major axis (y) the error is 0.5 of its variance, across (x) 4 times."""
+    rng = np.random.default_rng(13)
+    errors = rng.normal(0.0, 1.0, (2000, 2)) * np.sqrt([2.0, 0.5])
+    rows = trial_rows(errors, crlb_rmse_m=math.sqrt(2.5))
+    rows["crlb_xx_m2"], rows["crlb_yy_m2"] = 0.5, 2.0
+    row = summarize(rows, n_bootstrap=200).iloc[0]
+    assert row["efficiency_major_axis"] == pytest.approx(
+        math.sqrt(np.mean(errors[:, 1] ** 2) / 2.0), rel=1e-12
+    )
+    assert row["efficiency_minor_axis"] == pytest.approx(
+        math.sqrt(np.mean(errors[:, 0] ** 2) / 0.5), rel=1e-12
+    )
+    assert row["efficiency_major_axis_ci_high"] < 0.9  # below the bound along y: biased
+    assert row["efficiency"] == pytest.approx(1.0, rel=0.05)  # though the trace says 1
+    assert row["verdict"] == "biased"

@@ -76,6 +76,7 @@ def test_a_dense_sweep_gets_one_overview_line_per_estimator(dense_report):
         "attains",
         "above",
         "below",
+        "biased",
         "inconclusive",
         "efficiency_min",
         "efficiency_median",
@@ -87,13 +88,16 @@ def test_a_dense_sweep_gets_one_overview_line_per_estimator(dense_report):
     for row in body:
         own = summary[summary["estimator"] == row[0]]
         counts = own["verdict"].value_counts()
-        assert row[1:6] == [
+        assert row[1:7] == [
             "144",
-            *(str(counts.get(v, 0)) for v in ("attains", "above", "below", "inconclusive")),
+            *(
+                str(counts.get(v, 0))
+                for v in ("attains", "above", "below", "biased", "inconclusive")
+            ),
         ]
         efficiency = own["efficiency_judged"]
         expected = [efficiency.min(), efficiency.median(), efficiency.max()]
-        assert row[6:] == [format_number(value) for value in expected]
+        assert row[7:] == [format_number(value) for value in expected]
     # the whole page stays short: the verdict table, the overview, the definitions
     assert len(list(root.iter("tr"))) < 60
 
