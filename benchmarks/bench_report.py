@@ -82,7 +82,7 @@ class StageClock:
 @contextlib.contextmanager
 def patched(clock: StageClock) -> Iterator[None]:
     """Wrap the functions ``write_report`` calls in the clock's stages."""
-    import comparison.verdicts as verdicts
+    import comparison.intervals as intervals
 
     replacements: list[tuple[Any, str, Any]] = [
         (report, "_load", clock.wrap(report._load, "read store")),
@@ -90,7 +90,7 @@ def patched(clock: StageClock) -> Iterator[None]:
         (
             metrics,
             "studentized_bootstrap_interval",
-            clock.wrap(verdicts.studentized_bootstrap_interval, "  bootstrap", nested=True),
+            clock.wrap(intervals.studentized_bootstrap_interval, "  bootstrap", nested=True),
         ),
         (verdict_table, "thresholds", clock.wrap(verdict_table.thresholds, "thresholds")),
         (

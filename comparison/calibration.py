@@ -15,7 +15,7 @@ parameters of the data eliminated (MATH §15). Its efficiency is exactly
 (:mod:`comparison.verdicts`) say ``attains`` for an efficient unbiased estimator (``σ = 1``,
 ``β = 0``) and whether a biased one that matches the bound's RMSE (``σ = 0.8``, ``β = 0.6``:
 efficiency exactly 1) is ever said to attain it. The built-in experiment ``calibration``
-runs it (``emitterbench run calibration``); docs/math.md, "Verdicts and intervals", gives the
+runs it (``emitterbench run calibration``); docs/math.md §16 gives the
 measured counts.
 
 It is not an estimator of the emitter: it is given the answer, and only the experiments
@@ -31,7 +31,7 @@ from typing import ClassVar
 import numpy as np
 
 from estimators.base import Capabilities, Estimate, check_rng
-from scenarios.fields import finite, frozen_array
+from scenarios.fields import finite
 from scenarios.fisher import fisher_information, inverse_2x2
 from scenarios.types import MeasurementSet
 
@@ -64,7 +64,14 @@ class KnownEfficiency:
     bias_axis: str = "major"
 
     def __post_init__(self) -> None:
-        frozen_array(self.emitter_m, "emitter_m", (2,))
+        try:
+            point = np.asarray(self.emitter_m, dtype=float)
+        except (TypeError, ValueError):
+            point = np.full(0, np.nan)
+        if point.shape != (2,) or not np.all(np.isfinite(point)):
+            raise ValueError(
+                f"emitter_m: expected a finite (x, y) in metres, got {self.emitter_m!r}"
+            )
         for field in ("scale", "bias_ratio"):
             value = getattr(self, field)
             if isinstance(value, bool) or finite(value, field) < 0:

@@ -34,18 +34,17 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from comparison.trial_rows import REQUIRED_TRIAL_COLUMNS, TRIAL_COLUMNS
-from comparison.verdicts import (
+from comparison.intervals import (
     DEFAULT_N_BOOTSTRAP,
     AxisEfficiencies,
     axis_squared_errors,
     bias_intervals,
-    efficiency_verdicts,
     nees_band,
-    nees_verdicts,
     studentized_bootstrap_interval,
     tail_share,
 )
+from comparison.trial_rows import REQUIRED_TRIAL_COLUMNS, TRIAL_COLUMNS
+from comparison.verdicts import efficiency_verdicts, nees_verdicts
 
 FloatArray = NDArray[np.float64]
 

@@ -39,16 +39,19 @@ import numpy as np
 import pandas as pd
 
 from comparison import figures, verdict_table
+from comparison.intervals import DEFAULT_N_BOOTSTRAP
 from comparison.metrics import (
     METRIC_DESCRIPTIONS,
     METRIC_NAMES,
     format_number,
+    has_planners,
     summarize,
     summary_swept_columns,
 )
+from comparison.planner_table import planner_table_html
 from comparison.report_figures import FIGURE_STEMS, report_figures
 from comparison.run_folder import check_report_outputs, write_atomic, write_csv
-from comparison.verdicts import DEFAULT_N_BOOTSTRAP, VERDICTS
+from comparison.verdicts import VERDICTS
 from scenarios.limits import configured_limit
 
 BOOTSTRAP_STREAM = 2**31 + 7
@@ -99,7 +102,7 @@ SNR_CAPTION = (
 MATH_CAPTION = (
     "MATH §N everywhere in this report is section §N of docs/math.md, emitterbench's account "
     "of the corrected mathematics of the paper (the model, the closed form and its errata, "
-    "the CRLB); its last section explains the verdicts and their intervals."
+    "the CRLB); §16 explains the verdicts and their intervals."
 )
 
 CLOSED_LOOP_CAPTION = (
@@ -449,7 +452,13 @@ def render_html(
         f"<p>Seed {_escape(seed)}; {int(summary['n_trials'].sum())} estimates in "
         f"{len(summary)} summary rows (estimators: {summary['estimator'].nunique()}, "
         f"scenarios: {summary['scenario'].nunique()}).</p>"
-        '<section id="verdicts"><h2>Verdicts</h2>'
+        + (
+            '<section id="flights"><h2>Which flight locates best</h2>'
+            f"{planner_table_html(summary)}</section>"
+            if has_planners(summary)
+            else ""
+        )
+        + '<section id="verdicts"><h2>Verdicts</h2>'
         f"{verdict_table.verdict_table_html(summary)}"
         + (f'<ul class="notes">{statements}</ul>' if statements else "")
         + "</section>"

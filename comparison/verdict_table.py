@@ -35,11 +35,13 @@ VERDICT_COLOURS = {
     "attains": "#cdebc8",
     "above": "#f4c9c4",
     "below": "#d4d0f2",
+    "biased": "#f2dca6",
     "inconclusive": "#e6e6e6",
 }
 
 STYLE = """
 table.verdicts { border-collapse: collapse; font-size: 0.9em; margin: 0.5em 0; }
+table.planners { font-size: 0.78em; }
 table.verdicts th, table.verdicts td { border: 1px solid #ccc; padding: 3px 8px;
   text-align: left; vertical-align: top; white-space: nowrap; }
 table.verdicts th small { font-weight: normal; color: #555; }
@@ -48,6 +50,7 @@ table.verdicts th small { font-weight: normal; color: #555; }
 .strip { display: inline-block; margin-left: 6px; }
 .strip .sq { display: inline-block; width: 8px; height: 11px; margin-right: 1px;
   border: 1px solid #999; }
+.strip .ends { font-size: 0.75em; color: #555; margin: 0 3px; }
 """ + "".join(
     f".v-{name} {{ background: {colour}; }}\n" for name, colour in VERDICT_COLOURS.items()
 )
@@ -111,23 +114,35 @@ def verdict_table_html(summary: pd.DataFrame) -> str:
     swept = summary_swept_columns(summary)
     threshold = thresholds(summary)
     scenarios = list(rows["scenario"].unique())
-    labels = list(rows["row"].unique())
-    header = ["<th>estimator</th>"]
+    labels = ranked_rows(rows, threshold)
+    header = ["<th>estimator<br/><small>best first</small></th>"]
     shown: dict[str, list[float] | None] = {}
     for scenario in scenarios:
         own = rows[rows["scenario"] == scenario]
+        basis = own["verdict_basis"] == "side-resolved"
+        efficiency = (
+            "side-resolved efficiency"
+            if basis.all()
+            else "efficiency (side-resolved for †)"
+            if basis.any()
+            else "efficiency"
+        )
         if _is_snr_sweep(own, swept):
             shown[scenario] = _shown_snrs(own["snr_db"].to_numpy())
             axis = " / ".join(f"{v:g}" for v in shown[scenario]) + " dB"
-            sub = f"threshold; efficiency at {axis}"
+            snrs = sorted(own["snr_db"].unique())
+            sub = (
+                f"threshold; a square per SNR, {snrs[0]:g} to {snrs[-1]:g} dB; "
+                f"{efficiency} at {axis}"
+            )
         elif len(own.groupby(["snr_db", *swept])) == 1:
             shown[scenario] = None
             last = int(own["frame"].max())
-            sub = "efficiency" + (f" after frame {last}" if summary["frame"].nunique() > 1 else "")
+            sub = efficiency + (f" after frame {last}" if summary["frame"].nunique() > 1 else "")
         else:
             shown[scenario] = None
             varying = [c for c in ("snr_db", *swept) if own[c].nunique() > 1]
-            sub = "points attaining; efficiency range over " + ", ".join(
+            sub = f"points attaining; {efficiency} range over " + ", ".join(
                 parameter_label(c)[0] for c in varying
             )
         header.append(f"<th>{_escape(scenario)}<br/><small>{_escape(sub)}</small></th>")
@@ -156,11 +171,36 @@ def verdict_table_html(summary: pd.DataFrame) -> str:
     )
 
 
+def ranked_rows(rows: pd.DataFrame, threshold: pd.DataFrame) -> list[str]:
+    """The table's row labels, best first: most points attaining, then the lowest threshold
+    SNR on average ("never" last), then the median judged efficiency nearest to 1; ties keep
+    the experiment's order."""
+    keys = []
+    for order, (label, own) in enumerate(rows.groupby("row", sort=False)):
+        match = threshold["estimator"] == own["estimator"].iloc[0]
+        if "planner" in threshold.columns and "planner" in own.columns:
+            match &= threshold["planner"] == own["planner"].iloc[0]
+        levels = threshold.loc[match, "threshold_snr_db"].to_numpy(float)
+        level = float(np.mean(np.where(np.isnan(levels), np.inf, levels))) if levels.size else 0.0
+        efficiency = own["efficiency_judged"].to_numpy(float)
+        efficiency = efficiency[np.isfinite(efficiency) & (efficiency > 0)]
+        distance = float(np.median(np.abs(np.log(efficiency)))) if efficiency.size else np.inf
+        attains = int((own["verdict"] == "attains").sum())
+        keys.append((-attains, level, distance, order, str(label)))
+    return [key[-1] for key in sorted(keys)]
+
+
 def _cell(
     own: pd.DataFrame, snrs: list[float] | None, threshold: pd.DataFrame, scenario: str
 ) -> str:
     if own.empty:
         return ""
+    mark = (
+        "†"
+        if (own["verdict_basis"] == "side-resolved").any()
+        and not (own["verdict_basis"] == "side-resolved").all()
+        else ""
+    )
     if snrs is not None:
         estimator = own["estimator"].iloc[0]
         match = (threshold["scenario"] == scenario) & (threshold["estimator"] == estimator)
@@ -174,7 +214,7 @@ def _cell(
         for snr in snrs:
             row = own[own["snr_db"] == snr].iloc[0]
             spans.append(_span(row["efficiency_judged"], row["verdict"], row["verdict_reason"]))
-        return f'<div class="threshold">{_escape(head)}{_strip(own)}</div>' + "".join(spans)
+        return f'<div class="threshold">{_escape(head + mark)}{_strip(own)}</div>' + "".join(spans)
     if len(own) == 1:
         row = own.iloc[0]
         return _span(row["efficiency_judged"], row["verdict"], row["verdict_reason"])
@@ -191,14 +231,20 @@ def _cell(
 
 
 def _strip(own: pd.DataFrame) -> str:
-    """One small square per SNR point, lowest first, coloured by its verdict."""
+    """One small square per SNR point, lowest first, coloured by its verdict, between the
+    lowest and highest SNR; each square's own SNR, verdict and reason on hover."""
+    ordered = own.sort_values("snr_db")
     squares = "".join(
         f'<span class="sq v-{_escape(row["verdict"])}" '
         f'title="{row["snr_db"]:g} dB: {_escape(row["verdict"] + ", " + row["verdict_reason"])}">'
         "</span>"
-        for _, row in own.sort_values("snr_db").iterrows()
+        for _, row in ordered.iterrows()
     )
-    return f'<span class="strip" title="every SNR point, lowest first">{squares}</span>'
+    low, high = ordered["snr_db"].iloc[0], ordered["snr_db"].iloc[-1]
+    return (
+        f'<span class="strip" title="every SNR point, lowest first">'
+        f'<span class="ends">{low:g}</span>{squares}<span class="ends">{high:g} dB</span></span>'
+    )
 
 
 def _listing(values: list[float]) -> str:
@@ -295,7 +341,7 @@ def _skewed_references(rows: pd.DataFrame) -> list[str]:
     return [
         "Each closed-loop trial flies its own path, and the reference is the root mean square "
         "of the trials' bounds; for these a few flown paths are nearly singular (a frame flown "
-        "straight at the emitter) and set it, so a 'below' says more about those paths than "
+        "straight at the emitter) and set it, so a 'below' or 'biased' says more about those paths than "
         f"about the estimator: {'; '.join(parts)}."
     ]
 

@@ -27,7 +27,8 @@ Conventions shared by all figures:
 - per-frame runs are drawn at their last frame except in the figures against the frame.
 
 The figures by family: :mod:`~comparison.figures.sweep` (against the swept parameter, the
-error CDF, the run time), :mod:`~comparison.figures.frames` (against the frame),
+error CDF, the run time), :mod:`~comparison.figures.efficiency` (the efficiency with its intervals, first in a
+report), :mod:`~comparison.figures.frames` (against the frame),
 :mod:`~comparison.figures.geometry` (the efficiency heatmap) and
 :mod:`~comparison.figures.closed_loop` (planners, trajectories). What they share:
 :mod:`~comparison.figures.style` (labels, colours, markers, legend, log ticks, saving),
@@ -55,6 +56,7 @@ from comparison.figures.curves import (
     WRONG_SIDE_COUNT_NOTE,
     wilson_interval,
 )
+from comparison.figures.efficiency import EFFICIENCY_VIEW, efficiency_figure
 from comparison.figures.frames import (
     nees_vs_frame_figure,
     rmse_vs_frame_figure,
@@ -104,6 +106,7 @@ __all__ = [
     "COINCIDENCE_RTOL",
     "CONTOUR_CELLS",
     "DASH_LENGTH",
+    "EFFICIENCY_VIEW",
     "ESTIMATOR_LABELS",
     "ESTIMATOR_MARKERS",
     "LEGEND_WIDTH_IN",
@@ -123,6 +126,7 @@ __all__ = [
     "axis_label",
     "centred_log_norm",
     "covariance_ellipse_m",
+    "efficiency_figure",
     "error_cdf_figure",
     "estimator_colors",
     "estimator_label",

@@ -47,10 +47,19 @@ def estimator_label(name: str) -> str:
     return ESTIMATOR_LABELS.get(name, name)
 
 
+OKABE_ITO = ("#E69F00", "#56B4E9", "#009E73", "#0072B2", "#D55E00", "#CC79A7", "#999999", "#F0E442")
+"""Okabe and Ito's colours (Color Universal Design, 2008) without black, which the bound
+lines use, and with their yellow last (faint on white): told apart by colour-blind readers;
+with :data:`ESTIMATOR_MARKERS`, in greyscale too."""
+
+
 def estimator_colors(names: Iterable[str]) -> dict[str, tuple[float, float, float, float]]:
-    """One colour per estimator, in the given order (tab10, then tab20 beyond ten)."""
+    """One colour per estimator, in the given order (:data:`OKABE_ITO`, then tab20 beyond
+    eight)."""
     unique = list(dict.fromkeys(names))
-    palette = mpl.colormaps["tab10" if len(unique) <= 10 else "tab20"]
+    if len(unique) <= len(OKABE_ITO):
+        return {name: mpl.colors.to_rgba(OKABE_ITO[i]) for i, name in enumerate(unique)}
+    palette = mpl.colormaps["tab20"]
     return {name: palette(i % palette.N) for i, name in enumerate(unique)}
 
 

@@ -24,12 +24,12 @@ from comparison.crlb import fisher_information, rmse_bound_m
 from comparison.engine import run_experiment
 from comparison.estimator_calls import Stream
 from comparison.experiment import Experiment, load_experiment
+from comparison.intervals import nees_band
 from comparison.run_folder import read_experiment
 from comparison.scoring import estimate_columns
 from comparison.store import read_points, read_trials
 from comparison.tasks import tie_rng, trial_seed
 from comparison.trial_rows import TRIAL_COLUMNS
-from comparison.verdicts import nees_band
 from estimators.base import Capabilities, Estimate
 from estimators.cls import Cls
 from estimators.ml import MaximumLikelihood

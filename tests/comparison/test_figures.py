@@ -66,6 +66,10 @@ def summary_frame(
                                 "crlb_rmse_m": bound,
                                 "efficiency": 1.0 + i,
                                 "efficiency_judged": 1.0 + i,
+                                "efficiency_judged_ci_low": 0.95 * (1.0 + i),
+                                "efficiency_judged_ci_high": 1.05 * (1.0 + i),
+                                "verdict": "attains" if i == 0 else "above",
+                                "verdict_basis": "side-resolved",
                                 "wrong_side_rate": 0.1 * (i + 1),
                                 "n_successes": n,
                                 "n_side_judged": n,
@@ -208,6 +212,10 @@ def _trajectories():
 
 
 FIGURES = {
+    "efficiency": _open_loop(figures.efficiency_figure),
+    "efficiency_vs_frame": lambda: figures.efficiency_figure(
+        summary_frame(snrs=(10.0,), frames=3), x="frame"
+    ),
     "rmse": _open_loop(figures.rmse_figure),
     "rmse_side_resolved": _open_loop(figures.side_resolved_rmse_figure),
     "wrong_side": _open_loop(figures.wrong_side_figure),
@@ -440,3 +448,55 @@ def test_log_axes_of_the_figures_have_no_minor_tick_labels(name):
             assert 2 <= len(shown) <= figures.MAX_LOG_LABELS
             checked += 1
     assert checked >= len(panels(figure))
+
+
+# --------------------------------------------------------------------------------------------
+# the efficiency figure
+# --------------------------------------------------------------------------------------------
+
+
+def test_the_efficiency_figure_draws_each_point_with_its_interval_on_a_linear_axis_around_1():
+    """cls at 1 (attains: filled), ml at 2 and lls-toa at 3, beyond the axis: open triangles
+    on its top edge, no bar; the band shaded; estimators side by side at each SNR."""
+    summary = summary_frame(scenarios=("paper-1m",))
+    figure = figures.efficiency_figure(summary)
+    (ax,) = panels(figure)
+    assert ax.get_yscale() == "linear"
+    low, high = ax.get_ylim()
+    assert figures.EFFICIENCY_VIEW[0] <= low < 0.9 and 1.1 < high <= figures.EFFICIENCY_VIEW[1]
+    markers = [
+        line
+        for line in ax.get_lines()
+        if line.get_linestyle() == "None" and len(line.get_xdata()) and line.get_marker() != "_"
+    ]  # the points and triangles, not the bars' caps
+    filled = [m for m in markers if m.get_markerfacecolor() != "white"]
+    (cls,) = filled  # only cls attains
+    assert list(cls.get_ydata()) == [1.0, 1.0, 1.0]
+    # side by side: cls sits left of each SNR point
+    assert all(x < snr for x, snr in zip(cls.get_xdata(), SNRS, strict=True))
+    top = [m for m in markers if m.get_marker() == "^"]
+    assert len(top) == 2 and all(np.allclose(m.get_ydata(), high) for m in top)
+    # the 95% interval of cls as an error bar from 0.95 to 1.05
+    segments = [seg for coll in ax.collections for seg in getattr(coll, "get_segments", list)()]
+    spans = {(round(seg[0][1], 6), round(seg[1][1], 6)) for seg in segments if len(seg) == 2}
+    assert (0.95, 1.05) in spans
+    band = [p for p in ax.patches if p.get_facecolor()[:3] == pytest.approx((0.88,) * 3)]
+    assert band
+    texts = legend_texts(figure)
+    assert "filled: attains" in texts
+    assert any(t.startswith("beyond the axis") for t in texts)
+    assert not any("coincides" in t for t in texts)  # the legend stays short
+    assert "side-resolved" in figure.get_suptitle()
+
+
+def test_estimators_keep_distinct_markers_and_colour_blind_safe_colours():
+    names = [f"e{i}" for i in range(8)]
+    colors = figures.estimator_colors(names)
+    assert len({tuple(c) for c in colors.values()}) == 8
+    assert [tuple(round(v, 4) for v in colors[n][:3]) for n in names[:3]] == [
+        (0.902, 0.6235, 0.0),
+        (0.3373, 0.7059, 0.9137),
+        (0.0, 0.6196, 0.451),
+    ]  # Okabe and Ito's orange, sky blue, bluish green
+    markers = figures.estimator_markers(colors)
+    assert len(set(markers.values())) == 8  # in greyscale, the markers tell them apart

@@ -9,13 +9,13 @@ import pandas as pd
 import pytest
 from scipy import stats
 
+from comparison.intervals import nees_band, studentized_bootstrap_interval
 from comparison.metrics import (
     CONTRACT_METRIC_NAMES,
     METRIC_NAMES,
     format_number,
     summarize,
 )
-from comparison.verdicts import nees_band, studentized_bootstrap_interval
 
 TRUTH_M = np.array([35.0, 15.0])
 
@@ -298,7 +298,7 @@ def test_the_bias_is_judged_on_the_side_resolved_error():
     the nearest candidate, (0.8, 0.1) m here, 0.8 √CRLB: biased, with its interval."""
     rng = np.random.default_rng(12)
     n = 400
-    errors = rng.normal(0.0, 0.5, (n, 2)) + [0.8, 0.1]
+    errors = rng.normal(0.0, 0.5, (n, 2)) + np.array([0.8, 0.1])
     mirrored = TRUTH_M + errors
     flip = np.arange(n) % 2 == 1
     returned = np.where(flip[:, None], mirrored * [1.0, -1.0], mirrored) - TRUTH_M

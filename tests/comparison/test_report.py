@@ -15,10 +15,10 @@ import pandas as pd
 import pytest
 
 import comparison
+from comparison.intervals import nees_band
 from comparison.metrics import CONTRACT_METRIC_NAMES, format_number, summarize
 from comparison.report import render_html, report_figures, scenario_tracks_m, write_report
 from comparison.verdict_table import first_screen_notes
-from comparison.verdicts import nees_band
 
 # name: (RMSE / √CRLB, ambiguous on one straight frame, has a covariance, bound factor)
 ESTIMATORS = {
@@ -200,7 +200,7 @@ def test_report_writes_summary_trials_and_every_figure(snr_run):
     assert len(summary) == 5 * 4  # points × estimators
     assert summary["n_trials"].tolist() == [80] * 20
     assert len(pd.read_csv(folder / "trials.csv")) == len(trials) == 5 * 4 * 80
-    stems = {"rmse", "rmse_side_resolved", "wrong_side", "error_cdf", "runtime"}
+    stems = {"efficiency", "rmse", "rmse_side_resolved", "wrong_side", "error_cdf", "runtime"}
     assert {p.name for p in (folder / "figures").iterdir()} == {
         f"{stem}.{ext}" for stem in stems for ext in ("png", "svg")
     }
@@ -218,7 +218,9 @@ def test_html_is_well_formed_self_contained_and_embeds_every_figure(snr_run):
     assert all(img.get("src").startswith("data:image/png;base64,") for img in images)
     embedded = {base64.b64decode(img.get("src").split(",", 1)[1]) for img in images}
     on_disk = {p.read_bytes() for p in (folder / "figures").glob("*.png")}
-    assert embedded == on_disk and len(images) == 5
+    assert embedded == on_disk and len(images) == 6
+    # the efficiency, what every verdict is about, is the first figure
+    assert next(root.iter("figure")).get("id") == "figure-efficiency"
     assert "http://" not in html_path.read_text() and "https://" not in html_path.read_text()
 
 
@@ -266,7 +268,18 @@ def test_first_screen_is_the_verdict_table_with_computed_notes(snr_run):
     summary = pd.read_csv(folder / "summary.csv")
     table = next(t for t in section.iter("table") if t.get("class") == "verdicts")
     rows = {tr.find("th").text: tr.findall("td") for tr in table.find("tbody").iter("tr")}
-    assert list(rows) == ["cls", "cls-as-printed", "lls-toa", "ml"]
+    # best first: most points attaining, then the lowest threshold, then nearest to 1
+    thresholds = pd.read_csv(folder / "thresholds.csv").set_index("estimator")
+    rank = {
+        name: (
+            -int((own["verdict"] == "attains").sum()),
+            np.nan_to_num(thresholds.loc[name, "threshold_snr_db"], nan=np.inf),
+            float(np.median(np.abs(np.log(own["efficiency_judged"])))),
+        )
+        for name, own in summary.groupby("estimator")
+    }
+    assert list(rows) == sorted(rank, key=rank.get)
+    assert list(rows)[-1] == "cls-as-printed"  # 3× its bound everywhere
     for estimator, (cell,) in rows.items():
         spans = [span for span in cell.iter("span") if span.get("class", "").startswith("v ")]
         squares = [span for span in cell.iter("span") if span.get("class", "").startswith("sq ")]
@@ -279,13 +292,28 @@ def test_first_screen_is_the_verdict_table_with_computed_notes(snr_run):
         for span, snr in zip(spans, (-10.0, 10.0, 30.0), strict=True):
             assert span.text == f"{own.loc[snr, 'efficiency_judged']:.3g}"
             assert span.get("class") == f"v v-{own.loc[snr, 'verdict']}"
+        # the strip's ends name its SNR range; each square's own SNR is in its title
+        ends = [span.text for span in cell.iter("span") if span.get("class") == "ends"]
+        assert ends == ["-10", "30 dB"]
+        assert [sq.get("title").split(":")[0] for sq in squares] == [
+            "-10 dB",
+            "0 dB",
+            "10 dB",
+            "20 dB",
+            "30 dB",
+        ]
+    header = [" ".join(" ".join(th.itertext()).split()) for th in table.find("thead").iter("th")]
+    mixed = "efficiency (side-resolved for †)"  # some estimators flag ambiguity, some do not
+    assert header[1] == (
+        f"paper-1m threshold; a square per SNR, -10 to 30 dB; {mixed} at -10 / 10 / 30 dB"
+    )
     # cls-as-printed is 3× its bound everywhere: above at every point, threshold "never"
     assert "never" in "".join(rows["cls-as-printed"][0].itertext())
     assert (summary.loc[summary["estimator"] == "cls-as-printed", "verdict"] == "above").all()
     notes = [li.text for li in section.iter("li")]
     assert notes == first_screen_notes(summary, None)
     thresholds = pd.read_csv(folder / "thresholds.csv")
-    assert list(thresholds["estimator"]) == ["cls", "cls-as-printed", "lls-toa", "ml"]
+    assert list(thresholds["estimator"]) == ["cls", "cls-as-printed", "lls-toa", "ml"]  # as run
     assert math.isnan(thresholds["threshold_snr_db"].iloc[1])
     text = "".join(root.itertext())
     assert "multiplied by 10^(−SNR/20)" in text and "MATH §2" in text and "MATH §7" in text
@@ -459,6 +487,37 @@ def test_closed_loop_report_has_planner_rows_figures_and_tables(closed_report):
     ]
 
 
+def test_a_closed_loop_report_first_ranks_its_flights_by_the_error_after_each_frame(
+    closed_report,
+):
+    """The question of a planner comparison, answered first: planner · estimator ranked by the
+    returned position's RMSE after the last frame, with the RMSE after every frame, the
+    wrong-side rate with its count and the bound of the flown paths; the verdicts second."""
+    folder, html_path = closed_report
+    summary = pd.read_csv(folder / "summary.csv")
+    sections = [s.get("id") for s in parse_html(html_path).iter("section")]
+    assert sections[:2] == ["flights", "verdicts"]
+    section = next(s for s in parse_html(html_path).iter("section") if s.get("id") == "flights")
+    (table,) = section.iter("table")
+    rows = list(table.find("tbody").iter("tr"))
+    last = summary[summary["frame"] == 2]
+    assert len(rows) == len(last) == 6
+    names = [tr.find("th").text for tr in rows]
+    expected = last.sort_values("rmse_m", kind="stable")
+    pairs = zip(expected["planner"], expected["estimator"], strict=True)
+    assert names == [f"{planner} · {estimator}" for planner, estimator in pairs]
+    for tr, (_, row) in zip(rows, expected.iterrows(), strict=True):
+        cells = [td for td in tr.iter("td")]
+        own = summary[
+            (summary["planner"] == row["planner"]) & (summary["estimator"] == row["estimator"])
+        ]
+        by_frame = [f"{value:.3g}" for value in own.sort_values("frame")["rmse_m"]]
+        assert [td.text for td in cells[1:4]] == by_frame  # after frames 0, 1, 2
+        assert "".join(cells[4].itertext()).startswith(f"{row['rmse_m']:.3g} [")
+        assert cells[5].text == f"{row['wrong_side_rate']:.3g} ({int(row['n_side_judged'])})"
+        assert cells[6].text.startswith(f"{row['crlb_rmse_m']:.3g} (")
+
+
 def test_closed_loop_figures_draw_the_summary(closed_report):
     from comparison import engine, figures
 
@@ -494,3 +553,27 @@ def test_covariance_ellipse_is_the_n_sigma_contour():
     offsets = ring - [1.0, -2.0]
     mahalanobis = np.einsum("ij,jk,ik->i", offsets, np.linalg.inv(covariance), offsets)
     assert mahalanobis == pytest.approx(np.full(len(ring), 4.0))
+
+
+def test_the_verdict_table_says_side_resolved_where_the_efficiency_is(snr_run):
+    from comparison.verdict_table import verdict_table_html
+
+    folder, _, _ = snr_run
+    summary = pd.read_csv(folder / "summary.csv")
+    header = lambda html: " ".join("".join(ET.fromstring(html).find("thead").itertext()).split())  # noqa: E731
+    everywhere = summary.assign(verdict_basis="side-resolved")
+    assert "; side-resolved efficiency at -10 / 10 / 30 dB" in header(
+        verdict_table_html(everywhere).split("<p>")[0]
+    )
+    some = summary.assign(
+        verdict_basis=np.where(summary["estimator"] == "ml", "side-resolved", "returned")
+    )
+    html = verdict_table_html(some).split("<p>")[0]
+    assert "; efficiency (side-resolved for †) at" in header(html)
+    marked = [
+        tr.find("th").text
+        for tr in ET.fromstring(html).find("tbody").iter("tr")
+        if "†" in "".join(tr.itertext())
+    ]
+    assert marked == []  # ml is side-resolved at every point: its row is not mixed
+    assert "biased" in verdict_table_html(summary)  # the legend names every verdict

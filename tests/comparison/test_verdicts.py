@@ -1,4 +1,5 @@
-"""Verdicts (comparison.verdicts): honest intervals under heavy tails, counts, thresholds."""
+"""Verdicts and their intervals (comparison.verdicts, comparison.intervals): honest intervals
+under heavy tails, the bias and the principal axes, counts, thresholds."""
 
 from __future__ import annotations
 
@@ -8,20 +9,16 @@ import numpy as np
 import pandas as pd
 import pytest
 
-import comparison.verdicts as verdicts_module
-from comparison.verdicts import (
-    MIN_TRIALS,
+import comparison.intervals as intervals_module
+from comparison.intervals import (
     AxisEfficiencies,
     BiasIntervals,
     axis_squared_errors,
     bias_intervals,
-    efficiency_verdicts,
-    nees_verdicts,
     studentized_bootstrap_interval,
     tail_share,
-    threshold_snr,
 )
-
+from comparison.verdicts import MIN_TRIALS, efficiency_verdicts, nees_verdicts, threshold_snr
 
 CRLB_M2 = np.diag([0.8, 0.2])
 """The bound of the samples below: √trace = 1 m, an elongated error ellipse (axes 0.89 m and
@@ -298,7 +295,7 @@ def test_blocks_threads_and_chunks_give_the_numbers_of_one_group_at_a_time(
 ) -> None:
     """Bit for bit: the blocks of keys, the threads and the rows of draws worked at a time
     change nothing (groups of 0 to 150 values, NaNs, constant groups, shared keys)."""
-    monkeypatch.setattr(verdicts_module, "BLOCK_DRAWS", block_draws)
+    monkeypatch.setattr(intervals_module, "BLOCK_DRAWS", block_draws)
     rng = np.random.default_rng(12)
     n_groups = 60
     counts = rng.integers(0, 150, size=n_groups)
