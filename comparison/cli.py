@@ -8,7 +8,9 @@ on stderr with exit status 2, without a traceback; a message without a field get
 Usage errors, Ctrl-C (exit 130) and unexpected exceptions (exit 1, ``error: internal: ...``)
 are one line too (:mod:`comparison.cli_support`). A command that reads a measurement file takes
 the options of its CSV constants with ``@with_csv_options`` and reads the file with
-:func:`load_measurements`. Help texts are rich markup: write a literal ``[`` as ``\\[``.
+:func:`load_measurements`. Help texts are rich markup: write a literal ``[`` as ``\\[``. An
+option that takes a value other than a number or a path gets a ``metavar`` saying what to
+write (``KEY=VALUE``, ``X Y``), so the help shows no Python type; ``-h`` is ``--help``.
 
 Resource-sized requests are refused before any work, with the limit and the environment
 variable that raises it: ``--frames`` and the samples of a measurement set
@@ -22,7 +24,7 @@ import math
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, TypeVar
+from typing import Annotated, Any, TypeVar
 
 import typer
 
@@ -32,17 +34,24 @@ from comparison.cli_support import (
     USAGE_ERROR_STATUS,
     CsvConstants,
     OneLineErrors,
+    Subcommand,
     blame,
     clean_errors,
     fail,
+    flags_for,
     load_measurements,
     parse_estimator_options,
     print_json,
+    unknown_name,
     with_csv_options,
 )
-
-if TYPE_CHECKING:
-    from scenarios.types import MeasurementSet
+from comparison.cli_views import (
+    ambiguity_text,
+    print_crlb_table,
+    print_estimate,
+    print_plan,
+    validation_lines,
+)
 
 __all__ = [
     "INTERNAL_ERROR_STATUS",
@@ -68,6 +77,7 @@ app = typer.Typer(
         "and compare estimators against the Cramér-Rao bound."
     ),
     no_args_is_help=True,
+    context_settings={"help_option_names": ["-h", "--help"]},
     add_completion=False,
     pretty_exceptions_show_locals=False,
 )
@@ -113,17 +123,20 @@ def command(
     *,
     field: str,
     interrupted: Callable[[dict[str, Any]], str] | None = None,
+    late_help: dict[str, Callable[[], str]] | None = None,
     **typer_options: Any,
 ) -> Callable[[Command], Command]:
     """Register ``function`` as the sub-command ``name`` of :data:`app`, with clean errors.
 
     ``field`` names a message that has none (the command's main input); ``interrupted``
-    says, from the command's arguments, what to do after Ctrl-C.
+    says, from the command's arguments, what to do after Ctrl-C; ``late_help`` writes the
+    help of a parameter when the help is shown (:class:`~comparison.cli_support.Subcommand`).
     """
 
     def register(function: Command) -> Command:
         wrapped = clean_errors(function, field=field, interrupted=interrupted)
-        app.command(name, **typer_options)(wrapped)
+        kind = type(f"{name.title()}Command", (Subcommand,), {"late_help": late_help or {}})
+        app.command(name, cls=kind, **typer_options)(wrapped)
         return function
 
     return register
@@ -132,19 +145,12 @@ def command(
 JsonFlag = Annotated[
     bool, typer.Option("--json", help="Print exactly one JSON object instead of a summary.")
 ]
+KeyValues = list[str] | None
+"""The type of a repeatable ``--option key=value``; its ``metavar`` is :data:`KEY_VALUE`."""
+KEY_VALUE = "KEY=VALUE"
 MeasurementFile = Annotated[
     Path, typer.Argument(help="Measurement file, .json or .csv (CSV needs the constants).")
 ]
-
-
-def _console() -> Any:
-    from rich.console import Console
-
-    return Console(highlight=False, soft_wrap=True)
-
-
-def _point_text(point: Any) -> str:
-    return "(" + ", ".join("nan" if not math.isfinite(v) else f"{v:.4f}" for v in point) + ")"
 
 
 # --------------------------------------------------------------------------------------------
@@ -152,9 +158,22 @@ def _point_text(point: Any) -> str:
 # --------------------------------------------------------------------------------------------
 
 
+def _known_scenario(name: str) -> str:
+    """The ``scenario`` argument, checked as click reads it: before the options that follow
+    it, so that a misspelt name is the first thing said (with the close names)."""
+    from scenarios.catalog import CATALOG
+
+    if name not in CATALOG:
+        raise typer.BadParameter(unknown_name(name, CATALOG, "scenarios"))
+    return name
+
+
 @command("simulate", field="scenario")
 def simulate_command(
-    scenario: Annotated[str, typer.Argument(help="Scenario name (see `emitterbench list`).")],
+    scenario: Annotated[
+        str,
+        typer.Argument(help="Scenario name (see `emitterbench list`).", callback=_known_scenario),
+    ],
     seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the noise draw.")],
     output: Annotated[
         Path, typer.Option("--output", "-o", help="Measurement file to write (.json).")
@@ -163,7 +182,10 @@ def simulate_command(
         float, typer.Option("--snr-db", help="SNR: every σ times 10^(−snr_db/20) (MATH §2).")
     ] = 0.0,
     frames: Annotated[
-        int | None, typer.Option("--frames", help="Number of frames (extends the last).")
+        int | None,
+        typer.Option(
+            "--frames", min=1, help="Number of frames (extends the last) \\[the scenario's]."
+        ),
     ] = None,
 ) -> None:
     """Simulate one noisy trial of a named scenario and write it, truth included."""
@@ -184,7 +206,8 @@ def simulate_command(
     fix = "fly fewer frames"
     check_limit(chosen.flight.n_samples, "--frames", "samples", SAMPLES, fix)
     data = simulate(chosen, snr_db=snr_db, seed=seed)
-    write_measurements(data, output)
+    with flags_for({"output": "--output"}):
+        write_measurements(data, output)
     typer.echo(
         f"wrote {output}: {chosen.name}, {data.n_samples} samples in {len(data.frames)} "
         f"frame(s), SNR {snr_db:g} dB, seed {seed}"
@@ -202,10 +225,11 @@ def estimate_command(
         ),
     ] = "cls",
     option: Annotated[
-        list[str] | None,
+        KeyValues,
         typer.Option(
             "--option",
-            help="Estimator option key=value, repeatable; JSON values, e.g. side_prior_m=[30,10].",
+            metavar=KEY_VALUE,
+            help="Estimator option, repeatable; JSON values, e.g. side_prior_m=[30,10].",
         ),
     ] = None,
     ignore_unknowns: Annotated[
@@ -242,46 +266,8 @@ def estimate_command(
     if as_json:
         print_json(result)
         return
-    _print_estimate(result, file, data)
-
-
-def _print_estimate(result: dict[str, Any], file: Path, data: MeasurementSet) -> None:
-    from rich.table import Table
-
-    def point(value: list[float | None] | None) -> str:
-        return "-" if value is None else _point_text([math.nan if v is None else v for v in value])
-
-    table = Table.grid(padding=(0, 2))
-    table.add_column(style="bold")
-    table.add_column()
-    table.add_row("estimator", result["estimator"])
-    table.add_row(
-        "data",
-        f"{file}: {data.n_samples} samples, {len(data.frames)} frame(s), "
-        f"{', '.join(sorted(data.modalities))}",
-    )
-    table.add_row("success", "yes" if result["success"] else "NO")
-    table.add_row("position_m", point(result["position_m"]))
-    table.add_row("candidates_m", "  ".join(point(c) for c in result["candidates_m"]) or "-")
-    if result["ambiguous"]:
-        table.add_row("ambiguous", "yes: the data cannot tell these candidates apart (MATH §7)")
-    if result["covariance_m2"] is not None:
-        table.add_row("covariance_m2", str(result["covariance_m2"]))
-    if "error_m" in result:
-        table.add_row(
-            "error_m",
-            f"{_number_text(result['error_m'])} (side resolved: "
-            f"{_number_text(result['error_side_resolved_m'])})",
-        )
-    if result["message"]:
-        table.add_row("message", result["message"])
-    for key, value in result["diagnostics"].items():
-        table.add_row(f"  {key}", str(value))
-    _console().print(table)
-
-
-def _number_text(value: float | None) -> str:
-    return "-" if value is None else f"{value:.4g}"
+    seen = data.select_frames(capabilities_of(chosen).frames)
+    print_estimate(result, file, data, ambiguity_text(estimate.candidates_m, seen))
 
 
 @command("crlb", field="file")
@@ -290,7 +276,7 @@ def crlb_command(
     file: MeasurementFile,
     at: Annotated[
         tuple[float, float] | None,
-        typer.Option("--at", help="Emitter position X Y, m (default: the truth in the file)."),
+        typer.Option("--at", metavar="X Y", help="Emitter position, m \\[the truth in the file]."),
     ] = None,
     as_json: JsonFlag = False,
     *,
@@ -320,33 +306,7 @@ def crlb_command(
     if as_json:
         print_json(table)
         return
-    from rich.table import Table
-
-    unknowns = table["unknowns"]
-    title = f"CRLB at {_point_text(table['at_m'])} m, {data.n_samples} samples"
-    if unknowns:
-        title += f", {' and '.join(unknowns)} unknown (MATH §15)"
-    view = Table(title=title)
-    headings = ["modalities", "√trace CRLB (m)", "CRLB (m²)"]
-    if unknowns:
-        headings += ["known: √trace CRLB (m)", "price"]
-    for heading in (*headings, "note"):
-        view.add_column(heading)
-    for name in table["rmse_bound_m"]:
-        bound, matrix = table["rmse_bound_m"][name], table["crlb_m2"][name]
-        cells = [
-            name,
-            _number_text(bound),
-            "-" if matrix is None else "; ".join(" ".join(f"{v:.3g}" for v in r) for r in matrix),
-        ]
-        if unknowns:
-            price = table["price"].get(name)
-            cells += [
-                _number_text(table["known_rmse_bound_m"].get(name)),
-                "-" if price is None else f"{price:.3g}×",
-            ]
-        view.add_row(*cells, table["notes"].get(name, ""))
-    _console().print(view)
+    print_crlb_table(table, data)
 
 
 @command("fly", field="file")
@@ -363,22 +323,22 @@ def fly_command(
     ],
     estimator: Annotated[
         str,
-        typer.Option(
-            "--estimator", "-e", help="Estimator whose estimate steers the planner (default ml)."
-        ),
+        typer.Option("--estimator", "-e", help="Estimator whose estimate steers the planner."),
     ] = "ml",
     option: Annotated[
-        list[str] | None,
+        KeyValues,
         typer.Option(
             "--option",
-            help="Planner option key=value, repeatable; JSON values, e.g. radius_m=25.",
+            metavar=KEY_VALUE,
+            help="Planner option, repeatable; JSON values, e.g. radius_m=25.",
         ),
     ] = None,
     estimator_option: Annotated[
-        list[str] | None,
+        KeyValues,
         typer.Option(
             "--estimator-option",
-            help="Estimator option key=value, repeatable (as `estimate --option`).",
+            metavar=KEY_VALUE,
+            help="Estimator option, repeatable (as `estimate --option`).",
         ),
     ] = None,
     as_json: JsonFlag = False,
@@ -398,44 +358,15 @@ def fly_command(
     from scenarios.planners import get_planner
 
     chosen_planner = get_planner(planner, **parse_estimator_options(option or []))
-    chosen_estimator = make_estimator(estimator, **parse_estimator_options(estimator_option or []))
+    chosen_estimator = make_estimator(
+        estimator, **parse_estimator_options(estimator_option or [], "--estimator-option")
+    )
     data = load_measurements(file, constants)
     result = next_frame_plan(data, chosen_planner, chosen_estimator, rng=np.random.default_rng(0))
     if as_json:
         print_json(result)
         return
-    _print_plan(result, file)
-
-
-def _print_plan(result: dict[str, Any], file: Path) -> None:
-    from rich.table import Table
-
-    table = Table.grid(padding=(0, 2))
-    table.add_column(style="bold")
-    table.add_column()
-    table.add_row("planner", result["planner"])
-    flight = result["flight"]
-    table.add_row(
-        "flight",
-        f"{file}: {flight['frames']} frame(s) of {flight['samples_per_frame']} samples, "
-        f"Δ = {flight['sample_interval_s']:g} s",
-    )
-    table.add_row("velocity_mps", _point_text(result["velocity_mps"]))
-    table.add_row(
-        "speed, heading",
-        f"{result['speed_mps']:.4g} m/s, {result['heading_deg']:.4g}° (from east, counter-clockwise)",
-    )
-    table.add_row("next frame from", _point_text(flight["next_frame_start_m"]))
-    table.add_row("message", result["message"] or "-")
-    estimate = result["estimate"]
-    others = [c for c in estimate["candidates_m"] if c != estimate["position_m"]]
-    table.add_row(
-        "estimate",
-        f"{estimate['estimator']}: {_point_text(estimate['position_m'])}"
-        + (f"; mirror {'  '.join(_point_text(c) for c in others)}" if others else "")
-        + (" (ambiguous, MATH §7: the planner uses the first)" if estimate["ambiguous"] else ""),
-    )
-    _console().print(table)
+    print_plan(result, file)
 
 
 @command("list", field="list")
@@ -470,6 +401,16 @@ def list_command() -> None:
     typer.echo("planners (emitterbench fly FILE --planner NAME):")
     for name, summary in PLANNER_SUMMARIES.items():
         typer.echo(f"  {name:<{width}}  {summary}")
+
+
+RUN_FLAGS = {
+    "out_dir": "--output",
+    "trials": "--trials",
+    "workers": "--workers",
+    "resume": "--resume",
+    "scheduler": "--scheduler",
+}
+"""The parameters of :func:`comparison.engine.run_experiment` that ``run`` takes as flags."""
 
 
 def _resume_hint(arguments: dict[str, Any]) -> str:
@@ -531,9 +472,10 @@ def run_command(
             definition = definition.with_trials(trials)
         except ValueError as error:
             raise ValueError(f"--trials: {str(error).partition(': ')[2]}") from None
-    run_dir = run_experiment(
-        definition, output, workers=workers, scheduler=scheduler, resume=resume
-    )
+    with flags_for(RUN_FLAGS):
+        run_dir = run_experiment(
+            definition, output, workers=workers, scheduler=scheduler, resume=resume
+        )
     html = write_report(run_dir)
     typer.echo(f"report: {html}")
     tables = [run_dir / name for name in ("summary.csv", "trials.csv")]
@@ -556,15 +498,28 @@ def report_command(
     """(Re)write summary.csv, trials.csv, figures/ and report.html of a run folder."""
     from comparison.report import write_report
 
+    if not run_dir.is_dir():
+        raise ValueError(
+            f"run_dir: {run_dir} is not a folder; give the folder of a run "
+            "(`emitterbench run EXPERIMENT -o DIR`)"
+        )
     if not (run_dir / "results.sqlite").exists():
         raise ValueError(
             f"run_dir: {run_dir} holds no results.sqlite; run `emitterbench run` first"
         )
     options = {} if bootstrap is None else {"n_bootstrap": bootstrap}
-    typer.echo(f"report: {write_report(run_dir, **options)}")
+    with flags_for({"resume": "--resume"}):  # a damaged store: rerun with --resume
+        html = write_report(run_dir, **options)
+    typer.echo(f"report: {html}")
 
 
-@command("validate", field="validate")
+def _families_help() -> str:
+    from comparison.crosscheck import FAMILIES
+
+    return f"Instance family, repeatable: {', '.join(FAMILIES)} \\[all]."
+
+
+@command("validate", field="validate", late_help={"families": _families_help})
 def validate_command(
     output: Annotated[
         Path | None, typer.Option("--output", "-o", help="Folder for validate.json and reports.")
@@ -575,7 +530,7 @@ def validate_command(
     ] = 1000,
     families: Annotated[
         list[str] | None,
-        typer.Option("--families", help="Instance families (repeat); default: all."),
+        typer.Option("--families", metavar="NAME", help="Instance family, repeatable \\[all]."),
     ] = None,
     seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the instance draws.")] = 0,
     replay_seed: Annotated[
@@ -597,10 +552,11 @@ def validate_command(
         ),
     ] = None,
     option: Annotated[
-        list[str] | None,
+        KeyValues,
         typer.Option(
             "--option",
-            help="Estimator option key=value, repeatable (with --estimator); JSON values.",
+            metavar=KEY_VALUE,
+            help="Estimator option, repeatable (with --estimator); JSON values.",
         ),
     ] = None,
 ) -> None:
@@ -635,45 +591,44 @@ def validate_command(
         return
     if output is None:
         raise ValueError("--output: give the folder for validate.json (-o DIR)")
+    if output.exists() and not output.is_dir():
+        raise ValueError(f"--output: {output} is a file; choose a folder for validate.json")
+    try:  # before the instances, which may take hours
+        output.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise ValueError(
+            f"--output: cannot create {output} ({error.strerror or error}); choose a writable "
+            "folder"
+        ) from None
     import sys
 
     from rich.progress import Progress
 
-    with Progress(disable=not sys.stderr.isatty(), transient=True) as bar:
-        task = bar.add_task("validating", total=instances * len(chosen))
+    from comparison.execution import ProgressLog
+
+    total = instances * len(chosen)
+    log = None if sys.stderr.isatty() else ProgressLog(total, unit="instances")
+
+    with Progress(disable=log is not None, transient=True) as bar:
+        task = bar.add_task("validating", total=total)
+
+        def progress(done: int, total: int, family: str) -> None:
+            bar.update(task, completed=done, total=total, description=family)
+            if log is not None:
+                log.advance(done - log.done)
+
         result = run_validation(
             instances=instances,
             families=chosen,
             seed=seed,
             out_dir=output,
-            progress=lambda done, total, family: bar.update(
-                task, completed=done, total=total, description=family
-            ),
+            progress=progress,
             estimator=validated,
         )
-    if result.estimator is not None:
-        typer.echo(f"estimator {result.estimator}: its own rows (constrained_ls) on each instance")
-    for name, summary in result.families.items():
-        if result.estimator is None:
-            typer.echo(
-                f"{name:<14} n={summary.n:<5} hard={summary.n_hard:<5} "
-                f"max rel. gap {summary.max_rel_objective_gap:.1e}  "
-                f"max argmin dist. {summary.max_argmin_distance_rel:.1e}  "
-                f"max pair dist. {summary.max_candidate_pair_distance_rel:.1e} "
-                "(of the length scale)  "
-                f"disagreements {summary.n_disagreements}"
-            )
-        else:
-            typer.echo(
-                f"{name:<14} n={summary.n:<5} hard={summary.n_hard:<5} "
-                f"max rel. cost gap {summary.max_estimator_rel_cost_gap:.1e}  "
-                f"max dist. {summary.max_estimator_distance_m:.1e} m "
-                f"({summary.max_estimator_distance_rel:.1e} of the length scale)  "
-                f"missing {summary.n_estimator_missing}  extra {summary.n_estimator_extra}  "
-                f"SDP: max rel. gap {summary.max_rel_objective_gap:.1e}, "
-                f"failed {summary.n_sdp_failed}  "
-                f"disagreements {summary.n_disagreements}"
-            )
+    if log is not None:
+        log.finish()
+    for line in validation_lines(result):
+        typer.echo(line)
     typer.echo(f"report: {output / 'validate.html'}")
     if not result.ok:
         shown = result.disagreements[:10]

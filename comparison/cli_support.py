@@ -8,16 +8,23 @@ silenced; any other warning is one line ``warning: ...``). The exit statuses:
 0     success
 1     ``validate`` found a disagreement; or an internal error, a bug of emitterbench or of an
       estimator: ``error: internal: <type>: <message> (please report ...)``
-      (``EMITTERBENCH_TRACEBACK=1`` prints the traceback before that line)
-2     a usage or input error: a bad option, a malformed file, a request beyond a limit
+      (``EMITTERBENCH_TRACEBACK=1`` prints the traceback before that line); or the reader of
+      stdout went away (``emitterbench list | head -1``): quietly, as click does
+2     a usage or input error: a bad option, a malformed file, a request beyond a limit, no
+      command at all (the usage is printed once)
 130   interrupted (Ctrl-C); ``run`` says how to finish the run with ``--resume``
 ====  ==========================================================================================
 
 :class:`OneLineErrors` is the command group of :data:`comparison.cli.app`: it turns click's
 usage errors (an unknown option, a value out of range, a missing argument) into the same one
-line, and any exception a command lets escape into the internal error. :func:`clean_errors`
+line, which points at the help of the sub-command that failed, and any exception a command lets
+escape into the internal error. Every sub-command is a :class:`Subcommand`: its flags show no
+value type in the help, and an option's help may be written when the help is asked for (names
+that live in a module too heavy to import for ``emitterbench --help``). :func:`clean_errors`
 wraps each command: a ``ValueError`` (the library's errors name the field and the fix) becomes
-the one line, a message without a field gets the command's main input as its field.
+the one line, a message without a field gets the command's main input as its field;
+:func:`flags_for` renames a library parameter (``out_dir``, ``resume=True``) as the flag the
+user typed (``--output``, ``--resume``).
 
 :func:`parse_estimator_options` reads the ``--option key=value`` pairs (JSON values within the
 limits of :mod:`scenarios.limits`), :func:`print_json` prints the one JSON object of ``--json``;
@@ -27,6 +34,7 @@ limits of :mod:`scenarios.limits`), :func:`print_json` prints the one JSON objec
 
 from __future__ import annotations
 
+import difflib
 import functools
 import inspect
 import json
@@ -36,13 +44,13 @@ import re
 import sys
 import traceback
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, NoReturn, TypeVar
 
 import typer
-from typer.core import TyperGroup
+from typer.core import TyperCommand, TyperGroup
 
 try:  # typer 0.2x carries its own copy of click
     from typer._click import exceptions as click_errors
@@ -88,6 +96,34 @@ def with_field(message: str, field: str) -> str:
     return message if _FIELD.match(message) else f"{field}: {message}"
 
 
+def unknown_name(name: str, known: Iterable[str], kind: str) -> str:
+    """``unknown name 'paper1m'; did you mean paper-1m? known scenarios: ...``."""
+    known = list(known)
+    close = difflib.get_close_matches(name[:100], known, n=3, cutoff=0.6)
+    hint = f"did you mean {' or '.join(close)}? " if close else ""
+    return f"unknown name {name[:100]!r}; {hint}known {kind}: {', '.join(known)}"
+
+
+@contextmanager
+def flags_for(flags: Mapping[str, str]) -> Iterator[None]:
+    """Re-raise a ``ValueError`` of the block naming the flags the user typed.
+
+    ``flags`` maps a library parameter to its flag (``{"out_dir": "--output"}``): a message
+    whose field is the parameter gets the flag as its field, and ``resume=True`` (how the
+    Python API asks for a boolean) reads ``--resume``.
+    """
+    try:
+        yield
+    except ValueError as error:
+        message = str(error)
+        field, separator, rest = message.partition(": ")
+        if separator and field in flags:
+            message = f"{flags[field]}: {rest}"
+        for parameter, flag in flags.items():
+            message = message.replace(f"{parameter}=True", flag)
+        raise ValueError(message) from None
+
+
 @contextmanager
 def blame(field: str, what: str) -> Iterator[None]:
     """Re-raise a ``ValueError`` of the block as ``field: what (message)``.
@@ -131,8 +167,57 @@ def _show_warning(message: Any, category: Any, *args: Any, **kwargs: Any) -> Non
     typer.echo(f"warning: {one_line(str(message))}", err=True)
 
 
+@contextmanager
+def usage_errors_of(ctx: Any) -> Iterator[None]:
+    """Give ``ctx`` to a usage error of the block that has none (click's parser raises
+    ``--at: requires 2 arguments`` without one), so that its line points at that command."""
+    try:
+        yield
+    except click_errors.UsageError as error:
+        if error.ctx is None:
+            error.ctx = ctx
+        raise
+
+
+class Subcommand(TyperCommand):
+    """A sub-command: usage errors point at its own help, flags show no value type.
+
+    ``late_help`` (set on a subclass, see :func:`comparison.cli.command`) maps a parameter to
+    a function that writes its help when the help is shown.
+    """
+
+    late_help: Mapping[str, Callable[[], str]] = {}
+
+    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
+        with usage_errors_of(ctx):
+            return super().parse_args(ctx, args)
+
+    def format_help(self, ctx: Any, formatter: Any) -> None:
+        plain_flags(self.get_params(ctx))
+        for parameter in self.get_params(ctx):
+            if parameter.name in self.late_help:
+                parameter.help = self.late_help[parameter.name]()
+        super().format_help(ctx, formatter)
+
+
+def plain_flags(parameters: Iterable[Any]) -> None:
+    """Show a flag (``--resume``, ``--help``) without a value type: typer >= 0.2x writes
+    ``<bool>`` beside it, as if it took a value."""
+    for parameter in parameters:
+        if getattr(parameter, "is_flag", False) and parameter.metavar is None:
+            parameter.metavar = ""
+
+
 class OneLineErrors(TyperGroup):
     """The command group: usage errors and unexpected exceptions as one line each."""
+
+    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
+        with usage_errors_of(ctx):
+            return super().parse_args(ctx, args)
+
+    def format_help(self, ctx: Any, formatter: Any) -> None:
+        plain_flags(self.get_params(ctx))
+        super().format_help(ctx, formatter)
 
     def main(  # type: ignore[override]
         self,
@@ -162,9 +247,10 @@ def run_guarded(invoke: Callable[[], Any]) -> int:
     try:
         status = invoke()
     except click_errors.NoArgsIsHelpError as error:
-        help_text = error.ctx.get_help() if error.ctx else ""  # rich prints it itself
-        if help_text:
-            typer.echo(help_text, err=True)
+        # the error made the help: rich printed it then (its message is empty), click's plain
+        # formatter made it the message, which click prints on stderr
+        if error.message:
+            typer.echo(error.message, err=True)
         return USAGE_ERROR_STATUS
     except click_errors.UsageError as error:
         typer.echo(f"error: {one_line(usage_message(error))}", err=True)
@@ -207,6 +293,8 @@ def usage_message(error: Any) -> str:
         field = "command"
     else:
         field = "arguments"
+    if text[:1].isupper() and text[1:2].islower():  # click's "Got ...", pydantic's "Input ..."
+        text = text[0].lower() + text[1:]
     return f"{field}: {text} (see `{command} --help`)"
 
 
@@ -221,11 +309,12 @@ def _parameter_name(parameter: Any) -> str:
 # --------------------------------------------------------------------------------------------
 
 
-def parse_estimator_options(pairs: list[str]) -> dict[str, Any]:
+def parse_estimator_options(pairs: list[str], flag: str = "--option") -> dict[str, Any]:
     """``key=value`` strings to keyword arguments; values are JSON where they parse.
 
     ``side_prior_m=[30,10]`` gives the tuple ``(30, 10)`` (JSON arrays become tuples, so the
-    frozen estimator stays hashable), ``frames=last`` the string ``"last"``.
+    frozen estimator stays hashable), ``frames=last`` the string ``"last"``. Errors name
+    ``flag``, the option the pairs were given with.
     """
 
     def frozen(value: Any) -> Any:
@@ -238,9 +327,9 @@ def parse_estimator_options(pairs: list[str]) -> dict[str, Any]:
         key, separator, text = pair.partition("=")
         key = key.strip()
         if not separator or not key.isidentifier():
-            raise ValueError(f"--option: expected key=value, got {clip(pair)!r}")
+            raise ValueError(f"{flag}: expected key=value, got {clip(pair)!r}")
         if key in options:
-            raise ValueError(f"--option: {key!r} given twice; keep one")
+            raise ValueError(f"{flag}: {key!r} given twice; keep one")
         try:
             value = json.loads(text, parse_int=_option_integer)
             check_nesting(value)
@@ -248,10 +337,10 @@ def parse_estimator_options(pairs: list[str]) -> dict[str, Any]:
             options[key] = text  # not JSON: the text itself, e.g. frames=last
             continue
         except RecursionError:
-            raise ValueError(f"--option: {key}: {TOO_DEEP}") from None
+            raise ValueError(f"{flag}: {key}: {TOO_DEEP}") from None
         except ValueError as error:  # too deep, or an integer too long
             problem = str(error).partition(": ")[2] or str(error)
-            raise ValueError(f"--option: {key}: {problem}") from None
+            raise ValueError(f"{flag}: {key}: {problem}") from None
         options[key] = frozen(value)
     return options
 

@@ -20,7 +20,7 @@ The pieces:
 - :mod:`comparison.store`: ``results.sqlite``, written and read back;
 - :mod:`comparison.run_folder`: the folder's rules and lock, safe writes, ``experiment.json``
   and ``run.json``;
-- :mod:`comparison.execution`: joblib/loky, dask, the progress bar.
+- :mod:`comparison.execution`: joblib/loky, dask, the progress on stderr.
 
 :func:`read_trials`, :func:`read_points`, :func:`read_flights` and :func:`read_experiment` are
 re-exported here from :mod:`comparison.store` and :mod:`comparison.run_folder`.
@@ -29,7 +29,6 @@ re-exported here from :mod:`comparison.store` and :mod:`comparison.run_folder`.
 from __future__ import annotations
 
 import os
-import sys
 import time
 import warnings
 from contextlib import ExitStack, closing
@@ -39,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from comparison.bounds import CrlbKey, PointInfo, crlb_key, point_infos, point_rows
-from comparison.execution import connect_scheduler, execute, progress_bar
+from comparison.execution import connect_scheduler, execute, progress_reporter
 from comparison.experiment import Experiment
 from comparison.run_folder import (
     RESULTS_FILE,
@@ -78,7 +77,7 @@ def run_experiment(
     scheduler: str | None = None,
     resume: bool = False,
     trials: int | None = None,
-    progress: bool | None = None,
+    progress: bool = True,
 ) -> Path:
     """Run ``experiment`` into the run folder ``out_dir``; return the folder.
 
@@ -103,8 +102,10 @@ def run_experiment(
         exactly the rows of an uninterrupted run.
     trials : int, optional
         Trials per point instead of ``experiment.trials``.
-    progress : bool or None
-        Show a progress bar on stderr; None shows it when stderr is a terminal.
+    progress : bool
+        Show the progress on stderr: a bar when stderr is a terminal, else a line every tenth
+        of the trials or minute, whichever comes first, and a last line
+        (:class:`comparison.execution.ProgressLog`).
 
     Returns
     -------
@@ -155,8 +156,8 @@ def run_experiment(
         # the missing trials, in tasks, stored as each finishes
         complete = complete_trials(connection, experiment, infos)
         tasks = plan_tasks(experiment, infos, complete)
-        advance = progress_bar(
-            sys.stderr.isatty() if progress is None else bool(progress),
+        reporter = progress_reporter(
+            progress,
             stack,
             total=experiment.trials * len(infos),
             completed=sum(len(v) for v in complete.values()),
@@ -167,8 +168,10 @@ def run_experiment(
             info = infos[(result.scenario_index, result.point)]
             write_task(connection, experiment, result, info, crlb_keys)
             task_time_s += result.elapsed_s
-            if advance is not None:
-                advance(len(result.trials))
+            if reporter is not None:
+                reporter.advance(len(result.trials))
+        if reporter is not None:
+            reporter.finish()
         folder.keep = True
         session.update(
             finished_utc=now_utc(),

@@ -203,7 +203,7 @@ def folder_lock(out: Path) -> Iterator[None]:
             os.close(descriptor)
             raise ValueError(
                 f"out_dir: {out} is in use by another emitterbench run ({holder}); wait for it "
-                "to finish, or stop it and rerun with --resume"
+                "to finish, or stop it and rerun with resume=True"
             ) from None
         except OSError as error:  # a file system without locks
             os.close(descriptor)
@@ -304,8 +304,8 @@ def check_folder(out: Path, experiment: Experiment, resume: bool) -> bool:
         raise ValueError(f"out_dir: cannot read {out} ({error.strerror or error})") from None
     if existing and not resume:
         raise ValueError(
-            f"out_dir: {out} already holds files; pass --resume (resume=True) to continue "
-            "that run, or choose another folder"
+            f"out_dir: {out} already holds files; pass resume=True to continue that run, or "
+            "choose another folder"
         )
     for path in _run_files(out):
         refuse_symlink(path)

@@ -114,7 +114,7 @@ def store_error(path: Path, error: sqlite3.Error) -> ValueError | None:
 def _damaged(path: Path, detail: str) -> ValueError:
     return ValueError(
         f"{RESULTS_FILE}: {path} is not a readable SQLite database of a run ({detail}); move "
-        "it away and rerun the experiment with --resume (its trials run again), or restore it "
+        "it away and rerun the experiment with resume=True (its trials run again), or restore it "
         "from a backup"
     )
 

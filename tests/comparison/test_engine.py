@@ -543,7 +543,7 @@ def test_grid_rows_carry_the_swept_columns(tmp_path):
 
 def test_run_folder_rules(tmp_path):
     out = run_experiment(smoke(trials=4), tmp_path / "run", workers=1)
-    with pytest.raises(ValueError, match=r"^out_dir: .* already holds files; pass --resume"):
+    with pytest.raises(ValueError, match=r"^out_dir: .* already holds files; pass resume=True to"):
         run_experiment(smoke(trials=4), out, workers=1)
     with pytest.raises(ValueError, match=r"^resume: the experiment differs .* in seed"):
         run_experiment(smoke(trials=4, seed=8), out, workers=1, resume=True)

@@ -275,7 +275,7 @@ def test_a_second_session_is_refused_while_a_run_writes(tmp_path):
         assert (running_session(out) or "").startswith(f"pid {process.pid} on ")
         before = snapshot(out)
         resumed = invoke("run", definition, "-o", out, "--workers", "1", "--resume")
-        line = clean_error(resumed, f"out_dir: {out} is in use by another emitterbench run")
+        line = clean_error(resumed, f"--output: {out} is in use by another emitterbench run")
         assert f"(pid {process.pid} on " in line and line.endswith("rerun with --resume")
         clean_error(invoke("report", out), f"run_dir: {out} is in use by an emitterbench run")
         assert snapshot(out) == before
