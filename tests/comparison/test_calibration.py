@@ -13,6 +13,9 @@ per row on one straight frame (paper-1m) and on a turn, 9 SNR points each:
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -102,3 +105,22 @@ def test_the_known_efficiency_estimator_names_a_bad_option():
     data = noise_free(get_scenario("paper-1m"), snr_db=0.0)
     with pytest.raises(ValueError, match=r"^rng: "):
         KnownEfficiency().estimate(data)
+
+
+@pytest.mark.slow
+def test_the_readme_quotes_the_calibration_run(calibration):
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text(encoding="utf-8")
+    quoted = re.search(
+        r"on (\d+) rows of 500 trials each: the efficient unbiased one attains on (\d+) of\s+the "
+        r"\d+ rows and is inconclusive on the other; the one with `s = 0.8, b = 0.6` \(RMSE "
+        r"exactly\s+√CRLB\) is `biased` on all (\d+)",
+        readme,
+    )
+    assert quoted, "the README's calibration sentence changed: update this test with it"
+    rows, attains, biased = (int(g) for g in quoted.groups())
+    efficient = calibration[calibration["estimator"] == "efficient"]
+    assert rows == len(efficient) == biased
+    assert attains == int((efficient["verdict"] == "attains").sum())
+    assert (efficient["verdict"] != "attains").sum() == 1
+    wrong = calibration[calibration["estimator"] == "biased (s=0.8, b=0.6)"]
+    assert int((wrong["verdict"] == "biased").sum()) == biased
