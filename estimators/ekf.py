@@ -109,12 +109,13 @@ from estimators.convergence import (
 )
 from estimators.frame_model import FrameModel, read_only
 from estimators.mirror_hypotheses import (
-    StraightTrack,
     diffuse_prior_information,
     first_frame_candidates,
     fisher_rank,
     hypotheses_estimate,
+    hypothesis_starts,
     surviving_hypotheses,
+    with_mirror,
 )
 from estimators.nuisance_starts import straight_frame_starts
 from estimators.nuisance_states import (
@@ -131,6 +132,7 @@ from estimators.nuisance_states import (
     position_information,
     reference_sample,
 )
+from scenarios.geometry import StraightTrack
 from scenarios.types import MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -243,9 +245,7 @@ class EkfState:
 
     def all_hypotheses(self) -> tuple[EkfHypothesis, ...]:
         """The explicit hypotheses plus, on a straight track, the mirror of the first."""
-        if self.track is None or not self.hypotheses:
-            return self.hypotheses
-        return (*self.hypotheses, self.hypotheses[0].mirrored(self.track))
+        return with_mirror(self.hypotheses, self.track)
 
 
 # --------------------------------------------------------------------------------------------
@@ -515,7 +515,7 @@ class Ekf:
         else:
             candidates = first_frame_candidates(frame)
         track = StraightTrack.of_frame(model)
-        starts = candidates[:1] if track is not None else candidates
+        starts = hypothesis_starts(candidates, track, track)
         length_scale = model.mean_range_m(candidates[0])
         if isinstance(model, NuisanceFrame):
             prior_information = diffuse_information(model, length_scale)
