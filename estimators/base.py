@@ -344,7 +344,12 @@ class BatchEstimator(Estimator, Protocol):
 
 @runtime_checkable
 class SequentialEstimator(Estimator, Protocol[State]):
-    """An estimator fed one frame at a time, as a pure ``init``/``update`` pair."""
+    """An estimator fed one frame at a time, as a pure ``init``/``update`` pair.
+
+    ``estimate_state`` has no data: it finishes with :func:`finalize_from_track` on the
+    :class:`~scenarios.geometry.TrackSoFar` the state keeps (the mirror rule of MATH §7, as
+    :func:`finalize_estimate` applies it to data).
+    """
 
     def init(self) -> State: ...
 
