@@ -12,7 +12,9 @@ extend it:
   :class:`~scenarios.types.MeasurementBatch` of Monte Carlo trials at once;
 - :class:`SequentialEstimator`: an optax-style pure pair ``init() -> state`` and
   ``update(state, frame) -> state``, fed one frame at a time (EKF, factor-graph smoother),
-  with ``estimate_state(state) -> Estimate``; no mutable filter object leaks out.
+  with ``estimate_state(state) -> Estimate``; no mutable filter object leaks out. Without the
+  data there, :func:`finalize_from_track` applies the mirror rule of :func:`finalize_estimate`
+  to what the state keeps of the samples (:class:`~scenarios.geometry.TrackSoFar`).
 
 Constructors take keyword-only hyper-parameters and only store them (scikit-learn's rule);
 the built-ins are frozen dataclasses. A failure to estimate is data (``success=False`` and a
@@ -45,11 +47,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from scenarios.fields import vector_text
-from scenarios.geometry import moves_horizontally, single_horizontal_point
+from scenarios.geometry import TrackSoFar, moves_horizontally, single_horizontal_point
 from scenarios.nuisance import describe_unknowns, parse_unknowns, unknowns_used
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
 State = TypeVar("State")
 
 
@@ -71,7 +74,9 @@ class Estimate:
         straight line, or several candidates of equal cost. ``position_m`` is then a guess,
         even when the single candidate lies on the track and is its own mirror image.
     covariance_m2 : (2, 2) or None
-        The estimator's own error covariance, when it has one.
+        The estimator's own error covariance of ``position_m``, when it has one: the error
+        given that the returned side is right. The comparison reflects it across the track,
+        ``R P Rᵀ``, for a mirror candidate (MATH §7, "Verdicts and intervals").
     success : bool
     message : str
         Why it failed, or notes on a success (rank deficiency, hard case, ...).
@@ -339,7 +344,12 @@ class BatchEstimator(Estimator, Protocol):
 
 @runtime_checkable
 class SequentialEstimator(Estimator, Protocol[State]):
-    """An estimator fed one frame at a time, as a pure ``init``/``update`` pair."""
+    """An estimator fed one frame at a time, as a pure ``init``/``update`` pair.
+
+    ``estimate_state`` has no data: it finishes with :func:`finalize_from_track` on the
+    :class:`~scenarios.geometry.TrackSoFar` the state keeps (the mirror rule of MATH §7, as
+    :func:`finalize_estimate` applies it to data).
+    """
 
     def init(self) -> State: ...
 
@@ -519,6 +529,40 @@ def check_rng(rng: Any) -> np.random.Generator | None:
     )
 
 
+def choose_candidate(
+    candidates_m: ArrayLike,
+    costs: ArrayLike,
+    *,
+    rng: np.random.Generator | None,
+    side_prior_m: ArrayLike | None = None,
+    cost_rtol: float = 1e-6,
+) -> tuple[int, IntArray]:
+    """The tie rule of MATH §7 as indices: ``(chosen, kept)`` into ``candidates_m``.
+
+    ``kept`` are the candidates whose cost is within ``cost_rtol`` (relative) of the best, best
+    first (a stable sort: equal costs keep their order). ``chosen`` is the kept candidate
+    nearest to ``side_prior_m`` when one is given; otherwise an exact tie is broken by ``rng``
+    (a fair coin, ``rng.integers(len(kept))``: the data hold no side information) or, without
+    one, by the lowest cost. The one rule behind :func:`choose_position` and the filters'
+    choice among their hypotheses (:func:`estimators.mirror_hypotheses.hypotheses_estimate`).
+    """
+    check_rng(rng)
+    points = np.asarray(candidates_m, dtype=float).reshape(-1, 2)
+    cost = np.asarray(costs, dtype=float).reshape(-1)
+    order = np.argsort(cost, kind="stable")
+    best = cost[order[0]]
+    floor = np.finfo(float).eps * 64 * max(abs(best), 1.0)
+    kept = order[cost[order] <= best + cost_rtol * abs(best) + floor]
+    if side_prior_m is not None:
+        prior = np.asarray(side_prior_m, dtype=float).reshape(2)
+        index = int(np.argmin(np.linalg.norm(points[kept] - prior, axis=1)))
+    elif len(kept) > 1 and rng is not None:
+        index = int(rng.integers(len(kept)))
+    else:
+        index = 0
+    return int(kept[index]), kept
+
+
 def choose_position(
     candidates_m: ArrayLike,
     costs: ArrayLike,
@@ -532,26 +576,14 @@ def choose_position(
     Candidates whose cost is within ``cost_rtol`` (relative) of the best are kept, best first.
     With a ``side_prior_m`` the kept candidate nearest to it is returned; otherwise an exact tie
     is broken by ``rng`` (a fair coin: the data hold no side information) or, without one, by
-    the lowest cost. Returns ``(position, kept_candidates, ambiguous)``.
+    the lowest cost (:func:`choose_candidate`). Returns
+    ``(position, kept_candidates, ambiguous)``.
     """
-    check_rng(rng)
     points = np.asarray(candidates_m, dtype=float).reshape(-1, 2)
-    cost = np.asarray(costs, dtype=float).reshape(-1)
-    order = np.argsort(cost, kind="stable")
-    points, cost = points[order], cost[order]
-    best = cost[0]
-    floor = np.finfo(float).eps * 64 * max(abs(best), 1.0)
-    keep = cost <= best + cost_rtol * abs(best) + floor
-    points = points[keep]
-    ambiguous = len(points) > 1
-    if side_prior_m is not None:
-        prior = np.asarray(side_prior_m, dtype=float).reshape(2)
-        index = int(np.argmin(np.linalg.norm(points - prior, axis=1)))
-    elif ambiguous and rng is not None:
-        index = int(rng.integers(len(points)))
-    else:
-        index = 0
-    return points[index], points, ambiguous
+    chosen, kept = choose_candidate(
+        points, costs, rng=rng, side_prior_m=side_prior_m, cost_rtol=cost_rtol
+    )
+    return points[chosen], points[kept], len(kept) > 1
 
 
 def params_of(estimator: Any) -> dict[str, Any]:
@@ -581,21 +613,66 @@ def finalize_estimate(
     ambiguous. Coincident candidates are merged; see :func:`choose_position` for the pick.
     ``data`` are the samples used: when they hover at one point (an estimator that uses only
     the last frame, and the UAV hovered in it), the estimate is failed, with the reason of
-    :func:`baseline_problem`, whatever the candidates.
+    :func:`baseline_problem`, whatever the candidates. Otherwise it is
+    :func:`finalize_from_track` with the track of ``data``
+    (:meth:`scenarios.geometry.TrackSoFar.of`).
     """
-    from scenarios.geometry import mirror_across_line, straight_track_line
-
     hovering = _hovering_problem(data)
     if hovering is not None:
         return Estimate.failed(estimator, hovering, **dict(diagnostics or {}))
+    return finalize_from_track(
+        estimator,
+        candidates_m,
+        costs,
+        TrackSoFar.of(data),
+        rng=rng,
+        side_prior_m=side_prior_m,
+        cost_rtol=cost_rtol,
+        covariance_m2=covariance_m2,
+        message=message,
+        diagnostics=diagnostics,
+    )
 
+
+def finalize_from_track(
+    estimator: str,
+    candidates_m: ArrayLike,
+    costs: ArrayLike,
+    track: TrackSoFar,
+    *,
+    rng: np.random.Generator | None = None,
+    side_prior_m: ArrayLike | None = None,
+    cost_rtol: float = 1e-6,
+    covariance_m2: ArrayLike | None = None,
+    message: str = "",
+    diagnostics: Mapping[str, Any] | None = None,
+) -> Estimate:
+    """:func:`finalize_estimate` from what a state keeps of the samples, not the samples.
+
+    A streaming estimator (:class:`SequentialEstimator`) has no data in ``estimate_state``: it
+    keeps a :class:`~scenarios.geometry.TrackSoFar` in its state (``TrackSoFar.of(frame)`` on
+    the first frame, ``track.extended(frame)`` on each next one) with its candidates and their
+    costs, and finishes here exactly as :func:`finalize_estimate` does on the data (MATH §7):
+
+    1. on a straight track (``track.straight`` not None) each candidate's mirror image across
+       it is added, at the same cost, and the answer is ambiguous;
+    2. candidates closer than ``1e-9`` of their largest distance from ``track.centre_m`` are
+       one point (the cheaper, or the first given, is kept);
+    3. the candidates within ``cost_rtol`` of the best cost are kept, best first, and the
+       returned one is picked by :func:`choose_candidate` (``side_prior_m``, else a fair coin
+       from ``rng`` on a tie, else the best).
+
+    ``covariance_m2`` belongs to the returned position (the error covariance given its side is
+    right; the comparison reflects it, ``R P Rᵀ``, for the mirror candidate, MATH §7 and
+    "Verdicts and intervals"). ``diagnostics`` gain ``straight_track``.
+    """
     points = np.asarray(candidates_m, dtype=float).reshape(-1, 2)
     cost = np.asarray(costs, dtype=float).reshape(-1)
-    line = straight_track_line(data.position_m, data.velocity_mps)
+    line = track.straight
     if line is not None:
-        points = np.vstack([points, mirror_across_line(points, *line)])
+        points = np.vstack([points, line.mirror_point(points)])
         cost = np.concatenate([cost, cost])
-    scale = max(float(np.max(np.abs(points - data.position_m[:, :2].mean(axis=0)))), 1e-300)
+    scale = max(float(np.max(np.abs(points - track.centre_m))), 1e-300)
     keep: list[int] = []
     for index in np.argsort(cost, kind="stable"):
         if all(np.linalg.norm(points[index] - points[j]) > 1e-9 * scale for j in keep):

@@ -103,8 +103,8 @@ from estimators.frame_model import FrameModel
 from estimators.mirror_hypotheses import (
     DIFFUSE_PRIOR_SCALE,
     MERGE_RTOL,
-    StraightTrack,
     first_frame_candidates,
+    hypothesis_starts,
     smoother_estimate,
     surviving_hypotheses,
 )
@@ -123,6 +123,7 @@ from estimators.smoother_hypotheses import (
     new_live,
     replay_live,
 )
+from scenarios.geometry import StraightTrack
 from scenarios.types import MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -226,12 +227,7 @@ class GtsamSmoother:
             track = first_track
             for frame in frames[1:]:
                 track = None if track is None else track.extended(frame)
-            if first_track is None:
-                starts = candidates
-            elif track is not None:
-                starts = candidates[:1]
-            else:
-                starts = np.vstack([candidates[:1], first_track.mirror_point(candidates[:1])])
+            starts = hypothesis_starts(candidates, first_track, track)
             hypotheses = []
             reports = []
             for start in starts:
@@ -348,7 +344,7 @@ class GtsamSmoother:
     ) -> SmootherState:
         candidates = first_frame_candidates(frame)
         track = StraightTrack.of_frame(model)
-        starts = candidates[:1] if track is not None else candidates
+        starts = hypothesis_starts(candidates, track, track)
         length_scale = model.mean_range_m(candidates[0])
         frames = (model,)
         outcomes = [

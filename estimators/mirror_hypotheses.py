@@ -4,10 +4,13 @@ On a straight track the emitter and its reflection across the track give identic
 so both estimators (:mod:`estimators.ekf`, :mod:`estimators.gtsam_smoother`) carry one
 hypothesis per mirror candidate of the first frame's closed form (:class:`estimators.cls.Cls`),
 weight them by their measurement likelihood and drop one only when the other dominates. While
-every frame so far lies on one straight line (:class:`StraightTrack`), the second hypothesis is
-*computed* as the exact reflection of the first: its likelihood is then identical by
-construction, not merely up to rounding, and the answer stays ambiguous. The first frame that
-leaves the line forks the pair, and from then on each hypothesis is updated on its own.
+every frame so far lies on one straight line (:class:`scenarios.geometry.StraightTrack`), the
+second hypothesis is *computed* as the exact reflection of the first (:func:`with_mirror`): its
+likelihood is then identical by construction, not merely up to rounding, and the answer stays
+ambiguous. The first frame that leaves the line forks the pair, and from then on each
+hypothesis is updated on its own (:func:`hypothesis_starts`). The reported position is picked
+among the hypotheses by the tie rule of :func:`estimators.base.finalize_estimate`
+(:func:`estimators.base.choose_candidate`).
 
 A diffuse Gaussian prior, ``σ = DIFFUSE_PRIOR_SCALE ×`` the first frame's mean slant range, is
 centred on each starting candidate. It changes a well-determined estimate by a relative
@@ -36,16 +39,14 @@ MATH §5, §7).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from estimators.base import Estimate, check_rng
+from estimators.base import Estimate, check_rng, choose_candidate
 from estimators.convergence import EstimationFailure
-from estimators.frame_model import FrameModel
-from scenarios.geometry import mirror_across_line, straight_track_line
+from scenarios.geometry import StraightTrack
 from scenarios.types import MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -81,55 +82,38 @@ def fisher_rank(information: ArrayLike) -> int:
 
 
 # --------------------------------------------------------------------------------------------
-# the straight track and the mirror pair (MATH §7)
+# the mirror pair (MATH §7)
 # --------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True, slots=True, eq=False)
-class StraightTrack:
-    """The horizontal line every sample so far lies on and flies along (MATH §7).
+def hypothesis_starts(
+    candidates: ArrayLike, first_track: StraightTrack | None, track: StraightTrack | None
+) -> FloatArray:
+    """Where the hypotheses start (MATH §7), one row each: ``candidates`` are the first frame's
+    starting points (positions, or states whose first two entries are the position),
+    ``first_track`` that frame's straight track, ``track`` the track of every frame given.
 
-    Kept as the first and last sample positions and one velocity, so that checking a new frame
-    costs the same at frame 2 as at frame 1000.
+    Not straight: every candidate. Straight and still straight: the first candidate only (the
+    second hypothesis is its reflection, computed, :func:`with_mirror`). Straight but the frames
+    given at once (a batch solve) leave the line: the first and its reflection, each started
+    on its own.
     """
+    starts = np.array(candidates, dtype=float)
+    if first_track is None:
+        return starts
+    if track is not None:
+        return starts[:1]
+    mirror = starts[:1].copy()
+    mirror[:, :2] = first_track.mirror_point(starts[:1, :2])
+    return np.vstack([starts[:1], mirror])
 
-    ends_m: FloatArray
-    velocity_mps: FloatArray
 
-    @classmethod
-    def of_frame(cls, frame: MeasurementSet | FrameModel) -> StraightTrack | None:
-        """The frame's line, or None if its samples do not lie on one (MATH §7)."""
-        if straight_track_line(frame.position_m, frame.velocity_mps) is None:
-            return None
-        ends = np.array(frame.position_m[[0, -1]], dtype=float)
-        return cls(ends_m=ends, velocity_mps=np.array(frame.velocity_mps[0], dtype=float))
-
-    def extended(self, frame: MeasurementSet | FrameModel) -> StraightTrack | None:
-        """This line if ``frame`` continues it, else None (the frame turns off it)."""
-        positions = np.vstack([self.ends_m, frame.position_m])
-        velocities = np.vstack([self.velocity_mps, self.velocity_mps, frame.velocity_mps])
-        if straight_track_line(positions, velocities) is None:
-            return None
-        ends = np.array([self.ends_m[0], frame.position_m[-1]], dtype=float)
-        return StraightTrack(ends_m=ends, velocity_mps=self.velocity_mps)
-
-    def line(self) -> tuple[FloatArray, FloatArray]:
-        """``(origin_m, direction)`` of the line, both (2,)."""
-        positions = np.vstack([self.ends_m, self.ends_m[:1]])
-        velocities = np.tile(self.velocity_mps, (3, 1))
-        line = straight_track_line(positions, velocities)
-        assert line is not None  # a StraightTrack is only ever built from a straight line
-        return line
-
-    def mirror_point(self, points_m: ArrayLike) -> FloatArray:
-        """Reflection of points (..., 2) across the track (MATH §7)."""
-        return mirror_across_line(points_m, *self.line())
-
-    def mirror_covariance(self, covariance_m2: ArrayLike) -> FloatArray:
-        """``M C Mᵀ`` with the reflection ``M = 2ddᵀ − I`` (a covariance or an information)."""
-        _, direction = self.line()
-        reflection = 2.0 * np.outer(direction, direction) - np.eye(2)
-        return reflection @ np.asarray(covariance_m2, dtype=float) @ reflection.T
+def with_mirror(hypotheses: Sequence[Any], track: StraightTrack | None) -> tuple[Any, ...]:
+    """The explicit hypotheses plus, on a straight track, the reflection of the first
+    (``hypothesis.mirrored(track)``): exactly equal weight by construction (MATH §7)."""
+    if track is None or not hypotheses:
+        return tuple(hypotheses)
+    return (*hypotheses, hypotheses[0].mirrored(track))
 
 
 def first_frame_candidates(frame: MeasurementSet) -> FloatArray:
@@ -273,7 +257,8 @@ def hypotheses_estimate(
 
     Candidates are the surviving hypotheses' means (merged as in :func:`surviving_hypotheses`,
     by covariance too once off a straight track), heaviest first; ``position_m`` is the
-    heaviest, an exact tie (a straight track) broken by ``rng`` or, without one, by order.
+    heaviest, an exact tie (a straight track) broken by ``rng`` or, without one, by order
+    (:func:`estimators.base.choose_candidate`, the tie rule of ``finalize_estimate``).
     ``ambiguous`` while more than one hypothesis lives or the track is straight. The
     covariance is the returned hypothesis's own (the error given that its side is right); it is
     withheld (None) when the accumulated Fisher information ``data_information`` of that
@@ -294,10 +279,8 @@ def hypotheses_estimate(
             **dict(diagnostics or {}),
         )
     weights = normalised_weights(log_w)
-    index = 0
-    tied = np.flatnonzero(log_w == log_w[0])
-    if len(tied) > 1 and rng is not None:
-        index = int(tied[rng.integers(len(tied))])
+    # the tie rule of finalize_estimate: the heaviest, an exact tie broken by rng
+    index, _ = choose_candidate(means[kept], log_w[0] - log_w, rng=rng, cost_rtol=0.0)
     chosen = kept[index]
     information = np.asarray(data_information, dtype=float).reshape(-1, 2, 2)[chosen]
     rank = fisher_rank(information)

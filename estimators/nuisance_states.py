@@ -64,8 +64,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from estimators.frame_model import FrameModel, read_only
-from estimators.mirror_hypotheses import DIFFUSE_PRIOR_SCALE, StraightTrack
+from estimators.mirror_hypotheses import DIFFUSE_PRIOR_SCALE
 from scenarios.fisher import gram_information
+from scenarios.geometry import StraightTrack
 from scenarios.nuisance import unknowns_used
 from scenarios.types import MeasurementSet
 

@@ -55,7 +55,7 @@ from numpy.typing import NDArray
 
 from estimators.convergence import EstimationFailure
 from estimators.frame_model import FrameModel, read_only
-from estimators.mirror_hypotheses import DIFFUSE_PRIOR_SCALE, StraightTrack, fisher_rank
+from estimators.mirror_hypotheses import DIFFUSE_PRIOR_SCALE, fisher_rank, with_mirror
 from estimators.smoother_graph import (
     N_TERMS,
     ChainFit,
@@ -67,6 +67,7 @@ from estimators.smoother_graph import (
     newton_descent,
     values_of,
 )
+from scenarios.geometry import StraightTrack
 
 FloatArray = NDArray[np.float64]
 
@@ -273,9 +274,8 @@ class SmootherState:
         return len(self.frames)
 
     def all_hypotheses(self) -> tuple[SmootherHypothesis, ...]:
-        if self.track is None or not self.hypotheses:
-            return self.hypotheses
-        return (*self.hypotheses, self.hypotheses[0].mirrored(self.track))
+        """The explicit hypotheses plus, on a straight track, the mirror of the first."""
+        return with_mirror(self.hypotheses, self.track)
 
 
 # --------------------------------------------------------------------------------------------

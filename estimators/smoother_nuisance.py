@@ -62,7 +62,7 @@ from estimators.convergence import (
 from estimators.mirror_hypotheses import (
     DIFFUSE_PRIOR_SCALE,
     MERGE_RTOL,
-    StraightTrack,
+    hypothesis_starts,
     smoother_estimate,
     surviving_hypotheses,
 )
@@ -85,6 +85,7 @@ from estimators.nuisance_states import (
 from estimators.smoother_batch import COST_RISE_RTOL, gtsam_levenberg_marquardt
 from estimators.smoother_graph import newton_descent, step_sigmas_m
 from estimators.smoother_hypotheses import SmootherState
+from scenarios.geometry import StraightTrack
 from scenarios.types import MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -366,14 +367,7 @@ def estimate(
         track = first_track
         for frame in frames[1:]:
             track = None if track is None else track.extended(frame)
-        if first_track is None:
-            chosen = list(starts)
-        elif track is not None:
-            chosen = [starts[0]]
-        else:
-            mirror = starts[0].copy()
-            mirror[:2] = first_track.mirror_point(starts[0][:2])
-            chosen = [starts[0], mirror]
+        chosen = hypothesis_starts(starts, first_track, track)
         hypotheses, fallbacks, iterations = [], [], 0
         for start in chosen:
             hypothesis, n, fallback = lm_solve(
@@ -428,7 +422,7 @@ def update(
                 prior_sigmas=diffuse_sigmas(model, length_scale),
             )
             problem = _problem(frames, state.prior_sigmas, options)
-            chosen = starts[:1] if track is not None else starts
+            chosen = hypothesis_starts(starts, track, track)
             work = [(s, [_flat_start(s, 1)]) for s in chosen]
         else:
             track = None if state.track is None else state.track.extended(model)

@@ -11,9 +11,16 @@ Reflecting the emitter across the vertical plane through a straight track change
 Doppler, ToA or RSS value: for every sample ``p_k`` on the line and ``v_k`` along it,
 ``vᵀ(p − Rs) = (Rv)ᵀ(p − s) = vᵀ(p − s)`` and ``‖p − Rs‖ = ‖p − s‖``. So whenever all samples lie
 on one horizontal line and fly along it, every estimator must report both mirror candidates.
+:class:`StraightTrack` is that line kept frame by frame, and :class:`TrackSoFar` what the mirror
+rule (:func:`estimators.base.finalize_estimate`) reads of the samples, kept frame by frame, so
+that a streaming estimator can apply the rule without the samples
+(:func:`estimators.base.finalize_from_track`).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -160,3 +167,138 @@ def cross_track_m(points_m: ArrayLike, origin_m: ArrayLike, direction: ArrayLike
     """Signed distance of points (..., 2) from the line, positive on its left."""
     offset = np.asarray(points_m, dtype=float) - np.asarray(origin_m, dtype=float)
     return direction[0] * offset[..., 1] - direction[1] * offset[..., 0]
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class StraightTrack:
+    """The horizontal line every sample so far lies on and flies along (MATH §7).
+
+    Build it from samples (:meth:`of_samples`, :meth:`of_frame`: None when they do not lie on
+    one line) and extend it frame by frame (:meth:`extended`: None once a frame leaves it).
+    Checking a new frame costs the same at frame 2 as at frame 1000: only the first and last
+    sample positions and one velocity are kept.
+
+    Attributes
+    ----------
+    origin_m, direction : (2,)
+        The line, as :func:`straight_track_line` gives it for the samples it was built from: a
+        point of it (their mean horizontal position) and its unit direction. Extending the
+        track keeps them (the new samples lie on the line).
+    ends_m : (2, 3)
+        The first and the last sample positions so far.
+    velocity_mps : (3,)
+        The first sample's velocity.
+    """
+
+    origin_m: FloatArray
+    direction: FloatArray
+    ends_m: FloatArray
+    velocity_mps: FloatArray
+
+    def __post_init__(self) -> None:
+        for name in ("origin_m", "direction", "ends_m", "velocity_mps"):
+            value = np.array(getattr(self, name), dtype=float)
+            value.flags.writeable = False
+            object.__setattr__(self, name, value)
+
+    @classmethod
+    def of_samples(cls, position_m: ArrayLike, velocity_mps: ArrayLike) -> StraightTrack | None:
+        """The line of samples (N, 3) and their velocities (N, 3), or None (MATH §7)."""
+        position = np.asarray(position_m, dtype=float).reshape(-1, 3)
+        velocity = np.asarray(velocity_mps, dtype=float).reshape(-1, 3)
+        line = straight_track_line(position, velocity)
+        if line is None:
+            return None
+        return cls(
+            origin_m=line[0],
+            direction=line[1],
+            ends_m=np.array(position[[0, -1]], dtype=float),
+            velocity_mps=np.array(velocity[0], dtype=float),
+        )
+
+    @classmethod
+    def of_frame(cls, frame: Any) -> StraightTrack | None:
+        """:meth:`of_samples` of a frame (anything with ``position_m`` and ``velocity_mps``)."""
+        return cls.of_samples(frame.position_m, frame.velocity_mps)
+
+    def extended(self, frame: Any) -> StraightTrack | None:
+        """This track if ``frame`` continues it, else None (the frame turns off it)."""
+        positions = np.vstack([self.ends_m, frame.position_m])
+        velocities = np.vstack([self.velocity_mps, self.velocity_mps, frame.velocity_mps])
+        if straight_track_line(positions, velocities) is None:
+            return None
+        ends = np.array([self.ends_m[0], frame.position_m[-1]], dtype=float)
+        return StraightTrack(
+            origin_m=self.origin_m,
+            direction=self.direction,
+            ends_m=ends,
+            velocity_mps=self.velocity_mps,
+        )
+
+    def line(self) -> tuple[FloatArray, FloatArray]:
+        """``(origin_m, direction)`` of the line, both (2,)."""
+        return self.origin_m, self.direction
+
+    def mirror_point(self, points_m: ArrayLike) -> FloatArray:
+        """Reflection of points (..., 2) across the track (MATH §7)."""
+        return mirror_across_line(points_m, self.origin_m, self.direction)
+
+    def mirror_covariance(self, covariance_m2: ArrayLike) -> FloatArray:
+        """``M C Mᵀ`` with the reflection ``M = 2ddᵀ − I`` (a covariance or an information)."""
+        reflection = 2.0 * np.outer(self.direction, self.direction) - np.eye(2)
+        return reflection @ np.asarray(covariance_m2, dtype=float) @ reflection.T
+
+    def cross_track_m(self, points_m: ArrayLike) -> FloatArray:
+        """Signed distance of points (..., 2) from the track, positive on its left."""
+        return cross_track_m(points_m, self.origin_m, self.direction)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class TrackSoFar:
+    """What the mirror rule of MATH §7 reads of the samples so far, kept frame by frame.
+
+    :func:`estimators.base.finalize_estimate` reads two things of the samples: the straight
+    track they lie on, if any (each candidate's mirror image across it is added), and their
+    mean horizontal position (candidates closer than ``1e-9`` of their largest distance from it
+    are one point). A streaming estimator keeps this value in its state (:meth:`of` on the
+    first frame, :meth:`extended` on each next one) and finishes its estimate with
+    :func:`estimators.base.finalize_from_track`, without the samples.
+
+    Attributes
+    ----------
+    n_samples : int
+    centre_m : (2,)
+        The samples' mean horizontal position.
+    straight : StraightTrack or None
+        The line every sample so far lies on and flies along; None once the UAV turned.
+    """
+
+    n_samples: int
+    centre_m: FloatArray
+    straight: StraightTrack | None
+
+    def __post_init__(self) -> None:
+        centre = np.array(self.centre_m, dtype=float).reshape(2)
+        centre.flags.writeable = False
+        object.__setattr__(self, "centre_m", centre)
+
+    @classmethod
+    def of(cls, samples: Any) -> TrackSoFar:
+        """The track of ``samples`` (anything with ``position_m`` and ``velocity_mps``)."""
+        position = np.asarray(samples.position_m, dtype=float).reshape(-1, 3)
+        return cls(
+            n_samples=len(position),
+            centre_m=position[:, :2].mean(axis=0),
+            straight=StraightTrack.of_samples(position, samples.velocity_mps),
+        )
+
+    def extended(self, frame: Any) -> TrackSoFar:
+        """The track after one more ``frame`` of samples."""
+        position = np.asarray(frame.position_m, dtype=float).reshape(-1, 3)
+        n_samples = self.n_samples + len(position)
+        step = (position[:, :2].sum(axis=0) - len(position) * self.centre_m) / n_samples
+        return TrackSoFar(
+            n_samples=n_samples,
+            centre_m=self.centre_m + step,
+            straight=None if self.straight is None else self.straight.extended(frame),
+        )

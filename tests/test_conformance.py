@@ -12,23 +12,28 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import re
 from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 import pytest
 
-from estimators.base import Estimate, capabilities_of
+from estimators.base import Estimate, capabilities_of, finalize_from_track
 from estimators.checks import (
     CHECK_NAMES,
     EstimatorCheckError,
     check_estimator,
+    check_leaves_the_track,
+    on_track_start_data,
     parametrize_with_checks,
     run_checks,
 )
 from estimators.cls import Cls
 from estimators.registry import BUILTIN, make_estimator
-from scenarios.geometry import cross_track_m, straight_track_line
+from scenarios import measurement_model as model
+from scenarios.fisher import fisher_information
+from scenarios.geometry import TrackSoFar, cross_track_m, straight_track_line
 
 AVAILABLE = [name for name, entry in BUILTIN.items() if entry.is_available()]
 
@@ -80,6 +85,12 @@ UNWEIGHTED = (
     "the squared-range rows (m²), so on one straight frame the along-track coordinate comes "
     "from ToA alone, about 20x the CRLB (MATH §3, §6); weighting='optimal' is near the bound"
 )
+UNWEIGHTED_TURN = (
+    "unweighted per-sample rows in SI units: ToA alone fixes the answer, which the first "
+    "frame's 3 m short ranges then pull 29 m from the emitter, 13x the Doppler+ToA tolerance "
+    "(MATH §3, §6); it does leave the track (30 m off it), and weighting='optimal' is within "
+    "the tolerance"
+)
 USES_RSS_UNDECLARED = (
     "use_rss=True reads rss_dbm, but its capabilities do not list rss (no capabilities() yet, "
     "so modalities = requires): it must declare modalities {'doppler', 'toa', 'rss'}"
@@ -106,6 +117,7 @@ def expected_failed_checks(estimator) -> dict[str, str]:
             "check_exact_on_random_geometry",
             "check_mirror_pair_reproduces_data",
             "check_noisy_error_near_crlb",
+            "check_leaves_the_track",
         ):
             reasons[check] = AS_PRINTED
         reasons["check_equivariant_under_rigid_motions"] = AS_PRINTED_HEADING
@@ -116,6 +128,7 @@ def expected_failed_checks(estimator) -> dict[str, str]:
         reasons["check_noisy_error_near_crlb"] = RANK_DEFICIENT
     if estimator.name == "cls" and estimator.weighting == "none":
         reasons["check_noisy_error_near_crlb"] = UNWEIGHTED
+        reasons["check_leaves_the_track"] = UNWEIGHTED_TURN
     if estimator.name == "ml" and estimator.use_rss and "rss" not in declared.modalities:
         reasons["check_unused_modalities_ignored"] = USES_RSS_UNDECLARED
     return reasons
@@ -318,6 +331,84 @@ class AppendsToItsState(ClsUnderAnotherName):
             return Estimate.failed(self.name, "no frame has been processed yet")
         latest = {int(frame.frame[0]): frame for frame in state}
         return self.estimate(joined(list(latest.values())), rng=rng)
+
+
+def ekf_step(frame, mean_m: np.ndarray, covariance_m2: np.ndarray) -> tuple:
+    """One EKF update of an emitter estimate with a frame's Doppler and ToA (MATH §1, §8)."""
+    p, v, height = frame.position_m, frame.velocity_mps, frame.emitter_height_m
+    c = frame.speed_of_light_mps
+    predicted = np.concatenate(
+        [
+            model.doppler_hz(p, v, mean_m, frame.gamma_per_m, height),
+            model.toa_s(p, mean_m, c, height),
+        ]
+    )
+    H = np.vstack(
+        [
+            model.doppler_jacobian(p, v, mean_m, frame.gamma_per_m, height),
+            model.toa_jacobian(p, mean_m, c, height),
+        ]
+    )
+    R = np.diag(
+        np.concatenate(
+            [
+                np.full(frame.n_samples, frame.noise.doppler_hz**2),
+                np.full(frame.n_samples, frame.noise.toa_s**2),
+            ]
+        )
+    )
+    gain = covariance_m2 @ H.T @ np.linalg.inv(H @ covariance_m2 @ H.T + R)
+    innovation = np.concatenate([frame.doppler_hz, frame.toa_s]) - predicted
+    return mean_m + gain @ innovation, (np.eye(2) - gain @ H) @ covariance_m2
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrustsItsStart(ClsUnderAnotherName):
+    """A streaming EKF started at the closed form's first-frame position with the pseudo-inverse
+    of that frame's Fisher information as its covariance, finished by the public mirror rule
+    (``finalize_from_track``). Where the closed form's candidate lies on the track, that
+    information has rank one (MATH §8: no first-order cross-track information on the track), so
+    the cross-track variance is zero and no later frame, not even after a turn, moves it."""
+
+    name: ClassVar[str] = "trusts-its-start"
+
+    def init(self) -> tuple:
+        return ()
+
+    def update(self, state: tuple, frame) -> tuple:
+        if not state:
+            mean = Cls().estimate(frame).position_m
+            information = fisher_information(frame, mean, ("doppler", "toa"))
+            return mean, np.linalg.pinv(information), TrackSoFar.of(frame)
+        mean, covariance, track = state
+        return (*ekf_step(frame, mean, covariance), track.extended(frame))
+
+    def estimate_state(self, state: tuple, *, rng=None) -> Estimate:
+        mean, _, track = state
+        return finalize_from_track(self.name, [mean], [0.0], track, rng=rng)
+
+    def estimate(self, data, *, rng=None) -> Estimate:
+        state = self.init()
+        for frame in data.iter_frames():
+            state = self.update(state, frame)
+        return self.estimate_state(state, rng=rng)
+
+
+def test_a_filter_that_stays_on_the_track_fails_check_leaves_the_track() -> None:
+    """The first frame puts the closed form on the track; the filter that trusts it stays there
+    through the turn, exactly, while the corrected closed form over every frame leaves it."""
+    data, _, truth = on_track_start_data()
+    stuck = TrustsItsStart().estimate(data)
+    assert stuck.position_m[1] == 0.0  # the track is y = 0: not moved by the turn
+    assert np.linalg.norm(stuck.position_m - truth) > 14.0
+    with pytest.raises(AssertionError) as caught:
+        check_leaves_the_track(TrustsItsStart())
+    message = str(caught.value)
+    for how in ("estimate", "streamed frame by frame"):
+        assert re.search(rf"{how}, the candidate\(s\) \[\[3\d\.\d+, 0\.0\]\] lie on", message)
+    assert "15 m off it" in message
+    assert "must be able to leave it" in message
+    check_leaves_the_track(ClsUnderAnotherName())
 
 
 def failed_checks(estimator) -> dict[str, str]:

@@ -70,7 +70,7 @@ from estimators.checks.exactness import (
     check_mirror_pair_reproduces_data,
     check_not_ambiguous_with_two_headings,
 )
-from estimators.checks.forward_model import crlb_rmse_m, data_misfit
+from estimators.checks.forward_model import crlb_rmse_m, data_misfit, whitened_misfit
 from estimators.checks.invariance import (
     check_equivariant_under_rigid_motions,
     check_unit_invariant,
@@ -82,6 +82,7 @@ from estimators.checks.invariance import (
 )
 from estimators.checks.noisy import (
     check_estimate_moves_with_the_emitter,
+    check_leaves_the_track,
     check_noisy_error_near_crlb,
 )
 from estimators.checks.reference_problems import (
@@ -89,6 +90,8 @@ from estimators.checks.reference_problems import (
     DATA_SEED,
     NOISE_FREE_SNR_DB,
     NOISY_SNR_DB,
+    ON_TRACK_START_SHORTFALL_M,
+    ON_TRACK_START_SNR_DB,
     RANDOM_PROBLEMS,
     REFERENCE_PROBLEMS,
     REFERENCE_SCENARIOS,
@@ -96,6 +99,7 @@ from estimators.checks.reference_problems import (
     ReferenceProblem,
     check_seed,
     degenerate_data,
+    on_track_start_data,
     random_problem,
     reference_data,
     reference_problem,
@@ -149,6 +153,8 @@ __all__ = [
     "MISFIT_LIMIT",
     "NOISE_FREE_SNR_DB",
     "NOISY_SNR_DB",
+    "ON_TRACK_START_SHORTFALL_M",
+    "ON_TRACK_START_SNR_DB",
     "RANDOM_PROBLEMS",
     "REFERENCE_PROBLEMS",
     "REFERENCE_SCENARIOS",
@@ -173,6 +179,7 @@ __all__ = [
     "check_exact_on_turn",
     "check_exact_with_climb",
     "check_failed_estimate_is_data",
+    "check_leaves_the_track",
     "check_mirror_pair_reproduces_data",
     "check_missing_modality_raises",
     "check_noisy_error_near_crlb",
@@ -197,6 +204,7 @@ __all__ = [
     "in_kilometres",
     "moved",
     "noise_free_tolerance_m",
+    "on_track_start_data",
     "parametrize_with_checks",
     "params_of",
     "problem_tolerance_m",
@@ -209,4 +217,5 @@ __all__ = [
     "run_checks",
     "select_frames",
     "tolerance_cap_m",
+    "whitened_misfit",
 ]

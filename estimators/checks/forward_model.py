@@ -1,6 +1,6 @@
 """The forward model at a candidate (MATH §1, §8): how well a point reproduces data, whitened by
-the data's σ's (:func:`data_misfit`), and the Cramér-Rao bound the noisy checks compare with
-(:func:`crlb_rmse_m`)."""
+the data's σ's (:func:`data_misfit`, :func:`whitened_misfit`), and the Cramér-Rao bound the
+noisy checks compare with (:func:`crlb_rmse_m`)."""
 
 from __future__ import annotations
 
@@ -73,6 +73,15 @@ def data_misfit(
         float(np.linalg.norm(step)),
         float(np.sqrt(np.mean(left**2))),
     )
+
+
+def whitened_misfit(data: MeasurementSet, point_m: FloatArray, modalities: Iterable[str]) -> float:
+    """``‖(h(s) − y)/σ‖``: the norm of the whitened residuals of ``data`` at ``point_m`` over
+    ``modalities`` (those absent from ``data`` are skipped); how many σ the data are from what
+    the point predicts. To first order, data that far from an emitter's noise-free values move
+    the maximum likelihood at most ``whitened_misfit × √λ_max(J⁻¹)`` from it (MATH §8, §10)."""
+    residual, _ = _whitened_model(data, point_m, tuple(modalities))
+    return float(np.linalg.norm(residual))
 
 
 def crlb_rmse_m(data: MeasurementSet, emitter_m: FloatArray, modalities: Iterable[str]) -> float:

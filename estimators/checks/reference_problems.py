@@ -26,6 +26,10 @@ one does) and at least 20 m from every frame's track, and a random problem has a
 range of at least 65 m (the fixed ones: 60.7 m on ``turn`` to 134 m on ``far-turn``), so that
 its tolerance cap is never below the fixed problems'.
 
+One more data set is not a reference problem (its optimum is not the emitter): the trap of
+``check_leaves_the_track`` (:func:`on_track_start_data`), whose first frame alone puts the
+closed form's candidate on the track (MATH §5) while the truth is 15 m off it.
+
 *Noise-free* data are exact measurements labelled with the σ's of :data:`NOISE_FREE_SNR_DB` =
 100 dB (MATH §2), the limit of vanishing noise, so that weights and de-biasing factors that
 depend on σ are those of noise-free data. *Noisy* data are seeded trials (:data:`DATA_SEED`).
@@ -81,6 +85,12 @@ RANDOM_PROBLEMS = ("random-straight", "random-turn")
 
 REFERENCE_SCENARIOS = ("paper-1m", "turn", "orbit")
 """Named scenarios of :mod:`scenarios.catalog` that :func:`reference_data` also accepts."""
+
+ON_TRACK_START_SNR_DB = -10.0
+"""The SNR whose Doppler and ToA σ's label the data of :func:`on_track_start_data`."""
+
+ON_TRACK_START_SHORTFALL_M = 3.0
+"""How much shorter than the truth the first frame's ranges of :func:`on_track_start_data` are."""
 
 _PROCESS_SEED = secrets.randbits(32)
 
@@ -423,6 +433,39 @@ def reference_data(
     else:
         data = noise_free(built, snr_db=NOISE_FREE_SNR_DB)
     return data.without_truth(), np.array(built.emitter_m, dtype=float)
+
+
+def on_track_start_data() -> tuple[MeasurementSet, MeasurementSet, FloatArray]:
+    """The trap of ``check_leaves_the_track``: ``(data, exact, emitter_m)``.
+
+    The paper's emitter (35, 15) m (MATH §14), flown east for two frames and then north for one
+    (K = 10 samples of 0.05 s at 10 m/s each). ``exact`` holds the noise-free measurements,
+    labelled with the Doppler and ToA σ's of :data:`ON_TRACK_START_SNR_DB` = −10 dB
+    (``σ_f = 0.32`` Hz, ``c σ_τ = 3.16`` m) and the RSS σ of :data:`NOISE_FREE_SNR_DB` (RSS is
+    exact, and estimators that de-bias it by σ see it so). ``data`` are the same but for the
+    first frame's ToA ranges, :data:`ON_TRACK_START_SHORTFALL_M` = 3 m (0.95 σ) short, as noise
+    often makes them at low SNR: too short to reach the emitter's cross-track offset, so that
+    the least-squares line of that frame misses the paraboloid and the closed form's unique
+    minimiser lies on the track (MATH §5, the case beside the hard case), at (33.5, 0) m. The
+    second frame continues the track exactly, so the likelihood's minimum leaves the track
+    while a point on it stays a stationary point by symmetry (MATH §7); the third, after the
+    turn, decides the side. The truth is removed from ``data``.
+    """
+    base = get_scenario("turn")
+    scenario = base.replace(
+        name="on-track-start",
+        flight=replace(
+            base.flight, frame_velocities_mps=heading_velocities_mps(10.0, [0.0, 0.0, 90.0])
+        ),
+    )
+    labelled = noise_free(scenario, snr_db=ON_TRACK_START_SNR_DB)
+    noise = replace(labelled.noise, rss_db=scenario.noise.at_snr(NOISE_FREE_SNR_DB).rss_db)
+    exact = replace(labelled, noise=noise)
+    assert exact.toa_s is not None  # the scenario simulates ToA
+    shortfall_s = ON_TRACK_START_SHORTFALL_M / exact.speed_of_light_mps
+    toa_s = exact.toa_s - np.where(exact.frame == exact.frame[0], shortfall_s, 0.0)
+    data = replace(exact, toa_s=toa_s).without_truth()
+    return data, exact.without_truth(), np.array(scenario.emitter_m, dtype=float)
 
 
 def _noisy(scenario: str = "paper-1m", frames: int | None = None) -> MeasurementSet:

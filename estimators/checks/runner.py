@@ -46,6 +46,7 @@ from estimators.checks.invariance import (
 )
 from estimators.checks.noisy import (
     check_estimate_moves_with_the_emitter,
+    check_leaves_the_track,
     check_noisy_error_near_crlb,
 )
 from estimators.checks.results import _is_sequential, _same, constructor_parameters
@@ -75,6 +76,7 @@ CHECKS: tuple[Check, ...] = (
     check_uses_the_declared_frames,
     check_noisy_error_near_crlb,
     check_estimate_moves_with_the_emitter,
+    check_leaves_the_track,
     check_missing_modality_raises,
     check_rejects_wrong_data_type,
     check_rejects_wrong_rng_type,

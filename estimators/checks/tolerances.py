@@ -14,7 +14,11 @@ candidate *reproduces* the noise-free data when the Gauss-Newton step from it to
 (whitened by the σ's) is within the tolerance and leaves at most :data:`MISFIT_LIMIT` σ RMS
 unexplained. Noisy answers must be within :data:`CRLB_FACTOR` = 5 times the Cramér-Rao bound
 √trace(J⁻¹) (MATH §8) of the modalities and frames the estimator declares, side resolved
-(nearest candidate), over :data:`CRLB_TRIALS` seeded trials at :data:`CRLB_SNR_DB` = 30 dB.
+(nearest candidate), over :data:`CRLB_TRIALS` seeded trials at :data:`CRLB_SNR_DB` = 30 dB. On
+the on-track start of ``check_leaves_the_track`` the nearest candidate must be within
+``χ √trace(J⁻¹)`` of the emitter plus the noise-free tolerance (``χ`` the data's whitened misfit
+at the emitter: how far, to first order, such data move the maximum likelihood), and no
+candidate within the noise-free tolerance of the first frame's track.
 Diagnostics whose key names a time (``*time*_s``, e.g. ``solve_time_s``) are exempt from the
 equality checks.
 """

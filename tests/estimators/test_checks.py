@@ -48,6 +48,7 @@ from estimators.cls import Cls, ClsAsPrinted, ClsPaper
 from estimators.lls import LlsRss, LlsToa
 from estimators.ml import MaximumLikelihood
 from estimators.registry import BUILTIN, make_estimator
+from scenarios.fisher import whitened_jacobian
 from scenarios.geometry import mirror_across_line, straight_track_line
 from scenarios.simulate import noise_free
 
@@ -214,6 +215,7 @@ def test_collapsing_onto_the_track_under_noise_fails_the_noisy_checks() -> None:
     assert set(failures) == {
         "check_noisy_error_near_crlb",
         "check_estimate_moves_with_the_emitter",
+        "check_leaves_the_track",
     }, failures
     message = failures["check_noisy_error_near_crlb"]
     assert "on 24 noisy trials of 'paper-1m' at 30 dB the side-resolved RMSE" in message
@@ -226,6 +228,89 @@ def test_a_wrong_solution_is_not_saved_by_its_mirror_image() -> None:
     message = failures["check_mirror_pair_reproduces_data"]
     assert "does not reproduce the data" in message
     assert re.search(r"the data put the emitter 1\.0\d m from it", message)
+
+
+# --------------------------------------------------------------------------------------------
+# the on-track start (check_leaves_the_track)
+# --------------------------------------------------------------------------------------------
+
+
+def test_the_on_track_start_puts_the_closed_form_of_its_first_frame_on_the_track() -> None:
+    """3 m short ranges: the first frame's least-squares line misses the paraboloid, and the
+    closed form's unique minimiser lies on the track y = 0 (MATH §5); the exact frame gives
+    the mirror pair (35, ±15) m (the hard case)."""
+    data, exact, truth = checks.on_track_start_data()
+    assert data.truth_emitter_m is None and truth.tolist() == [35.0, 15.0]
+    assert data.frames.tolist() == [0, 1, 2]
+    short = Cls().estimate(data.select_frames([0]))
+    assert not short.diagnostics["hard_case"]
+    (candidate,) = short.candidates_m
+    assert abs(candidate[1]) <= 1e-12 * np.linalg.norm(candidate)
+    pair = Cls().estimate(exact.select_frames([0]))
+    np.testing.assert_allclose(sorted(pair.candidates_m.tolist()), [[35, -15], [35, 15]], atol=1e-6)
+    assert straight_track_line(data.position_m, data.velocity_mps) is None  # it turns
+
+
+def test_the_on_track_start_is_three_sigma_from_the_truth_in_toa_only() -> None:
+    """The whitened misfit at the truth is the shortfall over c σ_τ, √10 times (ten samples):
+    3 m / 3.162 m × √10 = 3.000; Doppler and the exact data fit the truth."""
+    data, exact, truth = checks.on_track_start_data()
+    sigma_m = data.noise.toa_s * data.speed_of_light_mps
+    np.testing.assert_allclose(sigma_m, 10**0.5, rtol=1e-12)
+    expected = checks.ON_TRACK_START_SHORTFALL_M / sigma_m * 10**0.5
+    assert checks.whitened_misfit(data, truth, ("toa",)) == pytest.approx(expected, rel=1e-9)
+    assert checks.whitened_misfit(data, truth, ("doppler", "toa")) == pytest.approx(expected)
+    assert checks.whitened_misfit(data, truth, ("doppler", "rss")) == 0.0
+    assert checks.whitened_misfit(exact, truth, ("doppler", "toa", "rss")) < 1e-9
+
+
+def test_ml_on_the_on_track_start_is_the_first_order_prediction_inside_the_tolerance() -> None:
+    """The maximum likelihood moves from the truth by ``J⁻¹ Gᵀ w`` to first order (``G`` the
+    whitened Jacobian, ``w`` the whitened misfit), whose length is at most
+    ``χ √λ_max(J⁻¹) <= χ √trace(J⁻¹)``: the check's tolerance. Measured: 0.55 m against 2.33 m,
+    the second order 2% of it."""
+    data, exact, truth = checks.on_track_start_data()
+    modalities = ("doppler", "toa")
+    G = whitened_jacobian(exact, truth, modalities)
+    information = G.T @ G
+    w = np.concatenate(
+        [
+            (data.doppler_hz - exact.doppler_hz) / data.noise.doppler_hz,
+            (data.toa_s - exact.toa_s) / data.noise.toa_s,
+        ]
+    )
+    first_order = np.linalg.solve(information, G.T @ w)
+    answer = MaximumLikelihood().estimate(data).position_m
+    assert np.linalg.norm(answer - truth - first_order) <= 0.05 * np.linalg.norm(first_order)
+    chi = checks.whitened_misfit(data, truth, modalities)
+    largest = np.sqrt(np.linalg.eigvalsh(np.linalg.inv(information))[-1])
+    assert np.linalg.norm(first_order) <= chi * largest
+    tolerance = chi * checks.crlb_rmse_m(exact, truth, modalities)
+    assert chi * largest <= tolerance
+    assert np.linalg.norm(answer - truth) <= 0.3 * tolerance
+    checks.check_leaves_the_track(MaximumLikelihood())
+
+
+@dataclass(frozen=True, kw_only=True)
+class FirstFrameOnly:
+    """Declares every frame but answers from the first frame's closed form alone: on the
+    on-track start, a point on the track."""
+
+    name: ClassVar[str] = "first-frame-only"
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+
+    def estimate(self, data, *, rng=None) -> Estimate:
+        first = Cls().estimate(data.select_frames([int(data.frame[0])]), rng=rng)
+        return dataclasses.replace(first, estimator=self.name)
+
+
+def test_an_answer_on_the_track_fails_check_leaves_the_track_with_both_reasons() -> None:
+    with pytest.raises(AssertionError) as caught:
+        checks.check_leaves_the_track(FirstFrameOnly())
+    message = str(caught.value)
+    assert "the candidate(s) [[33.50107073093682, 0.0]] lie on the first frame's track" in message
+    assert "is 15.1 m from it, beyond" in message
+    assert "= 3 × 0.778 m + 1e-06 m = 2.33 m for the doppler+toa data" in message
 
 
 # --------------------------------------------------------------------------------------------
@@ -465,7 +550,7 @@ def declared(name: str, **options):
 
 
 BY_DESIGN = {
-    DeclaredCls(weighting="none"): {"check_noisy_error_near_crlb"},
+    DeclaredCls(weighting="none"): {"check_noisy_error_near_crlb", "check_leaves_the_track"},
     DeclaredClsAsPrinted(): {
         "check_exact_on_straight_frames",
         "check_exact_on_turn",
@@ -475,6 +560,7 @@ BY_DESIGN = {
         "check_mirror_pair_reproduces_data",
         "check_equivariant_under_rigid_motions",
         "check_noisy_error_near_crlb",
+        "check_leaves_the_track",
     },
     DeclaredLlsToa(): {
         "check_exact_on_straight_frames",
