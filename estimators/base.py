@@ -76,7 +76,7 @@ class Estimate:
     covariance_m2 : (2, 2) or None
         The estimator's own error covariance of ``position_m``, when it has one: the error
         given that the returned side is right. The comparison reflects it across the track,
-        ``R P Rᵀ``, for a mirror candidate (MATH §7, "Verdicts and intervals").
+        ``R P Rᵀ``, for a mirror candidate (MATH §7, §16).
     success : bool
     message : str
         Why it failed, or notes on a success (rank deficiency, hard case, ...).
@@ -663,8 +663,8 @@ def finalize_from_track(
        from ``rng`` on a tie, else the best).
 
     ``covariance_m2`` belongs to the returned position (the error covariance given its side is
-    right; the comparison reflects it, ``R P Rᵀ``, for the mirror candidate, MATH §7 and
-    "Verdicts and intervals"). ``diagnostics`` gain ``straight_track``.
+    right; the comparison reflects it, ``R P Rᵀ``, for the mirror candidate, MATH §7 and §16).
+    ``diagnostics`` gain ``straight_track``.
     """
     points = np.asarray(candidates_m, dtype=float).reshape(-1, 2)
     cost = np.asarray(costs, dtype=float).reshape(-1)
