@@ -43,8 +43,8 @@ COUNT_CAPTION = _count_caption(figures.WRONG_SIDE_COUNT_NOTE)
 
 OVERLAP_CAPTION = (
     "Curves that overlap alternate their dash segments and markers; the legend says which "
-    f"agree within {100 * figures.COINCIDENCE_RTOL:g}% at every point "
-    '("coincides with ...").'
+    f"agree within {100 * figures.COINCIDENCE_RTOL:g}% at every point of every panel "
+    '("coincides with ..."); the efficiency figure separates them.'
 )
 
 

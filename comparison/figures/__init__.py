@@ -17,9 +17,10 @@ Conventions shared by all figures:
   ascending;
 - the bound :math:`\sqrt{\operatorname{tr}\,\mathrm{CRLB}}` for ToA+Doppler as a solid black
   line, the bound of an estimator that uses other modalities dashed in its colour (MATH §8);
-- curves that agree within :data:`COINCIDENCE_RTOL` at every point of a panel are named in
-  the legend ("coincides with …") and drawn interleaved: alternating dash segments and
-  markers, so that each stays visible;
+- curves that overlap are drawn interleaved (alternating dash segments and markers), so that
+  each stays visible; the legend names those that agree within :data:`COINCIDENCE_RTOL` at
+  every point of every panel ("coincides with …"), and no note that holds in some panels
+  only;
 - a rate or a mean backed by fewer than :data:`MIN_COUNT_FOR_RATE` values is not drawn
   (:data:`WRONG_SIDE_COUNT_NOTE`, :data:`NEES_COUNT_NOTE`);
 - log axes label decades only (1-2-5 steps when the view spans less than two decades), as

@@ -194,25 +194,20 @@ class Curves:
     def legend_label(self, label: str) -> str:
         """``label``, with "(no point drawn)" or "(coincides with …)" where it applies.
 
-        The panels are named when the partners differ between panels, or when the curve does
-        not coincide in every panel where it is drawn.
+        A coincidence is noted only when the curve coincides with the same curves in every
+        panel where it is drawn: a legend serves every panel, and a note that holds in some of
+        them only would mislead in the others (the curves stay interleaved, so each remains
+        visible where they overlap).
         """
         if label in self.seen and label not in self.drawn:
             return f"{label}\n(no point drawn)"
         notes = self.partners.get(label)
         if not notes:
             return label
-        by_partners: dict[tuple[str, ...], list[str]] = {}
-        for title, names in notes.items():
-            by_partners.setdefault(tuple(dict.fromkeys(names)), []).append(title)
-        if len(by_partners) == 1:
-            names, titles = next(iter(by_partners.items()))
-            if set(titles) >= set(self.drawn.get(label, [])):
-                return f"{label}\n({COINCIDENCE_NOTE} {', '.join(names)})"
-        where = "; ".join(
-            f"{', '.join(names)} in {', '.join(titles)}" for names, titles in by_partners.items()
-        )
-        return f"{label}\n({COINCIDENCE_NOTE} {where})"
+        partners = {tuple(dict.fromkeys(names)) for names in notes.values()}
+        if len(partners) == 1 and set(notes) >= set(self.drawn.get(label, [])):
+            return f"{label}\n({COINCIDENCE_NOTE} {', '.join(next(iter(partners)))})"
+        return label
 
 
 # --------------------------------------------------------------------------------------------

@@ -20,10 +20,9 @@ from matplotlib.ticker import Formatter, Locator, LogLocator, MaxNLocator, NullF
 from comparison.figures.curves import Curves
 from comparison.run_folder import atomic_file
 
-ESTIMATOR_LABELS: dict[str, str] = {
-    "cls-as-printed": "cls-as-printed (paper's formulas as printed)",
-}
-"""Legend labels that say more than the registry name."""
+ESTIMATOR_LABELS: dict[str, str] = {}
+"""Legend labels that say more than the registry name (none: legends stay short, and the
+captions and docs say what each estimator is)."""
 
 PANEL_SIZE_IN = (4.6, 3.4)
 """Width and height of one panel (inches)."""

@@ -358,14 +358,20 @@ def test_an_estimator_on_the_bound_is_noted_with_the_bound():
     assert "√CRLB, ToA+Doppler (coincides with ml)" in texts
 
 
-def test_coincidence_named_per_panel_when_it_differs_between_panels():
+def test_a_coincidence_in_some_panels_only_is_not_written_in_the_legend():
+    """cls and ml coincide in alpha, not in zeta: one legend serves both panels, so it says
+    nothing of it (the lines are interleaved where they overlap)."""
     summary = summary_frame(scenarios=("zeta", "alpha"), estimators=("cls", "ml"))
     same = (summary["scenario"] == "alpha") & (summary["estimator"] == "ml")
     summary.loc[same, "rmse_m"] = summary.loc[
         (summary["scenario"] == "alpha") & (summary["estimator"] == "cls"), "rmse_m"
     ].to_numpy()
-    texts = legend_texts(figures.rmse_figure(summary))
-    assert "cls (coincides with ml in alpha)" in texts
+    figure = figures.rmse_figure(summary)
+    texts = legend_texts(figure)
+    assert "cls" in texts and "ml" in texts
+    assert not any("coincides" in text for text in texts)
+    alpha = next(ax for ax in panels(figure) if ax.get_title() == "alpha")
+    assert line(alpha, "ml").get_markevery() == (1, 2)  # still interleaved there
 
 
 def test_estimator_colours_and_markers_follow_the_mapping_in_every_figure():
