@@ -6,8 +6,9 @@ the per-frame statistics of the Fisher information at the truth
 (:class:`~scenarios.fisher.InformationStatistics`). An estimator's bound (``crlb_rmse_m``) uses
 the modalities and frames it declares (:func:`crlb_key`, from its ``capabilities()``, never
 from option names): the information of the union of those frames' samples, with one carrier
-offset and one emission time shared by all of them when they are unknown (MATH §15). In a closed loop every trial flies its own
-trajectory, so the worker computes the information of that trial (:func:`information_at_truth`).
+offset and one emission time shared by all of them when they are unknown (MATH §15). In a
+closed loop every trial flies its own trajectory, so the worker computes the information of
+that trial (:func:`information_at_truth`).
 """
 
 from __future__ import annotations
@@ -32,7 +33,8 @@ if TYPE_CHECKING:  # annotations only: workers need not import the experiment sc
     from comparison.experiment import Experiment
 
 Information = InformationStatistics
-"""The Fisher information's statistics, one group per frame (:func:`~scenarios.fisher.frame_statistics`)."""
+"""The Fisher information's statistics, one group per frame
+(:func:`~scenarios.fisher.frame_statistics`)."""
 
 CrlbKey = tuple[tuple[str, ...], Any]
 """The modalities (in a fixed order) and the ``frames`` option an estimator's bound uses."""
@@ -111,8 +113,8 @@ def information_at_truth(
 def point_infos(
     experiment: Experiment, crlb_keys: Iterable[CrlbKey]
 ) -> dict[tuple[int, int], PointInfo]:
-    """Fisher information statistics per frame at the truth, for every modality set needed (MATH §8):
-    those of the points table and those of the estimators' ``crlb_keys``."""
+    """Fisher information statistics per frame at the truth, for every modality set needed
+    (MATH §8): those of the points table and those of the estimators' ``crlb_keys``."""
     needed = {_modality_key(m) for m in POINT_CRLB_SETS.values()}
     needed.update(modalities for modalities, _ in crlb_keys)
     infos = {}

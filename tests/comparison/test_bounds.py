@@ -56,9 +56,9 @@ class FrameSubsetProbe:
 
 def finite_difference_crlb(data, emitter, modalities, unknowns, groups) -> np.ndarray:
     """The ``(x, y)`` block of the inverse of the Fisher matrix over ``(x, y)`` and one δ and
-    one b (those of ``unknowns`` that enter a modality used) per group of samples (``groups``: one label per sample of
-    ``data``), every column by central differences of the forward model: the Schur complement
-    onto ``(x, y)``, inverted."""
+    one b (those of ``unknowns`` that enter a modality used) per group of samples
+    (``groups``: one label per sample of ``data``), every column by central differences of the
+    forward model: the Schur complement onto ``(x, y)``, inverted."""
     c, gamma, height = data.speed_of_light_mps, data.gamma_per_m, data.emitter_height_m
     labels = np.unique(groups)
     per_group = [u for u in NUISANCE_PARAMETERS if u in unknowns and AFFECTED[u] in modalities]

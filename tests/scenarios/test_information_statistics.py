@@ -3,7 +3,8 @@
 
 The reference is :func:`scenarios.fisher.fisher_information` of the union of the samples, which
 centres each affected modality over all of them at once (one δ and one b); its own agreement
-with a finite-difference Fisher matrix over ``(x, y, δ, b)`` is ``tests/scenarios/test_nuisance.py``.
+with a finite-difference Fisher matrix over ``(x, y, δ, b)`` is tested in
+``tests/scenarios/test_nuisance.py``.
 """
 
 import math
