@@ -1,11 +1,14 @@
 """The Cramér-Rao bounds a run scores against (MATH §8), and the rows of the points table.
 
 Every (scenario, point) of an experiment gets a :class:`PointInfo` in the main process
-(:func:`point_infos`): its scenario, SNR, swept settings and the per-frame and accumulated
-Fisher information at the truth for every modality set needed. An estimator's bound
-(``crlb_rmse_m``) uses the modalities and frames it declares (:func:`crlb_key`, from its
-``capabilities()``, never from option names). In a closed loop every trial flies its own
-trajectory, so the worker computes the information of that trial (:func:`information_at_truth`).
+(:func:`point_infos`): its scenario, SNR, swept settings and, for every modality set needed,
+the per-frame statistics of the Fisher information at the truth
+(:class:`~scenarios.fisher.InformationStatistics`). An estimator's bound (``crlb_rmse_m``) uses
+the modalities and frames it declares (:func:`crlb_key`, from its ``capabilities()``, never
+from option names): the information of the union of those frames' samples, with one carrier
+offset and one emission time shared by all of them when they are unknown (MATH §15). In a
+closed loop every trial flies its own trajectory, so the worker computes the information of
+that trial (:func:`information_at_truth`).
 """
 
 from __future__ import annotations
@@ -18,9 +21,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from comparison.crlb import crlb_m2, fisher_information_per_frame, rmse_bound_m
+from comparison.crlb import crlb_m2, rmse_bound_m
 from comparison.trial_rows import POINT_CRLB_SETS, POINT_KNOWN_CRLB_SETS
 from estimators.base import Estimator, capabilities_of
+from scenarios.fisher import InformationStatistics, frame_statistics
 from scenarios.measurement_model import slant_range_m
 from scenarios.simulate import noise_free
 from scenarios.types import MeasurementSet, Scenario
@@ -28,8 +32,9 @@ from scenarios.types import MeasurementSet, Scenario
 if TYPE_CHECKING:  # annotations only: workers need not import the experiment schema
     from comparison.experiment import Experiment
 
-Information = tuple[np.ndarray, np.ndarray]
-"""``(per_frame, accumulated)`` Fisher information, one 2×2 matrix per frame each."""
+Information = InformationStatistics
+"""The Fisher information's statistics, one group per frame
+(:func:`~scenarios.fisher.frame_statistics`)."""
 
 CrlbKey = tuple[tuple[str, ...], Any]
 """The modalities (in a fixed order) and the ``frames`` option an estimator's bound uses."""
@@ -66,19 +71,19 @@ class PointInfo:
 
 def information_of(info: Information | None, frame: int, frames: Any = "all") -> np.ndarray:
     """The 2×2 Fisher information of the frames an estimator uses up to ``frame`` (``"all"``,
-    ``"last"`` or listed frames; MATH §8), from ``(per_frame, accumulated)``; NaN where there
-    is none."""
+    ``"last"`` or listed frames; MATH §8): that of the union of their samples, any nuisance
+    parameter one over all of them (MATH §15). NaN without information or frames."""
     if info is None:
         return np.full((2, 2), np.nan)
-    per_frame, accumulated = info
     if isinstance(frames, str) and frames == "last":
-        return per_frame[frame]
-    if isinstance(frames, Sequence) and not isinstance(frames, str):
-        chosen = [f for f in frames if 0 <= int(f) <= frame]
+        chosen = [frame]
+    elif isinstance(frames, Sequence) and not isinstance(frames, str):
+        chosen = [int(f) for f in frames if 0 <= int(f) <= frame]
         if not chosen:
             return np.full((2, 2), np.nan)
-        return per_frame[np.asarray(chosen, dtype=int)].sum(axis=0)
-    return accumulated[frame]
+    else:
+        chosen = list(range(frame + 1))
+    return info.information(chosen)
 
 
 def bound_of(info: Information | None, frame: int, frames: Any = "all") -> float:
@@ -116,15 +121,14 @@ def information_at_truth(
     *,
     unknowns: Iterable[str] | None = None,
 ) -> dict[tuple[str, ...], Information | None]:
-    """Per-frame and accumulated Fisher information of ``data``'s flight at the truth, per
-    modality set (None where a σ or the RSS model is absent: no bound), with the nuisance
-    parameters ``unknowns`` (default ``data.unknowns``) eliminated (MATH §15)."""
+    """The per-frame statistics of the Fisher information of ``data``'s flight at the truth
+    (:func:`~scenarios.fisher.frame_statistics`), per modality set (None where a σ or the RSS
+    model is absent: no bound), with the nuisance parameters ``unknowns`` (default
+    ``data.unknowns``) shared by whichever frames a bound uses (MATH §15)."""
     information: dict[tuple[str, ...], Information | None] = {}
     for modalities in needed:
         try:
-            information[modalities] = fisher_information_per_frame(
-                data, truth, modalities, unknowns=unknowns
-            )
+            information[modalities] = frame_statistics(data, truth, modalities, unknowns=unknowns)
         except ValueError:  # a σ or the RSS model is absent: no bound
             information[modalities] = None
     return information
@@ -133,8 +137,8 @@ def information_at_truth(
 def point_infos(
     experiment: Experiment, crlb_keys: Iterable[CrlbKey]
 ) -> dict[tuple[int, int], PointInfo]:
-    """Fisher information per frame at the truth, for every modality set needed (MATH §8):
-    those of the points table and those of the estimators' ``crlb_keys``."""
+    """Fisher information statistics per frame at the truth, for every modality set needed
+    (MATH §8): those of the points table and those of the estimators' ``crlb_keys``."""
     needed = {_modality_key(m) for m in POINT_CRLB_SETS.values()}
     needed.update(modalities for modalities, _ in crlb_keys)
     infos = {}

@@ -54,7 +54,8 @@ class BatchEstimates:
     messages : tuple of str
     diagnostics : mapping of str to (n,) arrays
         One column per diagnostics key, in the estimator's key order; a failed trial has
-        no diagnostics.
+        no diagnostics. Every successful trial has the same keys (those of the columns); an
+        estimator whose successful trials differ in their keys cannot be held as columns.
     recomputed : (n,) bool
         Trials solved one at a time because a choice of the batch solver was within rounding
         of its threshold (their values are the one-trial path's own).
@@ -111,10 +112,8 @@ class BatchEstimates:
     @classmethod
     def from_estimates(cls, estimator: str, estimates: Sequence[Estimate]) -> BatchEstimates:
         """The columns of per-trial estimates of one estimator (the diagnostics keys of the
-        successful ones must agree)."""
+        successful ones must agree: :meth:`with_trials`)."""
         n = len(estimates)
-        first = next((e for e in estimates if e.success), None)
-        keys = [] if first is None else list(first.diagnostics)
         covariance = any(e.covariance_m2 is not None for e in estimates)
         empty = cls(
             estimator=estimator,
@@ -125,7 +124,6 @@ class BatchEstimates:
             success=np.zeros(n, dtype=bool),
             message_code=np.zeros(n, dtype=np.int64),
             messages=("",),
-            diagnostics={key: _column(first.diagnostics[key], n) for key in keys},
             covariance_m2=np.full((n, 2, 2), np.nan) if covariance else None,
         )
         filled = empty.with_trials(range(n), estimates)
@@ -163,7 +161,11 @@ class BatchEstimates:
     def with_trials(self, index: Sequence[int], estimates: Sequence[Estimate]) -> BatchEstimates:
         """A copy with trials ``index`` replaced by ``estimates`` (e.g. solved one at a time).
 
-        A successful replacement must carry the same diagnostics keys as the columns.
+        A successful replacement must carry the same diagnostics keys as every other
+        successful trial: those of the columns while a trial not replaced keeps its
+        diagnostics, else those of the first successful replacement (when every success is
+        replaced, the columns' own keys, e.g. a batch path's for trials it left to the
+        one-trial path, describe no trial). Raises ``ValueError`` naming the trial otherwise.
         """
         if len(index) == 0:
             return self
@@ -178,6 +180,13 @@ class BatchEstimates:
         recomputed = self.recomputed.copy()
         messages = list(self.messages)
         diagnostics = {key: value.copy() for key, value in self.diagnostics.items()}
+        kept = self.success.copy()
+        kept[np.asarray(index, dtype=np.int64)] = False
+        successes = [e.diagnostics for e in estimates if e.success]
+        if successes and not kept.any():
+            diagnostics = {
+                key: _column([d.get(key) for d in successes], len(self)) for key in successes[0]
+            }
         covariance = None if self.covariance_m2 is None else self.covariance_m2.copy()
         for i, estimate in zip(index, estimates, strict=True):
             position[i] = estimate.position_m
@@ -216,10 +225,13 @@ class BatchEstimates:
         )
 
 
-def _column(example: Any, n: int) -> NDArray[Any]:
-    """An empty diagnostics column for values like ``example`` (numbers typed, else objects)."""
-    dtype = np.asarray(example).dtype
-    return np.zeros(n, dtype=dtype if dtype.kind in "biuf" else object)
+def _column(examples: Sequence[Any], n: int) -> NDArray[Any]:
+    """An empty diagnostics column for values like ``examples``: typed when they are numbers
+    of one type, else objects (which hold any value as it is)."""
+    types = {type(example) for example in examples}
+    if len(types) == 1 and issubclass(types.pop(), bool | int | float | np.bool_ | np.number):
+        return np.zeros(n, dtype=np.asarray(examples[0]).dtype)
+    return np.zeros(n, dtype=object)
 
 
 def _python_scalar(value: Any) -> Any:

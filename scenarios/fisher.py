@@ -26,6 +26,9 @@ emitter positions for a geometry map, many headings for a planner):
 - :func:`per_sample_information`: ``J_k`` of each sample; :func:`information_at_samples`: ``J``
   of given samples; :func:`fisher_information` and :func:`fisher_information_per_frame`: ``J``
   of a measurement set's own samples, all of them or per frame and accumulated;
+- :func:`information_statistics`, :func:`frame_statistics`: the sufficient statistics of groups
+  of samples (a measurement set's frames), from which :class:`InformationStatistics` forms
+  ``J`` of any union of groups with the nuisance parameters shared over it (MATH §15);
 - :func:`regular_2x2`, :func:`inverse_2x2`, :func:`rmse_bound_m`: the 2×2 algebra of the bound.
 
 Modalities are ``"toa"``, ``"doppler"``, ``"rss"`` or a combination, given as a tuple or as a
@@ -37,13 +40,22 @@ column ``∂f_k/∂δ = 1``, with an unknown emission time b every ToA row the c
 inverse of its Schur complement, and because each nuisance column is constant over one
 modality's rows (one σ) and zero elsewhere, that complement is the Gram matrix of the rows with
 each affected modality's block *centred* over its samples: ``J = Σ (g − ḡ)(g − ḡ)ᵀ``. So
-``unknowns`` centres blocks and everything else is unchanged; accumulated information per frame
-centres over the samples up to each frame (it is not a sum of per-frame terms then).
+``unknowns`` centres blocks and everything else is unchanged.
+
+One nuisance over any set of frames. An estimator that uses some frames faces one δ and one b
+over the union of their samples, so the centring runs over that union: the information of a
+set of frames is not the sum of the frames' own (centred) informations. :func:`frame_statistics`
+keeps, per frame, what any union needs (:class:`InformationStatistics`: the Gram matrix of the
+rows whose nuisance is known, and per centred modality the Gram matrix of the rows centred
+within the frame, their mean and the frame's count); :meth:`InformationStatistics.information`
+forms the information of any set of frames from them, and "every frame so far", "the last
+frame" and "these frames" are that one function of different sets.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -273,33 +285,181 @@ def fisher_information_per_frame(
     ``per_frame[l]`` is :func:`fisher_information` of frame ``l``'s samples and
     ``accumulated[l]`` that of the samples of frames ``<= l``: the running sum
     ``Σ_{l' ≤ l} per_frame[l']`` for a cooperative emitter. With nuisance parameters
-    (``unknowns``, default ``data.unknowns``) a frame's rows are centred over the samples up to
-    it, ``Σ g gᵀ − (Σ g)(Σ g)ᵀ / n`` per affected modality, so the accumulated information is
-    formed from running sums rather than added up.
+    (``unknowns``, default ``data.unknowns``) one δ and one b are shared by the samples of
+    frames ``<= l``, so the accumulated information is not that sum. Both come from
+    :func:`frame_statistics`, which gives the information of any other set of frames too.
     """
-    unknowns = parse_unknowns(data.unknowns if unknowns is None else unknowns)
-    chosen = parse_modalities(modalities)
-    blocks = _whitened_blocks(data.position_m, data.velocity_mps, emitter_m, data, chosen)
-    centred = {AFFECTED_MODALITY[name] for name in unknowns}
-    per_frame, accumulated = [], 0.0
-    for modality, rows in zip(chosen, blocks, strict=True):
-        grams = np.stack([gram_information(rows[..., data.frame == f, :]) for f in data.frames])
-        if modality not in centred:
-            per_frame.append(grams)
-            accumulated = accumulated + np.cumsum(grams, axis=0)
-            continue
-        sums = np.stack([rows[..., data.frame == f, :].sum(axis=-2) for f in data.frames])
-        counts = np.array([np.count_nonzero(data.frame == f) for f in data.frames], dtype=float)
-        shape = (-1,) + (1,) * (sums.ndim - 1)
-        outer = np.einsum("...i,...j->...ij", sums, sums)
-        per_frame.append(grams - outer / counts.reshape(shape)[..., None])
-        running = np.cumsum(sums, axis=0)
-        accumulated = accumulated + (
-            np.cumsum(grams, axis=0)
-            - np.einsum("...i,...j->...ij", running, running)
-            / np.cumsum(counts).reshape(shape)[..., None]
+    statistics = frame_statistics(data, emitter_m, modalities, unknowns=unknowns)
+    return statistics.per_group(), statistics.accumulated()
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class InformationStatistics:
+    r"""What the information of any union of groups of samples needs (MATH §8, §15).
+
+    The samples are split into ``G`` groups (a measurement set's frames, a planned frame).
+    With ``g`` the rows ``∇h_k/σ`` of :func:`whitened_gradients` (uncentred), per group:
+
+    Attributes
+    ----------
+    plain : (G, ..., 2, 2)
+        ``Σ g gᵀ`` over the group's rows of the modalities whose nuisance parameters are known
+        (one Gram matrix of their rows, in modality order).
+    centred : (C, G, ..., 2, 2)
+        Per modality with an unknown nuisance parameter (``C`` of them, in modality order),
+        ``Σ (g − ḡ)(g − ḡ)ᵀ`` over the group's rows, ``ḡ`` their mean in the group.
+    mean : (C, G, ..., 2)
+        ``ḡ`` of those rows in each group.
+    count : (G,)
+        The samples of each group (one row per sample and modality).
+
+    The information of a union ``S`` of groups, with one nuisance parameter per centred
+    modality shared by all of ``S``'s samples, is the plain part plus the scatter of the
+    centred rows about their mean over ``S``, within the groups and between them:
+
+    .. math::
+
+        J_S = \sum_{G \in S} \text{plain}_G + \sum_{\text{centred}} \Big( \sum_{G \in S}
+              \text{centred}_G + \sum_{G \in S} n_G (\bar g_G - \bar g_S)(\bar g_G - \bar g_S)^\top
+              \Big),\qquad \bar g_S = \frac{\sum_G n_G \bar g_G}{\sum_G n_G},
+
+    which is ``Σ g gᵀ − (Σ g)(Σ g)ᵀ / n`` over ``S``'s rows, formed without its cancellation.
+    """
+
+    plain: FloatArray
+    centred: FloatArray
+    mean: FloatArray
+    count: FloatArray
+
+    @property
+    def n_groups(self) -> int:
+        return len(self.count)
+
+    def information(self, groups: ArrayLike | None = None) -> FloatArray:
+        """``J`` of the union of ``groups`` (group indices, repeats ignored; None: every
+        group), with the nuisance parameters shared over it, shape ``(..., 2, 2)``. No group:
+        zeros."""
+        index = (
+            np.arange(self.n_groups)
+            if groups is None
+            else np.unique(np.asarray(groups, dtype=np.int64).reshape(-1))
         )
-    return sum(per_frame), accumulated
+        information = self.plain[index].sum(axis=0)
+        counts = self.count[index]
+        total = counts.sum()
+        if total == 0:
+            return information
+        weights = counts.reshape((-1,) + (1,) * (self.mean.ndim - 2))
+        for centred, mean in zip(self.centred[:, index], self.mean[:, index], strict=True):
+            pooled = (weights * mean).sum(axis=0) / total
+            offset = mean - pooled
+            between = np.einsum("g,g...i,g...j->...ij", counts, offset, offset)
+            information = information + (centred.sum(axis=0) + between)
+        return information
+
+    def per_group(self) -> FloatArray:
+        """``J`` of each group alone, shape ``(G, ..., 2, 2)``."""
+        return np.stack([self.information([g]) for g in range(self.n_groups)])
+
+    def accumulated(self) -> FloatArray:
+        """``J`` of groups ``0 … l`` for each ``l``, shape ``(G, ..., 2, 2)``."""
+        return np.stack([self.information(np.arange(g + 1)) for g in range(self.n_groups)])
+
+    def joined(self, other: InformationStatistics) -> InformationStatistics:
+        """The groups of ``self`` then those of ``other``, their leading axes broadcast
+        together (past frames at ``(n_c, 1)`` candidates, a planned frame at ``(n_c, n_ψ)``)."""
+        if len(self.centred) != len(other.centred):
+            raise ValueError(
+                "statistics: the two sets centre different modalities; build both with the "
+                "same modalities and unknowns"
+            )
+        leading = np.broadcast_shapes(self.plain.shape[1:-2], other.plain.shape[1:-2])
+
+        def joined(a: FloatArray, b: FloatArray, axis: int, tail: int) -> FloatArray:
+            def shape(x: FloatArray) -> tuple[int, ...]:
+                return (*x.shape[: axis + 1], *leading, *x.shape[x.ndim - tail :])
+
+            return np.concatenate(
+                [np.broadcast_to(a, shape(a)), np.broadcast_to(b, shape(b))], axis=axis
+            )
+
+        return InformationStatistics(
+            plain=joined(self.plain, other.plain, 0, 2),
+            centred=joined(self.centred, other.centred, 1, 2),
+            mean=joined(self.mean, other.mean, 1, 1),
+            count=np.concatenate([self.count, other.count]),
+        )
+
+
+def information_statistics(
+    position_m: ArrayLike,
+    velocity_mps: ArrayLike,
+    emitter_m: ArrayLike,
+    data: MeasurementSet,
+    modalities: str | Iterable[str] = "toa+doppler",
+    *,
+    unknowns: Iterable[str] = (),
+    groups: ArrayLike | None = None,
+) -> InformationStatistics:
+    """The :class:`InformationStatistics` of the given samples (MATH §8, §15).
+
+    Arguments as for :func:`whitened_gradients`; ``groups`` gives each of the ``N`` samples
+    its group's label (the groups are the distinct labels, ascending); None puts every sample
+    in one group. A modality whose nuisance parameter is in ``unknowns`` is kept centred per
+    group; the others' rows go into one Gram matrix per group.
+    """
+    chosen = parse_modalities(modalities)
+    blocks = _whitened_blocks(position_m, velocity_mps, emitter_m, data, chosen)
+    centred_modalities = {AFFECTED_MODALITY[name] for name in parse_unknowns(unknowns)}
+    n = blocks[0].shape[-2]
+    labels = np.zeros(n, dtype=np.int64) if groups is None else np.asarray(groups).reshape(-1)
+    if len(labels) != n:
+        raise ValueError(f"groups: expected one label per sample ({n}), got {len(labels)}")
+    members = [labels == label for label in np.unique(labels)]
+    plain_blocks = [b for m, b in zip(chosen, blocks, strict=True) if m not in centred_modalities]
+    centred_blocks = [b for m, b in zip(chosen, blocks, strict=True) if m in centred_modalities]
+    leading = blocks[0].shape[:-2]
+    plain = np.stack(
+        [
+            gram_information(np.concatenate([b[..., member, :] for b in plain_blocks], axis=-2))
+            if plain_blocks
+            else np.zeros((*leading, 2, 2))
+            for member in members
+        ]
+    )
+    centred = np.zeros((len(centred_blocks), len(members), *leading, 2, 2))
+    mean = np.zeros((len(centred_blocks), len(members), *leading, 2))
+    for c, block in enumerate(centred_blocks):
+        for g, member in enumerate(members):
+            rows = block[..., member, :]
+            mean[c, g] = rows.mean(axis=-2)
+            centred[c, g] = gram_information(rows - mean[c, g][..., None, :])
+    count = np.array([np.count_nonzero(member) for member in members], dtype=float)
+    return InformationStatistics(plain=plain, centred=centred, mean=mean, count=count)
+
+
+def frame_statistics(
+    data: MeasurementSet,
+    emitter_m: ArrayLike,
+    modalities: str | Iterable[str] = "toa+doppler",
+    *,
+    unknowns: Iterable[str] | None = None,
+) -> InformationStatistics:
+    """:func:`information_statistics` of ``data``'s samples, one group per frame in the order
+    of ``data.frames`` (MATH §8, §15): ``.information(frames)`` is ``J`` of those frames'
+    samples with one δ and one b shared by all of them (``unknowns``, default
+    ``data.unknowns``), ``.accumulated()`` and ``.per_group()`` those of every frame so far
+    and of each frame alone."""
+    unknowns = data.unknowns if unknowns is None else unknowns
+    return information_statistics(
+        data.position_m,
+        data.velocity_mps,
+        emitter_m,
+        data,
+        modalities,
+        unknowns=unknowns,
+        groups=data.frame,
+    )
 
 
 def regular_2x2(matrix: ArrayLike) -> BoolArray:

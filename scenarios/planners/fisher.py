@@ -20,6 +20,13 @@ good wherever the emitter is. ``J_past`` is the information of the frames flown 
 candidate (``past="frames"``, default) or, with ``past="covariance"``, the inverse of the
 estimate's covariance when one is given.
 
+With nuisance parameters (a non-cooperative emitter, MATH §15) the next frame shares the
+carrier offset and emission time of the frames flown, so ``J(ψ)`` is the information of the
+union of their samples with one δ and one b (:class:`scenarios.fisher.InformationStatistics`),
+not ``J_past + J_next``; for a cooperative emitter the two are the same. With
+``past="covariance"`` only the 2×2 covariance is known of the past, so the next frame's
+information is taken with its own δ and b (a lower bound on what it adds).
+
 The search is vectorised over headings: ``n_headings`` equally spaced headings (the whole
 circle, or the window the turn-rate limit allows), then ``refine_rounds`` rounds of 21
 headings spanning ±1 step around the best, each round dividing the step by 10.
@@ -36,7 +43,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from scenarios import measurement_model as model
-from scenarios.fisher import fisher_information, information_at_samples, regular_2x2
+from scenarios.fisher import InformationStatistics, information_statistics, regular_2x2
 from scenarios.planners.base import (
     DEFAULT_MAX_SPEED_MPS,
     Plan,
@@ -97,7 +104,7 @@ def design_criterion(information: ArrayLike, criterion: Criterion = "A") -> Floa
 def heading_objective(
     headings_rad: ArrayLike,
     *,
-    past_information: ArrayLike,
+    past_information: ArrayLike | InformationStatistics,
     candidates_m: ArrayLike,
     start_m: ArrayLike,
     speed_mps: float,
@@ -110,20 +117,46 @@ def heading_objective(
 ) -> FloatArray:
     """The criterion of MATH §13 at each heading, aggregated over the candidates, ``(n_ψ,)``.
 
-    ``past_information`` is ``(n_c, 2, 2)``, one ``J_past`` per candidate.
+    ``past_information`` is ``(n_c, 2, 2)``, one ``J_past`` per candidate, or the statistics of
+    the frames flown at the candidates (:func:`past_statistics`), whose nuisance parameters
+    the next frame then shares (MATH §15). With a matrix the next frame's own nuisance
+    parameters (``data.unknowns``) are eliminated within it.
     """
     candidates = np.asarray(candidates_m, dtype=float).reshape(-1, 2)
-    past = np.asarray(past_information, dtype=float).reshape(len(candidates), 2, 2)
     position, velocity = next_frame_geometry(
         start_m, headings_rad, speed_mps, samples_per_frame, sample_interval_s
     )
     # (n_c, 1, 2) against (n_ψ, K, 3) broadcasts to (n_c, n_ψ, ...)
-    upcoming = information_at_samples(position, velocity, candidates[:, None, :], data, modalities)
-    values = design_criterion(past[:, None] + upcoming, criterion)
+    upcoming = information_statistics(
+        position, velocity, candidates[:, None, :], data, modalities, unknowns=data.unknowns
+    )
+    if isinstance(past_information, InformationStatistics):
+        information = past_information.joined(upcoming).information()
+    else:
+        past = np.asarray(past_information, dtype=float).reshape(len(candidates), 2, 2)
+        information = past[:, None] + upcoming.information()
+    values = design_criterion(information, criterion)
     if aggregate == "worst":
         return values.max(axis=0)
     with np.errstate(invalid="ignore"):
         return values.mean(axis=0)
+
+
+def past_statistics(
+    data: MeasurementSet, candidates_m: ArrayLike, modalities: Sequence[str] = ("toa", "doppler")
+) -> InformationStatistics:
+    """The statistics of the information of ``data``'s samples at each candidate, one group
+    of leading shape ``(n_c, 1)`` (to meet a planned frame's ``(n_c, n_ψ)``), its nuisance
+    parameters ``data.unknowns`` left to be shared with the next frame (MATH §8, §15)."""
+    candidates = np.asarray(candidates_m, dtype=float).reshape(-1, 2)
+    return information_statistics(
+        data.position_m,
+        data.velocity_mps,
+        candidates[:, None, :],
+        data,
+        modalities,
+        unknowns=data.unknowns,
+    )
 
 
 def best_heading_rad(
@@ -258,10 +291,12 @@ class FisherPlanner:
             and covariance is not None
             and np.all(np.linalg.eigvalsh(covariance) > 0)
         ):
-            past = np.broadcast_to(np.linalg.inv(covariance), (len(candidates), 2, 2))
+            past: FloatArray | InformationStatistics = np.broadcast_to(
+                np.linalg.inv(covariance), (len(candidates), 2, 2)
+            )
             source = "covariance"
         else:
-            past = fisher_information(data, candidates, self.modalities)
+            past = past_statistics(data, candidates, self.modalities)
             source = "frames"
 
         def objective(headings: FloatArray) -> FloatArray:
