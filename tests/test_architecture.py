@@ -121,7 +121,7 @@ CLOCKS = frozenset(
 """Calls that read a clock (``time.time`` is matched as ``time.time``)."""
 
 
-def test_files() -> dict[str, ast.Module]:
+def modules_under_tests() -> dict[str, ast.Module]:
     """Every module under tests/ by its dotted name (tests.paths, the rule's home, included)."""
     return {
         ".".join(path.relative_to(ROOT).with_suffix("").parts): ast.parse(path.read_text())
@@ -278,8 +278,54 @@ def path_comparison_problems(modules: dict[str, ast.Module]) -> list[str]:
 
 
 def test_two_code_paths_are_compared_through_the_rule() -> None:
-    problems = path_comparison_problems(test_files())
+    problems = path_comparison_problems(modules_under_tests())
     assert not problems, "\n".join(problems)
+
+
+BROKEN_TESTS = """
+import numpy as np
+import pytest
+from estimators.ml import MaximumLikelihood
+from tests.estimators.batch_support import path_problems
+
+def test_batch_to_the_bit(batch):
+    columns = MaximumLikelihood().estimate_columns(batch)
+    single = MaximumLikelihood().estimate(batch.trial(0))
+    assert np.array_equal(single.position_m, columns.estimate(0).position_m)
+
+@pytest.mark.paths
+def test_marked_but_exact(batch):
+    columns = MaximumLikelihood().estimate_columns(batch)
+    single = MaximumLikelihood().estimate(batch.trial(0))
+    assert single.covariance_m2.tolist() == columns.estimate(0).covariance_m2.tolist()
+
+def test_helper_unmarked(batch):
+    columns = MaximumLikelihood().estimate_columns(batch)
+    single = MaximumLikelihood().estimate(batch.trial(0))
+    assert path_problems(MaximumLikelihood(), batch.trial(0), single, columns.estimate(0)) == []
+
+@pytest.mark.bits()
+def test_bits_without_a_reason(batch):
+    one, two = MaximumLikelihood().estimate(batch), MaximumLikelihood().estimate(batch)
+    assert one.diagnostics == two.diagnostics
+"""
+
+
+def test_the_rule_check_finds_each_way_to_break_it() -> None:
+    modules = {"tests.estimators.test_broken": ast.parse(BROKEN_TESTS)} | {
+        name: tree for name, tree in modules_under_tests().items() if name.endswith("batch_support")
+    }
+    problems = path_comparison_problems(modules)
+    assert [p.split(": ")[1] for p in problems] == [
+        "reaches ['estimate', 'estimate_columns'] and compares exactly (lines [10])",
+        "a paths test compares exactly (lines [16])",
+        "compares through tests/paths.py but is not marked paths",
+        "bits needs a reason (which code, which same arrays)",
+    ]
+    assert clock_reads(ast.parse("import time\nfrom time import perf_counter\nperf_counter()")) == [
+        3
+    ]
+    assert clock_reads(ast.parse("import time, datetime\ntime.time()\ndatetime.datetime.now()"))
 
 
 def clock_reads(tree: ast.Module) -> list[int]:
@@ -308,5 +354,9 @@ def clock_reads(tree: ast.Module) -> list[int]:
 
 def test_no_test_reads_a_clock() -> None:
     """Timings belong in benchmarks/: a test that reads a clock passes or fails with the load."""
-    found = {module: lines for module, tree in test_files().items() if (lines := clock_reads(tree))}
+    found = {
+        module: lines
+        for module, tree in modules_under_tests().items()
+        if (lines := clock_reads(tree))
+    }
     assert not found, f"tests that read a clock (module: lines): {found}"
