@@ -27,20 +27,24 @@ each quantity differs by at most ``SAFETY · κ · EPS`` times its scale:
   estimate's sensitivity, measured (:func:`sensitivity`): how far the estimate moves, in
   units of ``L``, per relative change of the measurements, the condition number of the
   problem as the estimator poses it (a closed form's algebra can be worse conditioned than
-  the likelihood: ``cls`` on the ``paper`` family, with a ToA σ of 300 km, moves its far
-  candidates by ~1e-12 of ``L`` between paths). It is measured only for a pair further apart
-  than ``SAFETY · EPS · L`` (``κ = 1``), and never below one. A batch path that bounds its own
-  rounding and leaves to the one-trial path every trial it cannot certify (the closed forms'
-  :data:`estimators.gtrs_batch.POSITION_RTOL`) agrees within that certified bound too.
+  the likelihood: on the ``paper`` family, with a ToA σ of 300 km, ``cls`` puts a candidate
+  335 km out 1500 ``EPS · L`` apart between paths, where its measured ``κ`` is 57). It is
+  measured only for a pair further apart than ``SAFETY · EPS · L`` (``κ = 1``), and never
+  below one. A batch path that bounds its own rounding and leaves to the one-trial path
+  every trial it cannot certify (the closed forms' :data:`estimators.gtrs_batch.POSITION_RTOL`
+  of the local unit) agrees within that certified bound too.
 - a number derived from those (an error, a NEES, a cost, a multiplier): the same
-  ``SAFETY · κ · EPS`` of the scale of what it is made of (stated where it is compared).
+  ``SAFETY · κ · EPS`` of the scale of what it is made of (stated where it is compared). A
+  trial row (:func:`row_problems`) takes ``κ`` from its covariance, or without one from the
+  Fisher information at the truth (:func:`fisher_condition`).
 - what is not a rounded number (flags, counts, messages, the order of candidates, a
   generator's draws) is equal.
 
 ``SAFETY = 64``: a trial's sums run over its whitened rows (up to a few thousand); the rounding
 of such a sum taken in another order is a random walk of about ``√m · EPS`` of its terms, and
-``64 = √4096``. Observed on this suite's families (AVX-512 and Haswell kernels): covariances up
-to ``1.2 κ EPS ‖C‖`` apart, positions mostly within 2 ulps of ``L``.
+``64 = √4096``. Observed on this suite's families (AVX-512 and Haswell kernels): ``ml``'s
+covariances up to ``1.2 κ EPS ‖C‖`` apart and its positions within 2 ulps of ``L``; ``cls``'s
+positions up to ``26 κ EPS L`` apart with ``κ`` measured, and within its certified bound.
 """
 
 from __future__ import annotations
