@@ -55,7 +55,7 @@ def test_second_kernel_is_the_one_below_the_default() -> None:
     assert second_kernel({"sse4_2"}) == "Prescott"
 
 
-def test_path_comparisons_pass_under_a_second_openblas_kernel() -> None:
+def test_path_comparisons_pass_under_a_second_openblas_kernel(tmp_path: Path) -> None:
     if sys.platform != "linux" or not Path("/proc/cpuinfo").exists():
         pytest.skip("reads the CPU's flags from /proc/cpuinfo (Linux)")
     kernel = second_kernel(cpu_flags())
@@ -65,6 +65,7 @@ def test_path_comparisons_pass_under_a_second_openblas_kernel() -> None:
     wrong = [(library, arch) for library, arch in running if arch != kernel]
     assert not wrong, f"OPENBLAS_CORETYPE={kernel}, but OpenBLAS runs {wrong}"
     command = [sys.executable, "-m", "pytest", "-q", "-m", "paths", "-p", "no:cacheprovider"]
+    command.append(f"--basetemp={tmp_path / 'paths'}")  # its own, inside this test's
     result = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True)
     assert result.returncode == 0, (
         f"the paths tests fail under OPENBLAS_CORETYPE={kernel}:\n{result.stdout[-6000:]}"
