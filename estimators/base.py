@@ -327,11 +327,12 @@ class BatchEstimator(Estimator, Protocol):
 
     Trial ``i`` of ``estimate_batch(batch, rngs=rngs)`` must equal
     ``estimate(batch.trial(i), rng=rngs[i])``, tie-break included, and must not depend on the
-    other trials of the batch. The built-ins equal it to the bit (``estimate`` of the closed
-    forms is their batch of one, ``ml``'s batch performs MINPACK's operations in MINPACK's
-    order, ``sdp-cls`` solves each trial alone), so a run's rows depend neither on its chunking
-    nor on a fallback to one call per trial; a plug-in that agrees only to rounding may see
-    its rows differ in the last bits where the engine falls back. An estimator may also offer
+    other trials of the batch. The built-ins equal it to rounding, at a tolerance from the
+    problem's conditioning (``estimate`` of the closed forms is their batch of one, ``ml``'s
+    batch performs MINPACK's operations in MINPACK's order, ``sdp-cls`` solves each trial
+    alone; a batch of one and a batch of many, or two CPUs, may still round a sum otherwise),
+    so a run's rows depend on its chunking or on a fallback to one call per trial only in
+    their last digits, a plug-in's as the built-ins'. An estimator may also offer
     ``estimate_columns(batch, *, rngs)`` returning :class:`estimators.batch.BatchEstimates`:
     the same results as columns (one array per field, diagnostics as arrays, messages as
     codes), with no object per trial; the engine stores those directly.

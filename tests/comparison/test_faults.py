@@ -28,16 +28,18 @@ from scenarios.catalog import get_scenario
 
 HERE = "tests.comparison.test_faults"
 LIMIT_S = 1.0
+HANG_S = 60.0
+"""How long a hanging estimate sleeps: a recorded runtime below it was stopped at the limit."""
 
 
 def _hang() -> None:
-    time.sleep(60)
+    time.sleep(HANG_S)
 
 
 def _hang_in_c() -> None:
     """Like C code that never returns to Python: the alarm cannot reach it."""
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGALRM})
-    time.sleep(60)
+    time.sleep(HANG_S)
 
 
 def _interrupt() -> None:
@@ -179,13 +181,13 @@ def test_catchable_faults_give_failed_rows_and_the_run_completes(tmp_path, cls_r
     estimate (with the reason), in this process and in worker processes alike; every other
     row is the one a run without them gives."""
     chosen = experiment(CATCHABLE)
-    start = time.monotonic()
     trials = read_trials(run_experiment(chosen, tmp_path / "run", workers=workers))
-    assert time.monotonic() - start < 45  # each hang was stopped at its limit, not after 60 s
     assert len(trials) == 4 * chosen.trials
     check_rows(trials, chosen, CATCHABLE, cls_rows)
     hung = trials[(trials.estimator == "hangs") & ~trials.success]
-    assert (hung.runtime_s >= LIMIT_S).all()
+    assert len(hung) > 0 and (hung.message == MESSAGES["hang"]).all()
+    # each hang was stopped at its limit, not after HANG_S: the runtimes the run recorded
+    assert ((hung.runtime_s >= LIMIT_S) & (hung.runtime_s < HANG_S)).all()
 
 
 def test_keyboard_interrupt_stops_the_run(tmp_path):
@@ -304,6 +306,9 @@ def test_a_dask_cluster_survives_estimators_that_end_their_process(
     check_crashes(read_trials(out), chosen, faults, cls_rows_long)
 
 
+@pytest.mark.bits(
+    "ml's closed-loop estimates are one trial's each: a crashing neighbour leaves its arrays alone"
+)
 def test_a_crash_in_a_closed_loop_fails_its_frame_and_keeps_every_other_row(tmp_path):
     """Isolation replays a closed-loop task too: the steering estimator's rows and the flown
     frames are those of a run without the crashing estimator."""
@@ -359,14 +364,13 @@ def test_isolation_stops_a_call_that_never_returns_to_python():
     spec = EstimatorSpec(
         name=f"{HERE}:Faulty", label="stuck", options={"fault": "hang-in-c", "rate": 1.0}
     )
-    start = time.monotonic()
     result, ended = run_isolated(task(EstimatorSpec(name="cls"), spec, trials=(0,)))
-    assert time.monotonic() - start < 30
     assert ended
     success, message = ESTIMATE_COLUMNS.index("success"), ESTIMATE_COLUMNS.index("message")
     by_estimator = {row.estimator_index: row.values for row in result.rows}
     assert by_estimator[0][success]
     assert not by_estimator[1][success]
+    # what the run recorded: stopped for the limit (a call the supervisor kills has no runtime)
     assert by_estimator[1][message] == MESSAGES["hang-in-c"]
 
 

@@ -1,7 +1,8 @@
 """Tests of comparison.scoring: the scoring of a whole task on columns (score_outcomes) gives
-exactly the values, to the bit and in type, of the one-estimate scoring (estimate_columns),
-on random estimates and columns with every case the rows must get right; and hand-computed
-values of the one-estimate scoring itself."""
+the values of the one-estimate scoring (estimate_columns), in type, and to rounding by the
+rule of :mod:`tests.paths` (two paths: ``np.matmul`` on stacks and on single rows may take
+other BLAS kernels), the JSON texts exactly, on random estimates and columns with every case
+the rows must get right; and hand-computed values of the one-estimate scoring itself."""
 
 import dataclasses
 import json
@@ -25,6 +26,7 @@ from estimators.batch import BatchEstimates
 from estimators.registry import make_estimator
 from scenarios.catalog import get_scenario
 from scenarios.simulate import simulate_trials, trial_seeds
+from tests import paths
 
 COLUMN = {name: i for i, name in enumerate(ESTIMATE_COLUMNS)}
 TRUTH = np.array([120.0, 850.0])
@@ -44,6 +46,20 @@ def assert_same_rows(rows, reference):
         assert len(row) == len(ESTIMATE_COLUMNS)
         for name, got, want in zip(ESTIMATE_COLUMNS, row, expected, strict=True):
             assert bits(got) == bits(want), f"row {i}, {name}: {got!r} != {want!r}"
+
+
+def assert_rows_agree(rows, reference):
+    """The rows of two scoring paths (columns, one estimate at a time) agree by the rule of
+    :mod:`tests.paths`: every float to rounding (the NEES at ``cond`` of its covariance), the
+    rest, types included, equal."""
+    assert len(rows) == len(reference)
+    problems = []
+    for i, (row, expected) in enumerate(zip(rows, reference, strict=True)):
+        assert len(row) == len(ESTIMATE_COLUMNS)
+        mine = dict(zip(ESTIMATE_COLUMNS, expected, strict=True))
+        theirs = dict(zip(ESTIMATE_COLUMNS, row, strict=True))
+        problems += [f"row {i}: {p}" for p in paths.row_problems(mine, theirs, 1.0)]
+    assert not problems, "\n".join(problems[:10])
 
 
 def reference_rows(estimates, runtimes, truth, track):
@@ -185,6 +201,7 @@ TRACKS = {
 }
 
 
+@pytest.mark.paths
 @pytest.mark.parametrize("track_name", list(TRACKS))
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_scoring_estimates_on_columns_equals_scoring_each(track_name, seed):
@@ -194,7 +211,7 @@ def test_scoring_estimates_on_columns_equals_scoring_each(track_name, seed):
     runtimes = list(rng.uniform(0.0, 1e-2, size=len(estimates)))
     results = list(zip(estimates, runtimes, strict=True))
     rows = score_outcomes(Outcomes.of_estimates(results), TRUTH, track)
-    assert_same_rows(rows, reference_rows(estimates, runtimes, TRUTH, track))
+    assert_rows_agree(rows, reference_rows(estimates, runtimes, TRUTH, track))
     # every case is there
     column = {name: [row[COLUMN[name]] for row in rows] for name in ESTIMATE_COLUMNS}
     assert not all(column["success"]) and any(column["success"])
@@ -284,6 +301,7 @@ def random_columns(rng, n, track):
     )
 
 
+@pytest.mark.paths
 @pytest.mark.parametrize("track_name", list(TRACKS))
 def test_scoring_columns_equals_scoring_their_estimates(track_name):
     track = TRACKS[track_name]
@@ -291,17 +309,18 @@ def test_scoring_columns_equals_scoring_their_estimates(track_name):
     columns = random_columns(rng, 400, track)
     rows = score_outcomes(Outcomes.of_columns(columns, 2.5e-6), TRUTH, track)
     estimates = columns.to_estimates()
-    assert_same_rows(rows, reference_rows(estimates, [2.5e-6] * len(columns), TRUTH, track))
+    assert_rows_agree(rows, reference_rows(estimates, [2.5e-6] * len(columns), TRUTH, track))
     assert any(e.success is False and s for e, s in zip(estimates, columns.success, strict=True))
 
 
+@pytest.mark.paths
 def test_scoring_columns_without_covariance_or_diagnostics():
     columns = dataclass_replace_columns(random_columns(np.random.default_rng(3), 50, None))
     rows = score_outcomes(Outcomes.of_columns(columns, 0.0), TRUTH, TRACKS["east along y = 0"])
     reference = reference_rows(
         columns.to_estimates(), [0.0] * 50, TRUTH, TRACKS["east along y = 0"]
     )
-    assert_same_rows(rows, reference)
+    assert_rows_agree(rows, reference)
     assert {row[COLUMN["diagnostics_json"]] for row in rows} == {"{}"}
     assert all(math.isnan(row[COLUMN["nees"]]) for row in rows)
 
@@ -315,6 +334,7 @@ def test_no_trials_no_rows():
     assert score_outcomes(empty, TRUTH, None) == []
 
 
+@pytest.mark.paths
 @pytest.mark.parametrize("estimator", ["cls", "cls-paper"])
 @pytest.mark.parametrize(("scenario", "snr_db"), [("paper-1m", 10.0), ("turn", -10.0)])
 def test_scoring_a_real_batch_equals_scoring_its_estimates(estimator, scenario, snr_db):
@@ -325,7 +345,7 @@ def test_scoring_a_real_batch_equals_scoring_its_estimates(estimator, scenario, 
     track = frame_track(batch.geometry, 0)
     rows = score_outcomes(Outcomes.of_columns(columns, 1e-6), world.emitter_m, track)
     reference = reference_rows(columns.to_estimates(), [1e-6] * 200, world.emitter_m, track)
-    assert_same_rows(rows, reference)
+    assert_rows_agree(rows, reference)
 
 
 # --------------------------------------------------------------------------------------------
@@ -338,6 +358,7 @@ def test_scoring_a_real_batch_equals_scoring_its_estimates(estimator, scenario, 
     values=st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=1, max_size=12),
     flags=st.lists(st.booleans(), min_size=1, max_size=12),
 )
+@pytest.mark.bits("the texts format the same floats (copied, not computed): no arithmetic differs")
 def test_the_json_text_is_that_of_json_dumps(values, flags):
     """Any float, in the diagnostics of a success and the candidates of a failure (a success
     with a non-finite candidate is a failure without candidates, as Estimate makes it)."""

@@ -1,17 +1,18 @@
 """What the batch estimators' tests share: families of seeded trials, one generator per
-trial, a scenario turned off the axes, and the comparison of two estimates of one trial."""
+trial, a scenario turned off the axes, and the comparison of two paths' estimates of one trial
+(by the rule of :mod:`tests.paths`)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 
 import numpy as np
 
-from estimators.base import Estimate
-from estimators.cls_rows import LocalFrame
+from estimators.base import Estimate, capabilities_of
 from scenarios.simulate import simulate_trials, trial_seeds
 from scenarios.types import MeasurementBatch, MeasurementSet, Scenario
+from tests import paths
 
 Families = Mapping[str, tuple[Callable[[], Scenario], float]]
 """Family name -> (the scenario, the SNR in dB)."""
@@ -28,34 +29,36 @@ def generators(n: int, seed: int = 100) -> list[np.random.Generator]:
     return [np.random.default_rng(seed + i) for i in range(n)]
 
 
-def field_differences(single: Estimate, got: Estimate) -> list[str]:
-    """How the estimator name, ``success``, ``ambiguous`` and message differ (empty: equal)."""
-    return [
-        f"{field} {getattr(single, field)!r} vs {getattr(got, field)!r}"
-        for field in ("estimator", "success", "ambiguous", "message")
-        if getattr(single, field) != getattr(got, field)
-    ]
-
-
-def answer_differences(
-    estimator, trial: MeasurementSet, single: Estimate, got: Estimate, rtol: float
+def path_problems(
+    estimator,
+    trial: MeasurementSet,
+    single: Estimate,
+    got: Estimate,
+    *,
+    certified_m: float = 0.0,
+    scales: Mapping[str, tuple[float, float]] | None = None,
+    ignore: Sequence[str] = (),
 ) -> list[str]:
-    """:func:`field_differences`, then the candidates (same order) and the returned position
-    within ``rtol`` of the problem's length scale, ``max(‖p‖, L)`` with ``L`` the local
-    frame's scale of the frames the estimator uses (MATH §5)."""
-    problems = field_differences(single, got)
-    used = trial.select_frames(estimator.frames)
-    length = LocalFrame.fit(used.position_m, used.range_m).scale_m
-    scale = max(float(np.max(np.abs(single.position_m), initial=0.0)), length)
-    if single.candidates_m.shape != got.candidates_m.shape or np.any(
-        np.abs(single.candidates_m - got.candidates_m) > rtol * scale
-    ):
-        problems.append(f"candidates {single.candidates_m.tolist()} vs {got.candidates_m.tolist()}")
-    if not np.allclose(
-        single.position_m, got.position_m, rtol=0.0, atol=rtol * scale, equal_nan=True
-    ):
-        problems.append(f"position {single.position_m.tolist()} vs {got.position_m.tolist()}")
-    return problems
+    """How two paths' estimates of ``trial`` differ beyond rounding (empty: they agree):
+    :func:`tests.paths.estimate_problems` at the length scale of the frames ``estimator``
+    uses, with ``estimator.estimate``'s measured sensitivity on this trial."""
+    frames = capabilities_of(estimator).frames
+    length_m = paths.length_scale_m(trial, frames, single.position_m)
+
+    def sensitivity() -> float:
+        return paths.sensitivity(
+            lambda data: estimator.estimate(data, rng=np.random.default_rng(0)), trial, single
+        )
+
+    return paths.estimate_problems(
+        single,
+        got,
+        length_m,
+        sensitivity=sensitivity,
+        certified_m=certified_m,
+        scales=scales,
+        ignore=ignore,
+    )
 
 
 def rotated(scenario: Scenario, angle_deg: float) -> Scenario:

@@ -168,6 +168,7 @@ def test_weighted_cls_rotates_with_the_scenario(name: str, angle_deg: float) -> 
     )
 
 
+@pytest.mark.bits("frames='last' is Cls().estimate of the last frame's arrays")
 def test_frames_last_uses_the_last_frame_only() -> None:
     scenario = get_scenario("turn")
     data = simulate(scenario, snr_db=10.0, seed=5)
@@ -184,6 +185,7 @@ def test_frames_last_uses_the_last_frame_only() -> None:
     assert not Cls(frames="all").estimate(noise_free(scenario)).ambiguous
 
 
+@pytest.mark.bits("the registry builds the same class: the same call on the same data")
 def test_registry_builds_the_same_estimators() -> None:
     data = simulate(get_scenario("turn"), snr_db=0.0, seed=2)
     for name, cls in (("cls", Cls), ("cls-paper", ClsPaper), ("cls-as-printed", ClsAsPrinted)):

@@ -1,11 +1,12 @@
 """The batch path of the closed-form CLS (``estimate_batch``, ``estimate_columns``) against the
 one-trial solver (``estimate_one_trial``), trial by trial, with each trial's own generator;
-and ``estimate``, the batch of one, against the batch to the bit.
+and ``estimate``, the batch of one, against a batch of many.
 
-Equal means: the same estimator name, ``success``, ``ambiguous``, message and diagnostics keys;
-the same integer and boolean diagnostics; the candidates in the same order and the returned
-position within 1e-9 of the problem's length scale (``max(‖p‖, L)``, ``L`` the local frame's
-scale, MATH §5); the multiplier within 1e-9 of the scale of ``M = AᵀA``. The families cover
+Two paths agree by the rule of :mod:`tests.paths` (equal to rounding, at a tolerance from the
+problem's conditioning): the same estimator name, ``success``, ``ambiguous``, message and
+diagnostics keys; the same integer and boolean diagnostics; the candidates in the same order and
+the returned position as positions; the multiplier within ``SAFETY · cond(M) · EPS`` of the
+scale ``‖A‖²`` of ``M = AᵀA``, the system it solves. The families cover
 one straight frame (every trial the hard case, every trial a mirror pair and a tie-break
 draw), turns, the paper's 300 km ToA noise, an emitter a centimetre from the track's plane
 (hard case and unique root side by side) and two headings a millidegree apart.
@@ -29,9 +30,7 @@ from scenarios.catalog import get_scenario, heading_velocities_mps
 from scenarios.simulate import simulate_trials, trial_seeds
 from scenarios.types import FlightPlan, MeasurementBatch, Scenario
 from tests.estimators import batch_support
-from tests.estimators.batch_support import answer_differences, generators, rotated
-
-RTOL = 1e-9
+from tests.estimators.batch_support import generators, path_problems, rotated
 
 
 def near_plane() -> Scenario:
@@ -75,23 +74,24 @@ def differences(estimator, batch: MeasurementBatch, columns: BatchEstimates) -> 
 
 
 def _estimate_differences(estimator, trial, single: Estimate, got: Estimate) -> list[str]:
-    problems = answer_differences(estimator, trial, single, got, RTOL)
-    if list(single.diagnostics) != list(got.diagnostics):
-        return [
-            *problems,
-            f"diagnostics keys {list(single.diagnostics)} vs {list(got.diagnostics)}",
-        ]
-    for key, value in single.diagnostics.items():
-        other = got.diagnostics[key]
-        if type(value) is not type(other):
-            problems.append(f"{key}: {type(value).__name__} vs {type(other).__name__}")
-        elif key == "multiplier":
-            if abs(value - other) > RTOL * max(abs(value), abs(other)):
-                m_scale = float(np.sum(estimator.constrained_ls(trial).A ** 2))
-                if abs(value - other) > RTOL * m_scale:
-                    problems.append(f"multiplier {value!r} vs {other!r} (‖A‖² {m_scale:g})")
-        elif value != other:
-            problems.append(f"{key} {value!r} vs {other!r}")
+    """:func:`~tests.estimators.batch_support.path_problems`, the points also within the
+    bound the batch certifies (``POSITION_RTOL`` of the local unit times ``1 + ‖p‖``); the
+    multiplier at the scale and conditioning of ``M = AᵀA`` (computed only when the first
+    comparison finds a difference)."""
+    problems = path_problems(estimator, trial, single, got)
+    if problems:
+        system = estimator.constrained_ls(trial)
+        points = np.vstack([single.candidates_m.reshape(-1, 2), single.position_m[None]])
+        points = points[np.isfinite(points).all(axis=1)]
+        reach = 1.0 + float(
+            np.max(np.linalg.norm((points - system.origin_m) / system.scale_m, axis=1), initial=0)
+        )
+        certified_m = gtrs_batch.POSITION_RTOL * reach * system.scale_m
+        A = system.A
+        scales = {"multiplier": (float(np.sum(A**2)), float(np.linalg.cond(A.T @ A)))}
+        problems = path_problems(
+            estimator, trial, single, got, certified_m=certified_m, scales=scales
+        )
     return problems
 
 
@@ -100,6 +100,7 @@ def _estimate_differences(estimator, trial, single: Estimate, got: Estimate) -> 
 # --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.paths
 @pytest.mark.parametrize("family", sorted(FAMILIES))
 @pytest.mark.parametrize(
     ("estimator", "n"),
@@ -125,6 +126,7 @@ def test_batch_equals_one_at_a_time(family: str, estimator, n: int) -> None:
         assert 0.2 < hard.mean() < 0.8, hard.mean()
 
 
+@pytest.mark.paths
 @pytest.mark.parametrize(
     "estimator",
     [
@@ -153,12 +155,13 @@ def sub_batch(batch: MeasurementBatch, trials: slice) -> MeasurementBatch:
     )
 
 
+@pytest.mark.paths
 @pytest.mark.parametrize("estimator", [Cls(), ClsPaper(), Cls(weighting="none")], ids=repr)
 @pytest.mark.parametrize("family", ["paper-1m", "turn-rotated", "near-plane"])
-def test_a_trials_result_does_not_depend_on_its_batch_to_the_bit(family, estimator) -> None:
-    """Batches of 1, 2, 3 and 7 trials give every trial exactly what the batch of 40 gives it
-    (candidates, position, multiplier), recomputed trials included: a run's rows do not depend
-    on how it is chunked."""
+def test_a_trials_result_does_not_depend_on_its_batch(family, estimator) -> None:
+    """Batches of 1, 2, 3 and 7 trials give every trial what the batch of 40 gives it
+    (candidates, position, multiplier: other arrays, so to rounding; decisions and draws
+    equal), recomputed trials included: a run's rows do not depend on how it is chunked."""
     batch = family_batch(family, 40, seed=13)
     whole = estimator.estimate_columns(batch, rngs=generators(40))
     for size in (1, 2, 3, 7):
@@ -167,38 +170,32 @@ def test_a_trials_result_does_not_depend_on_its_batch_to_the_bit(family, estimat
             rngs = generators(40)[part]
             columns = estimator.estimate_columns(sub_batch(batch, part), rngs=rngs)
             for i, trial in enumerate(range(40)[part]):
-                a, b = columns.estimate(i), whole.estimate(trial)
-                assert np.array_equal(a.candidates_m, b.candidates_m), (size, trial)
-                assert np.array_equal(a.position_m, b.position_m), (size, trial)
-                assert a.diagnostics == b.diagnostics, (size, trial)
+                a, b = whole.estimate(trial), columns.estimate(i)
+                assert _estimate_differences(estimator, batch.trial(trial), a, b) == [], size
 
 
+@pytest.mark.paths
 @pytest.mark.parametrize(
     "estimator", [Cls(), ClsPaper(), ClsAsPrinted(), Cls(weighting="none")], ids=repr
 )
 @pytest.mark.parametrize("family", sorted(FAMILIES))
-def test_estimate_is_the_batchs_row_to_the_bit(family, estimator) -> None:
-    """``estimate`` of a trial is its row of any batch (a run's row, whatever the chunking or
-    a fallback to one call per trial): position, candidates, message, diagnostics and the
-    generator's state, trials the batch leaves to the one-trial solver included."""
+def test_estimate_is_the_batchs_row(family, estimator) -> None:
+    """``estimate`` of a trial (a batch of one) is its row of a batch of 60 (a run's row,
+    whatever the chunking or a fallback to one call per trial), to rounding: position,
+    candidates, message, diagnostics and the generator's state, trials the batch leaves to
+    the one-trial solver included."""
     batch = family_batch(family, 60, seed=14)
     columns = estimator.estimate_columns(batch, rngs=generators(60))
     rngs = generators(60)
     for i in range(60):
         single, row = estimator.estimate(batch.trial(i), rng=rngs[i]), columns.estimate(i)
-        assert np.array_equal(single.position_m, row.position_m, equal_nan=True), i
-        assert np.array_equal(single.candidates_m, row.candidates_m), i
-        assert (single.message, single.success, single.ambiguous) == (
-            row.message,
-            row.success,
-            row.ambiguous,
-        )
-        assert single.diagnostics == row.diagnostics, i
+        assert _estimate_differences(estimator, batch.trial(i), single, row) == [], i
     drawn = generators(60)
     estimator.estimate_columns(batch, rngs=drawn)
     assert [r.bit_generator.state for r in rngs] == [r.bit_generator.state for r in drawn]
 
 
+@pytest.mark.bits("estimate of a trial in doubt calls estimate_one_trial on the same arrays")
 def test_estimate_of_a_trial_in_doubt_is_the_one_trial_solvers() -> None:
     """Where the batch defers (the emitter in the track's plane at 200 dB), ``estimate`` is the
     one-trial solver's answer itself."""
@@ -239,6 +236,7 @@ def test_standard_families_are_solved_by_the_batch_itself(estimator) -> None:
         assert int(columns.recomputed.sum()) == 0, family
 
 
+@pytest.mark.bits("estimate_batch is estimate_columns(...).to_estimates(): the same arrays")
 def test_estimate_batch_is_the_columns_as_estimates() -> None:
     batch = family_batch("paper-1m-turn", 50)
     estimator = Cls()
@@ -247,7 +245,9 @@ def test_estimate_batch_is_the_columns_as_estimates() -> None:
     assert len(listed) == 50
     for i, estimate in enumerate(listed):
         assert isinstance(estimate, Estimate)
-        assert _estimate_differences(estimator, batch.trial(i), columns.estimate(i), estimate) == []
+        row = columns.estimate(i)
+        assert (estimate.message, estimate.diagnostics) == (row.message, row.diagnostics)
+        np.testing.assert_array_equal(estimate.candidates_m, row.candidates_m)
     assert [e.position_m.tolist() for e in columns.to_estimates()] == [
         e.position_m.tolist() for e in listed
     ]
@@ -258,6 +258,7 @@ def test_estimate_batch_is_the_columns_as_estimates() -> None:
 # --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.paths
 @pytest.mark.parametrize("estimator", [Cls(), ClsPaper(), Cls(side_prior_m=(35.0, 20.0))], ids=repr)
 def test_each_generator_is_drawn_exactly_as_one_at_a_time(estimator) -> None:
     """After the batch, every generator is in the state the one-trial path leaves it in: drawn
@@ -278,25 +279,30 @@ def test_each_generator_is_drawn_exactly_as_one_at_a_time(estimator) -> None:
         assert drawn == 0
 
 
+@pytest.mark.paths
 def test_one_generator_shared_by_every_trial_is_drawn_in_trial_order() -> None:
     batch = family_batch("paper-1m", 200, seed=4)
     shared_batch, shared_single = np.random.default_rng(7), np.random.default_rng(7)
     columns = Cls().estimate_columns(batch, rngs=[shared_batch] * 200)
     singles = [Cls().estimate_one_trial(batch.trial(i), rng=shared_single) for i in range(200)]
-    np.testing.assert_allclose(
-        columns.position_m, [s.position_m for s in singles], rtol=0.0, atol=1e-9 * 60.0
-    )
+    for i, single in enumerate(singles):
+        assert _estimate_differences(Cls(), batch.trial(i), single, columns.estimate(i)) == []
     sides = np.sign(columns.position_m[:, 1])
     assert 0.3 < np.mean(sides > 0) < 0.7  # a fair coin over the mirror pair
 
 
-def test_without_generators_the_first_candidate_is_returned_and_nothing_is_drawn() -> None:
-    batch = family_batch("paper-1m", 100, seed=5)
-    columns = ClsPaper().estimate_columns(batch)
+def test_without_generators_the_first_candidate_is_returned() -> None:
+    columns = ClsPaper().estimate_columns(family_batch("paper-1m", 100, seed=5))
     np.testing.assert_array_equal(columns.position_m, columns.candidates_m[:, 0])
     # left of the eastbound heading first: the candidate north of the track
     assert (columns.candidates_m[:, 0, 1] > 0).all()
     assert (columns.candidates_m[:, 1, 1] < 0).all()
+
+
+@pytest.mark.paths
+def test_without_generators_nothing_is_drawn_as_one_at_a_time() -> None:
+    batch = family_batch("paper-1m", 100, seed=5)
+    columns = ClsPaper().estimate_columns(batch)
     assert differences_without_rng(ClsPaper(), batch, columns) == []
 
 
@@ -318,6 +324,7 @@ def differences_without_rng(estimator, batch, columns) -> list[str]:
 # --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.paths
 def test_decisions_within_rounding_are_left_to_the_one_trial_path() -> None:
     """The emitter exactly in the track's plane at 200 dB: φ(−μ₁) is rounding, so whether the
     pair exists is rounding's choice; those trials are solved one at a time, and all agree."""
@@ -329,6 +336,7 @@ def test_decisions_within_rounding_are_left_to_the_one_trial_path() -> None:
         assert differences(estimator, batch, columns) == []
 
 
+@pytest.mark.paths
 def test_every_trial_recomputed_still_equals_one_at_a_time(monkeypatch) -> None:
     """With no rounding tolerated every trial takes the one-trial path, draws included."""
     monkeypatch.setattr(gtrs_batch, "POSITION_RTOL", 0.0)
@@ -438,6 +446,7 @@ def test_with_trials_replaces_rows_and_checks_keys() -> None:
         replace(columns, ambiguous=np.zeros(4, dtype=bool))
 
 
+@pytest.mark.bits("a round trip through columns: the same numbers stored and read back")
 def test_columns_from_per_trial_estimates_round_trip() -> None:
     batch = family_batch("paper-1m", 8, seed=12)
     estimates = Cls().estimate_batch(batch, rngs=generators(8))

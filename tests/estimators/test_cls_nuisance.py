@@ -11,6 +11,7 @@ from estimators.registry import make_estimator
 from scenarios import get_scenario
 from scenarios.fisher import fisher_information, rmse_bound_m
 from scenarios.simulate import noise_free, simulate, simulate_trials, trial_seeds
+from tests.estimators.batch_support import path_problems
 
 OFFSET = ("carrier_offset_hz",)
 
@@ -75,6 +76,7 @@ def test_cls_attains_the_nuisance_bound_on_a_turn() -> None:
     assert rmse / bound == pytest.approx(1.0, abs=0.07)  # 1000 trials: ±4.5% at 2σ
 
 
+@pytest.mark.paths
 def test_the_batch_path_gives_what_one_trial_at_a_time_gives() -> None:
     batch = simulate_trials(with_offset("paper-1m-turn"), snr_db=0.0, seeds=trial_seeds(2, 20))
     cls = make_estimator("cls")
@@ -82,7 +84,7 @@ def test_the_batch_path_gives_what_one_trial_at_a_time_gives() -> None:
     columns = cls.estimate_batch(batch, rngs=rngs)
     for i, estimate in enumerate(columns):
         single = cls.estimate(batch.trial(i), rng=np.random.default_rng(i))
-        np.testing.assert_array_equal(estimate.candidates_m, single.candidates_m)
+        assert path_problems(cls, batch.trial(i), single, estimate) == [], i
 
 
 @pytest.mark.parametrize("name", ["cls-paper", "cls-as-printed", "lls-toa", "sdp-cls"])

@@ -208,6 +208,7 @@ def test_emitter_on_the_track_is_flagged_not_crashed(estimator: Ekf) -> None:
     assert estimate.diagnostics["fisher_rank"] == 2 and estimate.covariance_m2 is not None
 
 
+@pytest.mark.bits("the position is the first hypothesis of the same state")
 def test_rng_breaks_the_mirror_tie_with_a_fair_coin() -> None:
     """On a straight track ``rng`` picks either side; without one, the first hypothesis."""
     estimator = Ekf()
@@ -221,6 +222,7 @@ def test_rng_breaks_the_mirror_tie_with_a_fair_coin() -> None:
     np.testing.assert_array_equal(first.position_m, first.candidates_m[0])
 
 
+@pytest.mark.bits("estimate runs init/update/estimate_state on the same frames")
 def test_streaming_equals_batch_and_states_are_values() -> None:
     """``estimate`` equals init/update/estimate_state; an old state is unchanged by updates."""
     estimator = Ekf()
@@ -241,6 +243,7 @@ def test_streaming_equals_batch_and_states_are_values() -> None:
         states[-1].hypotheses[0].mean_m[0] = 0.0
 
 
+@pytest.mark.bits("a pickled state continues with the same arrays")
 def test_estimator_and_state_pickle() -> None:
     """A pickled mid-stream state continues to the same estimate (worker processes)."""
     estimator = pickle.loads(pickle.dumps(Ekf(filter="ukf", process_noise_mps=0.05)))

@@ -366,6 +366,7 @@ def test_a_misfit_optimum_is_restarted_from_a_later_frame() -> None:
         assert "frame 1's start" in estimate.diagnostics["misfit_restart"]
 
 
+@pytest.mark.bits("a pickled state gives the same estimate_state")
 def test_capabilities_declare_both_unknowns_and_states_pickle() -> None:
     """Both estimators declare δ and b (``require_modalities`` accepts the data), and their
     states with nuisance states are plain values that pickle."""

@@ -326,6 +326,7 @@ def test_solution_reports_the_solver_time_of_every_rung_and_stage(monkeypatch):
     assert sdp.rungs_solve_time_s == pytest.approx(3e-3, rel=1e-12)
 
 
+@pytest.mark.bits("the same solve twice, the second in a fresh program")
 def test_every_setting_is_passed_on_every_solve(monkeypatch):
     """A fresh DefaultSettings per solve, with every setting of its rung: none leaks."""
     seen = []
@@ -360,6 +361,7 @@ def test_settings_reject_an_unknown_name():
         sdp_solvers.clarabel_settings({"tol_gap": 1e-8})
 
 
+@pytest.mark.bits("the same solves on the same arrays, threaded or not")
 def test_concurrent_solves_equal_sequential_ones():
     """The shared pattern is filled under a lock: threads get the sequential answers."""
     systems = [
@@ -475,6 +477,7 @@ def test_programs_are_built_once_per_relaxation():
         assert relaxation_problem(relaxation) is built
 
 
+@pytest.mark.bits("the same data estimated twice")
 def test_resolve_reuses_the_built_program():
     data = simulate(get_scenario("turn"), snr_db=10.0, seed=5)
     estimator = SdpCls()
