@@ -43,7 +43,8 @@ Reproducibility. Each start is rounded to a grid of ``START_GRID`` local units (
 length scale, far below any start's own error) and every cost is a left-to-right sum of
 squares (:func:`~estimators.minpack_batch.ordered_sum`): the search's path is then a function
 of the data alone, not of the last bits of the CLS solve, and :mod:`estimators.ml_batch`
-reproduces ``estimate`` bit for bit on a whole batch (``estimate_batch``). Two starts that
+performs ``estimate``'s operations in its order on a whole batch (``estimate_batch``),
+equal to rounding (bit for bit where the linear-algebra kernels round alike). Two starts that
 end at one minimum (closer than ``MERGE_RTOL`` of the scale) at costs equal within ``xtol``
 keep the earlier start's point, not whichever rounding put lower: an on-plane start stays on
 a straight track's plane, its off-plane copy stops a fraction of a micrometre off it.
@@ -408,7 +409,7 @@ def fisher_covariance_m2(
     the rows of :func:`scenarios.fisher.whitened_jacobian` up to sign, centred where a
     nuisance parameter is profiled (MATH §15), so ``J`` is the information of
     :func:`scenarios.fisher.fisher_information` to rounding; formed from the residual model so
-    that :mod:`estimators.ml_batch` reproduces it bit for bit.
+    that :mod:`estimators.ml_batch` forms it with the same operations (equal to rounding).
     """
     information = gram_information(whitened_residual_jacobian(data, emitter_m, use_rss=use_rss))
     if not regular_2x2(information):

@@ -1,4 +1,4 @@
-r"""``ml`` (MATH §10) for a whole :class:`~scenarios.types.MeasurementBatch`, bit for bit.
+r"""``ml`` (MATH §10) for a whole :class:`~scenarios.types.MeasurementBatch`, equal to rounding.
 
 :meth:`MaximumLikelihood.estimate <estimators.ml.MaximumLikelihood.estimate>` one trial at a
 time, vectorised over trials and over each trial's starts:
@@ -34,8 +34,11 @@ own messages), its decrement is not clearly below the tolerance, a distance or
 Fisher-information test lies within rounding of its threshold, or its search would not start
 from the CLS (e.g. the LLS-ToA fallback). Trials in doubt are solved one at a time by
 ``estimate``, in trial order with their own generators (``recomputed``: none to a few in
-2,000 trials of the test families); the others equal ``estimate`` bit for bit (position,
-candidates, covariance, message, diagnostics).
+2,000 trials of the test families); the others perform ``estimate``'s operations in its
+order, so they equal it to rounding (position, candidates, covariance) and exactly in message
+and diagnostics; bit for bit where the BLAS kernels round alike, not on every CPU
+(OpenBLAS's AVX-512 kernels move near-plane covariances of condition ~1e12 by ~5e-4 relative;
+tests/paths.py states the tolerance).
 """
 
 from __future__ import annotations

@@ -252,7 +252,14 @@ def estimate_problems(
 # rows of the trials table (comparison.trial_rows), as the engine writes or scores them
 # --------------------------------------------------------------------------------------------
 
-POSITION_COLUMNS = ("x_m", "y_m", "error_m", "error_side_resolved_m")
+POSITION_COLUMNS = (
+    "x_m",
+    "y_m",
+    "error_m",
+    "error_side_resolved_m",
+    "x_side_resolved_m",
+    "y_side_resolved_m",
+)
 """Positions, and distances made of them (an error moves by at most what its point moves)."""
 COVARIANCE_COLUMNS = ("cov_xx_m2", "cov_xy_m2", "cov_yy_m2")
 NEES_COLUMNS = ("nees", "nees_side_resolved")
