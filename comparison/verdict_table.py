@@ -132,7 +132,7 @@ def verdict_table_html(summary: pd.DataFrame) -> str:
             axis = " / ".join(f"{v:g}" for v in shown[scenario]) + " dB"
             snrs = sorted(own["snr_db"].unique())
             sub = (
-                f"threshold; a square per SNR, {snrs[0]:g} to {snrs[-1]:g} dB; "
+                f"threshold; a square per SNR, {snrs[0]:g} to {snrs[-1]:g} dB;\n"
                 f"{efficiency} at {axis}"
             )
         elif len(own.groupby(["snr_db", *swept])) == 1:
@@ -145,7 +145,8 @@ def verdict_table_html(summary: pd.DataFrame) -> str:
             sub = f"points attaining; {efficiency} range over " + ", ".join(
                 parameter_label(c)[0] for c in varying
             )
-        header.append(f"<th>{_escape(scenario)}<br/><small>{_escape(sub)}</small></th>")
+        lines = "<br/>".join(_escape(line) for line in sub.split("\n"))
+        header.append(f"<th>{_escape(scenario)}<br/><small>{lines}</small></th>")
     body = []
     for label in labels:
         cells = [f"<th>{_escape(label)}</th>"]
