@@ -560,16 +560,16 @@ def test_the_verdict_table_says_side_resolved_where_the_efficiency_is(snr_run):
 
     folder, _, _ = snr_run
     summary = pd.read_csv(folder / "summary.csv")
-    header = lambda html: " ".join("".join(ET.fromstring(html).find("thead").itertext()).split())  # noqa: E731
+    header = lambda html: " ".join(" ".join(ET.fromstring(html).find("thead").itertext()).split())  # noqa: E731
     everywhere = summary.assign(verdict_basis="side-resolved")
-    assert "; side-resolved efficiency at -10 / 10 / 30 dB" in header(
+    assert "dB; side-resolved efficiency at -10 / 10 / 30 dB" in header(
         verdict_table_html(everywhere).split("<p>")[0]
     )
     some = summary.assign(
         verdict_basis=np.where(summary["estimator"] == "ml", "side-resolved", "returned")
     )
     html = verdict_table_html(some).split("<p>")[0]
-    assert "; efficiency (side-resolved for †) at" in header(html)
+    assert "dB; efficiency (side-resolved for †) at" in header(html)
     marked = [
         tr.find("th").text
         for tr in ET.fromstring(html).find("tbody").iter("tr")
