@@ -30,7 +30,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from estimators.base import Capabilities, Estimate, check_rng
+from estimators.base import Capabilities, Estimate, check_rng, check_side_prior
 from scenarios.fields import finite
 from scenarios.fisher import fisher_information, inverse_2x2
 from scenarios.types import MeasurementSet
@@ -64,14 +64,9 @@ class KnownEfficiency:
     bias_axis: str = "major"
 
     def __post_init__(self) -> None:
-        try:
-            point = np.asarray(self.emitter_m, dtype=float)
-        except (TypeError, ValueError):
-            point = np.full(0, np.nan)
-        if point.shape != (2,) or not np.all(np.isfinite(point)):
-            raise ValueError(
-                f"emitter_m: expected a finite (x, y) in metres, got {self.emitter_m!r}"
-            )
+        if self.emitter_m is None:
+            raise ValueError("emitter_m: the true emitter position (x, y) in metres is needed")
+        check_side_prior(self.emitter_m, field="emitter_m")
         for field in ("scale", "bias_ratio"):
             value = getattr(self, field)
             if isinstance(value, bool) or finite(value, field) < 0:

@@ -506,8 +506,9 @@ def unknowns_problem(
     )
 
 
-def check_side_prior(side_prior_m: Any) -> None:
-    """Raise ``ValueError`` unless ``side_prior_m`` is None or a finite ``(x, y)`` in metres."""
+def check_side_prior(side_prior_m: Any, *, field: str = "side_prior_m") -> None:
+    """Raise ``ValueError`` naming ``field`` unless ``side_prior_m`` is None or a finite
+    ``(x, y)`` in metres (any option that is a horizontal point)."""
     if side_prior_m is None:
         return
     try:
@@ -516,7 +517,7 @@ def check_side_prior(side_prior_m: Any) -> None:
         point = np.full(0, np.nan)
     if point.shape != (2,) or not np.all(np.isfinite(point)):
         raise ValueError(
-            f"side_prior_m: expected a finite (x, y) in metres or None, got {side_prior_m!r}"
+            f"{field}: expected a finite (x, y) in metres or None, got {side_prior_m!r}"
         )
 
 
