@@ -58,10 +58,13 @@ def neutralised_frame(frame: pd.DataFrame) -> pd.DataFrame:
         column = frame[name]
         if pd.api.types.is_numeric_dtype(column) or pd.api.types.is_bool_dtype(column):
             continue
-        values = column.astype(object)
-        texts = values.map(lambda value: isinstance(value, str)).astype(bool)
-        guarded = texts & values.where(texts, "").str.match(_GUARDED.pattern).astype(bool)
+        if isinstance(column.dtype, pd.StringDtype):  # text or missing: match directly
+            guarded = column.str.match(_GUARDED.pattern).fillna(False).astype(bool)
+        else:
+            texts = column.map(lambda value: isinstance(value, str)).astype(bool)
+            guarded = texts & column.where(texts, "").str.match(_GUARDED.pattern).astype(bool)
         if guarded.any():
+            values = column.astype(object)
             changed[str(name)] = values.mask(guarded, "'" + values.where(guarded, ""))
     renamed = {name: neutralised_cell(name) for name in frame.columns if isinstance(name, str)}
     if not changed and all(name == new for name, new in renamed.items()):

@@ -74,9 +74,12 @@ def test_write_csv_quotes_formula_cells_and_leaves_numbers_alone(tmp_path):
     frame = pd.DataFrame(
         {"label": texts, "value": numbers, "count": range(-7, 7), "ok": [True, False] * 7}
     )
+    # a column of mixed objects: only its text is changed
+    frame["mixed"] = pd.Series(["=x", -2.5, None, "-1", "@", *[1.0] * 9], dtype=object)
     write_csv(tmp_path / "t.csv", frame)
     header, *rows = read_cells(tmp_path / "t.csv")
-    assert header == ["label", "value", "count", "ok"]
+    assert header == ["label", "value", "count", "ok", "mixed"]
+    assert [row[4] for row in rows][:5] == ["'=x", "-2.5", "", "-1", "'@"]
     expected = [
         "'=cmd|' /C calc'!A0",
         "'+SUM(1,1)",
