@@ -84,6 +84,7 @@ from pathlib import Path
 from typing import Any
 
 from comparison.experiment_catalog import builtin_definition, experiment_definition
+from comparison.labels import check_label
 from comparison.metrics import METRIC_NAMES
 from comparison.specs import (
     EstimatorSpec,
@@ -386,7 +387,7 @@ class Experiment:
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        fields.text(self.name, "name")
+        check_label(self.name, "name")
         fields.text(self.description, "description", allow_empty=True)
         set_(self, "trials", _count(self.trials, "trials", minimum=1))
         check_limit(self.trials, "trials", "trials per point", _TRIALS, "ask for fewer")

@@ -17,6 +17,7 @@ import html
 import numpy as np
 import pandas as pd
 
+from comparison.labels import label_html
 from comparison.metrics import summary_swept_columns
 
 
@@ -95,7 +96,7 @@ def planner_table_html(summary: pd.DataFrame) -> str:
             )
             body.append(
                 f"<tr><td>{int(row['rank'])}</td>"
-                f"<th>{_escape(row['planner'])} · {_escape(row['estimator'])}</th>"
+                f"<th>{label_html(row['planner'])} · {label_html(row['estimator'])}</th>"
                 + "".join(cells)
                 + f"<td><strong>{_number(row['rmse_m'])}</strong> "
                 f"[{_number(row['rmse_ci_low_m'])}, {_number(row['rmse_ci_high_m'])}]</td>"

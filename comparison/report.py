@@ -40,6 +40,7 @@ import pandas as pd
 
 from comparison import figures, verdict_table
 from comparison.intervals import DEFAULT_N_BOOTSTRAP
+from comparison.labels import LABEL_COLUMNS, label_html, plain_label
 from comparison.metrics import (
     METRIC_DESCRIPTIONS,
     METRIC_NAMES,
@@ -223,11 +224,15 @@ def _escape(value: object) -> str:
 
 
 def _table_html(frame: pd.DataFrame, table_id: str) -> str:
-    """``frame`` as an XHTML-compatible table, numbers by :func:`format_number`."""
+    """``frame`` as an XHTML-compatible table, numbers by :func:`format_number`, the labels
+    (columns ``estimator`` and ``planner``) in ``<bdi>``, other text escaped."""
     formatters = {
         column: format_number
-        for column in frame.columns
         if pd.api.types.is_numeric_dtype(frame[column])
+        else label_html
+        if column in LABEL_COLUMNS
+        else _escape
+        for column in frame.columns
     }
     return frame.to_html(
         index=False,
@@ -236,7 +241,7 @@ def _table_html(frame: pd.DataFrame, table_id: str) -> str:
         border=0,
         table_id=table_id,
         classes="summary",
-        escape=True,
+        escape=False,
     )
 
 
@@ -251,9 +256,9 @@ def _value_html(value: Any) -> str:
         return f'<table class="info">{rows}</table>'
     if isinstance(value, list | tuple):
         if all(not isinstance(v, Mapping | list | tuple) for v in value):
-            return _escape(", ".join(str(v) for v in value))
+            return ", ".join(_value_html(v) for v in value)
         return "<ol>" + "".join(f"<li>{_value_html(v)}</li>" for v in value) + "</ol>"
-    return _escape(value)
+    return label_html(value) if isinstance(value, str) else _escape(value)
 
 
 def _summary_tables(summary: pd.DataFrame, metrics: Sequence[str] | None = None) -> str:
@@ -373,7 +378,8 @@ def _closed_loop_section(summary: pd.DataFrame, experiment: Mapping[str, Any]) -
     steering = experiment.get("steering_estimator")
     planners = experiment.get("planners") or []
     steer_text = ", ".join(
-        f"{p.get('label') or p.get('name')} by {p.get('steering_estimator') or steering}"
+        f"{label_html(p.get('label') or p.get('name'))} by "
+        f"{label_html(p.get('steering_estimator') or steering)}"
         for p in planners
         if isinstance(p, Mapping)
     )
@@ -382,7 +388,7 @@ def _closed_loop_section(summary: pd.DataFrame, experiment: Mapping[str, Any]) -
     return (
         '<section id="closed-loop"><h2>Closed loop: planners</h2>'
         f"<p>{_escape(CLOSED_LOOP_CAPTION)}</p>"
-        + (f"<p>Steering estimator per planner: {_escape(steer_text)}.</p>" if steer_text else "")
+        + (f"<p>Steering estimator per planner: {steer_text}.</p>" if steer_text else "")
         + "<h3>Last frame, and the worst wrong-side rate from frame 2 on</h3>"
         f'<div class="table-wrap">{last}</div>'
         "<h3>RMSE of the returned position (m) per frame</h3>"
@@ -424,7 +430,7 @@ def render_html(
     file_notes: Sequence[str] = (),
 ) -> str:
     """The report page; ``figure_entries`` are ``(stem, caption, data URI)``, ``notes`` the
-    sentences of :func:`comparison.verdict_table.first_screen_notes`.
+    XHTML sentences of :func:`comparison.verdict_table.first_screen_notes`.
 
     ``experiment_text`` is the text of experiment.json, shown verbatim (default: ``experiment``
     as JSON); ``file_notes`` are sentences about the files written, shown above the summary
@@ -439,15 +445,15 @@ def render_html(
         f"{_escape(stem)}.svg in figures/): {_escape(caption)}</figcaption></figure>"
         for stem, caption, uri in figure_entries
     )
-    statements = "".join(f"<li>{_escape(note)}</li>" for note in notes)
+    statements = "".join(f"<li>{note}</li>" for note in notes)
     files = "".join(f'<p class="file-note">{_escape(note)}</p>' for note in file_notes)
     return (
         "<!DOCTYPE html>\n"
         '<html lang="en"><head><meta charset="utf-8"/>'
         '<meta name="viewport" content="width=device-width, initial-scale=1"/>'
-        f"<title>emitterbench report: {_escape(name)}</title>"
+        f"<title>emitterbench report: {_escape(plain_label(name))}</title>"
         f"<style>{_STYLE}</style></head><body>"
-        f"<h1>emitterbench report: {_escape(name)}</h1>"
+        f"<h1>emitterbench report: {label_html(name)}</h1>"
         f"<p>{_escape(description)}</p>"
         f"<p>Seed {_escape(seed)}; {int(summary['n_trials'].sum())} estimates in "
         f"{len(summary)} summary rows (estimators: {summary['estimator'].nunique()}, "

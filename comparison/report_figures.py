@@ -14,6 +14,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from comparison import figures
+from comparison.labels import LABEL_COLUMNS, has_bidi_controls, plain_label
 
 FIGURE_STEMS: tuple[str, ...] = (
     "efficiency",
@@ -87,10 +88,10 @@ def closed_loop_figures(
         made.append(
             (
                 "trajectories",
-                f"The paper's Fig. 3 in closed loop: UAV paths of a few trials per planner "
-                f"(one colour per trial, the same trials in every panel), the emitter (star), "
-                f"{label}'s estimate after every frame (dots); below each, a zoom on the truth "
-                "with every trial's last estimate (grey) and, for the drawn trials, the last "
+                "The paper's Fig. 3 in closed loop: UAV paths of a few trials per planner "
+                "(one colour per trial, the same trials in every panel), the emitter (star), "
+                "the estimate after every frame of the estimator the figure names (dots); below "
+                "each, a zoom on the truth with every trial's last estimate (grey) and, for the drawn trials, the last "
                 "estimate (cross) with its 2σ covariance ellipse and the wrong-side count.",
                 figures.trajectory_figure(flights, trials, estimator=label),
             )
@@ -142,6 +143,24 @@ def geometry_caption(summary: pd.DataFrame) -> str:
     )
 
 
+def _plain_labels(frame: pd.DataFrame | None) -> pd.DataFrame | None:
+    """``frame`` with its label columns as a figure draws them (:func:`plain_label`); the
+    frame itself when no label holds a direction control."""
+    if frame is None:
+        return None
+    changed = {}
+    for column in LABEL_COLUMNS:
+        if column in frame.columns:
+            shown = {
+                label: plain_label(label)
+                for label in pd.unique(frame[column])
+                if isinstance(label, str) and has_bidi_controls(label)
+            }
+            if shown:
+                changed[column] = frame[column].replace(shown)
+    return frame.assign(**changed) if changed else frame
+
+
 def report_figures(
     summary: pd.DataFrame,
     trials: pd.DataFrame,
@@ -154,8 +173,13 @@ def report_figures(
     """``(stem, caption, figure)`` of every figure that applies to this sweep.
 
     A closed-loop run (a ``planner`` column in the summary) gets :func:`closed_loop_figures`
-    and the run-time figure: the open-loop figures would mix the planners.
+    and the run-time figure: the open-loop figures would mix the planners. Labels are drawn
+    as :func:`comparison.labels.plain_label` gives them (direction controls shown as U+FFFD);
+    no caption holds a label.
     """
+    summary, trials, flights = (_plain_labels(frame) for frame in (summary, trials, flights))
+    if steering_estimator is not None:
+        steering_estimator = plain_label(steering_estimator)
     if "planner" in summary.columns:
         made = closed_loop_figures(summary, trials, flights, estimator=steering_estimator)
         colors = figures.estimator_colors(summary["estimator"].unique())

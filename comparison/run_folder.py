@@ -160,8 +160,17 @@ def write_atomic(
 
 
 def write_csv(path: str | os.PathLike[str], frame: Any) -> None:
-    """A pandas frame as CSV without its index, through :func:`atomic_file`."""
-    write_atomic(path, lambda handle: frame.to_csv(handle, index=False))
+    """A pandas frame as CSV without its index, through :func:`atomic_file`.
+
+    No cell can run as a spreadsheet formula (:mod:`comparison.csv_cells`, OWASP): a text cell
+    beginning with ``=``, ``+``, ``-`` (not a number), ``@``, tab, CR or LF gets a leading
+    ``'``, every text cell is double-quoted, numbers are written bare and unchanged.
+    :func:`comparison.csv_cells.original_text` gives a cell's text back.
+    """
+    from comparison.csv_cells import QUOTING, neutralised_frame
+
+    safe = neutralised_frame(frame)
+    write_atomic(path, lambda handle: safe.to_csv(handle, index=False, quoting=QUOTING))
 
 
 # --------------------------------------------------------------------------------------------

@@ -21,6 +21,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from comparison.labels import check_label, visible_label
 from estimators.base import Estimator, capabilities_of, unknowns_problem
 from estimators.registry import make_estimator
 from scenarios import fields
@@ -44,9 +45,11 @@ def _check_spec_fields(spec: Any) -> None:
     """Validate an estimator or planner entry: ``name``, ``label`` (default: the name) and
     ``options`` (a table of JSON-like values, frozen)."""
     fields.text(spec.name, "name")
+    fix = "give a shorter one"
     if spec.label is None:
         object.__setattr__(spec, "label", spec.name)
-    fields.text(spec.label, "label")
+        fix = "give the entry a shorter label (without one, the label is the name)"
+    check_label(spec.label, "label", fix=fix)
     object.__setattr__(spec, "options", fields.frozen_table(spec.options, "options"))
 
 
@@ -183,17 +186,24 @@ def built_specs(
     ``find_class`` resolves to a checked class (nothing of it called), and options its
     constructor accepts; only then is it built. Errors name the key path.
     """
-    labels: dict[str, int] = {}
+    labels: dict[str, int] = {}  # by what a reader sees of them (comparison.labels)
     for index, spec in enumerate(specs):
         path = f"{key}[{index}]"
         if not isinstance(spec, spec_type):
             raise ValueError(f"{path}: expected a {spec_type.__name__}, got {type(spec).__name__}")
-        if spec.label in labels:
+        seen = visible_label(spec.label)
+        if seen in labels:
+            other = specs[labels[seen]].label
+            same = (
+                ""
+                if other == spec.label
+                else f", read as {other!r}: they differ only in direction controls"
+            )
             raise ValueError(
                 f"{path}.label: duplicate label {spec.label!r} (also "
-                f"{key}[{labels[spec.label]}]); give each entry a distinct label"
+                f"{key}[{labels[seen]}]{same}); give each entry a distinct label"
             )
-        labels[spec.label] = index
+        labels[seen] = index
         kind = f"{key.rstrip('s')}: "  # the registries' own field, named by the path here
         try:
             cls = find_class(spec.name)

@@ -18,6 +18,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from comparison.labels import label_html
 from comparison.metrics import has_planners, parameter_label, summary_swept_columns
 from comparison.verdicts import (
     MIN_SUCCESS_RATE,
@@ -58,6 +59,14 @@ table.verdicts th small { font-weight: normal; color: #555; }
 
 def _escape(value: object) -> str:
     return html.escape(str(value), quote=True)
+
+
+def row_html(own: pd.DataFrame) -> str:
+    """The label of the table row of ``own`` (rows of one estimator, or one planner and
+    estimator) as XHTML, each label in ``<bdi>`` (:func:`comparison.labels.label_html`)."""
+    first = own.iloc[0]
+    estimator = label_html(first["estimator"])
+    return f"{label_html(first['planner'])} · {estimator}" if "planner" in own else estimator
 
 
 def judged_points(summary: pd.DataFrame) -> pd.DataFrame:
@@ -149,7 +158,7 @@ def verdict_table_html(summary: pd.DataFrame) -> str:
         header.append(f"<th>{_escape(scenario)}<br/><small>{lines}</small></th>")
     body = []
     for label in labels:
-        cells = [f"<th>{_escape(label)}</th>"]
+        cells = [f"<th>{row_html(rows[rows['row'] == label])}</th>"]
         for scenario in scenarios:
             own = rows[(rows["scenario"] == scenario) & (rows["row"] == label)]
             cells.append(f"<td>{_cell(own, shown[scenario], threshold, scenario)}</td>")
@@ -253,7 +262,8 @@ def _listing(values: list[float]) -> str:
 
 
 def first_screen_notes(summary: pd.DataFrame, points: pd.DataFrame | None) -> list[str]:
-    """Sentences for what the verdict table cannot say, each computed from the data."""
+    """Sentences for what the verdict table cannot say, each computed from the data, as
+    XHTML: every label in ``<bdi>`` (:func:`row_html`), every other value escaped."""
     rows = judged_points(summary)
     swept = summary_swept_columns(summary)
     notes = _price_of_unknowns(points) + _uninformative_modalities(rows, points)
@@ -279,8 +289,8 @@ def first_screen_notes(summary: pd.DataFrame, points: pd.DataFrame | None) -> li
     heavy = rows[rows["tail_share"] > TAIL_SHARE_LIMIT]
     if not heavy.empty:
         parts = [
-            f"{label} on {scenario} at {_where(own, swept)}"
-            for (label, scenario), own in heavy.groupby(["row", "scenario"], sort=False)
+            f"{row_html(own)} on {_escape(scenario)} at {_escape(_where(own, swept))}"
+            for (_, scenario), own in heavy.groupby(["row", "scenario"], sort=False)
         ]
         notes.append(
             "Heavy tails (the largest 1% of the trials carry more than "
@@ -290,10 +300,11 @@ def first_screen_notes(summary: pd.DataFrame, points: pd.DataFrame | None) -> li
     failing = rows[rows["success_rate"] < MIN_SUCCESS_RATE]
     if not failing.empty:
         parts = [
-            f"{label} on {scenario} at {_where(own, swept)} (success rate down to "
+            f"{row_html(own)} on {_escape(scenario)} at {_escape(_where(own, swept))} "
+            "(success rate down to "
             f"{own['success_rate'].min():.3g}, {int(own['n_successes'].min())} of "
             f"{int(own.loc[own['success_rate'].idxmin(), 'n_trials'])})"
-            for (label, scenario), own in failing.groupby(["row", "scenario"], sort=False)
+            for (_, scenario), own in failing.groupby(["row", "scenario"], sort=False)
         ]
         notes.append(f"Failed estimates: {'; '.join(parts)}.")
     notes.extend(_skewed_references(rows))
@@ -301,7 +312,8 @@ def first_screen_notes(summary: pd.DataFrame, points: pd.DataFrame | None) -> li
     side = rows[rows["verdict_basis"] == "side-resolved"]
     if not side.empty:
         parts = [
-            f"on {scenario}: {', '.join(own['row'].unique())}"
+            f"on {_escape(scenario)}: "
+            + ", ".join(row_html(mine) for _, mine in own.groupby("row", sort=False))
             for scenario, own in side.groupby("scenario", sort=False)
         ]
         rate = side["wrong_side_rate"].to_numpy(float)
@@ -335,9 +347,9 @@ def _skewed_references(rows: pd.DataFrame) -> list[str]:
     if skewed.empty:
         return []
     parts = [
-        f"{label} on {scenario} (RMS {own['crlb_rmse_m'].max():.3g} m, median "
+        f"{row_html(own)} on {_escape(scenario)} (RMS {own['crlb_rmse_m'].max():.3g} m, median "
         f"{own['crlb_rmse_median_m'].min():.3g} m)"
-        for (label, scenario), own in skewed.groupby(["row", "scenario"], sort=False)
+        for (_, scenario), own in skewed.groupby(["row", "scenario"], sort=False)
     ]
     return [
         "Each closed-loop trial flies its own path, and the reference is the root mean square "
@@ -353,14 +365,16 @@ def _nees_notes(rows: pd.DataFrame, swept: list[str]) -> list[str]:
     if with_cov.empty:
         return []
     parts = []
-    for label, own in with_cov.groupby("row", sort=False):
+    for _, own in with_cov.groupby("row", sort=False):
         counts = own["nees_verdict"].value_counts()
-        text = f"{label} consistent at {int(counts.get('consistent', 0))} of {len(own)} points"
+        text = (
+            f"{row_html(own)} consistent at {int(counts.get('consistent', 0))} of {len(own)} points"
+        )
         for kind in ("optimistic", "pessimistic", "inconclusive"):
             bad = own[own["nees_verdict"] == kind]
             if not bad.empty:
                 places = "; ".join(
-                    f"{scenario} {_where(at, swept)}"
+                    f"{_escape(scenario)} {_escape(_where(at, swept))}"
                     for scenario, at in bad.groupby("scenario", sort=False)
                 )
                 text += f", {kind} at {places}"
@@ -394,13 +408,13 @@ def _uninformative_modalities(rows: pd.DataFrame, points: pd.DataFrame | None) -
                 continue
             best = int(np.argmin(ratio))
             text = (
-                f"On {scenario}, {name} alone bounds the error at {bound[best]:.3g} m even at "
-                f"its best point, {ratio[best]:.3g} times the size of the geometry (RMS range "
+                f"On {_escape(scenario)}, {name} alone bounds the error at {bound[best]:.3g} m "
+                f"even at its best point, {ratio[best]:.3g} times the size of the geometry (RMS range "
                 f"{scale[best]:.3g} m): {name} carries no usable information there, and the "
                 "bound of an estimator that uses it with other modalities is the bound of those."
             )
-            above = rows[rows["scenario"] == scenario].groupby("row", sort=False)["verdict"]
-            always = [label for label, verdicts in above if (verdicts == "above").all()]
+            above = rows[rows["scenario"] == scenario].groupby("row", sort=False)
+            always = [row_html(own) for _, own in above if (own["verdict"] == "above").all()]
             if always:
                 text += f" Above the bound at every point there: {', '.join(always)}."
             notes.append(text)
@@ -434,7 +448,7 @@ def _price_of_unknowns(points: pd.DataFrame | None) -> list[str]:
                 )
                 prices.append(f"{name} {spread}×")
         if prices:
-            parts.append(f"{scenario}: {', '.join(prices)}")
+            parts.append(f"{_escape(scenario)}: {', '.join(prices)}")
     if not parts:
         return []
     return [

@@ -186,6 +186,16 @@ def parse_html(path: Path) -> ET.Element:
     return ET.parse(path).getroot()
 
 
+def text_of(element: ET.Element) -> str:
+    """The text of ``element`` and everything inside it (a label is inside ``<bdi>``)."""
+    return "".join(element.itertext())
+
+
+def as_xml(fragment: str) -> str:
+    """An XHTML fragment as ElementTree writes it back."""
+    return ET.tostring(ET.fromstring(fragment), encoding="unicode")
+
+
 def test_report_writes_summary_trials_and_every_figure(snr_run):
     folder, html_path, trials = snr_run
     assert html_path == folder / "report.html"
@@ -242,7 +252,7 @@ def test_every_table_number_equals_summary_csv(snr_run):
         for table in section.iter("table"):
             header = [th.text for th in table.find("thead").iter("th")]
             for tr in table.find("tbody").iter("tr"):
-                cells = dict(zip(header, (td.text for td in tr.iter("td")), strict=True))
+                cells = dict(zip(header, (text_of(td) for td in tr.iter("td")), strict=True))
                 key = (section.get("data-scenario"), *(cells[k] for k in keys))
                 row = by_key[key]
                 for column, text in cells.items():
@@ -267,7 +277,7 @@ def test_first_screen_is_the_verdict_table_with_computed_notes(snr_run):
     assert section is next(s for s in root.iter("section"))  # the first section of the page
     summary = pd.read_csv(folder / "summary.csv")
     table = next(t for t in section.iter("table") if t.get("class") == "verdicts")
-    rows = {tr.find("th").text: tr.findall("td") for tr in table.find("tbody").iter("tr")}
+    rows = {text_of(tr.find("th")): tr.findall("td") for tr in table.find("tbody").iter("tr")}
     # best first: most points attaining, then the lowest threshold, then nearest to 1
     thresholds = pd.read_csv(folder / "thresholds.csv").set_index("estimator")
     rank = {
@@ -310,8 +320,11 @@ def test_first_screen_is_the_verdict_table_with_computed_notes(snr_run):
     # cls-as-printed is 3× its bound everywhere: above at every point, threshold "never"
     assert "never" in "".join(rows["cls-as-printed"][0].itertext())
     assert (summary.loc[summary["estimator"] == "cls-as-printed", "verdict"] == "above").all()
-    notes = [li.text for li in section.iter("li")]
-    assert notes == first_screen_notes(summary, None)
+    items = list(section.iter("li"))
+    for li in items:
+        li.tail = None
+    notes = [ET.tostring(li, encoding="unicode") for li in items]
+    assert notes == [as_xml(f"<li>{note}</li>") for note in first_screen_notes(summary, None)]
     thresholds = pd.read_csv(folder / "thresholds.csv")
     assert list(thresholds["estimator"]) == ["cls", "cls-as-printed", "lls-toa", "ml"]  # as run
     assert math.isnan(thresholds["threshold_snr_db"].iloc[1])
@@ -470,7 +483,7 @@ def test_closed_loop_report_has_planner_rows_figures_and_tables(closed_report):
     last = tables["closed-loop-last"]
     header = [th.text for th in last.find("thead").iter("th")]
     body = [
-        dict(zip(header, (td.text for td in tr.iter("td")), strict=True))
+        dict(zip(header, (text_of(td) for td in tr.iter("td")), strict=True))
         for tr in last.find("tbody").iter("tr")
     ]
     assert len(body) == 3 * 2
@@ -502,7 +515,7 @@ def test_a_closed_loop_report_first_ranks_its_flights_by_the_error_after_each_fr
     rows = list(table.find("tbody").iter("tr"))
     last = summary[summary["frame"] == 2]
     assert len(rows) == len(last) == 6
-    names = [tr.find("th").text for tr in rows]
+    names = [text_of(tr.find("th")) for tr in rows]
     expected = last.sort_values("rmse_m", kind="stable")
     pairs = zip(expected["planner"], expected["estimator"], strict=True)
     assert names == [f"{planner} · {estimator}" for planner, estimator in pairs]

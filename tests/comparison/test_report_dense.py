@@ -82,7 +82,9 @@ def test_a_dense_sweep_gets_one_overview_line_per_estimator(dense_report):
         "efficiency_median",
         "efficiency_max",
     ]
-    body = [[td.text for td in tr.iter("td")] for tr in table.find("tbody").iter("tr")]
+    body = [
+        ["".join(td.itertext()) for td in tr.iter("td")] for tr in table.find("tbody").iter("tr")
+    ]
     summary = pd.read_csv(folder / "summary.csv")
     assert [row[0] for row in body] == list(summary["estimator"].unique())
     for row in body:

@@ -1,0 +1,72 @@
+"""Text cells of the CSV files a run folder holds, kept from running as spreadsheet formulas.
+
+A spreadsheet (Excel, LibreOffice Calc, Google Sheets) that opens a CSV file reads a cell that
+begins with ``=``, ``+``, ``-``, ``@``, tab, carriage return or line feed as a formula, so a
+label such as ``=cmd|' /C calc'!A0`` or ``@HYPERLINK("...")`` (or an estimator's message)
+would run when ``summary.csv`` is opened. Following the OWASP "CSV Injection" page:
+
+- a text cell whose first character is one of :data:`FORMULA_TRIGGERS` gets a single quote
+  ``'`` in front (:func:`neutralised_cell`); a ``-`` that begins a number (``-3.5``,
+  ``-1e-05``, ``-inf``) is left alone, and numeric columns are never changed;
+- every text cell is wrapped in double quotes, a double quote inside it doubled
+  (:data:`QUOTING`, RFC 4180), so a field separator inside a label (``,`` or the ``;`` of
+  spreadsheets in many locales) cannot start a new cell that begins with a trigger.
+
+The change is invertible: a cell that begins with quotes followed by a trigger gets one more
+quote, so :func:`original_text` (one quote removed from such a cell) gives back the exact text.
+The files are views; the run's source of truth is ``results.sqlite`` (and ``experiment.json``
+for the labels), from which ``emitterbench report`` writes them again, and nothing in
+emitterbench reads them back.
+"""
+
+from __future__ import annotations
+
+import csv
+import re
+
+import pandas as pd
+
+FORMULA_TRIGGERS = ("=", "+", "-", "@", "\t", "\r", "\n")
+"""First characters that make a spreadsheet read a cell as a formula (OWASP)."""
+
+QUOTING = csv.QUOTE_NONNUMERIC
+"""Every text cell in double quotes; numbers bare."""
+
+_NUMBER = r"-(?:(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?|inf)$"
+_GUARDED = re.compile(r"'*(?:[=+@\t\r\n]|-(?!" + _NUMBER[1:] + r"))")
+"""A cell, after any leading quotes, begins with a trigger (a ``-`` not starting a number)."""
+
+
+def neutralised_cell(text: str) -> str:
+    """``text`` with a leading ``'`` if it begins (after any quotes) with a formula trigger."""
+    return "'" + text if _GUARDED.match(text) else text
+
+
+def original_text(cell: str) -> str:
+    """The text a cell of :func:`neutralised_cell` was made from (its inverse)."""
+    return cell[1:] if cell.startswith("'") and _GUARDED.match(cell[1:]) else cell
+
+
+def neutralised_frame(frame: pd.DataFrame) -> pd.DataFrame:
+    """``frame`` with every text cell and column name through :func:`neutralised_cell`.
+
+    Numeric, boolean and missing cells are unchanged; ``frame`` itself is returned when no
+    cell needs a quote (the common case costs one vectorised match per text column).
+    """
+    changed: dict[str, pd.Series] = {}
+    for name in frame.columns:
+        column = frame[name]
+        if pd.api.types.is_numeric_dtype(column) or pd.api.types.is_bool_dtype(column):
+            continue
+        if isinstance(column.dtype, pd.StringDtype):  # text or missing: match directly
+            guarded = column.str.match(_GUARDED.pattern).fillna(False).astype(bool)
+        else:
+            texts = column.map(lambda value: isinstance(value, str)).astype(bool)
+            guarded = texts & column.where(texts, "").str.match(_GUARDED.pattern).astype(bool)
+        if guarded.any():
+            values = column.astype(object)
+            changed[str(name)] = values.mask(guarded, "'" + values.where(guarded, ""))
+    renamed = {name: neutralised_cell(name) for name in frame.columns if isinstance(name, str)}
+    if not changed and all(name == new for name, new in renamed.items()):
+        return frame
+    return frame.assign(**changed).rename(columns=renamed)
