@@ -604,7 +604,7 @@ def validate_command(
 
     from rich.progress import Progress
 
-    from comparison.execution import ProgressLog
+    from comparison.progress import ProgressLog
 
     total = instances * len(chosen)
     log = None if sys.stderr.isatty() else ProgressLog(total, unit="instances")

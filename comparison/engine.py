@@ -20,7 +20,8 @@ The pieces:
 - :mod:`comparison.store`: ``results.sqlite``, written and read back;
 - :mod:`comparison.run_folder`: the folder's rules and lock, safe writes, ``experiment.json``
   and ``run.json``;
-- :mod:`comparison.execution`: joblib/loky, dask, the progress on stderr.
+- :mod:`comparison.execution`: joblib/loky, dask, isolation; :mod:`comparison.progress`: the
+  progress on stderr.
 
 :func:`read_trials`, :func:`read_points`, :func:`read_flights` and :func:`read_experiment` are
 re-exported here from :mod:`comparison.store` and :mod:`comparison.run_folder`.
@@ -38,8 +39,9 @@ from typing import Any
 import numpy as np
 
 from comparison.bounds import CrlbKey, PointInfo, crlb_key, point_infos, point_rows
-from comparison.execution import connect_scheduler, execute, progress_reporter
+from comparison.execution import connect_scheduler, execute
 from comparison.experiment import Experiment
+from comparison.progress import progress_reporter
 from comparison.run_folder import (
     RESULTS_FILE,
     check_folder,
@@ -105,7 +107,7 @@ def run_experiment(
     progress : bool
         Show the progress on stderr: a bar when stderr is a terminal, else a line every tenth
         of the trials or minute, whichever comes first, and a last line
-        (:class:`comparison.execution.ProgressLog`).
+        (:class:`comparison.progress.ProgressLog`).
 
     Returns
     -------
