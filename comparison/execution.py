@@ -56,6 +56,22 @@ Isolation (:func:`run_isolated`)
     trial, and this is the one case where a failed row's message depends on the chunking. A
     child that dies outside any estimator call, or whose own code raises, ends the run with a
     one-line error. Isolation needs ``os.fork`` (Linux, macOS).
+
+Stopping (Ctrl-C, SIGTERM)
+    The command line turns SIGTERM into a ``KeyboardInterrupt``
+    (:func:`comparison.cli_support.sigterm_as_interrupt`); either one, raised in the main
+    process, closes :func:`execute`'s generator: the loky pool is shut down with its workers
+    killed, each with its descendants (a worker's sandbox server and its forked child), after
+    which loky's resource tracker sees the end of its pipe and exits; a sandbox of this
+    process is killed with its child; the dask futures are cancelled. No process of the run
+    outlives it. A worker that catches the interrupt itself (Ctrl-C reaches the whole process
+    group) ends the same way.
+
+Dask clusters that fail
+    :func:`connect_scheduler` waits up to ``worker_wait_s`` (:data:`WORKER_WAIT_S`) for a
+    first worker, before the run folder is locked; none, or the scheduler lost while tasks
+    run, raises :class:`ClusterError`: the run ends with the rows stored so far, the folder
+    unlocked, and ``--resume`` finishes it.
 """
 
 from __future__ import annotations
@@ -63,6 +79,7 @@ from __future__ import annotations
 import atexit
 import faulthandler
 import json
+import logging
 import os
 import pickle
 import select
@@ -76,6 +93,7 @@ import time
 import warnings
 from collections import Counter
 from collections.abc import Iterator
+from concurrent.futures import CancelledError
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import ExitStack
 from dataclasses import dataclass
@@ -88,8 +106,28 @@ GIVE_UP_AFTER = 3
 """Processes an estimator may end in one isolated task before its other calls there fail."""
 
 
-def connect_scheduler(scheduler: str, stack: ExitStack) -> None:
-    """Connect a dask client to ``scheduler`` and route joblib through it, or raise clearly."""
+WORKER_WAIT_S = 60.0
+"""How long a run on a dask cluster waits for a first worker before it gives up, s."""
+
+
+class ClusterError(RuntimeError):
+    """The dask cluster failed under the run: its scheduler was lost, or no worker joined in
+    time. ``what`` says what happened and what to do about the cluster; the message adds that
+    the stored rows are kept and that ``resume=True`` finishes the run."""
+
+    def __init__(self, what: str) -> None:
+        super().__init__(f"{what}; the rows stored so far are kept: rerun with resume=True")
+        self.what = what
+
+
+def connect_scheduler(
+    scheduler: str, stack: ExitStack, worker_wait_s: float = WORKER_WAIT_S
+) -> None:
+    """Connect a dask client to ``scheduler`` and route joblib through it, or raise clearly.
+
+    Waits up to ``worker_wait_s`` seconds for a first worker: :class:`ClusterError` when none
+    joins; ``ValueError`` when the scheduler cannot be reached.
+    """
     try:
         from dask.distributed import Client
     except ImportError:
@@ -99,25 +137,50 @@ def connect_scheduler(scheduler: str, stack: ExitStack) -> None:
         ) from None
     from joblib import parallel_config
 
+    client_log = logging.getLogger("distributed.client")
+    stack.callback(client_log.setLevel, client_log.level)  # see _run_on_dask
     try:
-        stack.enter_context(Client(scheduler, timeout=30))
-    except (OSError, TimeoutError) as error:
+        client = stack.enter_context(Client(scheduler, timeout=30))
+    except (OSError, TimeoutError, ValueError) as error:  # ValueError: a malformed address
         raise ValueError(
             f"scheduler: cannot reach {scheduler} ({error}); start it with "
             "'dask scheduler --port 8786' and workers with 'dask worker tcp://HOST:8786'"
         ) from None
+    try:
+        client.wait_for_workers(1, timeout=worker_wait_s)
+    except TimeoutError:  # distributed's WorkerStartTimeoutError
+        raise ClusterError(
+            f"no dask worker joined the scheduler at {scheduler} within "
+            f"{worker_wait_s:g} s (worker_wait_s); start workers with "
+            f"'dask worker {scheduler}' (emitterbench installed on them)"
+        ) from None
+    except OSError as error:  # the scheduler went away meanwhile
+        raise ClusterError(_lost(scheduler, type(error).__name__)) from None
     stack.enter_context(parallel_config(backend="dask"))
 
 
+def _lost(scheduler: str, reason: str) -> str:
+    """What to say when the connection to the scheduler is gone."""
+    return (
+        f"lost the connection to the dask scheduler at {scheduler} ({reason}); start it "
+        "again, with its workers"
+    )
+
+
 def execute(tasks: list[Task], workers: int, scheduler: str | None) -> Iterator[TaskResult]:
-    """Results in completion order: in-process, loky processes, or the connected dask cluster."""
+    """Results in completion order: in-process, loky processes, or the connected dask cluster.
+
+    Closing the generator early (an exception in the caller's loop, Ctrl-C, SIGTERM) stops
+    every process it started (module docstring).
+    """
     if not tasks:
-        return iter(())
+        return
     if scheduler is not None:
-        return _run_on_dask(tasks)
-    if workers == 1:
-        return (run_task(task) for task in tasks)
-    return _run_on_loky(tasks, workers)
+        yield from _run_on_dask(tasks, scheduler)
+    elif workers == 1:
+        yield from (run_task(task) for task in tasks)
+    else:
+        yield from _run_on_loky(tasks, workers)
 
 
 # --------------------------------------------------------------------------------------------
@@ -163,8 +226,9 @@ def _run_on_loky(tasks: list[Task], workers: int) -> Iterator[TaskResult]:
                 delayed(_run_job)(i, pending[i], isolate_all or i in isolate, marker_dir)
                 for i in batch
             )
+            outcomes = parallel(jobs)
             try:
-                for outcome in parallel(jobs):
+                for outcome in outcomes:
                     del pending[outcome.task_id]
                     isolate_all = isolate_all or outcome.ended_process
                     yield outcome.result
@@ -177,12 +241,17 @@ def _run_on_loky(tasks: list[Task], workers: int) -> Iterator[TaskResult]:
                         "--resume"
                     ) from None
                 isolate |= started
+            finally:  # stopped early: joblib kills the workers, each with its descendants
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", UserWarning)  # "... tasks ... cancelled"
+                    outcomes.close()
 
 
-def _run_on_dask(tasks: list[Task]) -> Iterator[TaskResult]:
+def _run_on_dask(tasks: list[Task], scheduler: str) -> Iterator[TaskResult]:
     """A dask future per task (joblib's dask backend never returns when a worker dies); a
     task dask gave up on (KilledWorker) runs again isolated, and so does every task not
-    finished once an estimator is known to end its process."""
+    finished once an estimator is known to end its process. The scheduler lost (the client
+    cancels every future) raises :class:`ClusterError`."""
     from distributed import as_completed, get_client
     from distributed.scheduler import KilledWorker
 
@@ -204,6 +273,15 @@ def _run_on_dask(tasks: list[Task]) -> Iterator[TaskResult]:
             task_id, isolated = entry
             try:
                 outcome: _Outcome | None = future.result()
+            except CancelledError as error:  # not by this function, which drops those
+                reason = getattr(error, "reason", type(error).__name__)
+                if reason != "scheduler-connection-lost":
+                    raise ClusterError(
+                        f"a task was cancelled on the dask cluster at {scheduler} ({reason})"
+                    ) from None
+                # closing the client will log that it could not reconnect: this error says it
+                logging.getLogger("distributed.client").setLevel(logging.CRITICAL)
+                raise ClusterError(_lost(scheduler, reason)) from None
             except KilledWorker:
                 if isolated:
                     raise RuntimeError(
@@ -223,7 +301,8 @@ def _run_on_dask(tasks: list[Task]) -> Iterator[TaskResult]:
                 continue
             yield outcome.result
     finally:
-        client.cancel(list(running))
+        if client.status == "running":  # else the futures are gone with the scheduler
+            client.cancel(list(running))
 
 
 # --------------------------------------------------------------------------------------------
@@ -486,6 +565,8 @@ def _run_child(
             elif kind == "exit":
                 code = message[1]
     except BaseException:
+        if pid is not None and code is None:  # the server's child would outlive it
+            _kill(pid)
         box.close()  # its state is unknown: the next run starts a fresh one
         _sandboxes.box = None
         raise
@@ -508,6 +589,14 @@ def _run_child(
     cause = _exit_cause(code)
     verb = "killed" if code is not None and code < 0 else "ended"
     return number, label, f"the estimator {verb} its process ({cause})", cause
+
+
+def _kill(pid: int) -> None:
+    """SIGKILL ``pid``, which may have ended already."""
+    try:
+        os.kill(pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
 
 
 def _exit_cause(code: int | None) -> str:
