@@ -29,6 +29,7 @@ from typing import Annotated, Any, TypeVar
 import typer
 
 from comparison.cli_support import (
+    CLUSTER_FAILED_STATUS,
     INTERNAL_ERROR_STATUS,
     INTERRUPTED_STATUS,
     USAGE_ERROR_STATUS,
@@ -409,6 +410,7 @@ RUN_FLAGS = {
     "workers": "--workers",
     "resume": "--resume",
     "scheduler": "--scheduler",
+    "worker_wait_s": "--worker-wait-s",
 }
 """The parameters of :func:`comparison.engine.run_experiment` that ``run`` takes as flags."""
 
@@ -418,7 +420,21 @@ def _resume_hint(arguments: dict[str, Any]) -> str:
     return f"the rows stored so far are kept; finish the run with `{command}`"
 
 
-@command("run", field="experiment", interrupted=_resume_hint)
+def _worker_wait_help() -> str:
+    from comparison.execution import WORKER_WAIT_S
+
+    return (
+        "With --scheduler: seconds to wait for a first Dask worker before giving up "
+        f"\\[{WORKER_WAIT_S:g}]."
+    )
+
+
+@command(
+    "run",
+    field="experiment",
+    interrupted=_resume_hint,
+    late_help={"worker_wait_s": _worker_wait_help},
+)
 def run_command(
     experiment: Annotated[
         str, typer.Argument(help="A built-in experiment (see `emitterbench list`) or a .toml file.")
@@ -446,14 +462,18 @@ def run_command(
             help="Run on a Dask cluster at tcp://HOST:PORT (extra emitterbench\\[cluster]).",
         ),
     ] = None,
+    worker_wait_s: Annotated[float | None, typer.Option("--worker-wait-s")] = None,
 ) -> None:
     """Run a Monte Carlo comparison into a run folder, then write its report.
 
     Rows are stored as they arrive (results.sqlite): a killed run loses at most the trials in
     flight, and --resume finishes it with exactly the rows of an uninterrupted run, with the
-    number of trials it was started with unless --trials asks for more.
+    number of trials it was started with unless --trials asks for more. Ctrl-C and SIGTERM
+    stop it the same way (exit 130 and 143), as does a Dask cluster that fails (exit 3): the
+    last line says how to finish the run.
     """
     from comparison.engine import run_experiment
+    from comparison.execution import ClusterError
     from comparison.experiment import load_experiment
     from comparison.report import write_report
     from comparison.run_folder import EXPERIMENT_FILE, read_experiment
@@ -472,10 +492,16 @@ def run_command(
             definition = definition.with_trials(trials)
         except ValueError as error:
             raise ValueError(f"--trials: {str(error).partition(': ')[2]}") from None
+    waiting = {} if worker_wait_s is None else {"worker_wait_s": worker_wait_s}
     with flags_for(RUN_FLAGS):
-        run_dir = run_experiment(
-            definition, output, workers=workers, scheduler=scheduler, resume=resume
-        )
+        try:
+            run_dir = run_experiment(
+                definition, output, workers=workers, scheduler=scheduler, resume=resume, **waiting
+            )
+        except ClusterError as error:
+            what = error.what.replace("(worker_wait_s)", "(--worker-wait-s)")
+            hint = _resume_hint({"experiment": experiment, "output": output})
+            fail(f"--scheduler: {what}; {hint}", CLUSTER_FAILED_STATUS)
     html = write_report(run_dir)
     typer.echo(f"report: {html}")
     tables = [run_dir / name for name in ("summary.csv", "trials.csv")]
@@ -604,7 +630,7 @@ def validate_command(
 
     from rich.progress import Progress
 
-    from comparison.execution import ProgressLog
+    from comparison.progress import ProgressLog
 
     total = instances * len(chosen)
     log = None if sys.stderr.isatty() else ProgressLog(total, unit="instances")

@@ -12,8 +12,18 @@ silenced; any other warning is one line ``warning: ...``). The exit statuses:
       stdout went away (``emitterbench list | head -1``): quietly, as click does
 2     a usage or input error: a bad option, a malformed file, a request beyond a limit, no
       command at all (the usage is printed once)
+3     ``run`` on a dask cluster that failed: its scheduler was lost, or no worker joined within
+      ``--worker-wait-s``; the rows stored so far are kept, and the line says how to finish the
+      run with ``--resume``
 130   interrupted (Ctrl-C); ``run`` says how to finish the run with ``--resume``
+143   stopped by SIGTERM (``kill``, a batch system's time limit), handled as Ctrl-C: the workers
+      are stopped, the stored rows kept, the same line with ``terminated (SIGTERM)``
 ====  ==========================================================================================
+
+SIGTERM is turned into :class:`Terminated`, a ``KeyboardInterrupt``, for as long as a command
+runs (:func:`sigterm_as_interrupt`), so everything Ctrl-C does on its way out runs for it too:
+``finally`` blocks, the worker pool's shutdown, the folder's lock released, temporary files
+removed. A second SIGTERM during that is ignored.
 
 :class:`OneLineErrors` is the command group of :data:`comparison.cli.app`: it turns click's
 usage errors (an unknown option, a value out of range, a missing argument) into the same one
@@ -41,6 +51,7 @@ import json
 import math
 import os
 import re
+import signal
 import sys
 import traceback
 import warnings
@@ -66,6 +77,10 @@ INTERNAL_ERROR_STATUS = 1
 """Exit status of an unexpected exception (a bug): ``error: internal: ...``."""
 INTERRUPTED_STATUS = 130
 """Exit status after Ctrl-C (128 + SIGINT, as shells report it)."""
+TERMINATED_STATUS = 128 + signal.SIGTERM
+"""Exit status after SIGTERM (143), which is handled as Ctrl-C."""
+CLUSTER_FAILED_STATUS = 3
+"""Exit status of a run whose dask cluster failed (scheduler lost, no workers)."""
 TRACEBACK_VARIABLE = "EMITTERBENCH_TRACEBACK"
 """Set to 1 to print the traceback of an internal error before its line."""
 MAX_LINE = 2000
@@ -137,13 +152,46 @@ def blame(field: str, what: str) -> Iterator[None]:
         raise ValueError(f"{field}: {what} ({error})") from None
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Ctrl-C's ``KeyboardInterrupt`` would be, so that the same
+    cleanup runs; its exit status is :data:`TERMINATED_STATUS`."""
+
+
+def interrupted_status(interrupt: BaseException) -> tuple[int, str]:
+    """The exit status and the line's first words after ``interrupt`` (Ctrl-C or SIGTERM)."""
+    if isinstance(interrupt, Terminated):
+        return TERMINATED_STATUS, "terminated (SIGTERM)"
+    return INTERRUPTED_STATUS, "interrupted"
+
+
+@contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """Within the block, SIGTERM raises :class:`Terminated` in the main thread (once; a second
+    SIGTERM during the cleanup is ignored). Outside the main thread, nothing changes."""
+
+    def terminate(signum: int, frame: Any) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        raise Terminated
+
+    try:
+        previous = signal.signal(signal.SIGTERM, terminate)
+    except ValueError:  # not the main thread: signals cannot be handled here
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def clean_errors(
     function: Command, *, field: str, interrupted: Callable[[dict[str, Any]], str] | None = None
 ) -> Command:
-    """``function`` with :func:`fail` for a ``ValueError`` and exit 130 on Ctrl-C.
+    """``function`` with :func:`fail` for a ``ValueError`` and exit 130 on Ctrl-C (143 on
+    SIGTERM).
 
     A message without a field gets ``field``; ``interrupted(kwargs)`` says what to do after
-    Ctrl-C. Numpy's warnings are silenced (an input they come from fails cleanly or is a
+    Ctrl-C or SIGTERM. Numpy's warnings are silenced (an input they come from fails cleanly or is a
     failed estimate); any other warning is printed as one line.
     """
 
@@ -156,9 +204,10 @@ def clean_errors(
                 return function(*args, **kwargs)
             except ValueError as error:
                 fail(with_field(str(error), field))
-            except KeyboardInterrupt:
+            except KeyboardInterrupt as interrupt:
+                status, what = interrupted_status(interrupt)
                 hint = interrupted(kwargs) if interrupted else "stopped before the end"
-                fail(f"interrupted: {hint}", INTERRUPTED_STATUS)
+                fail(f"{what}: {hint}", status)
 
     return run  # type: ignore[return-value]
 
@@ -232,7 +281,8 @@ class OneLineErrors(TyperGroup):
         def invoke() -> Any:
             return parent.main(args, prog_name, complete_var, standalone_mode=False, **extra)
 
-        status = run_guarded(invoke)
+        with sigterm_as_interrupt():
+            status = run_guarded(invoke)
         if standalone_mode:
             sys.exit(status)
         return status
@@ -258,9 +308,10 @@ def run_guarded(invoke: Callable[[], Any]) -> int:
     except click_errors.ClickException as error:
         typer.echo(f"error: {one_line(with_field(error.format_message(), 'input'))}", err=True)
         return USAGE_ERROR_STATUS
-    except (KeyboardInterrupt, typer.Abort):
-        typer.echo("error: interrupted: stopped before the end", err=True)
-        return INTERRUPTED_STATUS
+    except (KeyboardInterrupt, typer.Abort) as interrupt:
+        status, what = interrupted_status(interrupt)
+        typer.echo(f"error: {what}: stopped before the end", err=True)
+        return status
     except Exception as error:
         if os.environ.get(TRACEBACK_VARIABLE) == "1":
             traceback.print_exc()

@@ -20,7 +20,8 @@ The pieces:
 - :mod:`comparison.store`: ``results.sqlite``, written and read back;
 - :mod:`comparison.run_folder`: the folder's rules and lock, safe writes, ``experiment.json``
   and ``run.json``;
-- :mod:`comparison.execution`: joblib/loky, dask, the progress on stderr.
+- :mod:`comparison.execution`: joblib/loky, dask, isolation; :mod:`comparison.progress`: the
+  progress on stderr.
 
 :func:`read_trials`, :func:`read_points`, :func:`read_flights` and :func:`read_experiment` are
 re-exported here from :mod:`comparison.store` and :mod:`comparison.run_folder`.
@@ -38,8 +39,9 @@ from typing import Any
 import numpy as np
 
 from comparison.bounds import CrlbKey, PointInfo, crlb_key, point_infos, point_rows
-from comparison.execution import connect_scheduler, execute, progress_reporter
+from comparison.execution import WORKER_WAIT_S, connect_scheduler, execute
 from comparison.experiment import Experiment
+from comparison.progress import progress_reporter
 from comparison.run_folder import (
     RESULTS_FILE,
     check_folder,
@@ -78,6 +80,7 @@ def run_experiment(
     resume: bool = False,
     trials: int | None = None,
     progress: bool = True,
+    worker_wait_s: float = WORKER_WAIT_S,
 ) -> Path:
     """Run ``experiment`` into the run folder ``out_dir``; return the folder.
 
@@ -105,7 +108,10 @@ def run_experiment(
     progress : bool
         Show the progress on stderr: a bar when stderr is a terminal, else a line every tenth
         of the trials or minute, whichever comes first, and a last line
-        (:class:`comparison.execution.ProgressLog`).
+        (:class:`comparison.progress.ProgressLog`).
+    worker_wait_s : float
+        With ``scheduler``: how long to wait for a first worker, s, before the folder is
+        locked.
 
     Returns
     -------
@@ -118,7 +124,11 @@ def run_experiment(
         A point that cannot be simulated, a non-empty folder without ``resume``, a
         mismatching experiment on resume, a folder another session is writing, a damaged
         ``results.sqlite``, a file of the run that is a symbolic link, bad ``workers``, or an
-        unreachable or missing dask scheduler.
+        unreachable or missing dask scheduler, a ``worker_wait_s`` that is not a positive
+        number.
+    comparison.execution.ClusterError
+        No dask worker joined within ``worker_wait_s``, or the scheduler was lost during the
+        run (the rows stored so far are kept; ``resume`` finishes the run).
     """
     if not isinstance(experiment, Experiment):
         raise ValueError(f"experiment: expected an Experiment, got {type(experiment).__name__}")
@@ -132,6 +142,12 @@ def run_experiment(
         raise ValueError(
             f"scheduler: expected an address such as tcp://host:8786, got {scheduler!r}"
         )
+    if isinstance(worker_wait_s, bool) or not (
+        isinstance(worker_wait_s, int | float) and 0 < worker_wait_s < float("inf")
+    ):
+        raise ValueError(
+            f"worker_wait_s: expected a positive number of seconds, got {worker_wait_s!r}"
+        )
     out = Path(out_dir)
     # everything that can fail from the experiment alone, before the folder is touched
     crlb_keys, infos, points = _worked_out(experiment)
@@ -139,7 +155,7 @@ def run_experiment(
     database = out / RESULTS_FILE
     with ExitStack() as stack:
         if scheduler is not None:
-            connect_scheduler(scheduler, stack)
+            connect_scheduler(scheduler, stack, worker_wait_s)
         folder = stack.enter_context(folder_session(out, experiment, resume))
         check_store(database)  # a damaged store stops a resume before anything is written
         write_experiment(out, experiment)
@@ -163,7 +179,9 @@ def run_experiment(
             completed=sum(len(v) for v in complete.values()),
         )
         task_time_s = 0.0
-        for result in execute(tasks, workers, scheduler):
+        # closed on the way out, whatever ends the loop: no process of the run outlives it
+        results = stack.enter_context(closing(execute(tasks, workers, scheduler)))
+        for result in results:
             folder.keep = True  # rows from here on: a failure keeps the folder for --resume
             info = infos[(result.scenario_index, result.point)]
             write_task(connection, experiment, result, info, crlb_keys)

@@ -7,8 +7,7 @@ Backends
     emitterbench installed too: a task is a :class:`comparison.tasks.Task` and the function run
     is :func:`comparison.tasks.run_task`), one dask future per task (joblib's dask backend never
     returns once a worker has died). Results come back in completion order; rows never depend
-    on it. Also the progress on stderr: a bar on a terminal, else a line every tenth of the
-    trials or minute (:class:`ProgressLog`).
+    on it. The progress on stderr is :mod:`comparison.progress`'s.
 
 Processes that die
     Whatever Python can catch becomes a failed row where it happens
@@ -57,6 +56,22 @@ Isolation (:func:`run_isolated`)
     trial, and this is the one case where a failed row's message depends on the chunking. A
     child that dies outside any estimator call, or whose own code raises, ends the run with a
     one-line error. Isolation needs ``os.fork`` (Linux, macOS).
+
+Stopping (Ctrl-C, SIGTERM)
+    The command line turns SIGTERM into a ``KeyboardInterrupt``
+    (:func:`comparison.cli_support.sigterm_as_interrupt`); either one, raised in the main
+    process, closes :func:`execute`'s generator: the loky pool is shut down with its workers
+    killed, each with its descendants (a worker's sandbox server and its forked child), after
+    which loky's resource tracker sees the end of its pipe and exits; a sandbox of this
+    process is killed with its child; the dask futures are cancelled. No process of the run
+    outlives it. A worker that catches the interrupt itself (Ctrl-C reaches the whole process
+    group) ends the same way.
+
+Dask clusters that fail
+    :func:`connect_scheduler` waits up to ``worker_wait_s`` (:data:`WORKER_WAIT_S`) for a
+    first worker, before the run folder is locked; none, or the scheduler lost while tasks
+    run, raises :class:`ClusterError`: the run ends with the rows stored so far, the folder
+    unlocked, and ``--resume`` finishes it.
 """
 
 from __future__ import annotations
@@ -64,7 +79,7 @@ from __future__ import annotations
 import atexit
 import faulthandler
 import json
-import math
+import logging
 import os
 import pickle
 import select
@@ -77,7 +92,8 @@ import threading
 import time
 import warnings
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
+from concurrent.futures import CancelledError
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import ExitStack
 from dataclasses import dataclass
@@ -90,8 +106,28 @@ GIVE_UP_AFTER = 3
 """Processes an estimator may end in one isolated task before its other calls there fail."""
 
 
-def connect_scheduler(scheduler: str, stack: ExitStack) -> None:
-    """Connect a dask client to ``scheduler`` and route joblib through it, or raise clearly."""
+WORKER_WAIT_S = 60.0
+"""How long a run on a dask cluster waits for a first worker before it gives up, s."""
+
+
+class ClusterError(RuntimeError):
+    """The dask cluster failed under the run: its scheduler was lost, or no worker joined in
+    time. ``what`` says what happened and what to do about the cluster; the message adds that
+    the stored rows are kept and that ``resume=True`` finishes the run."""
+
+    def __init__(self, what: str) -> None:
+        super().__init__(f"{what}; the rows stored so far are kept: rerun with resume=True")
+        self.what = what
+
+
+def connect_scheduler(
+    scheduler: str, stack: ExitStack, worker_wait_s: float = WORKER_WAIT_S
+) -> None:
+    """Connect a dask client to ``scheduler`` and route joblib through it, or raise clearly.
+
+    Waits up to ``worker_wait_s`` seconds for a first worker: :class:`ClusterError` when none
+    joins; ``ValueError`` when the scheduler cannot be reached.
+    """
     try:
         from dask.distributed import Client
     except ImportError:
@@ -101,25 +137,50 @@ def connect_scheduler(scheduler: str, stack: ExitStack) -> None:
         ) from None
     from joblib import parallel_config
 
+    client_log = logging.getLogger("distributed.client")
+    stack.callback(client_log.setLevel, client_log.level)  # see _run_on_dask
     try:
-        stack.enter_context(Client(scheduler, timeout=30))
-    except (OSError, TimeoutError) as error:
+        client = stack.enter_context(Client(scheduler, timeout=30))
+    except (OSError, TimeoutError, ValueError) as error:  # ValueError: a malformed address
         raise ValueError(
             f"scheduler: cannot reach {scheduler} ({error}); start it with "
             "'dask scheduler --port 8786' and workers with 'dask worker tcp://HOST:8786'"
         ) from None
+    try:
+        client.wait_for_workers(1, timeout=worker_wait_s)
+    except TimeoutError:  # distributed's WorkerStartTimeoutError
+        raise ClusterError(
+            f"no dask worker joined the scheduler at {scheduler} within "
+            f"{worker_wait_s:g} s (worker_wait_s); start workers with "
+            f"'dask worker {scheduler}' (emitterbench installed on them)"
+        ) from None
+    except OSError as error:  # the scheduler went away meanwhile
+        raise ClusterError(_lost(scheduler, type(error).__name__)) from None
     stack.enter_context(parallel_config(backend="dask"))
 
 
+def _lost(scheduler: str, reason: str) -> str:
+    """What to say when the connection to the scheduler is gone."""
+    return (
+        f"lost the connection to the dask scheduler at {scheduler} ({reason}); start it "
+        "again, with its workers"
+    )
+
+
 def execute(tasks: list[Task], workers: int, scheduler: str | None) -> Iterator[TaskResult]:
-    """Results in completion order: in-process, loky processes, or the connected dask cluster."""
+    """Results in completion order: in-process, loky processes, or the connected dask cluster.
+
+    Closing the generator early (an exception in the caller's loop, Ctrl-C, SIGTERM) stops
+    every process it started (module docstring).
+    """
     if not tasks:
-        return iter(())
+        return
     if scheduler is not None:
-        return _run_on_dask(tasks)
-    if workers == 1:
-        return (run_task(task) for task in tasks)
-    return _run_on_loky(tasks, workers)
+        yield from _run_on_dask(tasks, scheduler)
+    elif workers == 1:
+        yield from (run_task(task) for task in tasks)
+    else:
+        yield from _run_on_loky(tasks, workers)
 
 
 # --------------------------------------------------------------------------------------------
@@ -165,8 +226,9 @@ def _run_on_loky(tasks: list[Task], workers: int) -> Iterator[TaskResult]:
                 delayed(_run_job)(i, pending[i], isolate_all or i in isolate, marker_dir)
                 for i in batch
             )
+            outcomes = parallel(jobs)
             try:
-                for outcome in parallel(jobs):
+                for outcome in outcomes:
                     del pending[outcome.task_id]
                     isolate_all = isolate_all or outcome.ended_process
                     yield outcome.result
@@ -179,12 +241,17 @@ def _run_on_loky(tasks: list[Task], workers: int) -> Iterator[TaskResult]:
                         "--resume"
                     ) from None
                 isolate |= started
+            finally:  # stopped early: joblib kills the workers, each with its descendants
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", UserWarning)  # "... tasks ... cancelled"
+                    outcomes.close()
 
 
-def _run_on_dask(tasks: list[Task]) -> Iterator[TaskResult]:
+def _run_on_dask(tasks: list[Task], scheduler: str) -> Iterator[TaskResult]:
     """A dask future per task (joblib's dask backend never returns when a worker dies); a
     task dask gave up on (KilledWorker) runs again isolated, and so does every task not
-    finished once an estimator is known to end its process."""
+    finished once an estimator is known to end its process. The scheduler lost (the client
+    cancels every future) raises :class:`ClusterError`."""
     from distributed import as_completed, get_client
     from distributed.scheduler import KilledWorker
 
@@ -206,6 +273,15 @@ def _run_on_dask(tasks: list[Task]) -> Iterator[TaskResult]:
             task_id, isolated = entry
             try:
                 outcome: _Outcome | None = future.result()
+            except CancelledError as error:  # not by this function, which drops those
+                reason = getattr(error, "reason", type(error).__name__)
+                if reason != "scheduler-connection-lost":
+                    raise ClusterError(
+                        f"a task was cancelled on the dask cluster at {scheduler} ({reason})"
+                    ) from None
+                # closing the client will log that it could not reconnect: this error says it
+                logging.getLogger("distributed.client").setLevel(logging.CRITICAL)
+                raise ClusterError(_lost(scheduler, reason)) from None
             except KilledWorker:
                 if isolated:
                     raise RuntimeError(
@@ -225,7 +301,8 @@ def _run_on_dask(tasks: list[Task]) -> Iterator[TaskResult]:
                 continue
             yield outcome.result
     finally:
-        client.cancel(list(running))
+        if client.status == "running":  # else the futures are gone with the scheduler
+            client.cancel(list(running))
 
 
 # --------------------------------------------------------------------------------------------
@@ -488,6 +565,8 @@ def _run_child(
             elif kind == "exit":
                 code = message[1]
     except BaseException:
+        if pid is not None and code is None:  # the server's child would outlive it
+            _kill(pid)
         box.close()  # its state is unknown: the next run starts a fresh one
         _sandboxes.box = None
         raise
@@ -512,6 +591,14 @@ def _run_child(
     return number, label, f"the estimator {verb} its process ({cause})", cause
 
 
+def _kill(pid: int) -> None:
+    """SIGKILL ``pid``, which may have ended already."""
+    try:
+        os.kill(pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+
+
 def _exit_cause(code: int | None) -> str:
     """``"signal 11, SIGSEGV"`` or ``"exit status 3"``."""
     if code is None or code >= 0:
@@ -520,160 +607,3 @@ def _exit_cause(code: int | None) -> str:
         return f"signal {-code}, {signal.Signals(-code).name}"
     except ValueError:
         return f"signal {-code}"
-
-
-# --------------------------------------------------------------------------------------------
-# progress
-# --------------------------------------------------------------------------------------------
-
-PROGRESS_FRACTION = 0.1
-"""Without a terminal, a progress line each time another tenth of the work is done ..."""
-PROGRESS_INTERVAL_S = 60.0
-"""... or a minute after the last line, whichever comes first."""
-
-
-class ProgressLog:
-    """Progress as lines on stderr, for a run whose stderr is not a terminal (a batch job, CI,
-    ``2> log``), where a progress bar would show nothing until the end.
-
-    A first line when it starts; then, as work is reported done (:meth:`advance`), a line each
-    time another ``fraction`` of the ``total`` is done or ``interval_s`` has passed since the
-    last line, whichever comes first: ``progress: 480/1,200 trials (40%), 3.2 trials/s, about
-    3 min 45 s left``; and a last line (:meth:`finish`). The rate and the time left count only
-    the work done since the start (a resumed run's stored trials are not), on ``clock``, a
-    function returning seconds (``time.monotonic``; a test passes its own).
-    """
-
-    def __init__(
-        self,
-        total: int,
-        completed: int = 0,
-        *,
-        unit: str = "trials",
-        clock: Callable[[], float] = time.monotonic,
-        write: Callable[[str], None] | None = None,
-        fraction: float = PROGRESS_FRACTION,
-        interval_s: float = PROGRESS_INTERVAL_S,
-    ) -> None:
-        self.total, self.done, self.unit = total, completed, unit
-        self.clock, self.interval_s = clock, interval_s
-        self.write = write or _stderr_line
-        self.step = max(1, math.ceil(fraction * total))
-        self.next_mark = (completed // self.step + 1) * self.step
-        self.started_done = completed
-        self.started_s = self.last_line_s = self.last_done_s = clock()
-        every = f"a line every {fraction:.0%} or {duration_text(interval_s)}"
-        if completed >= total:
-            self.write(f"progress: all {total:,} {unit} are done already; nothing to run")
-        elif completed:
-            self.write(
-                f"progress: {completed:,}/{total:,} {unit} done already; running the other "
-                f"{total - completed:,} ({every})"
-            )
-        else:
-            self.write(f"progress: running {total:,} {unit} ({every})")
-
-    def advance(self, n: int) -> None:
-        """``n`` more done: a line when a mark or the interval is reached."""
-        self.done += n
-        now = self.last_done_s = self.clock()
-        if self.done >= self.total:
-            return  # the last line is finish's
-        if self.done >= self.next_mark or now - self.last_line_s >= self.interval_s:
-            self.next_mark = (self.done // self.step + 1) * self.step
-            self.last_line_s = now
-            rate = self._rate(now)
-            left = (
-                "time left unknown"
-                if rate is None
-                else f"about {duration_text((self.total - self.done) / rate)} left"
-            )
-            self.write(
-                f"progress: {self.done:,}/{self.total:,} {self.unit} "
-                f"({self.done / self.total:.0%}), {self._rate_text(rate)}, {left}"
-            )
-
-    def finish(self) -> None:
-        """The last line: how much ran, in how long (until the last :meth:`advance`)."""
-        if self.done == self.started_done:
-            return
-        ran, now = self.done - self.started_done, self.last_done_s
-        self.write(
-            f"progress: {self.done:,}/{self.total:,} {self.unit} done; {ran:,} ran in "
-            f"{duration_text(now - self.started_s)}, {self._rate_text(self._rate(now))}"
-        )
-
-    def _rate(self, now: float) -> float | None:
-        """Work per second since the start; None before any time has passed."""
-        elapsed_s = now - self.started_s
-        return (self.done - self.started_done) / elapsed_s if elapsed_s > 0 else None
-
-    def _rate_text(self, rate: float | None) -> str:
-        if rate is None:
-            return "rate unknown"
-        return f"{rate:,.0f} {self.unit}/s" if rate >= 100 else f"{rate:.3g} {self.unit}/s"
-
-
-def _stderr_line(line: str) -> None:
-    print(line, file=sys.stderr, flush=True)
-
-
-def duration_text(seconds: float) -> str:
-    """``under 1 s``, ``42 s``, ``3 min 05 s``, ``1 min``, ``2 h 07 min``: a duration as a
-    person reads it."""
-    whole = round(seconds)
-    if whole < 1:
-        return "under 1 s"
-    if whole < 60:
-        return f"{whole} s"
-    if whole < 3600:
-        minutes, rest = divmod(whole, 60)
-        return f"{minutes} min" if rest == 0 else f"{minutes} min {rest:02d} s"
-    hours, minutes = divmod(round(seconds / 60), 60)
-    return f"{hours} h" if minutes == 0 else f"{hours} h {minutes:02d} min"
-
-
-class ProgressBar:
-    """The progress bar of trials on stderr (a terminal), closed with the ``stack`` it is given."""
-
-    def __init__(self, stack: ExitStack, *, total: int, completed: int) -> None:
-        from rich.console import Console
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-            TimeRemainingColumn,
-        )
-
-        self.progress = Progress(
-            TextColumn("[bold]{task.description}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TextColumn("trials"),
-            TimeElapsedColumn(),
-            TextColumn("ETA"),
-            TimeRemainingColumn(),
-            console=Console(stderr=True),
-        )
-        stack.enter_context(self.progress)
-        self.task_id = self.progress.add_task("running", total=total, completed=completed)
-
-    def advance(self, n: int) -> None:
-        self.progress.advance(self.task_id, n)
-
-    def finish(self) -> None:
-        """Nothing to add: the bar shows the end itself."""
-
-
-def progress_reporter(
-    show: bool, stack: ExitStack, *, total: int, completed: int
-) -> ProgressBar | ProgressLog | None:
-    """The progress of trials on stderr: a bar on a terminal, else :class:`ProgressLog` lines;
-    None when not ``show``. Its ``advance(n)`` counts trials done, ``finish()`` ends it."""
-    if not show:
-        return None
-    if sys.stderr.isatty():
-        return ProgressBar(stack, total=total, completed=completed)
-    return ProgressLog(total, completed)

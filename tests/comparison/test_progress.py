@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from comparison.execution import (
+from comparison.progress import (
     PROGRESS_FRACTION,
     PROGRESS_INTERVAL_S,
     ProgressLog,
