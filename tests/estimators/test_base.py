@@ -50,9 +50,7 @@ def test_a_success_with_a_nan_position_is_a_failed_estimate() -> None:
     assert estimate.covariance_m2 is None
     assert np.all(np.isnan(estimate.position_m))
     assert estimate.candidates_m.shape == (0, 2)
-    assert estimate.message == (
-        "invalid estimate: position_m is not finite (nan, 0); converged"
-    )
+    assert estimate.message == ("invalid estimate: position_m is not finite (nan, 0); converged")
     assert estimate.diagnostics == {"iterations": 3}
     json.dumps(estimate.to_dict(), allow_nan=False)
 

@@ -78,7 +78,7 @@ def test_a_success_without_candidates_is_refused():
 
 
 def test_a_negative_definite_covariance_is_refused_with_its_smallest_eigenvalue():
-    """``−[[4, 1], [1, 3]]``: eigenvalues −(7 ± √5)/2, the smallest −4.618 − ... = −5.618."""
+    """``−[[4, 1], [1, 3]]``: eigenvalues −(7 ± √5)/2, the smallest −4.618; norm √27."""
     estimate = one([1.0, 2.0], [[1.0, 2.0]], -np.array([[4.0, 1.0], [1.0, 3.0]]))
     smallest = -(7.0 + np.sqrt(5.0)) / 2.0
     assert_refused(
@@ -157,7 +157,7 @@ def test_a_failure_is_checked_for_real_numbers_only():
 
 
 def test_non_numbers_raise_naming_the_field():
-    with pytest.raises(ValueError, match=r"^position_m: expected numbers in metres"):
+    with pytest.raises(ValueError, match=r"^position_m: expected numbers, got"):
         one(["a", "b"], [[1.0, 2.0]])
 
 
