@@ -138,8 +138,9 @@ class BatchEstimates:
         set_ = object.__setattr__
         for name in ("position_m", "candidates_m", "covariance_m2"):
             value = getattr(self, name)
-            if value is not None and np.asarray(value).dtype.kind not in "fc":
-                set_(self, name, numeric_array(value, name))
+            if value is not None:
+                array = np.asarray(value)
+                set_(self, name, array if array.dtype.kind in "fc" else numeric_array(value, name))
         reasons = invalid_estimates(
             self.position_m, self.candidates_m, self.n_candidates, self.covariance_m2, self.success
         )
