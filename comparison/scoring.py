@@ -285,9 +285,9 @@ def score_outcomes(
 
     Every value equals the one-estimate function's to the bit: the same floating-point
     operations in the same order (``np.matmul`` for the NEES and the mirror, as ``@`` there),
-    the JSON columns in ``json.dumps``'s text. A success whose position or candidates are not
-    finite (which :class:`~estimators.base.Estimate` turns into a failure) is scored one
-    estimate at a time.
+    the JSON columns in ``json.dumps``'s text. The columns are valid
+    (:mod:`estimators.validity`, applied when :class:`~estimators.batch.BatchEstimates` is
+    built): every success has a finite position among its finite candidates.
     """
     columns = outcomes.columns
     n = len(columns)
@@ -302,8 +302,6 @@ def score_outcomes(
     candidates = np.where(slot[..., None], columns.candidates_m, nan)
     position = np.where(success[:, None], columns.position_m, nan)
     finite_position = np.isfinite(position).all(axis=1)
-    finite_candidates = (np.isfinite(candidates) | ~slot[..., None]).all(axis=(1, 2))
-    odd = success & ~(finite_position & finite_candidates)
     rows = np.arange(n)
     with np.errstate(invalid="ignore", over="ignore"):
         error_m = np.hypot(position[:, 0] - truth[0], position[:, 1] - truth[1])
@@ -374,13 +372,7 @@ def score_outcomes(
             else _diagnostics_texts(columns, success)
         ),
     }
-    scored = list(zip(*(values[column] for column in ESTIMATE_COLUMNS), strict=True))
-    for i in np.flatnonzero(odd).tolist():  # Estimate makes these failures: its own path
-        one = estimate_columns(columns.estimate(i), truth_m, track, values["runtime_s"][i])
-        if outcomes.diagnostics_json is not None:
-            one = (*one[:-1], outcomes.diagnostics_json[i])
-        scored[i] = one
-    return scored
+    return list(zip(*(values[column] for column in ESTIMATE_COLUMNS), strict=True))
 
 
 def _nees(error_m: NDArray[np.float64], covariance_m2: NDArray[np.float64]) -> NDArray[Any]:

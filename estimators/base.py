@@ -22,9 +22,12 @@ the built-ins are frozen dataclasses. A failure to estimate is data (``success=F
 
 Two rules hold for every estimator, built-in or plug-in, in one place each:
 
-- ``success`` means a finite answer. :class:`Estimate` itself turns a success whose position or
-  candidates are not finite into a failed estimate whose message quotes what was reported
-  (rather than raising: the caller gets the one result type either way, and the row says why).
+- An estimate is valid (:mod:`estimators.validity`): real numbers; a success finite, its
+  position one of its candidates, its covariance symmetric positive semi-definite.
+  :class:`Estimate` itself turns an estimate that breaks a rule into a failed estimate whose
+  message names the rule and quotes what was reported (rather than raising: the caller gets
+  the one result type either way, and the row says why); :class:`~estimators.batch.
+  BatchEstimates` does the same to its columns.
 - Data with no baseline locate nothing. :func:`require_modalities`, which every built-in calls
   first, raises ``ValueError`` naming ``position_m`` or ``velocity_mps`` when every sample is
   at one horizontal point and the modalities used cannot fix a point from there
@@ -46,6 +49,7 @@ from typing import Any, ClassVar, Protocol, TypeVar, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from estimators.validity import invalid_estimates, numeric_array, real_part, refused_message
 from scenarios.fields import vector_text
 from scenarios.geometry import TrackSoFar, moves_horizontally, single_horizontal_point
 from scenarios.nuisance import describe_unknowns, parse_unknowns, unknowns_used
@@ -82,6 +86,12 @@ class Estimate:
         Why it failed, or notes on a success (rank deficiency, hard case, ...).
     diagnostics : mapping
         Scalars such as the Lagrange multiplier, hard case, rank, iterations.
+
+    Built, it is valid (:func:`estimators.validity.invalid_estimates`): the position, the
+    candidates and the covariance are real, and a success has a finite position that is one
+    of its candidates and a symmetric positive semi-definite covariance (or none), to rounding.
+    An estimate that breaks a rule is built as a failed one whose message starts with
+    ``"invalid estimate: "`` and names the rule; ``dataclasses.replace`` checks again.
     """
 
     estimator: str
@@ -95,32 +105,37 @@ class Estimate:
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        position = np.array(self.position_m, dtype=float).reshape(2)
-        candidates = np.array(self.candidates_m, dtype=float).reshape(-1, 2)
+        position = numeric_array(self.position_m, "position_m").reshape(2)
+        candidates = numeric_array(self.candidates_m, "candidates_m").reshape(-1, 2)
+        covariance = (
+            None
+            if self.covariance_m2 is None
+            else numeric_array(self.covariance_m2, "covariance_m2").reshape(2, 2)
+        )
         set_(self, "ambiguous", bool(self.ambiguous))
         set_(self, "success", bool(self.success))
         set_(self, "diagnostics", dict(self.diagnostics))
-        if self.success and not (np.all(np.isfinite(position)) and np.all(np.isfinite(candidates))):
-            what = (
-                f"position_m {vector_text(position)}"
-                if not np.all(np.isfinite(position))
-                else f"candidates_m {'; '.join(vector_text(c) for c in candidates)}"
-            )
-            note = f"{self.estimator or 'the estimator'} reported success with a non-finite {what}"
-            set_(self, "message", f"{note}; {self.message}" if self.message else note)
+        reasons = invalid_estimates(
+            position[None],
+            candidates[None],
+            [len(candidates)],
+            None if covariance is None else covariance[None],
+            [self.success],
+        )
+        if reasons:
+            set_(self, "message", refused_message(reasons[0], self.message))
             set_(self, "success", False)
             set_(self, "ambiguous", False)
-            set_(self, "covariance_m2", None)
-            position = np.full(2, np.nan)
-            candidates = np.empty((0, 2))
+            position, candidates, covariance = np.full(2, np.nan), np.empty((0, 2)), None
+        position, candidates = real_part(position), real_part(candidates)
         position.flags.writeable = False
         candidates.flags.writeable = False
         set_(self, "position_m", position)
         set_(self, "candidates_m", candidates)
-        if self.covariance_m2 is not None:
-            covariance = np.array(self.covariance_m2, dtype=float).reshape(2, 2)
+        if covariance is not None:
+            covariance = real_part(covariance)
             covariance.flags.writeable = False
-            set_(self, "covariance_m2", covariance)
+        set_(self, "covariance_m2", covariance)
 
     @classmethod
     def failed(cls, estimator: str, message: str, **diagnostics: Any) -> Estimate:

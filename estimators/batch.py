@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from estimators.base import Estimate, check_rng
+from estimators.validity import invalid_estimates, numeric_array, real_part, refused_message
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -34,6 +35,18 @@ MERGE_RTOL = 1e-9
 
 DOUBT_FACTOR = 2.0
 """A distance within this factor of the merge threshold is too close to call."""
+
+_ARRAYS = (
+    "position_m",
+    "candidates_m",
+    "n_candidates",
+    "ambiguous",
+    "success",
+    "message_code",
+    "recomputed",
+    "covariance_m2",
+)
+"""The per-trial columns of :class:`BatchEstimates` (the diagnostics besides)."""
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -61,7 +74,10 @@ class BatchEstimates:
         of its threshold (their values are the one-trial path's own).
     covariance_m2 : (n, 2, 2) or None
 
-    The arrays are made read-only (not copied): a result is a value.
+    The arrays are made read-only (not copied): a result is a value. Built, the columns obey
+    the rules of :mod:`estimators.validity`, checked on every trial at once: a trial that
+    breaks one is a failure whose message names the rule, as :class:`~estimators.base.Estimate`
+    makes it (the columns are then copied, as they are when a value is complex or an integer).
     """
 
     estimator: str
@@ -99,15 +115,67 @@ class BatchEstimates:
                 for got, want in zip(np.shape(value), shape, strict=True)
             ):
                 raise ValueError(f"{name}: expected shape {shape}, got {np.shape(value)}")
-        for value, _ in columns.values():
-            if isinstance(value, np.ndarray):
-                value.flags.writeable = False
         if np.any(self.n_candidates > self.candidates_m.shape[1]):
             raise ValueError("n_candidates: more candidates than candidates_m holds")
         if len(self.message_code) and (
             np.min(self.message_code) < 0 or np.max(self.message_code) >= len(self.messages)
         ):
             raise ValueError("message_code: an index outside messages")
+        self._refuse_invalid()
+        for name in _ARRAYS:
+            value = getattr(self, name)
+            if isinstance(value, np.ndarray):
+                value.flags.writeable = False
+        for value in self.diagnostics.values():
+            if isinstance(value, np.ndarray):
+                value.flags.writeable = False
+
+    def _refuse_invalid(self) -> None:
+        """Apply the rules of :mod:`estimators.validity` to every trial: a trial that breaks
+        one becomes a failure (NaN position, no candidates, NaN covariance, no diagnostics)
+        whose message names the rule, as :class:`~estimators.base.Estimate` does to itself.
+        The columns are copied only when a trial is refused or a value is not a float."""
+        set_ = object.__setattr__
+        for name in ("position_m", "candidates_m", "covariance_m2"):
+            value = getattr(self, name)
+            if value is not None:
+                array = np.asarray(value)
+                set_(self, name, array if array.dtype.kind in "fc" else numeric_array(value, name))
+        reasons = invalid_estimates(
+            self.position_m, self.candidates_m, self.n_candidates, self.covariance_m2, self.success
+        )
+        if reasons:
+            refused = np.fromiter(reasons, dtype=np.int64, count=len(reasons))
+            messages = list(self.messages)
+            known: dict[str, int] = {}
+            for code, text in enumerate(messages):
+                known.setdefault(text, code)
+            codes = np.array(self.message_code, dtype=np.int64)
+            for i, reason in reasons.items():
+                text = refused_message(reason, messages[codes[i]])
+                if text not in known:
+                    known[text] = len(messages)
+                    messages.append(text)
+                codes[i] = known[text]
+            changes: dict[str, Any] = {"message_code": codes, "messages": tuple(messages)}
+            for name, blank in (
+                ("position_m", np.nan),
+                ("candidates_m", np.nan),
+                ("covariance_m2", np.nan),
+                ("n_candidates", 0),
+                ("ambiguous", False),
+                ("success", False),
+            ):
+                value = getattr(self, name)
+                if value is not None:
+                    changes[name] = np.array(value)
+                    changes[name][refused] = blank
+            for name, value in changes.items():
+                set_(self, name, value)
+        for name in ("position_m", "candidates_m", "covariance_m2"):
+            value = getattr(self, name)
+            if value is not None and value.dtype != np.float64:
+                set_(self, name, real_part(value))
 
     @classmethod
     def from_estimates(cls, estimator: str, estimates: Sequence[Estimate]) -> BatchEstimates:

@@ -442,10 +442,12 @@ def check_rejects_wrong_rng_type(estimator: Any) -> None:
 
 
 def check_result_types(estimator: Any) -> None:
-    """The result is an :class:`Estimate`: ``position_m`` (2,) among ``candidates_m`` (n, 2),
-    ``covariance_m2`` (2, 2) symmetric PSD or None, ``success`` bool, ``message`` str,
-    ``diagnostics`` a mapping of JSON-able scalars (or flat lists of them), ``estimator``
-    equal to ``name``, several candidates only when ``ambiguous``."""
+    """The result is an :class:`Estimate` that the rules of :mod:`estimators.validity` accept
+    (not refused when built, nor broken since): real numbers, ``position_m`` (2,) one of
+    ``candidates_m`` (n, 2), ``covariance_m2`` (2, 2) symmetric positive semi-definite or None;
+    and ``success`` bool, ``message`` str, ``diagnostics`` a mapping of JSON-able scalars (or
+    flat lists of them), ``estimator`` equal to ``name``, several candidates only when
+    ``ambiguous``. A refused estimate fails this check with the rule it broke."""
     for scenario in ("paper-1m", "turn"):
         what = f"noisy '{scenario}' data"
         estimate = _run(estimator, _noisy(scenario), what, rng=_rng())

@@ -17,10 +17,17 @@ from typing import Any
 import numpy as np
 
 from estimators.base import Capabilities, Estimate, capabilities_of
+from estimators.validity import INVALID, invalid_estimates
 from scenarios.types import MeasurementSet
 
 FIELD_OF_MODALITY = {"doppler": "doppler_hz", "toa": "toa_s", "rss": "rss_dbm"}
 """The :class:`~scenarios.types.MeasurementSet` field of each modality."""
+
+_RULES = (
+    ": a valid estimate holds real numbers, and a success a finite position that is one of its "
+    "candidates and a symmetric positive semi-definite covariance or None (estimators.validity; "
+    "'Valid estimates' in docs/writing-an-estimator.md)"
+)
 
 
 def _fail(message: str) -> None:
@@ -193,20 +200,21 @@ def result_problems(estimate: Any, estimator: Any) -> list[str]:
         problems.append(f"candidates_m has shape {np.shape(candidates)}; expected (n, 2)")
     if type(estimate.ambiguous) is not bool:
         problems.append(f"ambiguous is {type(estimate.ambiguous).__name__}; expected bool")
-    problems += _covariance_problems(estimate.covariance_m2)
     problems += _diagnostics_problems(estimate.diagnostics)
     problems += failure_problems(estimate)
     if problems or not estimate.success:
         return problems
-    if len(candidates) == 0:
-        problems.append("candidates_m is empty on a success; it must hold position_m (MATH §7)")
-    else:
-        scale = 1e-9 * max(1.0, float(np.max(np.abs(position))))
-        if np.min(np.linalg.norm(candidates - position, axis=1)) > scale:
-            problems.append(
-                f"position_m {position.tolist()} is not among candidates_m "
-                f"{candidates.tolist()}; the returned position is one of the candidates"
-            )
+    # Estimate applies the rules when it is built; again here, for one changed since
+    covariance = estimate.covariance_m2
+    broken = invalid_estimates(
+        position[None],
+        candidates[None],
+        [len(candidates)],
+        None if covariance is None else np.asarray(covariance)[None],
+        [True],
+    )
+    if broken:
+        problems.append(f"{broken[0]}{_RULES}")
     if len(candidates) > 1 and not estimate.ambiguous:
         problems.append(
             f"{len(candidates)} equal-cost candidates but ambiguous is False; several "
@@ -217,13 +225,16 @@ def result_problems(estimate: Any, estimator: Any) -> list[str]:
 
 def failure_problems(estimate: Any) -> list[str]:
     """What breaks "a failed estimate is data": ``success`` a bool, ``message`` a str, a NaN
-    position and a message when it failed, a finite position when it succeeded."""
+    position and a message when it failed, a finite position when it succeeded; and an
+    estimate refused by :mod:`estimators.validity` (a plug-in's bug, whatever the data)."""
     if not isinstance(estimate, Estimate):
         return [_not_an_estimate(estimate)]
     if type(estimate.success) is not bool:
         return [f"success is {type(estimate.success).__name__}; expected bool"]
     if not isinstance(estimate.message, str):
         return [f"message is {type(estimate.message).__name__}; expected str"]
+    if estimate.message.startswith(INVALID):
+        return [f"the Estimate was refused, {estimate.message!r}{_RULES}"]
     position = np.asarray(estimate.position_m, dtype=float)
     if not estimate.success:
         problems = []
@@ -248,25 +259,6 @@ def _not_an_estimate(result: Any) -> str:
         f"returned {type(result).__name__}, not an estimators.base.Estimate; build the "
         "result with Estimate(...), Estimate.failed(...) or finalize_estimate(...)"
     )
-
-
-def _covariance_problems(covariance: Any) -> list[str]:
-    if covariance is None:
-        return []
-    matrix = np.asarray(covariance)
-    if matrix.shape != (2, 2) or matrix.dtype.kind != "f":
-        return [f"covariance_m2 has shape {matrix.shape}; expected a (2, 2) float array or None"]
-    if not np.all(np.isfinite(matrix)):
-        return ["covariance_m2 has non-finite entries; report None when there is no covariance"]
-    scale = float(np.max(np.abs(matrix))) or 1.0
-    if abs(matrix[0, 1] - matrix[1, 0]) > 1e-9 * scale:
-        return ["covariance_m2 is not symmetric; symmetrise it, 0.5 * (P + P.T)"]
-    if np.min(np.linalg.eigvalsh(matrix)) < -1e-9 * scale:
-        return [
-            f"covariance_m2 is not positive semi-definite (eigenvalues "
-            f"{np.linalg.eigvalsh(matrix).tolist()}); report None when it is not a covariance"
-        ]
-    return []
 
 
 def _diagnostics_problems(diagnostics: Any) -> list[str]:

@@ -24,6 +24,7 @@ from comparison.trial_rows import ESTIMATE_COLUMNS
 from estimators.base import Estimate
 from estimators.batch import BatchEstimates
 from estimators.registry import make_estimator
+from estimators.validity import INVALID
 from scenarios.catalog import get_scenario
 from scenarios.simulate import simulate_trials, trial_seeds
 from tests import paths
@@ -254,8 +255,9 @@ def test_of_estimates_keeps_what_the_diagnostics_hold():
 
 
 def random_columns(rng, n, track):
-    """BatchEstimates with NaN padding, failures, successes with a non-finite value (which
-    Estimate turns into failures), covariances, and diagnostics of every dtype."""
+    """BatchEstimates with NaN padding, failures, successes with a non-finite value or an
+    invalid covariance (which the columns, as Estimate, turn into failures), covariances, and
+    diagnostics of every dtype."""
     k = 3
     count = rng.integers(0, k + 1, size=n)
     candidates = TRUTH + rng.normal(size=(n, k, 2)) * rng.lognormal(0.0, 3.0, size=(n, 1, 1))
@@ -310,7 +312,8 @@ def test_scoring_columns_equals_scoring_their_estimates(track_name):
     rows = score_outcomes(Outcomes.of_columns(columns, 2.5e-6), TRUTH, track)
     estimates = columns.to_estimates()
     assert_rows_agree(rows, reference_rows(estimates, [2.5e-6] * len(columns), TRUTH, track))
-    assert any(e.success is False and s for e, s in zip(estimates, columns.success, strict=True))
+    # the columns refused some successes as invalid (a non-finite value, a bad covariance)
+    assert any(columns.message(i).startswith(INVALID) for i in range(len(columns)))
 
 
 @pytest.mark.paths
@@ -361,14 +364,15 @@ def test_scoring_a_real_batch_equals_scoring_its_estimates(estimator, scenario, 
 @pytest.mark.bits("the texts format the same floats (copied, not computed): no arithmetic differs")
 def test_the_json_text_is_that_of_json_dumps(values, flags):
     """Any float, in the diagnostics of a success and the candidates of a failure (a success
-    with a non-finite candidate is a failure without candidates, as Estimate makes it)."""
+    with a non-finite candidate is refused: a failure without candidates or diagnostics)."""
     n = min(len(values), len(flags))
     floats, flags = np.array(values[:n]), np.array(flags[:n])
     candidates = np.stack([floats, floats[::-1]], axis=-1)[:, None, :]
-    success = flags | ~np.isfinite(candidates).all(axis=(1, 2))
+    refused = ~np.isfinite(candidates).all(axis=(1, 2))
+    success = flags | refused
     columns = BatchEstimates(
         estimator="json",
-        position_m=np.zeros((n, 2)),
+        position_m=candidates[:, 0],
         candidates_m=candidates,
         n_candidates=np.ones(n, dtype=np.int64),
         ambiguous=np.zeros(n, dtype=bool),
@@ -381,11 +385,13 @@ def test_the_json_text_is_that_of_json_dumps(values, flags):
     assert_same_rows(rows, reference_rows(columns.to_estimates(), [0.0] * n, TRUTH, None))
     for i, row in enumerate(rows):
         expected = {"f": floats[i].item(), "b": bool(flags[i]), "i": i - 2**40}
-        if success[i]:
+        if success[i] and not refused[i]:
             assert row[COLUMN["diagnostics_json"]] == json.dumps(jsonable(expected), sort_keys=True)
         else:
             assert row[COLUMN["diagnostics_json"]] == "{}"
-            assert row[COLUMN["candidates_json"]] == json.dumps(jsonable(candidates[i].tolist()))
+            shown = [] if refused[i] else candidates[i].tolist()
+            assert row[COLUMN["candidates_json"]] == json.dumps(jsonable(shown))
+            assert row[COLUMN["message"]].startswith(INVALID) == bool(refused[i])
 
 
 # --------------------------------------------------------------------------------------------

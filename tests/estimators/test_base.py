@@ -1,7 +1,8 @@
 """The two rules of estimators/base.py that hold for every estimator, built-in or plug-in.
 
 ``success`` means a finite answer: :class:`Estimate` turns a success with a non-finite
-position or candidate into a failed estimate that quotes what was reported. Data with no
+position or candidate into a failed estimate that quotes what was reported (the other rules
+of :mod:`estimators.validity` are tested in ``tests/estimators/test_validity.py``). Data with no
 baseline locate nothing: :func:`require_modalities`, which every built-in calls first, refuses
 them naming the field, so no built-in ever reports an unambiguous success on a hovering UAV, a
 single sample or a burst at one point. And the limits of scenarios/types.py keep every
@@ -49,9 +50,7 @@ def test_a_success_with_a_nan_position_is_a_failed_estimate() -> None:
     assert estimate.covariance_m2 is None
     assert np.all(np.isnan(estimate.position_m))
     assert estimate.candidates_m.shape == (0, 2)
-    assert estimate.message == (
-        "plug-in reported success with a non-finite position_m (nan, 0); converged"
-    )
+    assert estimate.message == ("invalid estimate: position_m is not finite (nan, 0); converged")
     assert estimate.diagnostics == {"iterations": 3}
     json.dumps(estimate.to_dict(), allow_nan=False)
 
@@ -65,7 +64,7 @@ def test_a_success_with_an_infinite_candidate_is_a_failed_estimate() -> None:
     )
     assert not estimate.success
     assert estimate.message == (
-        "cls reported success with a non-finite candidates_m (35, 15); (inf, -15)"
+        "invalid estimate: candidates_m is not finite: (35, 15); (inf, -15)"
     )
     assert np.all(np.isnan(estimate.position_m))
 
@@ -81,7 +80,7 @@ def test_finite_successes_and_failures_are_kept_as_they_are() -> None:
     # the rule holds for a copy too: replace() validates again
     broken = replace(good, position_m=[np.inf, 15.0], candidates_m=[[np.inf, 15.0]])
     assert not broken.success
-    assert broken.message.startswith("cls reported success with a non-finite position_m (inf, 15)")
+    assert broken.message == "invalid estimate: position_m is not finite (inf, 15)"
 
 
 # --------------------------------------------------------------------------------------------
