@@ -409,6 +409,7 @@ RUN_FLAGS = {
     "workers": "--workers",
     "resume": "--resume",
     "scheduler": "--scheduler",
+    "accept_code_change": "--accept-code-change",
 }
 """The parameters of :func:`comparison.engine.run_experiment` that ``run`` takes as flags."""
 
@@ -438,6 +439,14 @@ def run_command(
     resume: Annotated[
         bool, typer.Option("--resume", help="Finish an interrupted run in the same folder.")
     ] = False,
+    accept_code_change: Annotated[
+        bool,
+        typer.Option(
+            "--accept-code-change",
+            help="With --resume: go on although emitterbench's code or a plug-in's files "
+            "changed since the rows already stored (refused otherwise; run.json records it).",
+        ),
+    ] = False,
     scheduler: Annotated[
         str | None,
         typer.Option(
@@ -451,7 +460,10 @@ def run_command(
 
     Rows are stored as they arrive (results.sqlite): a killed run loses at most the trials in
     flight, and --resume finishes it with exactly the rows of an uninterrupted run, with the
-    number of trials it was started with unless --trials asks for more.
+    number of trials it was started with unless --trials asks for more. A resume with other
+    code than the rows already stored (emitterbench's or a plug-in's) is refused, naming the
+    changed files, unless --accept-code-change. The report is written before the run lets go
+    of the folder's lock.
     """
     from comparison.engine import run_experiment
     from comparison.experiment import load_experiment
@@ -474,10 +486,15 @@ def run_command(
             raise ValueError(f"--trials: {str(error).partition(': ')[2]}") from None
     with flags_for(RUN_FLAGS):
         run_dir = run_experiment(
-            definition, output, workers=workers, scheduler=scheduler, resume=resume
+            definition,
+            output,
+            workers=workers,
+            scheduler=scheduler,
+            resume=resume,
+            accept_code_change=accept_code_change,
+            write_report=write_report,
         )
-    html = write_report(run_dir)
-    typer.echo(f"report: {html}")
+    typer.echo(f"report: {run_dir / 'report.html'}")
     tables = [run_dir / name for name in ("summary.csv", "trials.csv")]
     typer.echo(f"tables: {', '.join(str(path) for path in tables if path.is_file())}")
 
@@ -495,7 +512,11 @@ def report_command(
         ),
     ] = None,
 ) -> None:
-    """(Re)write summary.csv, trials.csv, figures/ and report.html of a run folder."""
+    """(Re)write summary.csv, trials.csv, figures/ and report.html of a run folder.
+
+    The report holds the folder's lock while it writes: a report while a run (or another
+    report) writes the folder is refused with one line naming it (exit status 2).
+    """
     from comparison.report import write_report
 
     if not run_dir.is_dir():

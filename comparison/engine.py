@@ -31,6 +31,7 @@ from __future__ import annotations
 import os
 import time
 import warnings
+from collections.abc import Callable
 from contextlib import ExitStack, closing
 from pathlib import Path
 from typing import Any
@@ -42,12 +43,12 @@ from comparison.execution import connect_scheduler, execute, progress_reporter
 from comparison.experiment import Experiment
 from comparison.run_folder import (
     RESULTS_FILE,
+    check_code_change,
     check_folder,
     folder_session,
     now_utc,
     read_experiment,
     session_info,
-    warn_on_code_change,
     write_experiment,
     write_run_info,
 )
@@ -78,6 +79,8 @@ def run_experiment(
     resume: bool = False,
     trials: int | None = None,
     progress: bool = True,
+    accept_code_change: bool = False,
+    write_report: Callable[[Path], Any] | None = None,
 ) -> Path:
     """Run ``experiment`` into the run folder ``out_dir``; return the folder.
 
@@ -106,6 +109,14 @@ def run_experiment(
         Show the progress on stderr: a bar when stderr is a terminal, else a line every tenth
         of the trials or minute, whichever comes first, and a last line
         (:class:`comparison.execution.ProgressLog`).
+    accept_code_change : bool
+        Resume even though the code differs from the last session's: emitterbench's own or
+        a plug-in's (:func:`comparison.run_folder.check_code_change`; the changed files are
+        recorded in ``run.json``). Without it such a resume is refused.
+    write_report : callable, optional
+        Called with the folder once every row is stored, while the session still holds the
+        folder's lock, so that no other session adds rows while it reads them (the CLI passes
+        :func:`comparison.report.write_report`).
 
     Returns
     -------
@@ -116,7 +127,8 @@ def run_experiment(
     ------
     ValueError
         A point that cannot be simulated, a non-empty folder without ``resume``, a
-        mismatching experiment on resume, a folder another session is writing, a damaged
+        mismatching experiment or changed code on resume, a folder another session is
+        writing, a damaged
         ``results.sqlite``, a file of the run that is a symbolic link, bad ``workers``, or an
         unreachable or missing dask scheduler.
     """
@@ -142,10 +154,10 @@ def run_experiment(
             connect_scheduler(scheduler, stack)
         folder = stack.enter_context(folder_session(out, experiment, resume))
         check_store(database)  # a damaged store stops a resume before anything is written
-        write_experiment(out, experiment)
         session = session_info(experiment, workers, scheduler, resume)
         if resume:
-            warn_on_code_change(out, session)
+            check_code_change(out, session, accept_code_change)
+        write_experiment(out, experiment)
         write_run_info(out, session)
         start = time.perf_counter()
         connection = stack.enter_context(closing(connect(database)))
@@ -180,6 +192,8 @@ def run_experiment(
             task_time_s=task_time_s,
         )
         write_run_info(out, session)
+        if write_report is not None:
+            write_report(out)
     return out
 
 
