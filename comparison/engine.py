@@ -127,10 +127,9 @@ def run_experiment(
     ------
     ValueError
         A point that cannot be simulated, a non-empty folder without ``resume``, a
-        mismatching experiment or changed code on resume, a folder another session is
-        writing, a damaged
-        ``results.sqlite``, a file of the run that is a symbolic link, bad ``workers``, or an
-        unreachable or missing dask scheduler.
+        mismatching experiment or changed code on resume (without ``accept_code_change``), a
+        folder another session is writing, a damaged ``results.sqlite``, a file of the run
+        that is a symbolic link, bad ``workers``, or an unreachable or missing dask scheduler.
     """
     if not isinstance(experiment, Experiment):
         raise ValueError(f"experiment: expected an Experiment, got {type(experiment).__name__}")
