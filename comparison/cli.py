@@ -411,6 +411,7 @@ RUN_FLAGS = {
     "resume": "--resume",
     "scheduler": "--scheduler",
     "worker_wait_s": "--worker-wait-s",
+    "accept_code_change": "--accept-code-change",
 }
 """The parameters of :func:`comparison.engine.run_experiment` that ``run`` takes as flags."""
 
@@ -454,6 +455,14 @@ def run_command(
     resume: Annotated[
         bool, typer.Option("--resume", help="Finish an interrupted run in the same folder.")
     ] = False,
+    accept_code_change: Annotated[
+        bool,
+        typer.Option(
+            "--accept-code-change",
+            help="With --resume: go on although emitterbench's code or a plug-in's files "
+            "changed since the rows already stored (refused otherwise; run.json records it).",
+        ),
+    ] = False,
     scheduler: Annotated[
         str | None,
         typer.Option(
@@ -468,9 +477,11 @@ def run_command(
 
     Rows are stored as they arrive (results.sqlite): a killed run loses at most the trials in
     flight, and --resume finishes it with exactly the rows of an uninterrupted run, with the
-    number of trials it was started with unless --trials asks for more. Ctrl-C and SIGTERM
-    stop it the same way (exit 130 and 143), as does a Dask cluster that fails (exit 3): the
-    last line says how to finish the run.
+    number of trials it was started with unless --trials asks for more. A resume with other
+    code than the rows already stored (emitterbench's or a plug-in's) is refused, naming the
+    changed files, unless --accept-code-change. The report is written before the run lets go
+    of the folder's lock. Ctrl-C and SIGTERM stop it the same way (exit 130 and 143), as does
+    a Dask cluster that fails (exit 3): the last line says how to finish the run.
     """
     from comparison.engine import run_experiment
     from comparison.execution import ClusterError
@@ -496,14 +507,20 @@ def run_command(
     with flags_for(RUN_FLAGS):
         try:
             run_dir = run_experiment(
-                definition, output, workers=workers, scheduler=scheduler, resume=resume, **waiting
+                definition,
+                output,
+                workers=workers,
+                scheduler=scheduler,
+                resume=resume,
+                accept_code_change=accept_code_change,
+                write_report=write_report,
+                **waiting,
             )
         except ClusterError as error:
             what = error.what.replace("(worker_wait_s)", "(--worker-wait-s)")
             hint = _resume_hint({"experiment": experiment, "output": output})
             fail(f"--scheduler: {what}; {hint}", CLUSTER_FAILED_STATUS)
-    html = write_report(run_dir)
-    typer.echo(f"report: {html}")
+    typer.echo(f"report: {run_dir / 'report.html'}")
     tables = [run_dir / name for name in ("summary.csv", "trials.csv")]
     typer.echo(f"tables: {', '.join(str(path) for path in tables if path.is_file())}")
 
@@ -521,7 +538,11 @@ def report_command(
         ),
     ] = None,
 ) -> None:
-    """(Re)write summary.csv, trials.csv, figures/ and report.html of a run folder."""
+    """(Re)write summary.csv, trials.csv, figures/ and report.html of a run folder.
+
+    The report holds the folder's lock while it writes: a report while a run (or another
+    report) writes the folder is refused with one line naming it (exit status 2).
+    """
     from comparison.report import write_report
 
     if not run_dir.is_dir():

@@ -11,7 +11,8 @@ silenced; any other warning is one line ``warning: ...``). The exit statuses:
       (``EMITTERBENCH_TRACEBACK=1`` prints the traceback before that line); or the reader of
       stdout went away (``emitterbench list | head -1``): quietly, as click does
 2     a usage or input error: a bad option, a malformed file, a request beyond a limit, no
-      command at all (the usage is printed once)
+      command at all (the usage is printed once); a run folder another run or report is
+      writing; a ``--resume`` with changed code (without ``--accept-code-change``)
 3     ``run`` on a dask cluster that failed: its scheduler was lost, or no worker joined within
       ``--worker-wait-s``; the rows stored so far are kept, and the line says how to finish the
       run with ``--resume``

@@ -32,6 +32,7 @@ from __future__ import annotations
 import os
 import time
 import warnings
+from collections.abc import Callable
 from contextlib import ExitStack, closing
 from pathlib import Path
 from typing import Any
@@ -44,12 +45,12 @@ from comparison.experiment import Experiment
 from comparison.progress import progress_reporter
 from comparison.run_folder import (
     RESULTS_FILE,
+    check_code_change,
     check_folder,
     folder_session,
     now_utc,
     read_experiment,
     session_info,
-    warn_on_code_change,
     write_experiment,
     write_run_info,
 )
@@ -81,6 +82,8 @@ def run_experiment(
     trials: int | None = None,
     progress: bool = True,
     worker_wait_s: float = WORKER_WAIT_S,
+    accept_code_change: bool = False,
+    write_report: Callable[[Path], Any] | None = None,
 ) -> Path:
     """Run ``experiment`` into the run folder ``out_dir``; return the folder.
 
@@ -112,6 +115,14 @@ def run_experiment(
     worker_wait_s : float
         With ``scheduler``: how long to wait for a first worker, s, before the folder is
         locked.
+    accept_code_change : bool
+        Resume even though the code differs from the last session's: emitterbench's own or
+        a plug-in's (:func:`comparison.run_folder.check_code_change`; the changed files are
+        recorded in ``run.json``). Without it such a resume is refused.
+    write_report : callable, optional
+        Called with the folder once every row is stored, while the session still holds the
+        folder's lock, so that no other session adds rows while it reads them (the CLI passes
+        :func:`comparison.report.write_report`).
 
     Returns
     -------
@@ -122,10 +133,10 @@ def run_experiment(
     ------
     ValueError
         A point that cannot be simulated, a non-empty folder without ``resume``, a
-        mismatching experiment on resume, a folder another session is writing, a damaged
-        ``results.sqlite``, a file of the run that is a symbolic link, bad ``workers``, or an
-        unreachable or missing dask scheduler, a ``worker_wait_s`` that is not a positive
-        number.
+        mismatching experiment or changed code on resume (without ``accept_code_change``), a
+        folder another session is writing, a damaged ``results.sqlite``, a file of the run
+        that is a symbolic link, bad ``workers``, an unreachable or missing dask scheduler, or
+        a ``worker_wait_s`` that is not a positive number.
     comparison.execution.ClusterError
         No dask worker joined within ``worker_wait_s``, or the scheduler was lost during the
         run (the rows stored so far are kept; ``resume`` finishes the run).
@@ -158,10 +169,10 @@ def run_experiment(
             connect_scheduler(scheduler, stack, worker_wait_s)
         folder = stack.enter_context(folder_session(out, experiment, resume))
         check_store(database)  # a damaged store stops a resume before anything is written
-        write_experiment(out, experiment)
         session = session_info(experiment, workers, scheduler, resume)
         if resume:
-            warn_on_code_change(out, session)
+            check_code_change(out, session, accept_code_change)
+        write_experiment(out, experiment)
         write_run_info(out, session)
         start = time.perf_counter()
         connection = stack.enter_context(closing(connect(database)))
@@ -198,6 +209,8 @@ def run_experiment(
             task_time_s=task_time_s,
         )
         write_run_info(out, session)
+        if write_report is not None:
+            write_report(out)
     return out
 
 

@@ -51,7 +51,7 @@ from comparison.metrics import (
 )
 from comparison.planner_table import planner_table_html
 from comparison.report_figures import FIGURE_STEMS, report_figures
-from comparison.run_folder import check_report_outputs, write_atomic, write_csv
+from comparison.run_folder import holding_report_lock, write_atomic, write_csv
 from comparison.verdicts import VERDICTS
 from scenarios.limits import configured_limit
 
@@ -495,6 +495,7 @@ def trials_csv_note(n_rows: int, limit: int) -> str:
     )
 
 
+@holding_report_lock
 def write_report(
     run_dir: str | Path,
     *,
@@ -508,7 +509,9 @@ def write_report(
     dpi: int = 150,
     max_trials_csv_rows: int | None = None,
 ) -> Path:
-    """Write summary.csv, trials.csv, figures/ and report.html into ``run_dir``.
+    """Write summary.csv, trials.csv, figures/ and report.html into ``run_dir``, holding its
+    lock (:func:`comparison.run_folder.report_lock`): every file comes from one reading of
+    the run, which no session changes meanwhile.
 
     Parameters
     ----------
@@ -539,12 +542,6 @@ def write_report(
         The path of ``report.html``.
     """
     folder = Path(run_dir)
-    if not folder.is_dir():
-        raise ValueError(
-            f"run_dir: {folder} is not a folder; give the folder of a finished run "
-            "(the one holding experiment.json)"
-        )
-    check_report_outputs(folder)
     trials, points, experiment, run_info = _load(folder, trials, points, experiment, run_info)
     seed = int(experiment.get("seed", 0))
     swept = experiment.get("swept_columns")

@@ -1,11 +1,12 @@
 """The run folder: its rules, its lock, safe writes, ``experiment.json`` and ``run.json``.
 
 A run folder ``DIR`` holds ``experiment.json`` (the experiment, exact), ``run.json``
-(versions, a digest of the code, machine, seed, start and end times, workers; one entry per
-session in ``sessions``) and ``results.sqlite`` (:mod:`comparison.store`), then the report's
-files. A new run needs an absent or empty folder; a resumed one the same experiment (except
-``trials``, which may grow), and it warns when the code differs from the one that wrote the
-rows already there (:func:`code_digest`).
+(versions, a digest of the code and of each of its files, machine, seed, start and end times,
+workers; one entry per session in ``sessions``) and ``results.sqlite`` (:mod:`comparison.store`),
+then the report's files. A new run needs an absent or empty folder; a resumed one the same
+experiment (except ``trials``, which may grow) and the same code: emitterbench's own and every
+plug-in the experiment names (:func:`code_files`), unless told to accept the change
+(:func:`check_code_change`).
 
 Three rules keep a folder sound:
 
@@ -14,8 +15,9 @@ Three rules keep a folder sound:
   would write is refused, its target left alone (the run folder itself may be a link);
 - one session at a time: :func:`folder_session` holds an exclusive ``flock`` on
   ``DIR/.emitterbench.lock`` for the session's lifetime (the operating system releases it if
-  the process dies), so a second ``run --resume`` into the folder is refused, and so is a
-  report while a run writes (:func:`check_report_outputs`);
+  the process dies), and so does a report while it writes (:func:`report_lock`; a run writes
+  its own report before it lets go), so a second ``run --resume`` into the folder is refused,
+  a report while a run writes too, and a run while a report writes;
 - a session that fails before it stored a row leaves the folder as it found it
   (:func:`folder_session`): the engine works out everything that can fail from the experiment
   alone before it enters the folder.
@@ -25,19 +27,21 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import importlib.machinery
+import importlib.util
 import json
 import os
 import platform
 import secrets
 import socket
-import warnings
+import threading
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, TypeVar
 
 from comparison.experiment import Experiment
 
@@ -53,6 +57,7 @@ LOCK_FILE = ".emitterbench.lock"
 """Held (``flock``) by the session writing the folder; removed when it ends."""
 SQLITE_COMPANIONS = ("-wal", "-shm", "-journal")
 """Files SQLite keeps beside ``results.sqlite`` (suffixes of its name)."""
+T = TypeVar("T")
 _SAFE_OPEN = getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
 """Open flags: never through a link at the last component, never inherited by a program."""
 REPORT_FILES = ("summary.csv", "thresholds.csv", "trials.csv", "flights.csv", "report.html")
@@ -178,24 +183,66 @@ def write_csv(path: str | os.PathLike[str], frame: Any) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def _holder_text(descriptor: int) -> str:
-    """``pid N on HOST, started T`` from a lock file's content ("pid unknown" if unreadable)."""
+def _holder_text(descriptor: int) -> tuple[str, str]:
+    """What holds a lock file, ``("run" or "report", "pid N on HOST, started T")``, from its
+    content (``"pid unknown"`` if unreadable; a lock written by an older version is a run's)."""
     try:
         holder = json.loads(os.pread(descriptor, 4096, 0).decode())
-        return f"pid {int(holder['pid'])} on {holder['host']}, started {holder['started_utc']}"
-    except (OSError, ValueError, KeyError, TypeError):
-        return "pid unknown"
+        text = f"pid {int(holder['pid'])} on {holder['host']}, started {holder['started_utc']}"
+        return ("report" if holder.get("command") == "report" else "run"), text
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return "run", "pid unknown"
+
+
+_HELD_HERE: dict[tuple[int, int], tuple[int, int]] = {}
+"""The run folders whose lock a thread of this process holds: ``(st_dev, st_ino)`` of the
+folder → (process id, thread id) (a forked child inherits the dict, not the lock)."""
+
+
+def _folder_key(out: Path) -> tuple[int, int] | None:
+    try:
+        status = os.stat(out)
+    except OSError:
+        return None
+    return status.st_dev, status.st_ino
+
+
+def _holder_here() -> tuple[int, int]:
+    return os.getpid(), threading.get_ident()
+
+
+def _held_here(out: Path) -> bool:
+    """Whether this thread holds the lock of ``out`` (a run writing its own report)."""
+    key = _folder_key(out)
+    return key is not None and _HELD_HERE.get(key) == _holder_here()
+
+
+def _busy(out: Path, field: str, command: str, descriptor: int) -> ValueError:
+    """The one line for a folder whose lock another process holds."""
+    kind, holder = _holder_text(descriptor)
+    if command == "report":
+        fix = "wait for it to finish, then write the report"
+    elif kind == "run":
+        fix = "wait for it to finish, or stop it and rerun with resume=True"
+    else:
+        fix = "wait for it to finish, then run again"
+    return ValueError(f"{field}: {out} is in use by another emitterbench {kind} ({holder}); {fix}")
 
 
 @contextmanager
-def folder_lock(out: Path) -> Iterator[None]:
+def folder_lock(out: Path, *, command: str = "run") -> Iterator[None]:
     """Hold the exclusive lock of the run folder ``out`` (which must exist) for the block.
+
+    ``command`` (``"run"`` or ``"report"``) is recorded in the lock file with this process's
+    id, host and start time, for the message another process gets.
 
     Raises
     ------
     ValueError
-        Another process holds it: a run or a resume is writing the folder.
+        Another process holds it: a run, a resume or a report is writing the folder (the
+        message names it; its field is ``out_dir`` for a run, ``run_dir`` for a report).
     """
+    field = "run_dir" if command == "report" else "out_dir"
     path = out / LOCK_FILE
     refuse_symlink(path)
     while True:
@@ -208,16 +255,13 @@ def folder_lock(out: Path) -> Iterator[None]:
             if fcntl is not None:
                 fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            holder = _holder_text(descriptor)
+            busy = _busy(out, field, command, descriptor)
             os.close(descriptor)
-            raise ValueError(
-                f"out_dir: {out} is in use by another emitterbench run ({holder}); wait for it "
-                "to finish, or stop it and rerun with resume=True"
-            ) from None
+            raise busy from None
         except OSError as error:  # a file system without locks
             os.close(descriptor)
             raise ValueError(
-                f"out_dir: cannot lock {out} ({error.strerror or error}), so a second run "
+                f"{field}: cannot lock {out} ({error.strerror or error}), so a second run "
                 "could write it at the same time; choose a folder on a local disk"
             ) from None
         except BaseException:
@@ -230,19 +274,30 @@ def folder_lock(out: Path) -> Iterator[None]:
         if same:
             break
         os.close(descriptor)
+    key = _folder_key(out)
     try:
-        holder = {"pid": os.getpid(), "host": socket.gethostname(), "started_utc": now_utc()}
+        holder = {
+            "pid": os.getpid(),
+            "host": socket.gethostname(),
+            "started_utc": now_utc(),
+            "command": command,
+        }
         os.ftruncate(descriptor, 0)
         os.pwrite(descriptor, json.dumps(holder).encode(), 0)
+        if key is not None:
+            _HELD_HERE[key] = _holder_here()
         yield
     finally:
+        if key is not None:
+            _HELD_HERE.pop(key, None)
         with suppress(OSError):
             path.unlink()  # before the lock goes: a newcomer re-checks the file it locked
         os.close(descriptor)
 
 
 def running_session(out: Path) -> str | None:
-    """``pid N on HOST, started T`` of the session writing ``out`` now, or None."""
+    """``pid N on HOST, started T`` of the session (a run or a report) writing ``out`` now,
+    or None."""
     if fcntl is None:
         return None
     try:
@@ -253,24 +308,49 @@ def running_session(out: Path) -> str | None:
         try:
             fcntl.flock(descriptor, fcntl.LOCK_SH | fcntl.LOCK_NB)
         except BlockingIOError:
-            return _holder_text(descriptor)
+            return _holder_text(descriptor)[1]
         fcntl.flock(descriptor, fcntl.LOCK_UN)
         return None
     finally:
         os.close(descriptor)
 
 
-def check_report_outputs(run_dir: Path) -> None:
-    """Before a report writes into ``run_dir``: no run is writing it, and none of the files
-    the report writes is a symbolic link."""
-    holder = running_session(run_dir)
-    if holder is not None:
+@contextmanager
+def report_lock(run_dir: Path) -> Iterator[None]:
+    """Hold ``run_dir``'s lock (:func:`folder_lock`) while a report writes it, so that a run
+    cannot add rows between the report's reading and its last file; a run that writes its
+    own report holds it already (in this thread), and keeps it. None of the files the report
+    writes may be a symbolic link.
+
+    Raises
+    ------
+    ValueError
+        ``run_dir`` is not a folder; another process (a run or a report) is writing it; a
+        report's file is a link.
+    """
+    if not run_dir.is_dir():
         raise ValueError(
-            f"run_dir: {run_dir} is in use by an emitterbench run ({holder}); wait for it to "
-            "finish, then write the report"
+            f"run_dir: {run_dir} is not a folder; give the folder of a finished run "
+            "(the one holding experiment.json)"
         )
     for name in REPORT_FILES:
         refuse_symlink(run_dir / name)
+    if _held_here(run_dir):
+        yield
+        return
+    with folder_lock(run_dir, command="report"):
+        yield
+
+
+def holding_report_lock(write: Callable[..., T]) -> Callable[..., T]:
+    """``write(run_dir, ...)`` (a report writer) run under :func:`report_lock`."""
+
+    @functools.wraps(write)
+    def locked(run_dir: str | os.PathLike[str], *args: Any, **kwargs: Any) -> T:
+        with report_lock(Path(run_dir)):
+            return write(run_dir, *args, **kwargs)
+
+    return locked
 
 
 # --------------------------------------------------------------------------------------------
@@ -438,6 +518,7 @@ def session_info(
 ) -> dict[str, Any]:
     """The ``run.json`` entry of this session (finished_utc is filled in at the end)."""
     started = now_utc()
+    files = code_files(experiment)
     return {
         "session_id": started,
         "experiment": experiment.name,
@@ -456,7 +537,8 @@ def session_info(
             "cpu_count": os.cpu_count(),
         },
         "versions": _versions(),
-        "code_digest": code_digest(),
+        "code_digest": code_digest(files),
+        "code_files": files,
     }
 
 
@@ -484,23 +566,78 @@ def _versions() -> dict[str, str | None]:
     return found
 
 
-def code_digest() -> str:
-    """SHA-256 of the source of ``scenarios``, ``estimators`` and ``comparison`` (with their
-    sub-packages).
+OWN_PACKAGES = ("scenarios", "estimators", "comparison")
+"""emitterbench's own packages, whose every source file the code digest covers."""
+CODE_SUFFIXES = (*importlib.machinery.SOURCE_SUFFIXES, *importlib.machinery.EXTENSION_SUFFIXES)
+"""The files of a package that are code (sources and compiled extension modules)."""
+ACCEPT_CODE_CHANGE = "accept_code_change=True"
+"""How a resume is told to go on with changed code (``--accept-code-change`` on the CLI)."""
 
-    Recorded per session in ``run.json``: rows of sessions with different digests may come
-    from different code, which a resume warns about.
+
+def plugin_modules(experiment: Experiment) -> list[str]:
+    """The top-level modules (or packages) of the plug-ins ``experiment`` names: the module of
+    every ``package.module:Class`` estimator or planner and of every estimator registered by
+    an installed package (entry point), emitterbench's own packages left out.
+
+    Read from the names and the installed packages' metadata only: nothing is imported.
     """
-    import comparison
-    import estimators
-    import scenarios
+    from estimators.registry import BUILTIN, plugin_entries
 
+    targets = [spec.name for spec in (*experiment.estimators, *experiment.planners)]
+    registered = [spec.name for spec in experiment.estimators if ":" not in spec.name]
+    if any(name not in BUILTIN for name in registered):
+        entries = plugin_entries()
+        targets += [entries[n].target for n in registered if n in entries and n not in BUILTIN]
+    tops = {t.partition(":")[0].strip().partition(".")[0] for t in targets if ":" in t}
+    return sorted(tops - {"", *OWN_PACKAGES})
+
+
+def _module_files(top: str) -> dict[str, Path]:
+    """The code files of the top-level module or package ``top``, keyed ``top/path.py``, found
+    without importing anything (a top-level name's spec is found by the import system's
+    finders alone; a submodule's would import its parent package)."""
+    try:
+        spec = importlib.util.find_spec(top)
+    except (ImportError, ValueError):
+        spec = None
+    if spec is None:
+        return {}
+    files = {}
+    for location in spec.submodule_search_locations or ():
+        folder = Path(location)
+        for path in sorted(folder.rglob("*")):
+            if path.name.endswith(CODE_SUFFIXES) and path.is_file():
+                files[f"{top}/{path.relative_to(folder).as_posix()}"] = path
+    if spec.submodule_search_locations is None and spec.has_location and spec.origin:
+        path = Path(spec.origin)
+        if path.is_file():
+            files[path.name] = path
+    return files
+
+
+def code_files(experiment: Experiment) -> dict[str, str]:
+    """SHA-256 of every code file that a run of ``experiment`` runs: the sources of
+    ``scenarios``, ``estimators`` and ``comparison``, and all the code files of the package
+    (or the module, if it is not in a package) of each plug-in it names
+    (:func:`plugin_modules`), keyed by path from the package's parent (``comparison/cli.py``,
+    ``my_plugin/fast.py``), in order.
+
+    Nothing is imported or run to find them. Recorded per session in ``run.json``
+    (``code_files``) so that a resume tells which files changed (:func:`check_code_change`).
+    """
+    found: dict[str, Path] = {}
+    for package in OWN_PACKAGES:
+        found.update(_module_files(package))
+    for top in plugin_modules(experiment):
+        found.update(_module_files(top))
+    return {key: hashlib.sha256(found[key].read_bytes()).hexdigest() for key in sorted(found)}
+
+
+def code_digest(files: Mapping[str, str]) -> str:
+    """One SHA-256 of the code files ``files`` (:func:`code_files`): names and digests."""
     digest = hashlib.sha256()
-    for package in (scenarios, estimators, comparison):
-        folder = Path(package.__file__).parent
-        for path in sorted(folder.rglob("*.py")):
-            digest.update(f"{package.__name__}/{path.relative_to(folder).as_posix()}\n".encode())
-            digest.update(path.read_bytes())
+    for name, file_digest in sorted(files.items()):
+        digest.update(f"{name}\n{file_digest}\n".encode())
     return digest.hexdigest()
 
 
@@ -515,18 +652,46 @@ def _previous_sessions(out: Path) -> list[dict[str, Any]]:
     return [s for s in sessions if isinstance(s, dict)] if isinstance(sessions, list) else []
 
 
-def warn_on_code_change(out: Path, session: Mapping[str, Any]) -> None:
-    """Warn (to the caller of :func:`~comparison.engine.run_experiment`) when a previous
-    session of ``out`` ran other code."""
-    previous = _previous_sessions(out)
-    digests = {s.get("code_digest") for s in previous if s.get("code_digest")}
-    if digests and digests != {session["code_digest"]}:
-        warnings.warn(
-            f"resume: the code differs from the one that wrote the rows already in {out} "
-            "(code_digest in run.json); rows of the two sessions may not be comparable. "
-            "Start a new folder to get one consistent run.",
-            stacklevel=3,
-        )
+def changed_code_files(out: Path, files: Mapping[str, str]) -> list[str] | None:
+    """The code files that differ (changed, added or gone) between ``files`` and the last
+    session recorded in ``out``'s ``run.json`` (none recorded: None, nothing to compare); an
+    older ``run.json`` without ``code_files`` gives ``["(files not recorded)"]`` when its
+    ``code_digest`` differs."""
+    previous = [s for s in _previous_sessions(out) if s.get("code_digest")]
+    if not previous:
+        return None
+    last = previous[-1]
+    theirs = last.get("code_files")
+    if not isinstance(theirs, Mapping):
+        same = last["code_digest"] == code_digest(files)
+        return [] if same else ["(files not recorded)"]
+    return sorted(k for k in {*files, *theirs} if files.get(k) != theirs.get(k))
+
+
+def check_code_change(out: Path, session: dict[str, Any], accept: bool) -> None:
+    """Refuse to resume the run in ``out`` with code other than the last session's, naming the
+    changed files, unless ``accept`` (then the session records them in
+    ``code_change_accepted``): its rows would come from another version of the code than
+    the rows already stored, whether the change is emitterbench's or a plug-in's.
+
+    Raises
+    ------
+    ValueError
+        ``resume: the code differs ... (plug-in/file.py, ...)``, with the fix.
+    """
+    changed = changed_code_files(out, session["code_files"])
+    if not changed:
+        return
+    if accept:
+        session["code_change_accepted"] = changed
+        return
+    shown = ", ".join(changed[:5]) + (f" and {len(changed) - 5} more" if len(changed) > 5 else "")
+    raise ValueError(
+        f"resume: the code differs from the one that wrote the rows already in {out} "
+        f"(changed: {shown}; code_files in run.json); the new rows would mix the two "
+        f"versions, so run into a new folder, restore those files, or pass "
+        f"{ACCEPT_CODE_CHANGE} to resume anyway"
+    )
 
 
 def write_run_info(out: Path, session: dict[str, Any]) -> None:

@@ -574,15 +574,33 @@ def test_run_folder_rules(tmp_path):
     assert info["tasks_run"] == 0 and len(info["sessions"]) == 2
 
 
-def test_resume_warns_when_the_code_changed(tmp_path):
+def test_resume_refuses_changed_emitterbench_code_unless_accepted(tmp_path):
     out = run_experiment(smoke(trials=2), tmp_path / "run", workers=1)
     info = json.loads((out / "run.json").read_text())
-    assert len(info["code_digest"]) == 64
-    info["sessions"][0]["code_digest"] = "0" * 64  # as if written by other code
+    files = info["code_files"]
+    assert len(info["code_digest"]) == 64 and "comparison/engine.py" in files
+    source = Path(__file__).parents[2] / "comparison" / "engine.py"
+    assert files["comparison/engine.py"] == hashlib.sha256(source.read_bytes()).hexdigest()
+    files["comparison/engine.py"] = "0" * 64  # as if written by other code
+    info["sessions"][0]["code_files"] = files
     (out / "run.json").write_text(json.dumps(info))
-    with pytest.warns(UserWarning, match=r"^resume: the code differs"):
+    with pytest.raises(
+        ValueError, match=r"^resume: the code differs .* \(changed: comparison/engine.py;"
+    ):
         run_experiment(smoke(trials=3), out, workers=1, resume=True)
+    assert len(read_trials(out)) == 2 * 2 * 2
+    run_experiment(smoke(trials=3), out, workers=1, resume=True, accept_code_change=True)
     assert len(read_trials(out)) == 2 * 3 * 2
+    info = json.loads((out / "run.json").read_text())
+    assert info["code_change_accepted"] == ["comparison/engine.py"]
+
+    # a run.json written before per-file digests: its one digest is compared
+    for session in info["sessions"]:
+        session.pop("code_files")
+        session["code_digest"] = "0" * 64
+    (out / "run.json").write_text(json.dumps(info))
+    with pytest.raises(ValueError, match=r"\(changed: \(files not recorded\);"):
+        run_experiment(smoke(trials=3), out, workers=1, resume=True)
 
 
 def test_missing_dask_is_a_clear_error(tmp_path, monkeypatch):

@@ -7,16 +7,22 @@ open for as long as a gate file exists, so that a second session meets the first
 
 from __future__ import annotations
 
+import csv
 import dataclasses
+import hashlib
+import importlib
 import json
 import os
 import stat
 import subprocess
 import sys
+import threading
 import time
+import warnings
 from pathlib import Path
 from typing import Any, ClassVar
 
+import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
@@ -26,8 +32,10 @@ from comparison.figures import save_figure
 from comparison.run_folder import (
     LOCK_FILE,
     atomic_file,
+    code_files,
     folder_lock,
     folder_session,
+    report_lock,
     running_session,
     write_atomic,
     write_experiment,
@@ -279,7 +287,7 @@ def test_a_second_session_is_refused_while_a_run_writes(tmp_path):
         resumed = invoke("run", definition, "-o", out, "--workers", "1", "--resume")
         line = clean_error(resumed, f"--output: {out} is in use by another emitterbench run")
         assert f"(pid {process.pid} on " in line and line.endswith("rerun with --resume")
-        clean_error(invoke("report", out), f"run_dir: {out} is in use by an emitterbench run")
+        clean_error(invoke("report", out), f"run_dir: {out} is in use by another emitterbench run")
         assert snapshot(out) == before
     finally:
         gate.unlink()
@@ -287,3 +295,216 @@ def test_a_second_session_is_refused_while_a_run_writes(tmp_path):
     assert process.returncode == 0, errors.decode()
     assert running_session(out) is None and not (out / LOCK_FILE).exists()
     assert len(read_trials(out)) == 2 * 4 * 2
+
+
+def hold_in_another_thread(lock: Any) -> tuple[threading.Event, threading.Thread]:
+    """The context manager ``lock`` (a folder's lock) held by another thread of this process
+    until the event returned is set."""
+    held, release = threading.Event(), threading.Event()
+
+    def hold() -> None:
+        with lock:
+            held.set()
+            release.wait()
+
+    thread = threading.Thread(target=hold)
+    thread.start()
+    held.wait()
+    return release, thread
+
+
+def test_a_report_while_the_folder_is_locked_is_refused_in_one_line(finished_run, tmp_path):
+    run = copy_of(finished_run, tmp_path)
+    (run / "summary.csv").unlink()
+    before = snapshot(run)
+    release, thread = hold_in_another_thread(folder_lock(run))
+    try:
+        result = invoke("report", run)
+        line = clean_error(result, f"run_dir: {run} is in use by another emitterbench run (pid ")
+        assert line.endswith("; wait for it to finish, then write the report")
+        assert result.exit_code == 2
+        assert {**snapshot(run), LOCK_FILE: b""} == {**before, LOCK_FILE: b""}
+    finally:
+        release.set()
+        thread.join()
+    assert invoke("report", run).exit_code == 0  # the lock let go: the report is written
+    assert (run / "summary.csv").is_file() and not (run / LOCK_FILE).exists()
+
+
+def test_a_run_while_a_report_writes_is_refused_naming_the_report(finished_run, tmp_path):
+    run = copy_of(finished_run, tmp_path)
+    release, thread = hold_in_another_thread(report_lock(run))
+    try:
+        with pytest.raises(ValueError) as raised:
+            run_experiment(smoke(trials=4), run, workers=1, resume=True)
+    finally:
+        release.set()
+        thread.join()
+    message = str(raised.value)
+    assert message.startswith(
+        f"out_dir: {run} is in use by another emitterbench report (pid {os.getpid()} on "
+    )
+    assert message.endswith("; wait for it to finish, then run again")
+
+
+def test_run_writes_its_report_while_it_holds_the_lock(tmp_path, monkeypatch):
+    from comparison import report
+
+    holders = []
+    write_report = report.write_report
+
+    def observed(run_dir, **options):
+        holders.append(running_session(Path(run_dir)))
+        return write_report(run_dir, **options)
+
+    monkeypatch.setattr(report, "write_report", observed)
+    out = tmp_path / "run"
+    result = invoke("run", "smoke", "-o", out, "--trials", "2", "--workers", "1")
+    assert result.exit_code == 0, result.output
+    (holder,) = holders
+    assert holder is not None and holder.startswith(f"pid {os.getpid()} on ")
+    assert (out / "report.html").is_file() and running_session(out) is None
+    assert not (out / LOCK_FILE).exists()
+    with (out / "summary.csv").open(newline="") as file:
+        assert {row["n_trials"] for row in csv.DictReader(file)} == {"2"}
+
+
+# --------------------------------------------------------------------------------------------
+# the code of a run: emitterbench's and its plug-ins', the same on resume or refused
+# --------------------------------------------------------------------------------------------
+
+PLUGIN_PACKAGE = "eb_shift_plugin"
+PLUGIN_INIT = '"""A plug-in package for the tests: a fixed answer, moved by helpers.OFFSET_M."""\n'
+PLUGIN_MODULE = """
+import numpy as np
+
+from estimators.base import Estimate
+
+from eb_shift_plugin import helpers
+
+
+class Shifted:
+    name = "shifted"
+    requires = frozenset({"doppler", "toa"})
+
+    def estimate(self, data, *, rng=None):
+        position_m = np.array([100.0 + helpers.OFFSET_M, 200.0])
+        return Estimate(
+            estimator=self.name, position_m=position_m, candidates_m=[position_m], ambiguous=False
+        )
+"""
+"""``Shifted`` answers (100 + OFFSET_M, 200) m whatever the data: which code wrote a row shows
+in its ``x_m``, exactly."""
+
+
+@pytest.fixture
+def plugin_site(tmp_path, monkeypatch) -> Path:
+    """A plug-in package on ``sys.path`` (``eb_shift_plugin.shifted:Shifted``), imported
+    afresh by each session (as by a new process), its modules written without bytecode."""
+    site = tmp_path / "site"
+    package = site / PLUGIN_PACKAGE
+    package.mkdir(parents=True)
+    (package / "__init__.py").write_text(PLUGIN_INIT)
+    (package / "helpers.py").write_text("OFFSET_M = 0.0\n")
+    (package / "shifted.py").write_text(PLUGIN_MODULE)
+    monkeypatch.syspath_prepend(str(site))
+    monkeypatch.setattr(sys, "dont_write_bytecode", True)
+    yield package
+    for name in [m for m in sys.modules if m.split(".")[0] == PLUGIN_PACKAGE]:
+        del sys.modules[name]
+
+
+def fresh_imports() -> None:
+    """Forget the plug-in's modules and the estimators built of them, as a new process (a
+    resume) would not have them."""
+    from comparison.tasks import estimator_of
+
+    estimator_of.cache_clear()
+    for name in [m for m in sys.modules if m.split(".")[0] == PLUGIN_PACKAGE]:
+        del sys.modules[name]
+    importlib.invalidate_caches()
+
+
+SHIFTED = [{"name": "cls"}, {"name": f"{PLUGIN_PACKAGE}.shifted:Shifted", "label": "shifted"}]
+
+
+def x_m(out: Path, estimator: str) -> np.ndarray:
+    trials = read_trials(out)
+    mine = trials[trials["estimator"] == estimator]
+    return mine.sort_values(["scenario", "point", "trial"])["x_m"].to_numpy()
+
+
+def test_the_digest_covers_a_plugins_package_without_importing_it(plugin_site, tmp_path):
+    experiment = smoke(estimators=SHIFTED)  # checked: its plug-in imported
+    (plugin_site / "__init__.py").write_text("raise RuntimeError('imported')\n")
+    fresh_imports()
+    files = code_files(experiment)
+    assert PLUGIN_PACKAGE not in sys.modules  # found, not imported
+    mine = {k: v for k, v in files.items() if k.startswith(f"{PLUGIN_PACKAGE}/")}
+    assert mine == {
+        f"{PLUGIN_PACKAGE}/{name}": hashlib.sha256((plugin_site / name).read_bytes()).hexdigest()
+        for name in ("__init__.py", "helpers.py", "shifted.py")
+    }
+    assert "comparison/run_folder.py" in files and "estimators/cls.py" in files
+    assert files == code_files(experiment)
+    assert not set(files) - set(mine) - set(code_files(smoke()))  # the rest: emitterbench's
+
+
+def test_resume_refuses_a_changed_plugin_naming_its_files(plugin_site, tmp_path):
+    experiment = smoke(estimators=SHIFTED)
+    out = run_experiment(experiment.with_trials(2), tmp_path / "run", workers=1)
+    first = json.loads((out / "run.json").read_text())
+    assert f"{PLUGIN_PACKAGE}/shifted.py" in first["code_files"]
+
+    fresh_imports()  # unchanged: resumed silently
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        run_experiment(experiment.with_trials(3), out, workers=1, resume=True)
+    assert "code_change_accepted" not in json.loads((out / "run.json").read_text())
+    assert x_m(out, "shifted").tolist() == [100.0] * 2 * 3
+
+    # another file of the plug-in's package changed: refused, the folder untouched
+    (plugin_site / "helpers.py").write_text("OFFSET_M = 1000.0\n")
+    fresh_imports()
+    before = snapshot(out)
+    pattern = (
+        rf"^resume: the code differs from the one that wrote the rows already in {out} "
+        rf"\(changed: {PLUGIN_PACKAGE}/helpers.py; code_files in run.json\); .* pass "
+        r"accept_code_change=True to resume anyway$"
+    )
+    with pytest.raises(ValueError, match=pattern):
+        run_experiment(experiment.with_trials(4), out, workers=1, resume=True)
+    assert snapshot(out) == before
+
+    # the module itself too, on the command line: one line naming both files
+    (plugin_site / "shifted.py").write_text(PLUGIN_MODULE + "\n# edited\n")
+    fresh_imports()
+    definition = tmp_path / "shifted.json"
+    definition.write_text(experiment.with_trials(4).to_json())
+    args = ("run", definition, "-o", out, "--resume", "--trials", "4", "--workers", "1")
+    line = clean_error(invoke(*args), "--resume: the code ")
+    changed = f"{PLUGIN_PACKAGE}/helpers.py, {PLUGIN_PACKAGE}/shifted.py"
+    assert f"(changed: {changed}; " in line and line.endswith(
+        "pass --accept-code-change to resume anyway"
+    )
+    assert snapshot(out) == before
+
+    # told to go on: the new rows come from the edited code, run.json records both versions
+    fresh_imports()
+    result = invoke(*args, "--accept-code-change")
+    assert result.exit_code == 0, result.output
+    info = json.loads((out / "run.json").read_text())
+    old, new = info["sessions"][-2], info["sessions"][-1]
+    assert new["code_change_accepted"] == changed.split(", ")
+    for name in ("helpers.py", "shifted.py"):
+        key = f"{PLUGIN_PACKAGE}/{name}"
+        assert old["code_files"][key] != new["code_files"][key]
+        assert (
+            new["code_files"][key] == hashlib.sha256((plugin_site / name).read_bytes()).hexdigest()
+        )
+    assert old["code_digest"] != new["code_digest"] == info["code_digest"]
+    assert x_m(out, "shifted").tolist() == [100.0, 100.0, 100.0, 1100.0] * 2  # trial 3: new
+
+    fresh_imports()  # the same code as the last session: silent again
+    run_experiment(experiment.with_trials(5), out, workers=1, resume=True)
+    assert "code_change_accepted" not in json.loads((out / "run.json").read_text())
