@@ -5,7 +5,7 @@ A run folder ``DIR`` holds ``experiment.json`` (the experiment, exact), ``run.js
 workers; one entry per session in ``sessions``) and ``results.sqlite`` (:mod:`comparison.store`),
 then the report's files. A new run needs an absent or empty folder; a resumed one the same
 experiment (except ``trials``, which may grow) and the same code: emitterbench's own and every
-plug-in the experiment names (:func:`code_files`), unless told to accept the change
+plug-in the experiment names (:func:`comparison.code_files.code_files`), unless told to accept the change
 (:func:`check_code_change`).
 
 Three rules keep a folder sound:
@@ -26,9 +26,6 @@ Three rules keep a folder sound:
 from __future__ import annotations
 
 import functools
-import hashlib
-import importlib.machinery
-import importlib.util
 import json
 import os
 import platform
@@ -39,10 +36,10 @@ from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from importlib import metadata
 from pathlib import Path
 from typing import IO, Any, TypeVar
 
+from comparison.code_files import code_digest, code_files, package_versions
 from comparison.experiment import Experiment
 
 try:
@@ -536,109 +533,10 @@ def session_info(
             "machine": platform.machine(),
             "cpu_count": os.cpu_count(),
         },
-        "versions": _versions(),
+        "versions": package_versions(),
         "code_digest": code_digest(files),
         "code_files": files,
     }
-
-
-def _versions() -> dict[str, str | None]:
-    names = (
-        "emitterbench",
-        "numpy",
-        "scipy",
-        "cvxpy",
-        "clarabel",
-        "gtsam",
-        "filterpy",
-        "joblib",
-        "pandas",
-        "rich",
-        "dask",
-        "distributed",
-    )
-    found: dict[str, str | None] = {"python": platform.python_version()}
-    for name in names:
-        try:
-            found[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            found[name] = None
-    return found
-
-
-OWN_PACKAGES = ("scenarios", "estimators", "comparison")
-"""emitterbench's own packages, whose every source file the code digest covers."""
-CODE_SUFFIXES = (*importlib.machinery.SOURCE_SUFFIXES, *importlib.machinery.EXTENSION_SUFFIXES)
-"""The files of a package that are code (sources and compiled extension modules)."""
-ACCEPT_CODE_CHANGE = "accept_code_change=True"
-"""How a resume is told to go on with changed code (``--accept-code-change`` on the CLI)."""
-
-
-def plugin_modules(experiment: Experiment) -> list[str]:
-    """The top-level modules (or packages) of the plug-ins ``experiment`` names: the module of
-    every ``package.module:Class`` estimator or planner and of every estimator registered by
-    an installed package (entry point), emitterbench's own packages left out.
-
-    Read from the names and the installed packages' metadata only: nothing is imported.
-    """
-    from estimators.registry import BUILTIN, plugin_entries
-
-    targets = [spec.name for spec in (*experiment.estimators, *experiment.planners)]
-    registered = [spec.name for spec in experiment.estimators if ":" not in spec.name]
-    if any(name not in BUILTIN for name in registered):
-        entries = plugin_entries()
-        targets += [entries[n].target for n in registered if n in entries and n not in BUILTIN]
-    tops = {t.partition(":")[0].strip().partition(".")[0] for t in targets if ":" in t}
-    return sorted(tops - {"", *OWN_PACKAGES})
-
-
-def _module_files(top: str) -> dict[str, Path]:
-    """The code files of the top-level module or package ``top``, keyed ``top/path.py``, found
-    without importing anything (a top-level name's spec is found by the import system's
-    finders alone; a submodule's would import its parent package)."""
-    try:
-        spec = importlib.util.find_spec(top)
-    except (ImportError, ValueError):
-        spec = None
-    if spec is None:
-        return {}
-    files = {}
-    for location in spec.submodule_search_locations or ():
-        folder = Path(location)
-        for path in sorted(folder.rglob("*")):
-            if path.name.endswith(CODE_SUFFIXES) and path.is_file():
-                files[f"{top}/{path.relative_to(folder).as_posix()}"] = path
-    if spec.submodule_search_locations is None and spec.has_location and spec.origin:
-        path = Path(spec.origin)
-        if path.is_file():
-            files[path.name] = path
-    return files
-
-
-def code_files(experiment: Experiment) -> dict[str, str]:
-    """SHA-256 of every code file that a run of ``experiment`` runs: the sources of
-    ``scenarios``, ``estimators`` and ``comparison``, and all the code files of the package
-    (or the module, if it is not in a package) of each plug-in it names
-    (:func:`plugin_modules`), keyed by path from the package's parent (``comparison/cli.py``,
-    ``my_plugin/fast.py``), in order.
-
-    Nothing is imported or run to find them. Recorded per session in ``run.json``
-    (``code_files``) so that a resume tells which files changed (:func:`check_code_change`).
-    """
-    found: dict[str, Path] = {}
-    for package in OWN_PACKAGES:
-        found.update(_module_files(package))
-    for top in plugin_modules(experiment):
-        found.update(_module_files(top))
-    return {key: hashlib.sha256(found[key].read_bytes()).hexdigest() for key in sorted(found)}
-
-
-def code_digest(files: Mapping[str, str]) -> str:
-    """One SHA-256 of the code files ``files`` (:func:`code_files`): names and digests."""
-    digest = hashlib.sha256()
-    for name, file_digest in sorted(files.items()):
-        digest.update(f"{name}\n{file_digest}\n".encode())
-    return digest.hexdigest()
 
 
 def _previous_sessions(out: Path) -> list[dict[str, Any]]:
@@ -650,6 +548,10 @@ def _previous_sessions(out: Path) -> list[dict[str, Any]]:
     except (OSError, ValueError, AttributeError):
         return []
     return [s for s in sessions if isinstance(s, dict)] if isinstance(sessions, list) else []
+
+
+ACCEPT_CODE_CHANGE = "accept_code_change=True"
+"""How a resume is told to go on with changed code (``--accept-code-change`` on the CLI)."""
 
 
 def changed_code_files(out: Path, files: Mapping[str, str]) -> list[str] | None:

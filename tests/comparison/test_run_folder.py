@@ -26,13 +26,13 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
+from comparison.code_files import code_files
 from comparison.engine import run_experiment
 from comparison.experiment import Experiment, load_experiment
 from comparison.figures import save_figure
 from comparison.run_folder import (
     LOCK_FILE,
     atomic_file,
-    code_files,
     folder_lock,
     folder_session,
     report_lock,
