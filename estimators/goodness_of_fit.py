@@ -43,6 +43,10 @@ FIT_KEYS: tuple[str, str] = ("fit_chi2", "fit_dof")
 FIT_TEST_LEVEL = 0.01
 """A fit is rejected when χ² exceeds the ``1 − FIT_TEST_LEVEL`` quantile of χ²(dof)."""
 
+CHUNK_ELEMENTS = 1 << 14
+"""Trials × samples evaluated at once: the forward model's temporaries stay in cache (a whole
+batch at once is about 1.7 times slower per trial)."""
+
 N_POSITION_PARAMETERS = 2
 """``(x_s, y_s)``: the emitter's height is known (MATH §0)."""
 
@@ -70,6 +74,18 @@ def fit_chi_square(
     """
     s = np.asarray(position_m, dtype=float)
     g = geometry
+    rows = max(1, CHUNK_ELEMENTS // g.n_samples)
+    if s.ndim == 2 and len(s) > rows:  # trial by trial chunks that stay in cache
+        values = {m: np.asarray(v, dtype=float) for m, v in measured.items()}
+        parts = [
+            fit_chi_square(
+                s[i : i + rows],
+                g,
+                {m: v[i : i + rows] if v.ndim == 2 else v for m, v in values.items()},
+            )
+            for i in range(0, len(s), rows)
+        ]
+        return np.concatenate([part for part, _ in parts]), parts[0][1]
     nuisance = unknowns_used(g.unknowns, measured)
     total = np.zeros(s.shape[:-1])
     for modality, values in measured.items():
