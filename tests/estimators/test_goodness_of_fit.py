@@ -206,11 +206,9 @@ def test_the_frames_and_modalities_used_are_the_estimators():
     assert last.diagnostics["fit_dof"] == 2 * 10 - 2  # 10 samples a frame
     with_rss = make_estimator("ml", use_rss=True).estimate(data)
     assert with_rss.diagnostics["fit_dof"] == 3 * 100 - 2
-    doppler = make_estimator("ml", use_toa=False).estimate(
-        simulate(get_scenario("beacon-pass-doppler"), snr_db=20.0, seed=2)
-    )
-    assert (
-        doppler.success and doppler.diagnostics["fit_dof"] == doppler.diagnostics["n_samples"] - 3
-    )  # (x, y) and the carrier offset
+    beacon = simulate(get_scenario("beacon-pass-doppler"), snr_db=20.0, seed=2)
+    doppler = make_estimator("ml", use_toa=False).estimate(beacon)
+    assert doppler.success and "emission_time_s" in beacon.unknowns  # in no Doppler sample
+    assert doppler.diagnostics["fit_dof"] == beacon.n_samples - 3  # (x, y) and the offset
     failed = Estimate.failed("cls", "no answer")
     assert with_fit(make_estimator("cls"), failed, data) is failed
