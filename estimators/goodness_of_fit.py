@@ -174,8 +174,9 @@ def with_fit_columns(
     estimator: Any, columns: BatchEstimates, batch: MeasurementBatch
 ) -> BatchEstimates:
     """``columns`` with the diagnostics columns ``fit_chi2`` and ``fit_dof`` (NaN where a trial
-    failed), computed for every trial at once."""
-    if len(columns) == 0:
+    failed), computed for every trial at once; unchanged when no trial succeeded (the columns
+    then hold no diagnostics)."""
+    if not np.any(columns.success):
         return columns
     value, dof = fit_of(estimator, batch, columns.position_m)
     fit = {FIT_KEYS[0]: value, FIT_KEYS[1]: np.full(len(columns), dof, dtype=np.int64)}
