@@ -250,6 +250,7 @@ def estimate_command(
 
     from comparison.scoring import estimate_to_dict
     from estimators.base import capabilities_of, unknowns_problem
+    from estimators.goodness_of_fit import fit_warning
     from estimators.registry import make_estimator
 
     options = parse_estimator_options(option or [])
@@ -263,6 +264,9 @@ def estimate_command(
         raise ValueError(problem)
     with blame("--estimator", f"{estimator} cannot estimate from {file}; try another estimator"):
         estimate = chosen.estimate(data.without_truth(), rng=np.random.default_rng(0))
+    misfit = fit_warning(estimate.diagnostics)
+    if misfit is not None:
+        typer.echo(f"warning: {misfit}", err=True)
     result = estimate_to_dict(estimate, data.truth_emitter_m)
     if as_json:
         print_json(result)

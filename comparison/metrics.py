@@ -18,6 +18,8 @@ per estimator × scenario × point × frame × trial, and planner in a closed lo
 - rates with their counts beside them: ``wrong_side_rate`` over ``n_side_judged`` estimates
   off the track, ``success_rate`` over ``n_trials``, ``nees_mean`` and
   ``nees_side_resolved_mean`` over ``n_nees`` with the 95% chi-square band;
+- ``fit_rejected_rate`` over ``n_fit_judged``: the share of estimates whose goodness of fit
+  (``fit_chi2`` on ``fit_dof``, MATH §17) is rejected at 1%;
 - the verdicts of :mod:`comparison.verdicts`: ``verdict`` (``attains``, ``above``, ``below``,
   ``inconclusive``) with ``verdict_reason``, judged on ``efficiency_judged`` and its interval,
   and ``nees_verdict``.
@@ -45,6 +47,7 @@ from comparison.intervals import (
 )
 from comparison.trial_rows import REQUIRED_TRIAL_COLUMNS, TRIAL_COLUMNS
 from comparison.verdicts import efficiency_verdicts, nees_verdicts
+from estimators.goodness_of_fit import fit_judged, fit_rejected
 
 FloatArray = NDArray[np.float64]
 
@@ -102,6 +105,8 @@ EXTRA_METRIC_NAMES: tuple[str, ...] = (
     "tail_share",
     "verdict",
     "verdict_reason",
+    "fit_rejected_rate",
+    "n_fit_judged",
 )
 """Columns that follow the contracted ones: counts beside the rates, intervals, verdicts."""
 
@@ -176,6 +181,12 @@ METRIC_DESCRIPTIONS: dict[str, str] = {
     "verdict_reason": "the numbers behind the verdict",
     "nees_verdict": "consistent, optimistic (covariance too small), pessimistic or inconclusive "
     "for the judged NEES against its chi-square band; 'no covariance' when there is none",
+    "fit_rejected_rate": "fraction of the n_fit_judged estimates whose fit is rejected at 1%: "
+    "the whitened residual χ² of the data at the answer above the 99% point of χ²(fit_dof) "
+    "(MATH §17); about 1% when the model, its σ's and constants hold and the answer is the "
+    "best fit, more with an outlier, a wrong σ or constant, or an answer far from the best fit",
+    "n_fit_judged": "successful estimates that report a goodness of fit with at least one "
+    "degree of freedom: the count of fit_rejected_rate",
     "runtime_median_s": "median wall time of one estimate: one call's time for an estimator "
     "called per trial; a batch call's time divided by its trials for a batch estimator; the "
     "frame's update and estimate_state for a streamed one",
@@ -417,6 +428,12 @@ def summarize(
     n_nees = judged(stats_frame["n_nees_side"].to_numpy(), stats_frame["n_nees"].to_numpy())
     band_low, band_high = nees_band(n_nees, confidence)
     nees_judged = judged(stats_frame["nees_side_mean"].to_numpy(), stats_frame["nees_mean"])
+    # goodness of fit (MATH §17): the share of the judged successes rejected at 1%
+    fit = np.where(success, optional("fit_chi2"), np.nan), optional("fit_dof")
+    n_fit_judged = np.bincount(group[fit_judged(*fit)], minlength=n_groups)
+    n_fit_rejected = np.bincount(group[fit_rejected(*fit)], minlength=n_groups)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        fit_rejected_rate = np.where(n_fit_judged > 0, n_fit_rejected / n_fit_judged, np.nan)
     metrics = pd.DataFrame(
         {
             "n_trials": stats_frame["n_trials"].to_numpy(dtype=np.int64),
@@ -468,6 +485,8 @@ def summarize(
             "tail_share": tail,
             "verdict": verdict,
             "verdict_reason": verdict_reason,
+            "fit_rejected_rate": fit_rejected_rate,
+            "n_fit_judged": n_fit_judged.astype(np.int64),
         }
     )
     # The key columns of each group: its first row (they are constant within a group).

@@ -88,6 +88,8 @@ COMPACT_COLUMNS: tuple[str, ...] = (
     "nees_side_resolved_mean",
     "n_nees",
     "nees_verdict",
+    "fit_rejected_rate",
+    "n_fit_judged",
     "runtime_median_s",
 )
 """Metric columns of the compact per-scenario tables unless the experiment lists its own

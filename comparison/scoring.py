@@ -29,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from comparison.trial_rows import ESTIMATE_COLUMNS
 from estimators.base import Estimate
 from estimators.batch import BatchEstimates
+from estimators.goodness_of_fit import FIT_KEYS
 from scenarios.fisher import inverse_2x2
 from scenarios.types import MeasurementSet
 
@@ -134,6 +135,7 @@ def estimate_columns(
         "cov_yy_m2": cov[2],
         "nees": nees,
         "nees_side_resolved": nees_side_resolved,
+        **{key: fit_value(estimate.diagnostics, key) if success else nan for key in FIT_KEYS},
         "runtime_s": float(runtime_s),
         "message": str(estimate.message),
         "diagnostics_json": json.dumps(jsonable(dict(estimate.diagnostics)), sort_keys=True),
@@ -225,7 +227,7 @@ class Outcomes:
         Each trial's share of the estimator's time.
     diagnostics_json : tuple of str, optional
         Each trial's ``diagnostics_json`` when the results came as ``Estimate`` objects (their
-        diagnostics can be anything; the columns of :meth:`of_estimates` hold none), else
+        diagnostics can be anything; the columns of :meth:`of_estimates` hold only the fit), else
         None: the text is then written from ``columns.diagnostics``.
     """
 
@@ -272,6 +274,10 @@ class Outcomes:
             message_code=np.array(message_code, dtype=np.int64),
             messages=tuple(codes) or ("",),
             covariance_m2=covariance,
+            diagnostics={
+                key: np.array([fit_value(e.diagnostics, key) for e in estimates])
+                for key in FIT_KEYS
+            },
         )
         runtime_s = np.array([runtime for _, runtime in results], dtype=float)
         texts = tuple(diagnostics_text(estimate.diagnostics) for estimate in estimates)
@@ -364,6 +370,7 @@ def score_outcomes(
         "cov_yy_m2": cov_yy.tolist(),
         "nees": nees.tolist(),
         "nees_side_resolved": nees_side_resolved.tolist(),
+        **{key: _fit_column(columns, key, success).tolist() for key in FIT_KEYS},
         "runtime_s": np.asarray(outcomes.runtime_s, dtype=float).tolist(),
         "message": [messages[code] for code in columns.message_code.tolist()],
         "diagnostics_json": (
@@ -373,6 +380,22 @@ def score_outcomes(
         ),
     }
     return list(zip(*(values[column] for column in ESTIMATE_COLUMNS), strict=True))
+
+
+def fit_value(diagnostics: Mapping[str, Any], key: str) -> float:
+    """The number an estimate reports under ``key`` (``fit_chi2``, ``fit_dof``: MATH §17), NaN
+    when it reports none (a plug-in need not)."""
+    value = diagnostics.get(key)
+    number = isinstance(value, int | float | np.integer | np.floating)
+    return float(value) if number and not isinstance(value, bool | np.bool_) else math.nan
+
+
+def _fit_column(columns: BatchEstimates, key: str, success: NDArray[np.bool_]) -> NDArray[Any]:
+    """:func:`fit_value` of every trial, from the diagnostics column ``key``."""
+    column = columns.diagnostics.get(key)
+    if column is None or column.dtype.kind not in "iuf":
+        return np.full(len(columns), math.nan)
+    return np.where(success, column.astype(float), math.nan)
 
 
 def _nees(error_m: NDArray[np.float64], covariance_m2: NDArray[np.float64]) -> NDArray[Any]:

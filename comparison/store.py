@@ -72,6 +72,8 @@ _ADDED_LATER: tuple[tuple[Table, tuple[str, ...]], ...] = (
             "crlb_xx_m2",
             "crlb_xy_m2",
             "crlb_yy_m2",
+            "fit_chi2",
+            "fit_dof",
         ),
     ),
     (POINTS, ("range_scale_m",)),

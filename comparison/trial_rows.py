@@ -186,6 +186,8 @@ TRIALS = Table(
         _real("cov_yy_m2", "estimate", required=False),
         _real("nees", "estimate"),
         _real("nees_side_resolved", "estimate"),
+        _real("fit_chi2", "estimate", required=False),
+        _real("fit_dof", "estimate", required=False),
         _real("crlb_rmse_m", "bound"),
         _real("crlb_xx_m2", "bound", required=False),
         _real("crlb_xy_m2", "bound", required=False),
@@ -202,7 +204,9 @@ TRIALS = Table(
 )
 """The trial-row contract: one row per scenario × point × planner × estimator × frame ×
 trial. ``planner`` is empty in an open-loop run; ``runtime_s`` is the only column that is not
-a function of the experiment."""
+a function of the experiment. ``fit_chi2`` and ``fit_dof`` are the goodness of fit of the answer
+(MATH §17; ``estimators.goodness_of_fit``), NaN for a failed estimate or an estimator that does
+not report it."""
 
 TRIAL_COLUMNS: tuple[str, ...] = TRIALS.names()
 """Every fixed column of a trial frame; the swept-parameter columns come on top of these.

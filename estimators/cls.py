@@ -69,6 +69,7 @@ from estimators.cls_rows import (
     whiten_sample_pairs,
 )
 from estimators.constrained_ls import ConstrainedLS
+from estimators.goodness_of_fit import with_fit, with_fit_columns
 from estimators.gtrs import GtrsSolution, solve_gtrs
 from estimators.pseudorange_cls import OffsetMethod, solve_pseudorange_cls
 from scenarios import measurement_model as model
@@ -370,7 +371,7 @@ class _Batches:
     ) -> Estimate:
         """The one-trial solver on ``data`` (class text): ``estimate`` to 1e-9, not to the bit."""
         require_modalities(self, data)
-        return self._solve_one(data, rng)
+        return with_fit(self, self._solve_one(data, rng), data)
 
     def _solve_one(self, data: MeasurementSet, rng: np.random.Generator | None) -> Estimate:
         return _estimate(
@@ -411,8 +412,9 @@ class _Batches:
     def _columns(
         self, batch: MeasurementBatch, rngs: Sequence[np.random.Generator | None] | None
     ) -> BatchEstimates:
-        """:func:`estimators.cls_batch.estimate_columns` with this estimator's options."""
-        return estimate_columns(
+        """:func:`estimators.cls_batch.estimate_columns` with this estimator's options, and the
+        goodness of fit of every trial (MATH §17)."""
+        columns = estimate_columns(
             self.name,
             self._rows(),
             self.frames,
@@ -421,6 +423,7 @@ class _Batches:
             self.side_prior_m,
             self._solve_one,
         )
+        return with_fit_columns(self, columns, batch)
 
 
 @dataclass(frozen=True, kw_only=True)

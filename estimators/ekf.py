@@ -110,6 +110,7 @@ from estimators.convergence import (
     symmetric_inverse,
 )
 from estimators.frame_model import FrameModel, read_only
+from estimators.goodness_of_fit import with_fit
 from estimators.mirror_hypotheses import (
     diffuse_prior_information,
     first_frame_candidates,
@@ -507,7 +508,7 @@ class Ekf:
         state = self.init()
         for frame in data.iter_frames():
             state = self.update(state, frame)
-        return self.estimate_state(state, rng=rng)
+        return with_fit(self, self.estimate_state(state, rng=rng), data)
 
     # -- internals ----------------------------------------------------------------------------
 

@@ -100,6 +100,7 @@ from estimators import smoother_nuisance
 from estimators.base import Capabilities, Estimate, require_modalities
 from estimators.convergence import COST_ROUNDING_RTOL, DECREMENT_TOL, EstimationFailure
 from estimators.frame_model import FrameModel
+from estimators.goodness_of_fit import with_fit
 from estimators.mirror_hypotheses import (
     DIFFUSE_PRIOR_SCALE,
     MERGE_RTOL,
@@ -211,7 +212,11 @@ class GtsamSmoother:
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         """Levenberg-Marquardt on every hypothesis's full graph, each solve checked (module text).
         With unknown nuisance parameters (``data.unknowns``, MATH §15) the graph carries them
-        as one more variable (:mod:`estimators.smoother_nuisance`)."""
+        as one more variable (:mod:`estimators.smoother_nuisance`). The goodness of fit of the
+        answer is in ``diagnostics`` (MATH §17)."""
+        return with_fit(self, self._solve_graph(data, rng), data)
+
+    def _solve_graph(self, data: MeasurementSet, rng: np.random.Generator | None) -> Estimate:
         require_modalities(self, data)
         if nuisance_names(data):
             return smoother_nuisance.estimate(data, self._nuisance_options(), rng)

@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from estimators.base import Capabilities, Estimate, finalize_estimate, require_modalities
 from estimators.cls_rows import LocalFrame, toa_rows
+from estimators.goodness_of_fit import with_fit
 from scenarios.types import MeasurementSet, RssModel
 
 FloatArray = NDArray[np.float64]
@@ -294,7 +295,8 @@ class LlsToa:
         require_modalities(self, data)
         used = data.select_frames(self.frames)
         solution = solve_lls_toa(used.position_m, used.range_m, used.emitter_height_m)
-        return _lls_estimate(self.name, solution, used, rng, n_samples=used.n_samples)
+        estimate = _lls_estimate(self.name, solution, used, rng, n_samples=used.n_samples)
+        return with_fit(self, estimate, data)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -337,7 +339,7 @@ class LlsRss:
             used.emitter_height_m,
             reference=self.reference,
         )
-        return _lls_estimate(
+        estimate = _lls_estimate(
             self.name,
             solution,
             used,
@@ -346,3 +348,4 @@ class LlsRss:
             bias_factor=rss_bias_factor(used.noise.rss_db, used.rss_model.path_loss_exponent),
             n_samples=used.n_samples,
         )
+        return with_fit(self, estimate, data)

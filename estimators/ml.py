@@ -72,6 +72,7 @@ from estimators.batch import BatchEstimates
 from estimators.cls import solve_doppler_toa_cls
 from estimators.cls_rows import LocalFrame
 from estimators.convergence import DECREMENT_TOL, stationarity_decrement
+from estimators.goodness_of_fit import with_fit, with_fit_columns
 from estimators.lls import solve_lls_toa
 from estimators.minpack_batch import ordered_sum
 from estimators.ml_residuals import ResidualModel, profiled_offsets
@@ -539,9 +540,17 @@ class MaximumLikelihood:
         for bit, with the trials the batch cannot reproduce solved one at a time."""
         from estimators.ml_batch import estimate_columns
 
-        return estimate_columns(self, batch, rngs)
+        return with_fit_columns(self, estimate_columns(self, batch, rngs), batch)
 
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
+        """The answer, with its goodness of fit in ``diagnostics`` (MATH §10, §17)."""
+        return with_fit(self, self.estimate_without_fit(data, rng=rng), data)
+
+    def estimate_without_fit(
+        self, data: MeasurementSet, *, rng: np.random.Generator | None = None
+    ) -> Estimate:
+        """:meth:`estimate` before its goodness of fit is added: what the batch
+        (:mod:`estimators.ml_batch`) defers a trial to, before it adds the fit to every trial."""
         require_modalities(self, data)
         self.check_measurements(data.toa_s is not None, data.rss_dbm is not None)
         if not self.use_toa and data.toa_s is not None:

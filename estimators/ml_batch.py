@@ -215,7 +215,7 @@ def estimate_columns(
             _solve_trials(context, trials, out)
 
     def solve_one(data: MeasurementSet, rng: np.random.Generator | None) -> Estimate:
-        return estimator.estimate(data, rng=rng)
+        return estimator.estimate_without_fit(data, rng=rng)
 
     redo, recomputed = _draw_and_redo(
         estimator.name,

@@ -80,6 +80,7 @@ from estimators.base import (
 )
 from estimators.batch import BatchEstimates, FinalizedColumns, check_rngs, finalize_columns
 from estimators.cls_batch import CHUNK_ELEMENTS, MAX_CHUNK, SharedGeometry
+from estimators.goodness_of_fit import with_fit, with_fit_columns
 from estimators.sdp_lift import (
     RANK_RTOL,
     ChunkRows,
@@ -329,8 +330,8 @@ class SdpCls:
         if decided.index.size == 0:
             return decided.failures[0]
         if decided.redone:
-            return decided.redone[0]
-        return decided.estimate(0, self.name, self.solver)
+            return with_fit(self, decided.redone[0], data)
+        return with_fit(self, decided.estimate(0, self.name, self.solver), data)
 
     def estimate_batch(
         self,
@@ -350,7 +351,7 @@ class SdpCls:
         ]
         out = dict(zip(decided.index.tolist(), estimates, strict=True))
         out |= decided.redone | decided.failures
-        return [out[i] for i in range(batch.n_trials)]
+        return [with_fit(self, out[i], batch.trial(i)) for i in range(batch.n_trials)]
 
     def estimate_columns(
         self,
@@ -364,7 +365,8 @@ class SdpCls:
         if batch.n_trials == 0:
             check_rngs(rngs, 0)
             return BatchEstimates.from_estimates(self.name, [])
-        return _columns(self, _solve_batch(self, batch, rngs), batch.n_trials)
+        columns = _columns(self, _solve_batch(self, batch, rngs), batch.n_trials)
+        return with_fit_columns(self, columns, batch)
 
 
 @dataclass(frozen=True, slots=True, eq=False)

@@ -39,6 +39,11 @@ each quantity differs by at most ``SAFETY · κ · EPS`` times its scale:
   Fisher information at the truth (:func:`fisher_condition`).
 - what is not a rounded number (flags, counts, messages, the order of candidates, a
   generator's draws) is equal.
+- the goodness of fit ``fit_chi2`` (MATH §17) is a function of the position and the data:
+  its gap between paths is its slope times the positions' gap, which needs the data. So it is
+  not compared between paths (:data:`POSITION_STATISTICS`); the positions are, by the rule
+  above, and every path's value is checked to be the statistic at its own position, bit for
+  bit (``tests/estimators/test_goodness_of_fit.py``). ``fit_dof``, a count, is equal.
 
 ``SAFETY = 64``: a trial's sums run over its whitened rows (up to a few thousand); the rounding
 of such a sum taken in another order is a random walk of about ``√m · EPS`` of its terms, and
@@ -67,6 +72,10 @@ from scenarios.types import MeasurementSet
 EPS = float(np.finfo(float).eps)
 SAFETY = 64.0
 """The rounding of a sum of up to 4096 terms taken in another order, in units of ``EPS``."""
+
+POSITION_STATISTICS = ("fit_chi2",)
+"""Diagnostics keys and trial columns that are functions of the returned position and the
+data, not compared between paths (the goodness of fit, MATH §17; see the module text)."""
 
 SENSITIVITY_STEP = 2.0**-30
 """The relative change of the measurements :func:`sensitivity` makes (~1e-9: far above
@@ -240,6 +249,8 @@ def estimate_problems(
     if list(mine) != list(theirs):
         return [*problems, f"diagnostics keys {list(mine)} vs {list(theirs)}"]
     for key, value in mine.items():
+        if key in POSITION_STATISTICS:
+            continue
         if scales and key in scales and isinstance(value, float):
             scale, kappa = scales[key]
             problems += number_problems(key, value, theirs[key], scale, kappa)
@@ -311,7 +322,13 @@ def row_problems(reference: Mapping[str, Any], other: Mapping[str, Any], kappa: 
                 for x, y in zip(np.ravel(a).tolist(), np.ravel(b).tolist(), strict=True):
                     problems += number_problems(column, x, y, length_m, kappa)
         elif column == "diagnostics_json":
-            problems += value_problems(column, json.loads(value), json.loads(theirs), kappa)
+            a, b = json.loads(value), json.loads(theirs)
+            if isinstance(a, dict) and isinstance(b, dict) and list(a) == list(b):
+                a, b = (_without_position_statistics(d) for d in (a, b))
+            problems += value_problems(column, a, b, kappa)
+        elif column in POSITION_STATISTICS:  # reported by both paths or by neither
+            if _nan(value) != _nan(theirs):
+                problems.append(f"{column} {value!r} vs {theirs!r}")
         elif not _same(value, theirs):
             problems.append(f"{column} {value!r} vs {theirs!r}")
     return problems
@@ -333,6 +350,10 @@ def frame_problems(
         found = row_problems(a, b, kappa(a) if callable(kappa) else kappa)
         problems += [f"row {i}: {p}" for p in found]
     return problems
+
+
+def _without_position_statistics(diagnostics: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in diagnostics.items() if k not in POSITION_STATISTICS}
 
 
 def _matrix(row: Mapping[str, Any]) -> np.ndarray:

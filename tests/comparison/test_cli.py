@@ -123,6 +123,36 @@ def test_estimate_summary_is_readable(tmp_path: Path) -> None:
     assert not out["ambiguous"]  # two headings resolve the side
 
 
+@pytest.mark.parametrize(
+    ("estimator", "fault"), [("cls", "outlier"), ("ml", "light"), ("ml", "outlier")]
+)
+def test_estimate_warns_when_the_data_do_not_fit(tmp_path: Path, estimator, fault) -> None:
+    """MATH §17: one ToA sample 10⁴ σ off, or the speed of light ×100, makes χ² at the answer
+    enormous; ``estimate`` still answers (stdout, ``--json`` intact) and warns on stderr."""
+    data = read_measurements(simulated(tmp_path, "paper-1m", seed=4, snr_db=20.0))
+    clean = invoke(
+        "estimate", simulated(tmp_path, "paper-1m", seed=4, snr_db=20.0), "-e", estimator
+    )
+    assert clean.exit_code == 0 and clean.stderr == "", clean.output  # the same data, unspoilt
+    if fault == "outlier":
+        toa = np.array(data.toa_s)
+        toa[5] += 1e4 * data.noise.toa_s
+        spoilt = dataclasses.replace(data, toa_s=toa)
+    else:
+        spoilt = dataclasses.replace(data, speed_of_light_mps=100 * data.speed_of_light_mps)
+    path = write_measurements(spoilt, tmp_path / "spoilt.json")
+    for extra in ((), ("--json",)):
+        result = invoke("estimate", path, "-e", estimator, *extra)
+        assert result.exit_code == 0, result.output
+        (line,) = result.stderr.strip().splitlines()
+        assert line.startswith("warning: the data do not fit the model at the answer (χ² = ")
+        assert "on 18 degrees of freedom, p < 1e-6; MATH §17)" in line
+    out = json.loads(result.stdout)
+    assert out["success"] is True
+    assert out["diagnostics"]["fit_dof"] == 18  # 10 samples, Doppler and ToA, minus (x, y)
+    assert out["diagnostics"]["fit_chi2"] > 1e5
+
+
 def write_csv(data: MeasurementSet, path: Path) -> Path:
     columns = {
         "frame": data.frame,

@@ -32,6 +32,7 @@ from comparison.tasks import tie_rng, trial_seed
 from comparison.trial_rows import TRIAL_COLUMNS
 from estimators.base import Capabilities, Estimate
 from estimators.cls import Cls
+from estimators.goodness_of_fit import FIT_KEYS
 from estimators.ml import MaximumLikelihood
 from estimators.registry import make_estimator
 from scenarios.catalog import get_scenario
@@ -78,6 +79,12 @@ class SleepyCls:
         return Cls().estimate(data, rng=rng)
 
 
+def keep_fit(estimate, **diagnostics):
+    """``estimate`` with only ``diagnostics`` and its goodness of fit (MATH §17)."""
+    fit = {key: estimate.diagnostics[key] for key in FIT_KEYS if key in estimate.diagnostics}
+    return dataclasses.replace(estimate, diagnostics={**diagnostics, **fit})
+
+
 @dataclass_frozen
 class BatchCls:
     """``cls`` with an ``estimate_batch`` that records the batch size (or raises)."""
@@ -93,9 +100,7 @@ class BatchCls:
         if self.broken:
             raise RuntimeError("batch path broken on purpose")
         return [
-            dataclasses.replace(
-                Cls().estimate(data, rng=rng), diagnostics={"batch_size": len(batch)}
-            )
+            keep_fit(Cls().estimate(data, rng=rng), batch_size=len(batch))
             for data, rng in zip(batch, rngs, strict=True)
         ]
 
@@ -128,8 +133,7 @@ class StreamedCls:
         return (*state, frame)
 
     def estimate_state(self, state, *, rng=None):
-        estimate = Cls().estimate(concatenate(state), rng=rng)
-        return dataclasses.replace(estimate, diagnostics={"frames_seen": len(state)})
+        return keep_fit(Cls().estimate(concatenate(state), rng=rng), frames_seen=len(state))
 
 
 @dataclass_frozen

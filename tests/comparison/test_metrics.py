@@ -333,3 +333,21 @@ def test_axis_efficiencies_follow_the_crlb_s_principal_axes():
     assert row["efficiency_major_axis_ci_high"] < 0.9  # below the bound along y: biased
     assert row["efficiency"] == pytest.approx(1.0, rel=0.05)  # though the trace says 1
     assert row["verdict"] == "biased"
+
+
+def test_the_fit_rejected_rate_counts_the_judged_successes():
+    """MATH §17: a success is judged when it reports χ² with at least one degree of freedom;
+    its fit is rejected above the 99% point of χ²(dof), here 37.57 for 20."""
+    limit = stats.chi2.ppf(0.99, 20)
+    assert limit == pytest.approx(37.566, abs=1e-3)
+    chi2 = [limit * 1.001, limit * 0.999, 1.2e8, 3.0, 5.0, np.nan, 7.0, 9.0, 1e9, 1e9]
+    dof = [20, 20, 20, 20, 20, 20, 0, 20, 20, 20]
+    success = np.array([True] * 8 + [False] * 2)  # the failures' χ² is not judged
+    rows = trial_rows(np.zeros((10, 2)), success=success)
+    rows["fit_chi2"], rows["fit_dof"] = chi2, dof
+    row = summarize(rows, n_bootstrap=10).iloc[0]
+    assert row["n_fit_judged"] == 6  # no NaN χ², no dof 0, no failure
+    assert row["fit_rejected_rate"] == 2 / 6
+    # a run folder of an earlier version has no fit: nothing judged, no rate
+    old = summarize(trial_rows(np.zeros((10, 2))), n_bootstrap=10).iloc[0]
+    assert old["n_fit_judged"] == 0 and math.isnan(old["fit_rejected_rate"])

@@ -120,3 +120,25 @@ def test_readers_see_the_rows_of_a_sound_store(finished_run):
     assert len(read_points(finished_run)) == 2
     assert read_flights(finished_run).empty
     assert not any(name.endswith(("-wal", "-shm")) for name in os.listdir(finished_run))
+
+
+def test_the_fit_columns_are_stored_and_added_to_a_folder_of_an_earlier_version(
+    finished_run, tmp_path
+):
+    """MATH §17: every success of cls and cls-paper on smoke has its χ² and dof (paper-1m,
+    one frame of 10 samples, Doppler and ToA: 18). A folder written before the columns
+    existed gets them on --resume, NaN for its rows, and new rows fill them."""
+    trials = read_trials(finished_run)
+    assert trials["success"].all() and (trials["fit_dof"] == 18).all()
+    assert (trials["fit_chi2"] > 0).all() and trials["fit_chi2"].notna().all()
+    old = copy_of(finished_run, tmp_path)
+    with sqlite3.connect(old / "results.sqlite") as connection:
+        for column in ("fit_chi2", "fit_dof"):
+            connection.execute(f"ALTER TABLE trials DROP COLUMN {column}")
+    connection.close()
+    resumed = invoke("run", "smoke", "-o", old, "--trials", TRIALS + 2, "--resume")
+    assert resumed.exit_code == 0, resumed.output
+    rows = read_trials(old)
+    earlier = rows["trial"] < TRIALS
+    assert rows.loc[earlier, ["fit_chi2", "fit_dof"]].isna().all().all()
+    assert (rows.loc[~earlier, "fit_dof"] == 18).all() and (~earlier).sum() == 2 * 2 * 2

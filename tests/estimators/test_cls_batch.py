@@ -417,6 +417,8 @@ def test_columns_hold_arrays_and_build_estimates_on_demand() -> None:
         "stages",
         "n_samples",
         "straight_track",
+        "fit_chi2",
+        "fit_dof",
     ]
     assert (columns.diagnostics["rank"] == 3).all()
     assert (columns.diagnostics["n_samples"] == 100).all()
