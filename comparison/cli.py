@@ -52,6 +52,7 @@ from comparison.cli_views import (
     print_estimate,
     print_plan,
     validation_lines,
+    version_text,
 )
 
 __all__ = [
@@ -82,16 +83,6 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_show_locals=False,
 )
-
-
-def version_text() -> str:
-    """``emitterbench 0.1.0``: the installed distribution's version (importlib.metadata)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return f"emitterbench {version('emitterbench')}"
-    except PackageNotFoundError:
-        return "emitterbench (version unknown: not installed; pip install -e .)"
 
 
 def _print_version(asked: bool) -> None:
@@ -651,22 +642,20 @@ def validate_command(
             f"--output: cannot create {output} ({error.strerror or error}); choose a writable "
             "folder"
         ) from None
-    import sys
+    from contextlib import ExitStack
 
-    from rich.progress import Progress
+    from comparison.progress import progress_display
 
-    from comparison.progress import ProgressLog
-
-    total = instances * len(chosen)
-    log = None if sys.stderr.isatty() else ProgressLog(total, unit="instances")
-
-    with Progress(disable=log is not None, transient=True) as bar:
-        task = bar.add_task("validating", total=total)
+    with ExitStack() as stack:
+        total = instances * len(chosen)
+        bar = progress_display(stack, total=total, unit="instances")
+        counted = 0
 
         def progress(done: int, total: int, family: str) -> None:
-            bar.update(task, completed=done, total=total, description=family)
-            if log is not None:
-                log.advance(done - log.done)
+            nonlocal counted
+            bar.describe(family)
+            bar.advance(done - counted)
+            counted = done
 
         result = run_validation(
             instances=instances,
@@ -676,8 +665,7 @@ def validate_command(
             progress=progress,
             estimator=validated,
         )
-    if log is not None:
-        log.finish()
+        bar.finish()
     for line in validation_lines(result):
         typer.echo(line)
     typer.echo(f"report: {output / 'validate.html'}")

@@ -1,5 +1,5 @@
-"""What the commands of :mod:`comparison.cli` print for a person: the summaries of ``estimate``,
-``crlb``, ``fly`` and ``validate`` (``--json`` prints the data themselves,
+"""What the commands of :mod:`comparison.cli` print for a person: the version, the summaries of
+``estimate``, ``crlb``, ``fly`` and ``validate`` (``--json`` prints the data themselves,
 :func:`comparison.cli_support.print_json`)."""
 
 from __future__ import annotations
@@ -10,6 +10,16 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from scenarios.types import MeasurementSet
+
+
+def version_text() -> str:
+    """``emitterbench 0.1.0``: the installed distribution's version (importlib.metadata)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return f"emitterbench {version('emitterbench')}"
+    except PackageNotFoundError:
+        return "emitterbench (version unknown: not installed; pip install -e .)"
 
 
 def console() -> Any:

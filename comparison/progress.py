@@ -77,6 +77,9 @@ class ProgressLog:
                 f"({self.done / self.total:.0%}), {self._rate_text(rate)}, {left}"
             )
 
+    def describe(self, text: str) -> None:
+        """Nothing: the lines count the work, whatever it is."""
+
     def finish(self) -> None:
         """The last line: how much ran, in how long (until the last :meth:`advance`)."""
         if self.done == self.started_done:
@@ -118,9 +121,11 @@ def duration_text(seconds: float) -> str:
 
 
 class ProgressBar:
-    """The progress bar of trials on stderr (a terminal), closed with the ``stack`` it is given."""
+    """A progress bar on stderr (a terminal), closed with the ``stack`` it is given."""
 
-    def __init__(self, stack: ExitStack, *, total: int, completed: int) -> None:
+    def __init__(
+        self, stack: ExitStack, *, total: int, completed: int, unit: str = "trials"
+    ) -> None:
         from rich.console import Console
         from rich.progress import (
             BarColumn,
@@ -135,7 +140,7 @@ class ProgressBar:
             TextColumn("[bold]{task.description}"),
             BarColumn(),
             MofNCompleteColumn(),
-            TextColumn("trials"),
+            TextColumn(unit),
             TimeElapsedColumn(),
             TextColumn("ETA"),
             TimeRemainingColumn(),
@@ -147,17 +152,27 @@ class ProgressBar:
     def advance(self, n: int) -> None:
         self.progress.advance(self.task_id, n)
 
+    def describe(self, text: str) -> None:
+        """Show ``text`` before the bar (what is being worked on)."""
+        self.progress.update(self.task_id, description=text)
+
     def finish(self) -> None:
         """Nothing to add: the bar shows the end itself."""
+
+
+def progress_display(
+    stack: ExitStack, *, total: int, completed: int = 0, unit: str = "trials"
+) -> ProgressBar | ProgressLog:
+    """The progress of the work on stderr: a bar on a terminal, else :class:`ProgressLog`
+    lines. Its ``advance(n)`` counts ``unit`` done, ``describe(text)`` names what is being
+    worked on (on the bar), ``finish()`` ends it."""
+    if sys.stderr.isatty():
+        return ProgressBar(stack, total=total, completed=completed, unit=unit)
+    return ProgressLog(total, completed, unit=unit)
 
 
 def progress_reporter(
     show: bool, stack: ExitStack, *, total: int, completed: int
 ) -> ProgressBar | ProgressLog | None:
-    """The progress of trials on stderr: a bar on a terminal, else :class:`ProgressLog` lines;
-    None when not ``show``. Its ``advance(n)`` counts trials done, ``finish()`` ends it."""
-    if not show:
-        return None
-    if sys.stderr.isatty():
-        return ProgressBar(stack, total=total, completed=completed)
-    return ProgressLog(total, completed)
+    """The progress of a run's trials (:func:`progress_display`); None when not ``show``."""
+    return progress_display(stack, total=total, completed=completed) if show else None
