@@ -7,7 +7,8 @@ efficiency at up to three SNRs, each coloured by its verdict; a cell of another 
 how many points attain and the range of the efficiency. Per-frame runs are judged at the last
 frame. The notes (:func:`first_screen_notes`) are computed from the summary and the points
 table: a modality that carries no information, verdicts that rest on too few trials or on a few
-trials far away, failures, covariance consistency, and which errors were judged side-resolved.
+trials far away, failures, covariance consistency, whether the data fit the model at the
+answers (MATH §17), and which errors were judged side-resolved.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import math
 
 import numpy as np
 import pandas as pd
+from scipy.stats import binom
 
 from comparison.labels import label_html
 from comparison.metrics import has_planners, parameter_label, summary_swept_columns
@@ -27,6 +29,12 @@ from comparison.verdicts import (
     threshold_snr,
     verdict_criterion,
 )
+from estimators.goodness_of_fit import FIT_TEST_LEVEL
+
+FIT_EXCESS_LEVEL = 0.001
+"""A share of rejected fits is more than chance allows when a binomial count of rejections
+(each with probability ``FIT_TEST_LEVEL`` under the model) that large has probability below
+this."""
 
 UNINFORMATIVE_RATIO = 100.0
 """A modality whose bound alone exceeds this many times the geometry's size carries no
@@ -309,6 +317,7 @@ def first_screen_notes(summary: pd.DataFrame, points: pd.DataFrame | None) -> li
         notes.append(f"Failed estimates: {'; '.join(parts)}.")
     notes.extend(_skewed_references(rows))
     notes.extend(_nees_notes(rows, swept))
+    notes.extend(_fit_notes(rows, swept))
     side = rows[rows["verdict_basis"] == "side-resolved"]
     if not side.empty:
         parts = [
@@ -383,6 +392,67 @@ def _nees_notes(rows: pd.DataFrame, swept: list[str]) -> list[str]:
         "Covariance (mean NEES against its 95% chi-square band, judged like the efficiency; "
         "optimistic: the reported covariance is too small): " + "; ".join(parts) + "."
     ]
+
+
+def _fit_notes(rows: pd.DataFrame, swept: list[str]) -> list[str]:
+    """One sentence on the goodness of fit (MATH §17): the points where even the best-fitting
+    estimator's fit is rejected in more trials than chance allows (the data do not fit the
+    model), and the estimators whose answers lie off a fit the data allow."""
+    if "n_fit_judged" not in rows.columns:
+        return []
+    judged = rows[rows["n_fit_judged"] > 0].copy()
+    if judged.empty:
+        return []
+    n = judged["n_fit_judged"].to_numpy(int)
+    judged["n_rejected"] = np.rint(judged["fit_rejected_rate"].to_numpy(float) * n).astype(int)
+    judged["excess"] = judged["n_rejected"] > binom.ppf(1 - FIT_EXCESS_LEVEL, n, FIT_TEST_LEVEL)
+    point = ["scenario", "snr_db", *swept, *(["planner"] if "planner" in rows.columns else [])]
+    best = judged.loc[judged.groupby(point, sort=False)["fit_rejected_rate"].idxmin()]
+    level = f"{100 * FIT_TEST_LEVEL:g}%"
+    intro = (
+        f"Goodness of fit (the χ² of the whitened residuals at the answer, rejected at {level}, "
+        f"so in about {level} of the trials by chance; MATH §17): "
+    )
+    unfit = best[best["excess"]]
+    if unfit.empty:
+        low, high = (f"{100 * best['fit_rejected_rate'].agg(f):.2g}%" for f in ("min", "max"))
+        text = (
+            "the data fit the model at every point (the best fit rejected in "
+            f"{low if low == high else f'{low} to {high}'} of its trials)"
+        )
+    else:
+        text = (
+            "the data do not fit the model at "
+            + "; ".join(
+                f"{_escape(row['scenario'])} {_escape(_where(unfit.loc[[i]], swept))}, where even "
+                f"the best fit, {row_html(unfit.loc[[i]])}, is rejected in {row['n_rejected']} of "
+                f"{row['n_fit_judged']} trials"
+                for i, row in unfit.iterrows()
+            )
+            + " (an outlier, a wrong noise σ or a wrong constant?)"
+        )
+    off = judged[judged["excess"] & ~judged.index.isin(unfit.index)]
+    off = off[off.set_index(point).index.isin(best[~best["excess"]].set_index(point).index)]
+    if not off.empty:
+        parts = []
+        for _, own in off.groupby("row", sort=False):
+            places = [
+                _escape(scenario)
+                if len(at)
+                == (judged["row"].eq(at["row"].iloc[0]) & judged["scenario"].eq(scenario)).sum()
+                else f"{_escape(scenario)} at {_escape(_where(at, swept))}"
+                for scenario, at in own.groupby("scenario", sort=False)
+            ]
+            worst = own.loc[own["n_rejected"].idxmax()]
+            parts.append(
+                f"{row_html(own)} on {', '.join(places)} (up to {worst['n_rejected']} of "
+                f"{worst['n_fit_judged']})"
+            )
+        text += (
+            "; answers off the fit the data allow, rejected in more trials than chance allows "
+            "(a scenario named alone: at every point): " + "; ".join(parts)
+        )
+    return [intro + text + "."]
 
 
 def _uninformative_modalities(rows: pd.DataFrame, points: pd.DataFrame | None) -> list[str]:

@@ -352,6 +352,41 @@ def test_notes_name_an_uninformative_modality_and_too_few_trials():
     )
 
 
+def test_fit_note_tells_data_that_do_not_fit_from_answers_off_the_fit():
+    trials, _, _ = synthetic_run([{"snr_db": s} for s in (0.0, 10.0)], n_trials=12)
+    summary = summarize(trials, n_bootstrap=50).assign(n_fit_judged=1000)
+    best, worse, *_ = summary["estimator"].unique()
+    scenario = summary["scenario"].iloc[0]
+
+    def fit_note(rejected: dict[tuple[str, float], int]) -> str:
+        # rejected fits per (estimator, SNR), of 1000 trials; the others 10 (1%, chance)
+        rates = [
+            rejected.get((row.estimator, row.snr_db), 10) / 1000 for row in summary.itertuples()
+        ]
+        notes = first_screen_notes(summary.assign(fit_rejected_rate=rates), None)
+        (note,) = [n for n in notes if n.startswith("Goodness of fit")]
+        return note
+
+    # 21 of 1000 rejected is within chance at the 0.1% level (P(≥ 21) = 0.0015), 22 is not
+    # (P(≥ 22) = 0.00065, binomial with p = 1%)
+    note = fit_note({(worse, 0.0): 21})
+    assert (
+        "the data fit the model at every point (the best fit rejected in 1% of its trials)." in note
+    )
+    assert "answers off" not in note
+    note = fit_note({(worse, 0.0): 22, (worse, 10.0): 500})
+    assert f"<bdi>{worse}</bdi> on {scenario} (up to 500 of 1000)" in note  # at every point
+    note = fit_note({(worse, 10.0): 500})
+    assert f"<bdi>{worse}</bdi> on {scenario} at SNR 10 dB (up to 500 of 1000)" in note
+    # every estimator rejected at 0 dB: the data, not an answer, do not fit there
+    note = fit_note({(e, 0.0): 300 + i for i, e in enumerate(summary["estimator"].unique())})
+    assert note.endswith(
+        f"the data do not fit the model at {scenario} SNR 0 dB, where even the best fit, "
+        f"<bdi>{best}</bdi>, is rejected in 300 of 1000 trials (an outlier, a wrong noise σ or "
+        "a wrong constant?)."
+    )
+
+
 def test_geometry_sweep_draws_the_efficiency_heatmap_with_the_track():
     grid = [
         {"snr_db": 10.0, "emitter_x_m": x, "emitter_y_m": y}
