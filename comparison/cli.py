@@ -239,6 +239,7 @@ def estimate_command(
     """Locate the emitter from a measurement file with one estimator (rng seeded with 0)."""
     import numpy as np
 
+    from comparison.estimator_calls import kept_process
     from comparison.scoring import estimate_to_dict
     from estimators.base import capabilities_of, unknowns_problem
     from estimators.goodness_of_fit import fit_warning
@@ -253,7 +254,10 @@ def estimate_command(
     problem = unknowns_problem(chosen, data.unknowns, used, ignore_hint="--ignore-unknowns")
     if problem is not None:
         raise ValueError(problem)
-    with blame("--estimator", f"{estimator} cannot estimate from {file}; try another estimator"):
+    with (
+        blame("--estimator", f"{estimator} cannot estimate from {file}; try another estimator"),
+        kept_process(),  # the estimator's prints go to stderr: stdout carries only the result
+    ):
         estimate = chosen.estimate(data.without_truth(), rng=np.random.default_rng(0))
     misfit = fit_warning(estimate.diagnostics)
     if misfit is not None:

@@ -18,8 +18,10 @@ Noise
 Failures
     A failed steering estimate, or a planner that raises ``ValueError`` (zero speed, an
     estimate directly below the UAV, ...), holds the last velocity for the next frame; the
-    reason is recorded in that frame's plan message. An estimator that raises gives a failed
-    estimate (:mod:`comparison.estimator_calls`).
+    reason is recorded in that frame's plan message. An estimator that raises, or changes
+    the copy of the data it is given, gives a failed estimate
+    (:mod:`comparison.estimator_calls`); the planner gets a copy of the data too, so neither
+    changes what the others see or the flown data the bound is computed from.
 
 Data flows one way: this module imports ``scenarios``, ``estimators`` and
 :mod:`comparison.estimator_calls`, and is called by :mod:`comparison.tasks`.
@@ -35,7 +37,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from comparison.estimator_calls import Stream, timed_call
+from comparison.estimator_calls import Stream, call_estimate, kept_process, private_copy
 from estimators.base import Estimate, Estimator, capabilities_of
 from scenarios.planners.base import Plan, Planner
 from scenarios.simulate import SeedLike, noise_free, standard_noise
@@ -182,10 +184,11 @@ def fly_closed_loop(
                 newest = fed.take(fed.frame == frame)
                 results[label].append(streams[label].step(newest, rng_for(label)))
             else:
-                results[label].append(timed_call(estimator.estimate, fed, rng=rng_for(label)))
+                results[label].append(call_estimate(estimator, fed, rng=rng_for(label)))
         if frame == total - 1:
             break
-        plan = _plan_next(planner, flight, seen, results[steering][-1][0], planner_rng)
+        steering_estimate = results[steering][-1][0]
+        plan = _plan_next(planner, flight, private_copy(seen), steering_estimate, planner_rng)
         plans.append(plan)
         flight = flight.with_frame(plan.velocity_mps)
     return ClosedLoopTrial(
@@ -228,7 +231,9 @@ def plan_next_velocity(data: MeasurementSet, planner: Any, estimator: Any, *, rn
     """``(plan, estimate, flight)``: estimate on ``data``, then plan the next frame.
 
     The flight is :func:`scenarios.planners.flight_from_measurements`; the planner gets the
-    estimate's candidates with the returned position first, and its covariance.
+    estimate's candidates with the returned position first, and its covariance. Both run
+    with their prints on stderr and the process put back after
+    (:func:`comparison.estimator_calls.kept_process`).
 
     Raises
     ------
@@ -238,18 +243,20 @@ def plan_next_velocity(data: MeasurementSet, planner: Any, estimator: Any, *, rn
     from scenarios.planners import flight_from_measurements
 
     flight = flight_from_measurements(data)
-    estimate = estimator.estimate(data.without_truth(), rng=rng)
+    with kept_process():
+        estimate = estimator.estimate(data.without_truth(), rng=rng)
     if not estimate.success:
         raise ValueError(
             f"estimator: {estimator.name!r} failed ({estimate.message}); the planner needs a "
             "position: choose another estimator or fly more frames"
         )
-    plan = planner.plan(
-        flight,
-        steering_candidates_m(estimate),
-        data.without_truth(),
-        covariance_m2=estimate.covariance_m2,
-    )
+    with kept_process():
+        plan = planner.plan(
+            flight,
+            steering_candidates_m(estimate),
+            data.without_truth(),
+            covariance_m2=estimate.covariance_m2,
+        )
     return plan, estimate, flight
 
 

@@ -36,7 +36,9 @@ Faults
     failed row there (:mod:`comparison.estimator_calls`). A task whose worker process dies is
     rerun isolated, the call that ended the process replaced by a failure
     (:mod:`comparison.execution`); :func:`run_task` is the same code in both cases, so every
-    other row is the same.
+    other row is the same. The task's data are never given to an estimator: each call gets
+    its own copy, checked after the call (:mod:`comparison.estimator_calls`), so what one
+    estimator does to its data changes no other row.
 """
 
 from __future__ import annotations
@@ -54,7 +56,13 @@ import numpy as np
 
 from comparison.bounds import PointInfo, bound_columns, crlb_key, information_at_truth
 from comparison.closed_loop import ClosedLoopTrial, fly_closed_loop
-from comparison.estimator_calls import Stream, call_batch, call_columns, call_limits, timed_call
+from comparison.estimator_calls import (
+    Stream,
+    call_batch,
+    call_columns,
+    call_estimate,
+    call_limits,
+)
 from comparison.scoring import (
     Outcomes,
     ambiguity_track,
@@ -328,7 +336,7 @@ def _run_estimator(
         if outcomes is None:
             outcomes = Outcomes.of_estimates(
                 [
-                    timed_call(estimator.estimate, trial_data, rng=trial_rng)
+                    call_estimate(estimator, trial_data, rng=trial_rng)
                     for trial_data, trial_rng in zip(data.trials(frame), rngs(), strict=True)
                 ]
             )

@@ -164,7 +164,7 @@ def test_the_engine_calls_estimate_columns_on_a_batch_with_unknowns(label, scena
     def no_fallback(*args, **kwargs):
         raise AssertionError("the engine fell back to one call per trial")
 
-    monkeypatch.setattr(tasks, "timed_call", no_fallback)
+    monkeypatch.setattr(tasks, "call_estimate", no_fallback)
     scenario_name, unknowns = SCENARIOS[scenario]
     task = Task(
         seed=41,
