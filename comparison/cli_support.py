@@ -8,8 +8,7 @@ silenced; any other warning is one line ``warning: ...``). The exit statuses:
 0     success
 1     ``validate`` found a disagreement; or an internal error, a bug of emitterbench or of an
       estimator: ``error: internal: <type>: <message> (please report ...)``
-      (``EMITTERBENCH_TRACEBACK=1`` prints the traceback before that line); or the reader of
-      stdout went away (``emitterbench list | head -1``): quietly, as click does
+      (``EMITTERBENCH_TRACEBACK=1`` prints the traceback before that line)
 2     a usage or input error: a bad option, a malformed file, a request beyond a limit, no
       command at all (the usage is printed once); a run folder another run or report is
       writing; a ``--resume`` with changed code (without ``--accept-code-change``)
@@ -17,6 +16,8 @@ silenced; any other warning is one line ``warning: ...``). The exit statuses:
       ``--worker-wait-s``; the rows stored so far are kept, and the line says how to finish the
       run with ``--resume``
 130   interrupted (Ctrl-C); ``run`` says how to finish the run with ``--resume``
+141   the reader of stdout went away (``emitterbench list | head -1``): quietly, nothing on
+      stderr, as a command that SIGPIPE ends (``yes | head -1``)
 143   stopped by SIGTERM (``kill``, a batch system's time limit), handled as Ctrl-C: the workers
       are stopped, the stored rows kept, the same line with ``terminated (SIGTERM)``
 ====  ==========================================================================================
@@ -82,6 +83,9 @@ TERMINATED_STATUS = 128 + signal.SIGTERM
 """Exit status after SIGTERM (143), which is handled as Ctrl-C."""
 CLUSTER_FAILED_STATUS = 3
 """Exit status of a run whose dask cluster failed (scheduler lost, no workers)."""
+READER_GONE_STATUS = 128 + signal.SIGPIPE
+"""Exit status when the reader of stdout went away (141, as shells report a command that
+SIGPIPE ended: ``yes | head -1``)."""
 TRACEBACK_VARIABLE = "EMITTERBENCH_TRACEBACK"
 """Set to 1 to print the traceback of an internal error before its line."""
 MAX_LINE = 2000
@@ -258,8 +262,18 @@ def plain_flags(parameters: Iterable[Any]) -> None:
             parameter.metavar = ""
 
 
+class ReaderGone(Exception):
+    """The reader of stdout went away (a broken pipe) while a command printed."""
+
+
 class OneLineErrors(TyperGroup):
     """The command group: usage errors and unexpected exceptions as one line each."""
+
+    def invoke(self, ctx: Any) -> Any:
+        try:
+            return super().invoke(ctx)
+        except BrokenPipeError:  # before click's own handling, which exits 1
+            raise ReaderGone from None
 
     def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
         with usage_errors_of(ctx):
@@ -297,6 +311,10 @@ def run_guarded(invoke: Callable[[], Any]) -> int:
     """
     try:
         status = invoke()
+    except ReaderGone:
+        # what is still buffered for stdout goes nowhere, rather than failing again at exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return READER_GONE_STATUS
     except click_errors.NoArgsIsHelpError as error:
         # the error made the help: rich printed it then (its message is empty), click's plain
         # formatter made it the message, which click prints on stderr
