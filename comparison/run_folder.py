@@ -160,8 +160,15 @@ def write_atomic(
 
 
 def write_csv(path: str | os.PathLike[str], frame: Any) -> None:
-    """A pandas frame as CSV without its index, through :func:`atomic_file`."""
-    write_atomic(path, lambda handle: frame.to_csv(handle, index=False))
+    """A pandas frame as CSV without its index, through :func:`atomic_file`; or frames of the
+    same columns, one after another under one header (a table read a chunk at a time)."""
+    frames = [frame] if hasattr(frame, "to_csv") else frame
+
+    def write(handle: IO[str]) -> None:
+        for index, part in enumerate(frames):
+            part.to_csv(handle, index=False, header=index == 0)
+
+    write_atomic(path, write)
 
 
 # --------------------------------------------------------------------------------------------

@@ -33,9 +33,11 @@ import os
 import sqlite3
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import closing, contextmanager, suppress
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from comparison.bounds import CrlbKey, PointInfo
@@ -378,29 +380,153 @@ def _order_by(table: Table, alias: str = "") -> str:
     return ", ".join(alias + column for column in table.sort_order())
 
 
-def read_trials(out_dir: str | os.PathLike[str]) -> pd.DataFrame:
+TRIAL_BATCH_ROWS = 20_000
+"""Rows fetched from SQLite at a time by :func:`iter_trials`: the text of a batch's rows
+(messages, diagnostics) is held only while the batch is converted."""
+
+TRIAL_CHUNK_ROWS = 250_000
+"""Rows of whole points :func:`iter_trials` yields at a time by default."""
+
+_KEYS = ("scenario", "planner", "estimator")
+"""The text keys of a trial row: read into one string object per label, not one per row."""
+
+
+@dataclass(frozen=True)
+class TrialLayout:
+    """What a reader of the trial rows needs before the first row (:func:`trial_layout`).
+
+    Attributes
+    ----------
+    n_rows : int
+        Trial rows.
+    n_trial_sets : int
+        Distinct (scenario, point, frame): the trials every estimator and planner of a point
+        saw alike.
+    orders : dict
+        ``scenario``, ``planner``, ``estimator``: the labels in the experiment's order (the
+        order of :func:`read_trials`' rows).
+    """
+
+    n_rows: int
+    n_trial_sets: int
+    orders: dict[str, tuple[str, ...]]
+
+
+def trial_layout(out_dir: str | os.PathLike[str]) -> TrialLayout:
+    """Count the trial rows and trial sets of a run folder and order its labels."""
+    with _reading(Path(out_dir)) as connection:
+        (n_rows,) = connection.execute("SELECT COUNT(*) FROM trials").fetchone()
+        (n_sets,) = connection.execute(
+            "SELECT COUNT(*) FROM (SELECT DISTINCT scenario_index, point, frame FROM trials)"
+        ).fetchone()
+        orders = {}
+        for key in _KEYS:
+            index = f"{key}_index"
+            query = f"SELECT DISTINCT {index}, {key} FROM trials ORDER BY {index}, {key}"
+            labels = [label for _, label in connection.execute(query)]
+            orders[key] = tuple(dict.fromkeys(labels))
+    return TrialLayout(int(n_rows), int(n_sets), orders)
+
+
+def iter_trials(
+    out_dir: str | os.PathLike[str],
+    columns: Sequence[str] | None = None,
+    *,
+    chunk_rows: int = TRIAL_CHUNK_ROWS,
+    whole_points: bool = True,
+) -> Iterator[pd.DataFrame]:
+    """The rows of :func:`read_trials`, in its order and types, a chunk at a time.
+
+    ``columns`` (default: all) picks the columns read, in the contract's order, the swept ones
+    always among them; text columns that are not asked for are never fetched. A chunk holds about ``chunk_rows`` rows; with
+    ``whole_points`` every (scenario, point) lies in one chunk (a point of more rows is a
+    chunk of its own). The labels of a chunk are one string object per label, shared, so a
+    chunk of numbers costs its numbers. No rows: one empty frame.
+    """
+    if int(chunk_rows) != chunk_rows or chunk_rows < 1:
+        raise ValueError(f"chunk_rows: must be a whole number >= 1, got {chunk_rows!r}")
+    out = Path(out_dir)
+    experiment = read_experiment(out)
+    swept = list(experiment.swept_columns)
+    names = list(TRIALS.names(swept))
+    wanted = names if columns is None else [c for c in names if c in {*columns, *swept}]
+    unknown = sorted(set(columns or ()) - set(names))
+    if unknown:
+        raise ValueError(f"columns: {unknown} are not trial columns; choose from {names}")
+    joined = set(with_swept(POINT_COLUMNS, swept))
+    # the point's key always, to cut chunks between points
+    fetched = [c for c in names if c in wanted or c in ("scenario", "point")]
+    fetched = [c for c in fetched if c != "experiment"]
+    selected = ", ".join(f"{'p' if c in joined else 't'}.{_quote(c)}" for c in fetched)
+    on = " AND ".join(f"t.{key} = p.{key}" for key in POINTS.keys())
+    query = (
+        f"SELECT {selected} FROM trials t JOIN points p ON {on} ORDER BY {_order_by(TRIALS, 't.')}"
+    )
+    dtypes = {c: t for c, t in TRIALS.dtypes(swept).items() if c in fetched}
+    labels: dict[str, str] = {}
+
+    def typed(rows: list[tuple[Any, ...]]) -> pd.DataFrame:
+        frame = pd.DataFrame.from_records(rows, columns=fetched, coerce_float=True)
+        for key in _KEYS:
+            if key in frame.columns:  # one object per label: 8 bytes a row
+                values = [labels.setdefault(v, v) for v in frame[key].tolist()]
+                frame[key] = pd.Series(values, dtype=frame[key].dtype)
+        if "experiment" in wanted:
+            frame.insert(0, "experiment", experiment.name)
+        return frame.astype(dtypes)
+
+    def points_of(frame: pd.DataFrame) -> np.ndarray:
+        """Where a new (scenario, point) starts within ``frame``."""
+        scenario = frame["scenario"].to_numpy(object)
+        point = frame["point"].to_numpy(np.int64)
+        return np.flatnonzero((scenario[1:] != scenario[:-1]) | (point[1:] != point[:-1])) + 1
+
+    pending: list[pd.DataFrame] = []
+    held = 0
+    last_key: tuple[Any, int] | None = None
+    yielded = False
+    with _reading(out) as connection:
+        cursor = connection.execute(query)
+        while rows := cursor.fetchmany(min(TRIAL_BATCH_ROWS, int(chunk_rows))):
+            batch = typed(rows)
+            del rows
+            if not whole_points:
+                yielded = True
+                yield batch[wanted]
+                continue
+            starts = points_of(batch)
+            if last_key not in (None, (batch["scenario"].iat[0], int(batch["point"].iat[0]))):
+                starts = np.r_[0, starts]
+            last_key = (batch["scenario"].iat[-1], int(batch["point"].iat[-1]))
+            if held + len(batch) < chunk_rows or not starts.size:
+                pending.append(batch)
+                held += len(batch)
+                continue
+            cut = int(starts[-1])  # the last point of the batch goes on to the next chunk
+            chunk = pd.concat([*pending, batch.iloc[:cut]], ignore_index=True)
+            pending, held = [batch.iloc[cut:]], len(batch) - cut
+            yielded = True
+            yield chunk[wanted]
+            del chunk
+    if pending:
+        yielded = True
+        yield pd.concat(pending, ignore_index=True)[wanted]
+    if not yielded:
+        yield pd.DataFrame({c: pd.Series(dtype=dtypes.get(c, object)) for c in wanted})
+
+
+def read_trials(
+    out_dir: str | os.PathLike[str], columns: Sequence[str] | None = None
+) -> pd.DataFrame:
     """One row per estimator × scenario × point × frame × trial (the contract's columns,
-    :data:`comparison.trial_rows.TRIALS`).
+    :data:`comparison.trial_rows.TRIALS`; ``columns`` picks some, :func:`iter_trials`).
 
     Sorted by scenario and estimator in the experiment's order, then point, frame and trial
     (``scenario, point, estimator, frame, trial``). NaN marks what a failed estimate or a
     missing covariance cannot give.
     """
-    out = Path(out_dir)
-    experiment = read_experiment(out)
-    swept = list(experiment.swept_columns)
-    stored = [c.name for c in TRIALS.columns if c.stored]
-    joined = with_swept(POINT_COLUMNS, swept)
-    selected = ", ".join([f"t.{_quote(c)}" for c in stored] + [f"p.{_quote(c)}" for c in joined])
-    on = " AND ".join(f"t.{key} = p.{key}" for key in POINTS.keys())
-    query = (
-        f"SELECT {selected} FROM trials t JOIN points p ON {on} ORDER BY {_order_by(TRIALS, 't.')}"
-    )
-    with _reading(out) as connection:
-        frame = pd.read_sql_query(query, connection)
-    frame.insert(0, "experiment", experiment.name)
-    frame = frame[list(TRIALS.names(swept))].astype(TRIALS.dtypes(swept))
-    return frame.reset_index(drop=True)
+    chunks = list(iter_trials(out_dir, columns))
+    return pd.concat(chunks, ignore_index=True) if len(chunks) > 1 else chunks[0]
 
 
 def read_points(out_dir: str | os.PathLike[str]) -> pd.DataFrame:

@@ -7,12 +7,21 @@ import os
 import sqlite3
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
 from comparison.engine import run_experiment
 from comparison.experiment import load_experiment
-from comparison.store import read_flights, read_points, read_trials, store_error
+from comparison.metrics import SUMMARY_TRIAL_COLUMNS, summarize, summarize_chunks
+from comparison.store import (
+    iter_trials,
+    read_flights,
+    read_points,
+    read_trials,
+    store_error,
+    trial_layout,
+)
 from tests.comparison.cli_support import clean_error, invoke
 
 TRIALS = 4
@@ -120,3 +129,36 @@ def test_readers_see_the_rows_of_a_sound_store(finished_run):
     assert len(read_points(finished_run)) == 2
     assert read_flights(finished_run).empty
     assert not any(name.endswith(("-wal", "-shm")) for name in os.listdir(finished_run))
+
+
+@pytest.mark.bits(
+    "the same summary code on the same rows: read a point at a time from the store, and read "
+    "whole then worked 7 rows (one point) at a time and all at once"
+)
+def test_the_summary_read_a_point_at_a_time_is_that_of_the_whole_frame(finished_run):
+    trials = read_trials(finished_run)
+    chunks = list(iter_trials(finished_run, SUMMARY_TRIAL_COLUMNS, chunk_rows=7))
+    assert [len(chunk) for chunk in chunks] == [2 * TRIALS] * 2  # whole points
+    assert "message" not in chunks[0].columns  # text not asked for is not read
+    layout = trial_layout(finished_run)
+    assert (layout.n_rows, layout.n_trial_sets) == (len(trials), 2)
+    assert layout.orders["estimator"] == tuple(pd.unique(trials["estimator"]))
+    streamed = summarize_chunks(
+        iter(chunks), orders=layout.orders, n_trial_sets=2, n_bootstrap=300, seed=5
+    )
+    whole = summarize(trials, n_bootstrap=300, seed=5, chunk_rows=len(trials))
+    pieces = summarize(trials, n_bootstrap=300, seed=5, chunk_rows=7)
+    assert np.isfinite(whole["rmse_ci_low_m"]).all() and (whole["n_trials"] == TRIALS).all()
+    pd.testing.assert_frame_equal(streamed, whole, check_exact=True)
+    pd.testing.assert_frame_equal(pieces, whole, check_exact=True)
+
+
+def test_trials_read_in_batches_are_the_rows_read_whole(finished_run):
+    trials = read_trials(finished_run)
+    batches = list(iter_trials(finished_run, chunk_rows=7, whole_points=False))
+    assert [len(batch) for batch in batches[:-1]] == [7] * (len(batches) - 1)
+    pd.testing.assert_frame_equal(pd.concat(batches, ignore_index=True), trials)
+    picked = read_trials(finished_run, ["error_m", "estimator"])
+    assert list(picked.columns) == ["estimator", "error_m"]  # in the contract's order
+    with pytest.raises(ValueError, match=r"columns: \['errors_m'\] are not trial columns"):
+        read_trials(finished_run, ["errors_m"])
