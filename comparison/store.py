@@ -182,15 +182,22 @@ def _open_existing(path: Path) -> sqlite3.Connection:
     return connection
 
 
+WAL_LIMIT_BYTES = 16 * 2**20
+"""Size the write-ahead log (``results.sqlite-wal``) is cut back to after each checkpoint
+(SQLite's ``journal_size_limit``); SQLite checkpoints every 1000 pages (4 MB) written, so the
+log stays near one task's rows instead of keeping its largest size for the whole run."""
+
+
 def connect(path: Path) -> sqlite3.Connection:
-    """A connection for writing, in WAL mode (the engine checks the file first,
-    :func:`check_store`)."""
+    """A connection for writing, in WAL mode, the log bounded by :data:`WAL_LIMIT_BYTES` (the
+    engine checks the file first, :func:`check_store`)."""
     _refuse_links(path)
     with store_errors(path):
         connection = sqlite3.connect(path, timeout=60.0)
         try:
             connection.execute("PRAGMA journal_mode=WAL")
             connection.execute("PRAGMA synchronous=NORMAL")
+            connection.execute(f"PRAGMA journal_size_limit={WAL_LIMIT_BYTES}")
         except BaseException:
             connection.close()
             raise

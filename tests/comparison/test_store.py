@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from comparison import store
 from comparison.engine import run_experiment
 from comparison.experiment import load_experiment
 from comparison.metrics import SUMMARY_TRIAL_COLUMNS, summarize, summarize_chunks
@@ -162,3 +163,20 @@ def test_trials_read_in_batches_are_the_rows_read_whole(finished_run):
     assert list(picked.columns) == ["estimator", "error_m"]  # in the contract's order
     with pytest.raises(ValueError, match=r"columns: \['errors_m'\] are not trial columns"):
         read_trials(finished_run, ["errors_m"])
+
+
+def test_the_write_ahead_log_is_cut_back_after_a_large_transaction(tmp_path, monkeypatch):
+    monkeypatch.setattr(store, "WAL_LIMIT_BYTES", 2**20)
+    database = tmp_path / "results.sqlite"
+    connection = store.connect(database)
+    wal = tmp_path / "results.sqlite-wal"
+    with connection:
+        connection.execute("CREATE TABLE t (a INTEGER, b TEXT)")
+        connection.executemany(
+            "INSERT INTO t VALUES (?, ?)", ((i, "x" * 500) for i in range(20000))
+        )
+    assert wal.stat().st_size > 8 * 2**20  # one transaction is in the log whole
+    with connection:  # the next commit checkpoints and cuts the log back
+        connection.execute("INSERT INTO t VALUES (1, 'y')")
+    assert wal.stat().st_size <= 2**20
+    connection.close()
