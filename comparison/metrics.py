@@ -365,6 +365,7 @@ def summarize_chunks(
         )
         parts.append(part)
         used += n_sets
+        del chunk, codes  # before the next chunk is read
     if not parts:
         raise ValueError("trials: the frame has no rows; run the experiment first")
     if used != n_trial_sets:
@@ -422,8 +423,7 @@ def _summarize_points(
     returned_vector = np.stack([successful("x_m"), successful("y_m")], axis=1) - truth
     side_vector = np.stack([optional("x_side_resolved_m"), optional("y_side_resolved_m")], 1)
     side_vector = np.where(success[:, None], side_vector - truth, np.nan)
-    xx, xy, yy = (optional(f"crlb_{k}_m2") for k in ("xx", "xy", "yy"))
-    crlb_matrix = np.stack([xx, xy, xy, yy], axis=1).reshape(-1, 2, 2)
+    del truth  # memory: a chunk may be a million rows
     work = pd.DataFrame(
         {
             "group": group,
@@ -440,7 +440,8 @@ def _summarize_points(
             "runtime": trials["runtime_s"].to_numpy(dtype=float),
             "crlb": trials["crlb_rmse_m"].to_numpy(dtype=float),
             "crlb_squared": trials["crlb_rmse_m"].to_numpy(dtype=float) ** 2,
-        }
+        },
+        copy=False,  # the columns as they are, not copied into one block
     )
     by_group = work.groupby("group", sort=True)
     stats_frame = by_group.agg(
@@ -520,7 +521,10 @@ def _summarize_points(
     tail = tail_share(judged_squared, group, n_groups)
     judged_vector = np.where(side[group][:, None], side_vector, returned_vector)
     bias = bias_intervals(judged_vector, group, n_groups, crlb, confidence)
+    xx, xy, yy = (optional(f"crlb_{k}_m2") for k in ("xx", "xy", "yy"))
+    crlb_matrix = np.stack([xx, xy, xy, yy], axis=1).reshape(-1, 2, 2)
     axis_squared = axis_squared_errors(judged_vector, crlb_matrix)
+    del xx, xy, yy, crlb_matrix
     axis_intervals = [interval_m(pd.Series(q)) for q in axis_squared.T]
     axes = AxisEfficiencies(
         efficiency=np.sqrt(pd.DataFrame(axis_squared).groupby(group, sort=True).mean().to_numpy()),

@@ -469,57 +469,76 @@ def iter_trials(
     query = (
         f"SELECT {selected} FROM trials t JOIN points p ON {on} ORDER BY {_order_by(TRIALS, 't.')}"
     )
-    dtypes = {c: t for c, t in TRIALS.dtypes(swept).items() if c in fetched}
+    kinds = {c: TRIALS.dtypes(swept).get(c) for c in fetched}  # None: text
     labels: dict[str, str] = {}
 
-    def typed(rows: list[tuple[Any, ...]]) -> pd.DataFrame:
-        frame = pd.DataFrame.from_records(rows, columns=fetched, coerce_float=True)
-        for key in _KEYS:
-            if key in frame.columns:  # one object per label: 8 bytes a row
-                values = [labels.setdefault(v, v) for v in frame[key].tolist()]
-                frame[key] = pd.Series(values, dtype=frame[key].dtype)
-        if "experiment" in wanted:
-            frame.insert(0, "experiment", experiment.name)
-        return frame.astype(dtypes)
+    def arrays(rows: list[tuple[Any, ...]]) -> dict[str, np.ndarray]:
+        """The rows as one array per column (NULL: NaN); one object per label."""
+        batch = {}
+        for name, values in zip(fetched, zip(*rows, strict=True), strict=True):
+            if kinds[name] is not None:
+                batch[name] = np.array(values, dtype=kinds[name])
+            elif name in _KEYS:
+                batch[name] = np.array([labels.setdefault(v, v) for v in values], dtype=object)
+            else:
+                batch[name] = np.array(values, dtype=object)
+        return batch
 
-    def points_of(frame: pd.DataFrame) -> np.ndarray:
-        """Where a new (scenario, point) starts within ``frame``."""
-        scenario = frame["scenario"].to_numpy(object)
-        point = frame["point"].to_numpy(np.int64)
+    def frame_of(parts: list[dict[str, np.ndarray]]) -> pd.DataFrame:
+        """The parts joined, a column at a time (each part's column freed as it is copied)."""
+        n_rows = sum(len(part["point"]) for part in parts)
+        data: dict[str, Any] = {}
+        for name in wanted:
+            if name == "experiment":
+                values = np.full(n_rows, experiment.name, dtype=object)
+            elif parts:
+                values = np.concatenate([part.pop(name) for part in parts])
+            else:
+                values = np.empty(0, dtype=kinds[name] or object)
+            data[name] = values if kinds.get(name) is not None else pd.array(values, dtype="str")
+        parts.clear()
+        return pd.DataFrame(data, copy=False)
+
+    def points_of(batch: dict[str, np.ndarray]) -> np.ndarray:
+        """Where a new (scenario, point) starts within ``batch``."""
+        scenario, point = batch["scenario"], batch["point"]
         return np.flatnonzero((scenario[1:] != scenario[:-1]) | (point[1:] != point[:-1])) + 1
 
-    pending: list[pd.DataFrame] = []
+    pending: list[dict[str, np.ndarray]] = []
     held = 0
     last_key: tuple[Any, int] | None = None
     yielded = False
     with _reading(out) as connection:
         cursor = connection.execute(query)
         while rows := cursor.fetchmany(min(TRIAL_BATCH_ROWS, int(chunk_rows))):
-            batch = typed(rows)
+            batch = arrays(rows)
             del rows
             if not whole_points:
                 yielded = True
-                yield batch[wanted]
+                yield frame_of([batch])
                 continue
             starts = points_of(batch)
-            if last_key not in (None, (batch["scenario"].iat[0], int(batch["point"].iat[0]))):
+            if last_key not in (None, (batch["scenario"][0], int(batch["point"][0]))):
                 starts = np.r_[0, starts]
-            last_key = (batch["scenario"].iat[-1], int(batch["point"].iat[-1]))
-            if held + len(batch) < chunk_rows or not starts.size:
+            last_key = (batch["scenario"][-1], int(batch["point"][-1]))
+            size = len(batch["point"])
+            if held + size < chunk_rows or not starts.size:
                 pending.append(batch)
-                held += len(batch)
+                held += size
                 continue
             cut = int(starts[-1])  # the last point of the batch goes on to the next chunk
-            chunk = pd.concat([*pending, batch.iloc[:cut]], ignore_index=True)
-            pending, held = [batch.iloc[cut:]], len(batch) - cut
+            pending.append({name: values[:cut] for name, values in batch.items()})
+            rest = {name: values[cut:] for name, values in batch.items()}
+            del batch
             yielded = True
-            yield chunk[wanted]
-            del chunk
+            yield frame_of(pending)  # empties pending: only the chunk is held
+            pending, held = [rest], size - cut
+            del rest
     if pending:
         yielded = True
-        yield pd.concat(pending, ignore_index=True)[wanted]
+        yield frame_of(pending)
     if not yielded:
-        yield pd.DataFrame({c: pd.Series(dtype=dtypes.get(c, object)) for c in wanted})
+        yield frame_of([])
 
 
 def read_trials(
