@@ -15,6 +15,7 @@ from comparison import store
 from comparison.engine import run_experiment
 from comparison.experiment import load_experiment
 from comparison.metrics import SUMMARY_TRIAL_COLUMNS, summarize, summarize_chunks
+from comparison.run_folder import write_csv
 from comparison.store import (
     iter_trials,
     read_flights,
@@ -154,11 +155,15 @@ def test_the_summary_read_a_point_at_a_time_is_that_of_the_whole_frame(finished_
     pd.testing.assert_frame_equal(pieces, whole, check_exact=True)
 
 
-def test_trials_read_in_batches_are_the_rows_read_whole(finished_run):
+def test_trials_read_in_batches_are_the_rows_read_whole(finished_run, tmp_path):
     trials = read_trials(finished_run)
     batches = list(iter_trials(finished_run, chunk_rows=7, whole_points=False))
     assert [len(batch) for batch in batches[:-1]] == [7] * (len(batches) - 1)
     pd.testing.assert_frame_equal(pd.concat(batches, ignore_index=True), trials)
+    whole, in_batches = tmp_path / "whole.csv", tmp_path / "batches.csv"
+    write_csv(whole, trials)
+    write_csv(in_batches, iter(batches))  # one header, the batches one after another
+    assert in_batches.read_bytes() == whole.read_bytes()
     picked = read_trials(finished_run, ["error_m", "estimator"])
     assert list(picked.columns) == ["estimator", "error_m"]  # in the contract's order
     with pytest.raises(ValueError, match=r"columns: \['errors_m'\] are not trial columns"):
