@@ -414,6 +414,10 @@ class AxisEfficiencies:
     high: FloatArray
 
 
+AXIS_BLOCK_ROWS = 2**16
+"""Rows :func:`axis_squared_errors` works at a time (its memory: a few arrays of this many)."""
+
+
 def axis_squared_errors(error_m: ArrayLike, crlb_m2: ArrayLike) -> FloatArray:
     """Each error's squared component along each principal axis of its CRLB, over that axis's
     variance: ``(uₖᵀe)²/λₖ`` for the eigenpairs of the CRLB, largest ``λ`` first.
@@ -425,6 +429,14 @@ def axis_squared_errors(error_m: ArrayLike, crlb_m2: ArrayLike) -> FloatArray:
     """
     error = np.asarray(error_m, dtype=float).reshape(-1, 2)
     crlb = np.asarray(crlb_m2, dtype=float).reshape(-1, 2, 2)
+    if len(error) > AXIS_BLOCK_ROWS:  # the same numbers a block of rows at a time
+        blocks = range(0, len(error), AXIS_BLOCK_ROWS)
+        return np.concatenate(
+            [
+                axis_squared_errors(error[i : i + AXIS_BLOCK_ROWS], crlb[i : i + AXIS_BLOCK_ROWS])
+                for i in blocks
+            ]
+        )
     out = np.full((len(error), 2), np.nan)
     finite = np.isfinite(crlb).all(axis=(1, 2))
     if not finite.any():

@@ -408,6 +408,9 @@ def _summarize_points(
     group_keys = ["scenario", "point", "planner", "frame", "estimator"]
     group = group_frame.groupby(group_keys, sort=True).ngroup().to_numpy(np.int64)
     n_groups = int(group.max()) + 1
+    trial_set = group_frame.groupby(["scenario", "point", "frame"], sort=True).ngroup()
+    trial_set = trial_set.to_numpy(np.int64)
+    del group_frame  # memory: a chunk may be a million rows
 
     def successful(column: str) -> FloatArray:
         return np.where(success, trials[column].to_numpy(dtype=float), np.nan)
@@ -469,11 +472,12 @@ def _summarize_points(
         runtime_median_s=("runtime", "median"),
     )
     stats_frame["p95_error_m"] = by_group["error"].quantile(0.95)
+    del by_group, error, side_error
+    work = work[["squared_error", "squared_side_error"]]  # what is left to do needs these
 
     # Estimators (and planners) that saw the same trials are resampled on the same trials.
     first_of_group = np.unique(group, return_index=True)[1]
-    trial_set = group_frame.groupby(["scenario", "point", "frame"], sort=True).ngroup()
-    pairs = trial_set.to_numpy(np.int64)[first_of_group]
+    pairs = trial_set[first_of_group]
     n_trial_sets = int(pairs.max()) + 1
     seeds = iter(key_seeds[:, :n_trial_sets])  # one row per interval, in the order drawn
     in_trial_order = np.lexsort((trials["trial"].to_numpy(), group))

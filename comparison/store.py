@@ -28,10 +28,13 @@ A damaged file (truncated, overwritten, not SQLite at all) is found when it is o
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import operator
 import os
 import sqlite3
-from collections.abc import Iterator, Mapping, Sequence
+import sys
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import closing, contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
@@ -387,6 +390,27 @@ def _order_by(table: Table, alias: str = "") -> str:
     return ", ".join(alias + column for column in table.sort_order())
 
 
+def _malloc_trim() -> Callable[[int], int] | None:
+    """glibc's ``malloc_trim``, or None (another C library, another system)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    with suppress(OSError, AttributeError):
+        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
+    return None
+
+
+_TRIM = _malloc_trim()
+
+
+def release_freed_memory() -> None:
+    """Hand the memory freed so far back to the system (glibc's ``malloc_trim``; nothing
+    elsewhere). Rows read in batches free as much as they keep, and glibc would otherwise
+    keep the freed blocks between the kept ones: a million trial rows read left twice their
+    size resident."""
+    if _TRIM is not None:
+        _TRIM(0)
+
+
 TRIAL_BATCH_ROWS = 20_000
 """Rows fetched from SQLite at a time by :func:`iter_trials`: the text of a batch's rows
 (messages, diagnostics) is held only while the batch is converted."""
@@ -472,73 +496,55 @@ def iter_trials(
     kinds = {c: TRIALS.dtypes(swept).get(c) for c in fetched}  # None: text
     labels: dict[str, str] = {}
 
-    def arrays(rows: list[tuple[Any, ...]]) -> dict[str, np.ndarray]:
-        """The rows as one array per column (NULL: NaN); one object per label."""
-        batch = {}
+    def fill(columns: dict[str, np.ndarray], at: int, rows: list[tuple[Any, ...]]) -> None:
+        """Copy ``rows`` into ``columns`` from row ``at`` (NULL: NaN; one object per label)."""
+        end = at + len(rows)
         for name, values in zip(fetched, zip(*rows, strict=True), strict=True):
-            if kinds[name] is not None:
-                batch[name] = np.array(values, dtype=kinds[name])
-            elif name in _KEYS:
-                batch[name] = np.array([labels.setdefault(v, v) for v in values], dtype=object)
-            else:
-                batch[name] = np.array(values, dtype=object)
-        return batch
+            if name in _KEYS:
+                values = tuple(labels.setdefault(v, v) for v in values)
+            columns[name][at:end] = np.array(values, dtype=kinds[name] or object)
 
-    def frame_of(parts: list[dict[str, np.ndarray]]) -> pd.DataFrame:
-        """The parts joined, a column at a time (each part's column freed as it is copied)."""
-        n_rows = sum(len(part["point"]) for part in parts)
+    def frame_of(columns: dict[str, np.ndarray]) -> pd.DataFrame:
+        n_rows = len(columns["point"])
         data: dict[str, Any] = {}
         for name in wanted:
             if name == "experiment":
-                values = np.full(n_rows, experiment.name, dtype=object)
-            elif parts:
-                values = np.concatenate([part.pop(name) for part in parts])
+                data[name] = pd.array(np.full(n_rows, experiment.name, dtype=object), dtype="str")
+            elif kinds[name] is None:
+                data[name] = pd.array(columns.pop(name), dtype="str")
             else:
-                values = np.empty(0, dtype=kinds[name] or object)
-            data[name] = values if kinds.get(name) is not None else pd.array(values, dtype="str")
-        parts.clear()
+                data[name] = columns.pop(name)
         return pd.DataFrame(data, copy=False)
 
-    def points_of(batch: dict[str, np.ndarray]) -> np.ndarray:
-        """Where a new (scenario, point) starts within ``batch``."""
-        scenario, point = batch["scenario"], batch["point"]
-        return np.flatnonzero((scenario[1:] != scenario[:-1]) | (point[1:] != point[:-1])) + 1
-
-    pending: list[dict[str, np.ndarray]] = []
-    held = 0
-    last_key: tuple[Any, int] | None = None
-    yielded = False
     with _reading(out) as connection:
+        connection.execute("BEGIN")  # one snapshot for the sizes and the rows
+        if whole_points:  # the chunks' sizes: whole points, chunk_rows or more
+            sizes = [0]
+            counts = connection.execute(
+                f"SELECT COUNT(*) FROM trials t JOIN points p ON {on} "
+                "GROUP BY t.scenario_index, t.point ORDER BY t.scenario_index, t.point"
+            )
+            for (count,) in counts:
+                if sizes[-1] >= chunk_rows:
+                    sizes.append(0)
+                sizes[-1] += int(count)
+        else:
+            (n_rows,) = connection.execute(
+                f"SELECT COUNT(*) FROM trials t JOIN points p ON {on}"
+            ).fetchone()
+            sizes = [min(int(chunk_rows), n_rows - at) for at in range(0, n_rows, int(chunk_rows))]
+            sizes = sizes or [0]
         cursor = connection.execute(query)
-        while rows := cursor.fetchmany(min(TRIAL_BATCH_ROWS, int(chunk_rows))):
-            batch = arrays(rows)
-            del rows
-            if not whole_points:
-                yielded = True
-                yield frame_of([batch])
-                continue
-            starts = points_of(batch)
-            if last_key not in (None, (batch["scenario"][0], int(batch["point"][0]))):
-                starts = np.r_[0, starts]
-            last_key = (batch["scenario"][-1], int(batch["point"][-1]))
-            size = len(batch["point"])
-            if held + size < chunk_rows or not starts.size:
-                pending.append(batch)
-                held += size
-                continue
-            cut = int(starts[-1])  # the last point of the batch goes on to the next chunk
-            pending.append({name: values[:cut] for name, values in batch.items()})
-            rest = {name: values[cut:] for name, values in batch.items()}
-            del batch
-            yielded = True
-            yield frame_of(pending)  # empties pending: only the chunk is held
-            pending, held = [rest], size - cut
-            del rest
-    if pending:
-        yielded = True
-        yield frame_of(pending)
-    if not yielded:
-        yield frame_of([])
+        for size in sizes:  # each chunk's columns allocated once and filled a batch at a time
+            columns = {name: np.empty(size, dtype=kinds[name] or object) for name in fetched}
+            at = 0
+            while at < size and (rows := cursor.fetchmany(min(TRIAL_BATCH_ROWS, size - at))):
+                fill(columns, at, rows)
+                at += len(rows)
+                del rows
+            release_freed_memory()
+            yield frame_of(columns)
+            del columns
 
 
 def read_trials(
