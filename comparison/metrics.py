@@ -524,6 +524,7 @@ def _summarize_points(
     judged_high = per_bound(judged(side_high, rmse_high))
     tail = tail_share(judged_squared, group, n_groups)
     judged_vector = np.where(side[group][:, None], side_vector, returned_vector)
+    del side_vector, returned_vector
     bias = bias_intervals(judged_vector, group, n_groups, crlb, confidence)
     xx, xy, yy = (optional(f"crlb_{k}_m2") for k in ("xx", "xy", "yy"))
     crlb_matrix = np.stack([xx, xy, xy, yy], axis=1).reshape(-1, 2, 2)
