@@ -422,11 +422,11 @@ def _summarize_points(
 
     error = successful("error_m")
     side_error = successful("error_side_resolved_m")
-    truth = trials[["truth_x_m", "truth_y_m"]].to_numpy(dtype=float)
-    returned_vector = np.stack([successful("x_m"), successful("y_m")], axis=1) - truth
-    side_vector = np.stack([optional("x_side_resolved_m"), optional("y_side_resolved_m")], 1)
-    side_vector = np.where(success[:, None], side_vector - truth, np.nan)
-    del truth  # memory: a chunk may be a million rows
+
+    def error_vector(x: FloatArray, y: FloatArray) -> FloatArray:
+        return np.stack([x, y], axis=1) - trials[["truth_x_m", "truth_y_m"]].to_numpy(float)
+
+    returned_vector = error_vector(successful("x_m"), successful("y_m"))
     work = pd.DataFrame(
         {
             "group": group,
@@ -523,6 +523,9 @@ def _summarize_points(
     judged_low = per_bound(judged(side_low, rmse_low))
     judged_high = per_bound(judged(side_high, rmse_high))
     tail = tail_share(judged_squared, group, n_groups)
+    # formed only now (memory: a chunk may be a million rows)
+    side_vector = error_vector(optional("x_side_resolved_m"), optional("y_side_resolved_m"))
+    side_vector = np.where(success[:, None], side_vector, np.nan)
     judged_vector = np.where(side[group][:, None], side_vector, returned_vector)
     del side_vector, returned_vector
     bias = bias_intervals(judged_vector, group, n_groups, crlb, confidence)

@@ -198,8 +198,10 @@ def _summary(
     from comparison import store
 
     layout = store.trial_layout(run_dir)
+    closed = any(label != "" for label in layout.orders["planner"])
+    columns = [c for c in SUMMARY_TRIAL_COLUMNS if closed or c != "planner"]
     summary = summarize_chunks(
-        store.iter_trials(run_dir, SUMMARY_TRIAL_COLUMNS),
+        store.iter_trials(run_dir, columns),
         orders=layout.orders,
         n_trial_sets=layout.n_trial_sets,
         swept_columns=swept,
