@@ -64,7 +64,8 @@ def studentized_bootstrap_interval(
     groups: ArrayLike,
     n_groups: int,
     *,
-    rng: np.random.Generator,
+    rng: np.random.Generator | None = None,
+    key_seeds: ArrayLike | None = None,
     pairs: ArrayLike | None = None,
     n_bootstrap: int = DEFAULT_N_BOOTSTRAP,
     confidence: float = 0.95,
@@ -84,9 +85,11 @@ def studentized_bootstrap_interval(
     on the same resamples, as they were on the same data, so two estimators with the same
     errors get the same interval.
 
-    The draws: ``rng`` gives every key a seed (keys in ascending order); the key's generator
-    gives a ``(n_bootstrap, size)`` array ``U`` of uniforms, ``size`` the largest count of its
-    groups, and a group of ``n`` values resamples the indices ``⌊n U[:, :n]⌋``. The result
+    The draws: ``rng`` gives every key a seed (keys in ascending order; or the caller gives
+    them, ``key_seeds``, so that groups summarized a few at a time draw as all at once); the
+    key's generator gives a ``(n_bootstrap, size)`` array ``U`` of uniforms, ``size`` the
+    largest count of its groups, and a group of ``n`` values resamples the indices
+    ``⌊n U[:, :n]⌋``. The result
     depends on nothing else: keys of equal counts are worked in blocks, on ``threads``
     threads, with the same numbers as one group at a time.
 
@@ -98,8 +101,10 @@ def studentized_bootstrap_interval(
         Group index of each entry, in ``0 .. n_groups - 1``; within a group, entries in trial
         order.
     n_groups : int
-    rng : numpy.random.Generator
-        Source of the resampling (seeded by the caller).
+    rng : numpy.random.Generator, optional
+        Source of the resampling (seeded by the caller); one ``integers(0, 2**63)`` per key.
+    key_seeds : (number of keys,) int, optional
+        The keys' seeds instead of ``rng``'s (keys in ascending order).
     pairs : (n_groups,) int, optional
         The resampling key of every group (default: its own index).
     n_bootstrap : int
@@ -125,7 +130,11 @@ def studentized_bootstrap_interval(
     k_low = math.floor(alpha / 2 * n_bootstrap)
     k_high = min(math.ceil((1 - alpha / 2) * n_bootstrap) - 1, n_bootstrap - 1)
     unique_keys, key_of_group = np.unique(keys, return_inverse=True)
-    key_seeds = rng.integers(0, 2**63, size=unique_keys.size)
+    if key_seeds is None:
+        if rng is None:
+            raise ValueError("rng: give a numpy Generator or the keys' seeds (key_seeds)")
+        key_seeds = rng.integers(0, 2**63, size=unique_keys.size)
+    key_seeds = np.asarray(key_seeds, dtype=np.int64)
     # the keys with a group of two values or more, in order, each with those groups
     resampled = np.flatnonzero(counts >= 2)
     members = resampled[np.argsort(key_of_group[resampled], kind="stable")]
@@ -405,6 +414,10 @@ class AxisEfficiencies:
     high: FloatArray
 
 
+AXIS_BLOCK_ROWS = 2**16
+"""Rows :func:`axis_squared_errors` works at a time (its memory: a few arrays of this many)."""
+
+
 def axis_squared_errors(error_m: ArrayLike, crlb_m2: ArrayLike) -> FloatArray:
     """Each error's squared component along each principal axis of its CRLB, over that axis's
     variance: ``(uₖᵀe)²/λₖ`` for the eigenpairs of the CRLB, largest ``λ`` first.
@@ -416,6 +429,14 @@ def axis_squared_errors(error_m: ArrayLike, crlb_m2: ArrayLike) -> FloatArray:
     """
     error = np.asarray(error_m, dtype=float).reshape(-1, 2)
     crlb = np.asarray(crlb_m2, dtype=float).reshape(-1, 2, 2)
+    if len(error) > AXIS_BLOCK_ROWS:  # the same numbers a block of rows at a time
+        blocks = range(0, len(error), AXIS_BLOCK_ROWS)
+        return np.concatenate(
+            [
+                axis_squared_errors(error[i : i + AXIS_BLOCK_ROWS], crlb[i : i + AXIS_BLOCK_ROWS])
+                for i in blocks
+            ]
+        )
     out = np.full((len(error), 2), np.nan)
     finite = np.isfinite(crlb).all(axis=(1, 2))
     if not finite.any():

@@ -29,8 +29,9 @@ The SNR axis scales every reference σ by :math:`10^{-\mathrm{SNR}/20}` (MATH §
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -50,6 +51,14 @@ from comparison.verdicts import efficiency_verdicts, nees_verdicts
 from estimators.goodness_of_fit import fit_judged, fit_rejected
 
 FloatArray = NDArray[np.float64]
+
+N_INTERVALS = 4
+"""Bootstrap intervals of a group, each drawing a seed per key: the RMSE, the side-resolved
+RMSE and the two principal axes."""
+
+SUMMARY_CHUNK_ROWS = 250_000
+"""Trial rows :func:`summarize` works at a time (whole points: a point of more is one chunk)."""
+
 
 CONTRACT_METRIC_NAMES: tuple[str, ...] = (
     "n_trials",
@@ -114,6 +123,21 @@ TEXT_METRIC_NAMES: frozenset[str] = frozenset(
     {"verdict_basis", "verdict", "verdict_reason", "nees_verdict"}
 )
 """The metric columns that hold words, not numbers."""
+
+SUMMARY_TRIAL_COLUMNS: tuple[str, ...] = (
+    *REQUIRED_TRIAL_COLUMNS,
+    "planner",
+    "trial",
+    "x_side_resolved_m",
+    "y_side_resolved_m",
+    "crlb_xx_m2",
+    "crlb_xy_m2",
+    "crlb_yy_m2",
+    "fit_chi2",
+    "fit_dof",
+)
+"""The trial columns :func:`summarize` reads (with the swept ones): the required ones, and
+those it reads when present."""
 
 METRIC_NAMES: tuple[str, ...] = CONTRACT_METRIC_NAMES + EXTRA_METRIC_NAMES
 """Every metric column of :func:`summarize`'s result, in order (from ``n_trials`` on)."""
@@ -241,6 +265,7 @@ def summarize(
     seed: int | np.random.SeedSequence = 0,
     confidence: float = 0.95,
     swept_columns: Sequence[str] | None = None,
+    chunk_rows: int = SUMMARY_CHUNK_ROWS,
 ) -> pd.DataFrame:
     """One row of metrics per (scenario, point, frame, estimator), and planner in a closed loop.
 
@@ -269,6 +294,9 @@ def summarize(
     swept_columns : sequence of str, optional
         The swept-parameter columns; by default every column outside the contract, in the
         frame's order (:func:`swept_columns_of`).
+    chunk_rows : int
+        Rows worked at a time, whole points (:func:`summarize_chunks`): the result is the
+        same for any value.
 
     Returns
     -------
@@ -280,10 +308,107 @@ def summarize(
     """
     swept = list(swept_columns_of(trials) if swept_columns is None else swept_columns)
     _check_trials(trials, swept)
-    success = trials["success"].to_numpy(dtype=bool)
     planners = has_planners(trials)
     keyed = ("scenario", "estimator", "planner") if planners else ("scenario", "estimator")
-    codes = {key: _ordered_codes(trials[key]) for key in keyed}
+    orders = {key: tuple(pd.unique(trials[key])) for key in keyed}  # first appearance
+    scenario = _ordered_codes(trials["scenario"])
+    point = trials["point"].to_numpy(dtype=np.int64)
+    frame = trials["frame"].to_numpy(dtype=np.int64)
+    n_trial_sets = len(pd.DataFrame({"s": scenario, "p": point, "f": frame}).drop_duplicates())
+    order = np.lexsort((point, scenario))  # stable: a group's rows keep their order
+    starts = np.flatnonzero(
+        np.diff(scenario[order], prepend=-1) | np.diff(point[order], prepend=-1)
+    )
+    cuts = [0]
+    for start in starts[1:].tolist():  # whole points, chunk_rows or more at a time
+        if start - cuts[-1] >= chunk_rows:
+            cuts.append(start)
+    chunks = (trials.iloc[order[a:b]] for a, b in itertools.pairwise([*cuts, len(order)]))
+    return summarize_chunks(
+        chunks,
+        orders=orders,
+        n_trial_sets=n_trial_sets,
+        swept_columns=swept,
+        n_bootstrap=n_bootstrap,
+        seed=seed,
+        confidence=confidence,
+    )
+
+
+def summarize_chunks(
+    chunks: Iterable[pd.DataFrame],
+    *,
+    orders: Mapping[str, Sequence[str]],
+    n_trial_sets: int,
+    swept_columns: Sequence[str] | None = None,
+    n_bootstrap: int = DEFAULT_N_BOOTSTRAP,
+    seed: int | np.random.SeedSequence = 0,
+    confidence: float = 0.95,
+) -> pd.DataFrame:
+    """:func:`summarize` of trial rows given a chunk at a time (memory: one chunk's).
+
+    Every (scenario, point) lies in one chunk, and chunks come in the order of their
+    scenarios (``orders["scenario"]``) and points; ``orders`` gives the order of the rows'
+    ``scenario``, ``estimator`` and, in a closed loop, ``planner`` labels, and
+    ``n_trial_sets`` the number of distinct (scenario, point, frame). The result does not
+    depend on the chunking: the bootstrap's keys get their seeds from one draw of ``seed``'s
+    generator for all of them (:data:`N_INTERVALS` rows of ``n_trial_sets``), as they would
+    all at once, and every other number is a function of one group's rows.
+    """
+    planners = "planner" in orders and any(str(label) != "" for label in orders["planner"])
+    keyed = ("scenario", "estimator", "planner") if planners else ("scenario", "estimator")
+    rng = np.random.default_rng(seed)
+    key_seeds = rng.integers(0, 2**63, size=(N_INTERVALS, int(n_trial_sets)))
+    parts = []
+    used = 0
+    for chunk in chunks:
+        if len(chunk) == 0:
+            continue
+        swept = list(swept_columns_of(chunk) if swept_columns is None else swept_columns)
+        _check_trials(chunk, swept)
+        codes = {key: _codes_in(chunk[key], orders[key]) for key in keyed}
+        part, n_sets = _summarize_points(
+            chunk,
+            codes,
+            key_seeds[:, used:],
+            planners=planners,
+            swept=swept,
+            n_bootstrap=n_bootstrap,
+            confidence=confidence,
+        )
+        parts.append(part)
+        used += n_sets
+        del chunk, codes  # before the next chunk is read
+    if not parts:
+        raise ValueError("trials: the frame has no rows; run the experiment first")
+    if used != n_trial_sets:
+        raise ValueError(
+            f"n_trial_sets: the chunks hold {used} (scenario, point, frame), not {n_trial_sets}; "
+            "give each point whole, in one chunk"
+        )
+    return pd.concat(parts, ignore_index=True)
+
+
+def _codes_in(values: pd.Series, order: Sequence[str]) -> NDArray[np.int64]:
+    """Each value's position in ``order``."""
+    codes = pd.Index(list(order)).get_indexer(values)
+    if (codes < 0).any():
+        raise ValueError(f"{values.name}: labels {sorted(set(values[codes < 0]))} not in {order}")
+    return codes.astype(np.int64)
+
+
+def _summarize_points(
+    trials: pd.DataFrame,
+    codes: Mapping[str, NDArray[np.int64]],
+    key_seeds: NDArray[np.int64],
+    *,
+    planners: bool,
+    swept: Sequence[str],
+    n_bootstrap: int,
+    confidence: float,
+) -> tuple[pd.DataFrame, int]:
+    """The summary rows of whole points, and how many trial sets (seeds' keys) they used."""
+    success = trials["success"].to_numpy(dtype=bool)
     group_frame = pd.DataFrame(
         {
             "scenario": codes["scenario"],
@@ -296,6 +421,9 @@ def summarize(
     group_keys = ["scenario", "point", "planner", "frame", "estimator"]
     group = group_frame.groupby(group_keys, sort=True).ngroup().to_numpy(np.int64)
     n_groups = int(group.max()) + 1
+    trial_set = group_frame.groupby(["scenario", "point", "frame"], sort=True).ngroup()
+    trial_set = trial_set.to_numpy(np.int64)
+    del group_frame  # memory: a chunk may be a million rows
 
     def successful(column: str) -> FloatArray:
         return np.where(success, trials[column].to_numpy(dtype=float), np.nan)
@@ -307,12 +435,11 @@ def summarize(
 
     error = successful("error_m")
     side_error = successful("error_side_resolved_m")
-    truth = trials[["truth_x_m", "truth_y_m"]].to_numpy(dtype=float)
-    returned_vector = np.stack([successful("x_m"), successful("y_m")], axis=1) - truth
-    side_vector = np.stack([optional("x_side_resolved_m"), optional("y_side_resolved_m")], 1)
-    side_vector = np.where(success[:, None], side_vector - truth, np.nan)
-    xx, xy, yy = (optional(f"crlb_{k}_m2") for k in ("xx", "xy", "yy"))
-    crlb_matrix = np.stack([xx, xy, xy, yy], axis=1).reshape(-1, 2, 2)
+
+    def error_vector(x: FloatArray, y: FloatArray) -> FloatArray:
+        return np.stack([x, y], axis=1) - trials[["truth_x_m", "truth_y_m"]].to_numpy(float)
+
+    returned_vector = error_vector(successful("x_m"), successful("y_m"))
     work = pd.DataFrame(
         {
             "group": group,
@@ -329,7 +456,8 @@ def summarize(
             "runtime": trials["runtime_s"].to_numpy(dtype=float),
             "crlb": trials["crlb_rmse_m"].to_numpy(dtype=float),
             "crlb_squared": trials["crlb_rmse_m"].to_numpy(dtype=float) ** 2,
-        }
+        },
+        copy=False,  # the columns as they are, not copied into one block
     )
     by_group = work.groupby("group", sort=True)
     stats_frame = by_group.agg(
@@ -357,12 +485,14 @@ def summarize(
         runtime_median_s=("runtime", "median"),
     )
     stats_frame["p95_error_m"] = by_group["error"].quantile(0.95)
+    del by_group, error, side_error
+    work = work[["squared_error", "squared_side_error"]]  # what is left to do needs these
 
-    rng = np.random.default_rng(seed)
     # Estimators (and planners) that saw the same trials are resampled on the same trials.
     first_of_group = np.unique(group, return_index=True)[1]
-    trial_set = group_frame.groupby(["scenario", "point", "frame"], sort=True).ngroup()
-    pairs = trial_set.to_numpy(np.int64)[first_of_group]
+    pairs = trial_set[first_of_group]
+    n_trial_sets = int(pairs.max()) + 1
+    seeds = iter(key_seeds[:, :n_trial_sets])  # one row per interval, in the order drawn
     in_trial_order = np.lexsort((trials["trial"].to_numpy(), group))
 
     def interval_m(squared: pd.Series) -> tuple[FloatArray, FloatArray]:
@@ -372,7 +502,7 @@ def summarize(
             n_groups,
             pairs=pairs,
             n_bootstrap=n_bootstrap,
-            rng=rng,
+            key_seeds=next(seeds),
             confidence=confidence,
         )
         return np.sqrt(low), np.sqrt(high)
@@ -406,9 +536,16 @@ def summarize(
     judged_low = per_bound(judged(side_low, rmse_low))
     judged_high = per_bound(judged(side_high, rmse_high))
     tail = tail_share(judged_squared, group, n_groups)
+    # formed only now (memory: a chunk may be a million rows)
+    side_vector = error_vector(optional("x_side_resolved_m"), optional("y_side_resolved_m"))
+    side_vector = np.where(success[:, None], side_vector, np.nan)
     judged_vector = np.where(side[group][:, None], side_vector, returned_vector)
+    del side_vector, returned_vector
     bias = bias_intervals(judged_vector, group, n_groups, crlb, confidence)
+    xx, xy, yy = (optional(f"crlb_{k}_m2") for k in ("xx", "xy", "yy"))
+    crlb_matrix = np.stack([xx, xy, xy, yy], axis=1).reshape(-1, 2, 2)
     axis_squared = axis_squared_errors(judged_vector, crlb_matrix)
+    del xx, xy, yy, crlb_matrix
     axis_intervals = [interval_m(pd.Series(q)) for q in axis_squared.T]
     axes = AxisEfficiencies(
         efficiency=np.sqrt(pd.DataFrame(axis_squared).groupby(group, sort=True).mean().to_numpy()),
@@ -495,7 +632,7 @@ def summarize(
     key_columns.append("estimator")
     keys = trials.iloc[first_rows][key_columns]
     keys = keys.reset_index(drop=True).astype({"snr_db": float, "frame": np.int64})
-    return pd.concat([keys, metrics], axis=1)[[*key_columns, *METRIC_NAMES]]
+    return pd.concat([keys, metrics], axis=1)[[*key_columns, *METRIC_NAMES]], n_trial_sets
 
 
 # --------------------------------------------------------------------------------------------

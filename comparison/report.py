@@ -31,7 +31,7 @@ from __future__ import annotations
 import base64
 import html
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -44,13 +44,15 @@ from comparison.labels import LABEL_COLUMNS, label_html, plain_label
 from comparison.metrics import (
     METRIC_DESCRIPTIONS,
     METRIC_NAMES,
+    SUMMARY_TRIAL_COLUMNS,
     format_number,
     has_planners,
     summarize,
+    summarize_chunks,
     summary_swept_columns,
 )
 from comparison.planner_table import planner_table_html
-from comparison.report_figures import FIGURE_STEMS, report_figures
+from comparison.report_figures import FIGURE_STEMS, figure_trial_columns, report_figures
 from comparison.run_folder import holding_report_lock, write_atomic, write_csv
 from comparison.verdicts import VERDICTS
 from scenarios.limits import configured_limit
@@ -163,25 +165,53 @@ def _read_json(path: Path) -> dict[str, Any]:
 
 def _load(
     run_dir: Path,
-    trials: pd.DataFrame | None,
     points: pd.DataFrame | None,
     experiment: Mapping[str, Any] | None,
     run_info: Mapping[str, Any] | None,
-) -> tuple[pd.DataFrame, pd.DataFrame | None, dict[str, Any], dict[str, Any]]:
-    """The run's data: the given frames, else the engine's readers (imported only then)."""
-    if trials is None or points is None or experiment is None:
+) -> tuple[pd.DataFrame | None, dict[str, Any], dict[str, Any]]:
+    """The run's points, experiment and run.json: the given ones, else the engine's readers
+    (imported only then). The trial rows are read a chunk at a time (:func:`_summary`)."""
+    if points is None or experiment is None:
         from comparison import engine
 
         if experiment is None:
             experiment = engine.read_experiment(run_dir)
-        if trials is None:
-            trials = engine.read_trials(run_dir)
         if points is None:
             points = engine.read_points(run_dir)
     if run_info is None:
         run_path = run_dir / "run.json"
         run_info = _read_json(run_path) if run_path.exists() else {}
-    return trials, points, experiment_dict(experiment), dict(run_info)
+    return points, experiment_dict(experiment), dict(run_info)
+
+
+def _summary(
+    run_dir: Path,
+    trials: pd.DataFrame | None,
+    experiment: Mapping[str, Any],
+    n_bootstrap: int,
+) -> tuple[pd.DataFrame, int]:
+    """:func:`comparison.metrics.summarize` of the given rows, else of results.sqlite read a
+    few points at a time (:func:`comparison.store.iter_trials`), with the number of rows."""
+    seed = np.random.SeedSequence(int(experiment.get("seed", 0)), spawn_key=(BOOTSTRAP_STREAM,))
+    swept = experiment.get("swept_columns")
+    swept = None if swept is None else list(swept)
+    if trials is not None:
+        summary = summarize(trials, n_bootstrap=n_bootstrap, seed=seed, swept_columns=swept)
+        return summary, len(trials)
+    from comparison import store
+
+    layout = store.trial_layout(run_dir)
+    closed = any(label != "" for label in layout.orders["planner"])
+    columns = [c for c in SUMMARY_TRIAL_COLUMNS if closed or c != "planner"]
+    summary = summarize_chunks(
+        store.iter_trials(run_dir, columns),
+        orders=layout.orders,
+        n_trial_sets=layout.n_trial_sets,
+        swept_columns=swept,
+        n_bootstrap=n_bootstrap,
+        seed=seed,
+    )
+    return summary, layout.n_rows
 
 
 def experiment_dict(experiment: Any) -> dict[str, Any]:
@@ -487,6 +517,13 @@ def render_html(
     )
 
 
+def _trial_batches(run_dir: Path) -> Iterator[pd.DataFrame]:
+    """Every trial row of results.sqlite, every column, a batch at a time."""
+    from comparison import store
+
+    return store.iter_trials(run_dir, chunk_rows=store.TRIAL_BATCH_ROWS, whole_points=False)
+
+
 def trials_csv_note(n_rows: int, limit: int) -> str:
     """The sentence of a report whose trial rows are too many for trials.csv."""
     return (
@@ -544,26 +581,25 @@ def write_report(
         The path of ``report.html``.
     """
     folder = Path(run_dir)
-    trials, points, experiment, run_info = _load(folder, trials, points, experiment, run_info)
-    seed = int(experiment.get("seed", 0))
-    swept = experiment.get("swept_columns")
-    summary = summarize(
-        trials,
-        n_bootstrap=n_bootstrap,
-        seed=np.random.SeedSequence(seed, spawn_key=(BOOTSTRAP_STREAM,)),
-        swept_columns=None if swept is None else list(swept),
-    )
+    folder = Path(run_dir)
+    points, experiment, run_info = _load(folder, points, experiment, run_info)
+    summary, n_rows = _summary(folder, trials, experiment, n_bootstrap)
     write_csv(folder / "summary.csv", summary)
     write_csv(folder / "thresholds.csv", verdict_table.thresholds(summary))
     limit = (
         configured_limit(_TRIALS_CSV_LIMIT) if max_trials_csv_rows is None else max_trials_csv_rows
     )
     file_notes = []
-    if len(trials) <= limit:
-        write_csv(folder / "trials.csv", trials)
+    if n_rows <= limit:  # the rows as text, a batch at a time from results.sqlite
+        write_csv(folder / "trials.csv", trials if trials is not None else _trial_batches(folder))
     else:
         (folder / "trials.csv").unlink(missing_ok=True)  # an earlier report's, now stale
-        file_notes.append(trials_csv_note(len(trials), limit))
+        file_notes.append(trials_csv_note(n_rows, limit))
+    if trials is None:  # the figures' columns only
+        from comparison import store
+
+        closed = "planner" in summary.columns
+        trials = store.read_trials(folder, figure_trial_columns(closed_loop=closed))
     steering = None
     if "planner" in summary.columns:
         if flights is None and (folder / "results.sqlite").is_file():
@@ -582,14 +618,15 @@ def write_report(
     if tracks_m is None and figures.is_geometry_sweep(summary):
         tracks_m = scenario_tracks_m(experiment)
     figure_dir = folder / "figures"
-    for stale in FIGURE_STEMS:  # a previous report's figures that may not apply any more
-        for suffix in (".png", ".svg"):
-            (figure_dir / f"{stale}{suffix}").unlink(missing_ok=True)
     entries = []
     made = report_figures(summary, trials, points, tracks_m, flights, steering_estimator=steering)
-    for stem, caption, figure in made:
+    for stem, caption, figure in made:  # each file replaced whole, the old one kept till then
         png_path, _ = figures.save_figure(figure, figure_dir, stem, dpi=dpi)
         entries.append((stem, caption, _png_data_uri(png_path)))
+    drawn = {stem for stem, _, _ in made}
+    for stale in set(FIGURE_STEMS) - drawn:  # an earlier report's, once the new ones are in
+        for suffix in (".png", ".svg"):
+            (figure_dir / f"{stale}{suffix}").unlink(missing_ok=True)
     definition_path = folder / "experiment.json"
     page = render_html(
         summary=summary,

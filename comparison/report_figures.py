@@ -35,6 +35,17 @@ FIGURE_STEMS: tuple[str, ...] = (
 """File names (without suffix) of every figure a report can write under ``figures/``."""
 
 
+def figure_trial_columns(*, closed_loop: bool) -> tuple[str, ...]:
+    """The trial columns the figures read (with the swept ones): those of the error CDF and
+    the run time, and in a closed loop those of the trajectories."""
+    columns = ("scenario", "point", "snr_db", "estimator", "frame", "success", "ambiguous")
+    columns += ("error_m", "error_side_resolved_m", "crlb_rmse_m", "runtime_s")
+    if closed_loop:
+        columns += ("planner", "trial", "truth_x_m", "truth_y_m", "x_m", "y_m")
+        columns += ("wrong_side", "cov_xx_m2", "cov_xy_m2", "cov_yy_m2")
+    return columns
+
+
 def _count_caption(note: str) -> str:
     """A note of :mod:`comparison.figures` on the points left out, as a caption's sentence."""
     return f"{note[0].upper()}{note[1:]} (the legend counts them)."

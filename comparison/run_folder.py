@@ -162,7 +162,8 @@ def write_atomic(
 
 
 def write_csv(path: str | os.PathLike[str], frame: Any) -> None:
-    """A pandas frame as CSV without its index, through :func:`atomic_file`.
+    """A pandas frame as CSV without its index, through :func:`atomic_file`; or frames of the
+    same columns, one after another under one header (a table read a chunk at a time).
 
     No cell can run as a spreadsheet formula (:mod:`comparison.csv_cells`, OWASP): a text cell
     beginning with ``=``, ``+``, ``-`` (not a number), ``@``, tab, CR or LF gets a leading
@@ -171,8 +172,14 @@ def write_csv(path: str | os.PathLike[str], frame: Any) -> None:
     """
     from comparison.csv_cells import QUOTING, neutralised_frame
 
-    safe = neutralised_frame(frame)
-    write_atomic(path, lambda handle: safe.to_csv(handle, index=False, quoting=QUOTING))
+    frames = [frame] if hasattr(frame, "to_csv") else frame
+
+    def write(handle: IO[str]) -> None:
+        for index, part in enumerate(frames):
+            safe = neutralised_frame(part)
+            safe.to_csv(handle, index=False, header=index == 0, quoting=QUOTING)
+
+    write_atomic(path, write)
 
 
 # --------------------------------------------------------------------------------------------

@@ -28,14 +28,19 @@ A damaged file (truncated, overwritten, not SQLite at all) is found when it is o
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import operator
 import os
 import sqlite3
-from collections.abc import Iterator, Mapping, Sequence
+import sys
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import closing, contextmanager, suppress
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from comparison.bounds import CrlbKey, PointInfo
@@ -182,15 +187,22 @@ def _open_existing(path: Path) -> sqlite3.Connection:
     return connection
 
 
+WAL_LIMIT_BYTES = 16 * 2**20
+"""Size the write-ahead log (``results.sqlite-wal``) is cut back to after each checkpoint
+(SQLite's ``journal_size_limit``); SQLite checkpoints every 1000 pages (4 MB) written, so the
+log stays near one task's rows instead of keeping its largest size for the whole run."""
+
+
 def connect(path: Path) -> sqlite3.Connection:
-    """A connection for writing, in WAL mode (the engine checks the file first,
-    :func:`check_store`)."""
+    """A connection for writing, in WAL mode, the log bounded by :data:`WAL_LIMIT_BYTES` (the
+    engine checks the file first, :func:`check_store`)."""
     _refuse_links(path)
     with store_errors(path):
         connection = sqlite3.connect(path, timeout=60.0)
         try:
             connection.execute("PRAGMA journal_mode=WAL")
             connection.execute("PRAGMA synchronous=NORMAL")
+            connection.execute(f"PRAGMA journal_size_limit={WAL_LIMIT_BYTES}")
         except BaseException:
             connection.close()
             raise
@@ -380,29 +392,175 @@ def _order_by(table: Table, alias: str = "") -> str:
     return ", ".join(alias + column for column in table.sort_order())
 
 
-def read_trials(out_dir: str | os.PathLike[str]) -> pd.DataFrame:
+def _malloc_trim() -> Callable[[int], int] | None:
+    """glibc's ``malloc_trim``, or None (another C library, another system)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    with suppress(OSError, AttributeError):
+        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
+    return None
+
+
+_TRIM = _malloc_trim()
+
+
+def release_freed_memory() -> None:
+    """Hand the memory freed so far back to the system (glibc's ``malloc_trim``; nothing
+    elsewhere). Rows read in batches free as much as they keep, and glibc would otherwise
+    keep the freed blocks between the kept ones: a million trial rows read left twice their
+    size resident."""
+    if _TRIM is not None:
+        _TRIM(0)
+
+
+TRIAL_BATCH_ROWS = 20_000
+"""Rows fetched from SQLite at a time by :func:`iter_trials`: the text of a batch's rows
+(messages, diagnostics) is held only while the batch is converted."""
+
+TRIAL_CHUNK_ROWS = 250_000
+"""Rows of whole points :func:`iter_trials` yields at a time by default."""
+
+_KEYS = ("scenario", "planner", "estimator")
+"""The text keys of a trial row: read into one string object per label, not one per row."""
+
+
+@dataclass(frozen=True)
+class TrialLayout:
+    """What a reader of the trial rows needs before the first row (:func:`trial_layout`).
+
+    Attributes
+    ----------
+    n_rows : int
+        Trial rows.
+    n_trial_sets : int
+        Distinct (scenario, point, frame): the trials every estimator and planner of a point
+        saw alike.
+    orders : dict
+        ``scenario``, ``planner``, ``estimator``: the labels in the experiment's order (the
+        order of :func:`read_trials`' rows).
+    """
+
+    n_rows: int
+    n_trial_sets: int
+    orders: dict[str, tuple[str, ...]]
+
+
+def trial_layout(out_dir: str | os.PathLike[str]) -> TrialLayout:
+    """Count the trial rows and trial sets of a run folder and order its labels."""
+    with _reading(Path(out_dir)) as connection:
+        (n_rows,) = connection.execute("SELECT COUNT(*) FROM trials").fetchone()
+        (n_sets,) = connection.execute(
+            "SELECT COUNT(*) FROM (SELECT DISTINCT scenario_index, point, frame FROM trials)"
+        ).fetchone()
+        orders = {}
+        for key in _KEYS:
+            index = f"{key}_index"
+            query = f"SELECT DISTINCT {index}, {key} FROM trials ORDER BY {index}, {key}"
+            labels = [label for _, label in connection.execute(query)]
+            orders[key] = tuple(dict.fromkeys(labels))
+    return TrialLayout(int(n_rows), int(n_sets), orders)
+
+
+def iter_trials(
+    out_dir: str | os.PathLike[str],
+    columns: Sequence[str] | None = None,
+    *,
+    chunk_rows: int = TRIAL_CHUNK_ROWS,
+    whole_points: bool = True,
+) -> Iterator[pd.DataFrame]:
+    """The rows of :func:`read_trials`, in its order and types, a chunk at a time.
+
+    ``columns`` (default: all) picks the columns read, in the contract's order, the swept ones
+    always among them; text columns that are not asked for are never fetched. A chunk holds about ``chunk_rows`` rows; with
+    ``whole_points`` every (scenario, point) lies in one chunk (a point of more rows is a
+    chunk of its own). The labels of a chunk are one string object per label, shared, so a
+    chunk of numbers costs its numbers. No rows: one empty frame.
+    """
+    if int(chunk_rows) != chunk_rows or chunk_rows < 1:
+        raise ValueError(f"chunk_rows: must be a whole number >= 1, got {chunk_rows!r}")
+    out = Path(out_dir)
+    experiment = read_experiment(out)
+    swept = list(experiment.swept_columns)
+    names = list(TRIALS.names(swept))
+    wanted = names if columns is None else [c for c in names if c in {*columns, *swept}]
+    unknown = sorted(set(columns or ()) - set(names))
+    if unknown:
+        raise ValueError(f"columns: {unknown} are not trial columns; choose from {names}")
+    joined = set(with_swept(POINT_COLUMNS, swept))
+    # the point's key always, to cut chunks between points
+    fetched = [c for c in names if c in wanted or c in ("scenario", "point")]
+    fetched = [c for c in fetched if c != "experiment"]
+    selected = ", ".join(f"{'p' if c in joined else 't'}.{_quote(c)}" for c in fetched)
+    on = " AND ".join(f"t.{key} = p.{key}" for key in POINTS.keys())
+    query = (
+        f"SELECT {selected} FROM trials t JOIN points p ON {on} ORDER BY {_order_by(TRIALS, 't.')}"
+    )
+    kinds = {c: TRIALS.dtypes(swept).get(c) for c in fetched}  # None: text
+    labels: dict[str, str] = {}
+
+    def fill(columns: dict[str, np.ndarray], at: int, rows: list[tuple[Any, ...]]) -> None:
+        """Copy ``rows`` into ``columns`` from row ``at`` (NULL: NaN; one object per label)."""
+        end = at + len(rows)
+        for name, values in zip(fetched, zip(*rows, strict=True), strict=True):
+            if name in _KEYS:
+                values = tuple(labels.setdefault(v, v) for v in values)
+            columns[name][at:end] = np.array(values, dtype=kinds[name] or object)
+
+    def frame_of(columns: dict[str, np.ndarray]) -> pd.DataFrame:
+        n_rows = len(columns["point"])
+        data: dict[str, Any] = {}
+        for name in wanted:
+            if name == "experiment":
+                data[name] = pd.array(np.full(n_rows, experiment.name, dtype=object), dtype="str")
+            elif kinds[name] is None:
+                data[name] = pd.array(columns.pop(name), dtype="str")
+            else:
+                data[name] = columns.pop(name)
+        return pd.DataFrame(data, copy=False)
+
+    with _reading(out) as connection:
+        connection.execute("BEGIN")  # one snapshot for the sizes and the rows
+        if whole_points:  # the chunks' sizes: whole points, chunk_rows or more
+            sizes = [0]
+            counts = connection.execute(
+                f"SELECT COUNT(*) FROM trials t JOIN points p ON {on} "
+                "GROUP BY t.scenario_index, t.point ORDER BY t.scenario_index, t.point"
+            )
+            for (count,) in counts:
+                if sizes[-1] >= chunk_rows:
+                    sizes.append(0)
+                sizes[-1] += int(count)
+        else:
+            (n_rows,) = connection.execute(
+                f"SELECT COUNT(*) FROM trials t JOIN points p ON {on}"
+            ).fetchone()
+            sizes = [min(int(chunk_rows), n_rows - at) for at in range(0, n_rows, int(chunk_rows))]
+            sizes = sizes or [0]
+        cursor = connection.execute(query)
+        for size in sizes:  # each chunk's columns allocated once and filled a batch at a time
+            columns = {name: np.empty(size, dtype=kinds[name] or object) for name in fetched}
+            at = 0
+            while at < size and (rows := cursor.fetchmany(min(TRIAL_BATCH_ROWS, size - at))):
+                fill(columns, at, rows)
+                at += len(rows)
+                del rows
+            release_freed_memory()
+            yield frame_of(columns)
+            del columns
+
+
+def read_trials(
+    out_dir: str | os.PathLike[str], columns: Sequence[str] | None = None
+) -> pd.DataFrame:
     """One row per estimator × scenario × point × frame × trial (the contract's columns,
-    :data:`comparison.trial_rows.TRIALS`).
+    :data:`comparison.trial_rows.TRIALS`; ``columns`` picks some, :func:`iter_trials`).
 
     Sorted by scenario and estimator in the experiment's order, then point, frame and trial
     (``scenario, point, estimator, frame, trial``). NaN marks what a failed estimate or a
     missing covariance cannot give.
     """
-    out = Path(out_dir)
-    experiment = read_experiment(out)
-    swept = list(experiment.swept_columns)
-    stored = [c.name for c in TRIALS.columns if c.stored]
-    joined = with_swept(POINT_COLUMNS, swept)
-    selected = ", ".join([f"t.{_quote(c)}" for c in stored] + [f"p.{_quote(c)}" for c in joined])
-    on = " AND ".join(f"t.{key} = p.{key}" for key in POINTS.keys())
-    query = (
-        f"SELECT {selected} FROM trials t JOIN points p ON {on} ORDER BY {_order_by(TRIALS, 't.')}"
-    )
-    with _reading(out) as connection:
-        frame = pd.read_sql_query(query, connection)
-    frame.insert(0, "experiment", experiment.name)
-    frame = frame[list(TRIALS.names(swept))].astype(TRIALS.dtypes(swept))
-    return frame.reset_index(drop=True)
+    chunks = list(iter_trials(out_dir, columns))
+    return pd.concat(chunks, ignore_index=True) if len(chunks) > 1 else chunks[0]
 
 
 def read_points(out_dir: str | os.PathLike[str]) -> pd.DataFrame:

@@ -72,12 +72,20 @@ def estimator_markers(names: Iterable[str]) -> dict[str, str]:
     return {name: ESTIMATOR_MARKERS[i % len(ESTIMATOR_MARKERS)] for i, name in enumerate(unique)}
 
 
+SVG_HASH_SALT = "emitterbench"
+"""Salt of the ids in an SVG file (matplotlib's ``svg.hashsalt``): fixed, so that the same
+figure gives the same bytes on every report (the default is a random salt per file)."""
+
+
 def save_figure(figure: Figure, directory: str | Path, stem: str, *, dpi: int = 150) -> list[Path]:
     """Write ``figure`` as ``<stem>.png`` (``dpi``) and ``<stem>.svg``; return both paths.
 
     The SVG is vector graphics, with any rasterized artist (a dense heatmap) at ``dpi`` too.
-    Each file is replaced whole (:func:`comparison.run_folder.atomic_file`); a symbolic link
-    in the place of either is refused and its target left alone."""
+    Both files are reproducible: the same figure gives the same bytes (the SVG without a date,
+    its ids salted by :data:`SVG_HASH_SALT`; the PNG carries no date, only matplotlib's
+    version). Each file is replaced whole (:func:`comparison.run_folder.atomic_file`): an
+    interrupted write leaves the old file and no temporary one; a symbolic link in the place
+    of either is refused and its target left alone."""
     folder = Path(directory)
     folder.mkdir(parents=True, exist_ok=True)
     paths = [folder / f"{stem}.png", folder / f"{stem}.svg"]
@@ -85,9 +93,12 @@ def save_figure(figure: Figure, directory: str | Path, stem: str, *, dpi: int = 
         figure.savefig(handle, dpi=dpi, format="png")
     layout = figure.get_layout_engine()
     figure.set_layout_engine("none")  # keep the layout just computed: same positions in SVG
-    with atomic_file(paths[1], binary=True) as handle:
-        figure.savefig(handle, dpi=dpi, format="svg")
-    figure.set_layout_engine(layout)
+    try:
+        with mpl.rc_context({"svg.hashsalt": SVG_HASH_SALT}):
+            with atomic_file(paths[1], binary=True) as handle:
+                figure.savefig(handle, dpi=dpi, format="svg", metadata={"Date": None})
+    finally:
+        figure.set_layout_engine(layout)
     return paths
 
 

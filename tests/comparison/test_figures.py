@@ -506,3 +506,17 @@ def test_estimators_keep_distinct_markers_and_colour_blind_safe_colours():
     ]  # Okabe and Ito's orange, sky blue, bluish green
     markers = figures.estimator_markers(colors)
     assert len(set(markers.values())) == 8  # in greyscale, the markers tell them apart
+
+
+def test_a_long_error_cdf_is_drawn_at_evenly_spaced_ranks_on_the_exact_curve(monkeypatch):
+    from comparison.figures import sweep
+
+    monkeypatch.setattr(sweep, "MAX_CDF_STEPS", 7)
+    trials = trial_frame(scenarios=("paper-1m",), estimators=("cls",), snrs=(10.0,), n=30)
+    (ax,) = panels(figures.error_cdf_figure(trials))
+    (line,) = [line for line in ax.get_lines() if line.get_label() == "cls"]
+    exact = np.sort(trials["error_m"].to_numpy())
+    ranks = np.array([0, 5, 10, 14, 19, 24, 29])  # 0 to 29 in 7 steps, rounded
+    drawn_x, drawn_y = line.get_data()  # the corners of the steps
+    assert np.array_equal(drawn_x, exact[ranks])
+    assert np.array_equal(drawn_y, (ranks + 1) / 30)  # the exact CDF at those errors

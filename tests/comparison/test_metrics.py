@@ -351,3 +351,21 @@ def test_the_fit_rejected_rate_counts_the_judged_successes():
     # a run folder of an earlier version has no fit: nothing judged, no rate
     old = summarize(trial_rows(np.zeros((10, 2))), n_bootstrap=10).iloc[0]
     assert old["n_fit_judged"] == 0 and math.isnan(old["fit_rejected_rate"])
+
+
+@pytest.mark.bits(
+    "the same summarize on the same rows, worked 7 rows (one point) at a time and all at once"
+)
+def test_the_summary_does_not_depend_on_the_rows_worked_at_a_time():
+    from tests.comparison.test_report import synthetic_run
+
+    sweep = [{"snr_db": s} for s in (-10.0, 0.0, 10.0, 20.0)]
+    trials, _, _ = synthetic_run(sweep, n_trials=40, frames=2)
+    shuffled = trials.sample(frac=1.0, random_state=3).reset_index(drop=True)
+    closed = pd.concat([shuffled.assign(planner="constant"), shuffled.assign(planner="fisher")])
+    for rows, n_planners in ((shuffled, 1), (closed.reset_index(drop=True), 2)):
+        whole = summarize(rows, n_bootstrap=200, seed=11, chunk_rows=len(rows))
+        pieces = summarize(rows, n_bootstrap=200, seed=11, chunk_rows=7)
+        assert len(whole) == n_planners * 4 * 2 * 4  # points × frames × estimators
+        assert np.isfinite(whole[["rmse_ci_low_m", "rmse_ci_high_m"]]).all().all()
+        pd.testing.assert_frame_equal(pieces, whole, check_exact=True)

@@ -15,6 +15,7 @@ import pandas as pd
 import pytest
 
 import comparison
+from comparison import store
 from comparison.intervals import nees_band
 from comparison.metrics import CONTRACT_METRIC_NAMES, format_number, summarize
 from comparison.report import render_html, report_figures, scenario_tracks_m, write_report
@@ -155,6 +156,23 @@ def synthetic_run(
     return trials.reset_index(drop=True), points, experiment
 
 
+def stand_in_store(patch: pytest.MonkeyPatch, trials: pd.DataFrame) -> None:
+    """The store's readers of trial rows (:mod:`comparison.store`) over ``trials``."""
+    planners = trials["planner"] if "planner" in trials.columns else pd.Series([""])
+    layout = store.TrialLayout(
+        n_rows=len(trials),
+        n_trial_sets=len(trials[["scenario", "point", "frame"]].drop_duplicates()),
+        orders={
+            "scenario": tuple(pd.unique(trials["scenario"])),
+            "planner": tuple(pd.unique(planners)),
+            "estimator": tuple(pd.unique(trials["estimator"])),
+        },
+    )
+    patch.setattr(store, "trial_layout", lambda run_dir: layout)
+    patch.setattr(store, "iter_trials", lambda run_dir, columns=None, **_: iter([trials.copy()]))
+    patch.setattr(store, "read_trials", lambda run_dir, columns=None: trials.copy())
+
+
 def write_run_folder(folder: Path, experiment: dict) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "experiment.json").write_text(json.dumps(experiment))
@@ -170,7 +188,6 @@ def snr_run(tmp_path_factory):
     )
     write_run_folder(folder, experiment)
     engine = types.ModuleType("comparison.engine")
-    engine.read_trials = lambda run_dir: trials.copy()
     engine.read_points = lambda run_dir: points.copy()
     engine.read_experiment = lambda run_dir: json.loads(
         (Path(run_dir) / "experiment.json").read_text()
@@ -178,6 +195,7 @@ def snr_run(tmp_path_factory):
     with pytest.MonkeyPatch.context() as patch:
         patch.setitem(sys.modules, "comparison.engine", engine)
         patch.setattr(comparison, "engine", engine, raising=False)
+        stand_in_store(patch, trials)
         html_path = write_report(folder, n_bootstrap=200)
     return folder, html_path, trials
 

@@ -22,7 +22,7 @@ from comparison.figures import geometry
 from comparison.metrics import format_number
 from comparison.report import scenario_tracks_m, write_report
 from comparison.report_figures import geometry_caption, report_figures
-from tests.comparison.test_report import synthetic_run, write_run_folder
+from tests.comparison.test_report import stand_in_store, synthetic_run, write_run_folder
 
 XS = [float(x) for x in range(-20, 100, 10)]  # 12 columns
 YS = [float(y) for y in range(5, 125, 10)]  # 12 rows: 144 points × 4 estimators
@@ -47,12 +47,12 @@ def dense_report(tmp_path_factory, grid_run):
     write_run_folder(folder, experiment)
     (folder / "trials.csv").write_text("stale\n")
     engine = types.ModuleType("comparison.engine")
-    engine.read_trials = lambda run_dir: trials.copy()
     engine.read_points = lambda run_dir: points.copy()
     engine.read_experiment = lambda run_dir: json.loads((run_dir / "experiment.json").read_text())
     with pytest.MonkeyPatch.context() as patch:
         patch.setitem(sys.modules, "comparison.engine", engine)
         patch.setattr(comparison, "engine", engine, raising=False)
+        stand_in_store(patch, trials)
         patch.setattr(report, "MAX_TABLE_ROWS", 100)
         patch.setattr(geometry, "RASTER_CELLS", 100)
         html_path = write_report(folder, n_bootstrap=50, max_trials_csv_rows=1000)

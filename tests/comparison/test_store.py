@@ -7,12 +7,23 @@ import os
 import sqlite3
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
+from comparison import store
 from comparison.engine import run_experiment
 from comparison.experiment import load_experiment
-from comparison.store import read_flights, read_points, read_trials, store_error
+from comparison.metrics import SUMMARY_TRIAL_COLUMNS, summarize, summarize_chunks
+from comparison.run_folder import write_csv
+from comparison.store import (
+    iter_trials,
+    read_flights,
+    read_points,
+    read_trials,
+    store_error,
+    trial_layout,
+)
 from tests.comparison.cli_support import clean_error, invoke
 
 TRIALS = 4
@@ -142,3 +153,57 @@ def test_the_fit_columns_are_stored_and_added_to_a_folder_of_an_earlier_version(
     earlier = rows["trial"] < TRIALS
     assert rows.loc[earlier, ["fit_chi2", "fit_dof"]].isna().all().all()
     assert (rows.loc[~earlier, "fit_dof"] == 18).all() and (~earlier).sum() == 2 * 2 * 2
+
+
+@pytest.mark.bits(
+    "the same summary code on the same rows: read a point at a time from the store, and read "
+    "whole then worked 7 rows (one point) at a time and all at once"
+)
+def test_the_summary_read_a_point_at_a_time_is_that_of_the_whole_frame(finished_run):
+    trials = read_trials(finished_run)
+    chunks = list(iter_trials(finished_run, SUMMARY_TRIAL_COLUMNS, chunk_rows=7))
+    assert [len(chunk) for chunk in chunks] == [2 * TRIALS] * 2  # whole points
+    assert "message" not in chunks[0].columns  # text not asked for is not read
+    layout = trial_layout(finished_run)
+    assert (layout.n_rows, layout.n_trial_sets) == (len(trials), 2)
+    assert layout.orders["estimator"] == tuple(pd.unique(trials["estimator"]))
+    streamed = summarize_chunks(
+        iter(chunks), orders=layout.orders, n_trial_sets=2, n_bootstrap=300, seed=5
+    )
+    whole = summarize(trials, n_bootstrap=300, seed=5, chunk_rows=len(trials))
+    pieces = summarize(trials, n_bootstrap=300, seed=5, chunk_rows=7)
+    assert np.isfinite(whole["rmse_ci_low_m"]).all() and (whole["n_trials"] == TRIALS).all()
+    pd.testing.assert_frame_equal(streamed, whole, check_exact=True)
+    pd.testing.assert_frame_equal(pieces, whole, check_exact=True)
+
+
+def test_trials_read_in_batches_are_the_rows_read_whole(finished_run, tmp_path):
+    trials = read_trials(finished_run)
+    batches = list(iter_trials(finished_run, chunk_rows=7, whole_points=False))
+    assert [len(batch) for batch in batches[:-1]] == [7] * (len(batches) - 1)
+    pd.testing.assert_frame_equal(pd.concat(batches, ignore_index=True), trials)
+    whole, in_batches = tmp_path / "whole.csv", tmp_path / "batches.csv"
+    write_csv(whole, trials)
+    write_csv(in_batches, iter(batches))  # one header, the batches one after another
+    assert in_batches.read_bytes() == whole.read_bytes()
+    picked = read_trials(finished_run, ["error_m", "estimator"])
+    assert list(picked.columns) == ["estimator", "error_m"]  # in the contract's order
+    with pytest.raises(ValueError, match=r"columns: \['errors_m'\] are not trial columns"):
+        read_trials(finished_run, ["errors_m"])
+
+
+def test_the_write_ahead_log_is_cut_back_after_a_large_transaction(tmp_path, monkeypatch):
+    monkeypatch.setattr(store, "WAL_LIMIT_BYTES", 2**20)
+    database = tmp_path / "results.sqlite"
+    connection = store.connect(database)
+    wal = tmp_path / "results.sqlite-wal"
+    with connection:
+        connection.execute("CREATE TABLE t (a INTEGER, b TEXT)")
+        connection.executemany(
+            "INSERT INTO t VALUES (?, ?)", ((i, "x" * 500) for i in range(20000))
+        )
+    assert wal.stat().st_size > 8 * 2**20  # one transaction is in the log whole
+    with connection:  # the next commit checkpoints and cuts the log back
+        connection.execute("INSERT INTO t VALUES (1, 'y')")
+    assert wal.stat().st_size <= 2**20
+    connection.close()
