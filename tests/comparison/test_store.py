@@ -142,6 +142,11 @@ def test_the_fit_columns_are_stored_and_added_to_a_folder_of_an_earlier_version(
     trials = read_trials(finished_run)
     assert trials["success"].all() and (trials["fit_dof"] == 18).all()
     assert (trials["fit_chi2"] > 0).all() and trials["fit_chi2"].notna().all()
+    # the summary read from the store, a point at a time, judges every one of them
+    layout = trial_layout(finished_run)
+    chunks = iter_trials(finished_run, SUMMARY_TRIAL_COLUMNS)
+    summary = summarize_chunks(chunks, orders=layout.orders, n_trial_sets=2, n_bootstrap=20)
+    assert (summary["n_fit_judged"] == TRIALS).all()
     old = copy_of(finished_run, tmp_path)
     with sqlite3.connect(old / "results.sqlite") as connection:
         for column in ("fit_chi2", "fit_dof"):
