@@ -86,6 +86,21 @@ _ADDED_LATER: tuple[tuple[Table, tuple[str, ...]], ...] = (
 """Columns that files written by earlier versions lack, added when such a run is resumed."""
 
 
+def _readable(
+    connection: sqlite3.Connection, table: Table, names: Sequence[str], alias: str = ""
+) -> list[str]:
+    """``names`` for a SELECT from ``table`` (prefixed ``alias``, e.g. ``"t."``); a column added
+    since the store was written (:data:`_ADDED_LATER`) and absent from it reads as NULL (NaN),
+    as when the run is resumed (:func:`create_tables`), so that a run of an earlier version can
+    still be reported."""
+    present = {row[1] for row in connection.execute(f"PRAGMA table_info({table.name})")}
+    later = {name for added_to, names in _ADDED_LATER if added_to is table for name in names}
+    return [
+        f"NULL AS {_quote(n)}" if n in later and n not in present else f"{alias}{_quote(n)}"
+        for n in names
+    ]
+
+
 def _quote(name: str) -> str:
     return '"' + name.replace('"', '""') + '"'
 
@@ -490,11 +505,7 @@ def iter_trials(
     # the point's key always, to cut chunks between points
     fetched = [c for c in names if c in wanted or c in ("scenario", "point")]
     fetched = [c for c in fetched if c != "experiment"]
-    selected = ", ".join(f"{'p' if c in joined else 't'}.{_quote(c)}" for c in fetched)
     on = " AND ".join(f"t.{key} = p.{key}" for key in POINTS.keys())
-    query = (
-        f"SELECT {selected} FROM trials t JOIN points p ON {on} ORDER BY {_order_by(TRIALS, 't.')}"
-    )
     kinds = {c: TRIALS.dtypes(swept).get(c) for c in fetched}  # None: text
     labels: dict[str, str] = {}
 
@@ -520,6 +531,15 @@ def iter_trials(
 
     with _reading(out) as connection:
         connection.execute("BEGIN")  # one snapshot for the sizes and the rows
+        own = _readable(connection, TRIALS, fetched, "t.")
+        selected = ", ".join(
+            f"p.{_quote(c)}" if c in joined else column
+            for c, column in zip(fetched, own, strict=True)
+        )
+        query = (
+            f"SELECT {selected} FROM trials t JOIN points p ON {on} "
+            f"ORDER BY {_order_by(TRIALS, 't.')}"
+        )
         if whole_points:  # the chunks' sizes: whole points, chunk_rows or more
             sizes = [0]
             counts = connection.execute(
@@ -570,8 +590,9 @@ def read_points(out_dir: str | os.PathLike[str]) -> pd.DataFrame:
     out = Path(out_dir)
     experiment = read_experiment(out)
     swept = list(experiment.swept_columns)
-    query = f"SELECT {_names(POINTS.names(swept))} FROM points ORDER BY {_order_by(POINTS)}"
     with _reading(out) as connection:
+        selected = ", ".join(_readable(connection, POINTS, POINTS.names(swept)))
+        query = f"SELECT {selected} FROM points ORDER BY {_order_by(POINTS)}"
         frame = pd.read_sql_query(query, connection)
     frame.insert(0, "experiment", experiment.name)
     return frame.astype(POINTS.dtypes(swept)).reset_index(drop=True)

@@ -152,6 +152,14 @@ def test_the_fit_columns_are_stored_and_added_to_a_folder_of_an_earlier_version(
         for column in ("fit_chi2", "fit_dof"):
             connection.execute(f"ALTER TABLE trials DROP COLUMN {column}")
     connection.close()
+    # read and reported as it is: the columns added since read as NaN, the rest unchanged
+    as_it_is = read_trials(old)
+    assert as_it_is[["fit_chi2", "fit_dof"]].isna().all().all()
+    fit = ["fit_chi2", "fit_dof"]
+    pd.testing.assert_frame_equal(as_it_is.drop(columns=fit), trials.drop(columns=fit))
+    reported = invoke("report", old)
+    assert reported.exit_code == 0, reported.output
+    assert (pd.read_csv(old / "summary.csv")["n_fit_judged"] == 0).all()
     resumed = invoke("run", "smoke", "-o", old, "--trials", TRIALS + 2, "--resume")
     assert resumed.exit_code == 0, resumed.output
     rows = read_trials(old)
