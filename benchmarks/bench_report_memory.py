@@ -64,9 +64,8 @@ def ensure_run(folder: Path, trials: int) -> None:
 def report_by_stage(folder: Path) -> None:
     """Write the report of ``folder`` here, printing the memory around every stage."""
     import comparison.report as report
-    from comparison import figures
 
-    def watched(owner: Any, name: str, label: Any) -> None:
+    def watched(owner: Any, name: str, label: Any, then: Any = None) -> None:
         function = getattr(owner, name)
 
         @functools.wraps(function)
@@ -79,15 +78,23 @@ def report_by_stage(folder: Path) -> None:
                 f"peak so far {peak_mb():6.0f} MB",
                 flush=True,
             )
+            if then is not None:
+                then()
             return result
 
         setattr(owner, name, wrapper)
 
     watched(report, "_load", "points, experiment")
-    watched(report, "_summary", "summary")
+
+    def watch_figures() -> None:  # matplotlib is imported after the summary, as the report does
+        import comparison.report_figures as report_figures
+        from comparison import figures
+
+        watched(report_figures, "report_figures", "draw figures")
+        watched(figures, "save_figure", lambda _figure, _folder, stem: f"save {stem}")
+
+    watched(report, "_summary", "summary", then=watch_figures)
     watched(report, "write_csv", lambda path, *_: Path(path).name)
-    watched(report, "report_figures", "draw figures")
-    watched(figures, "save_figure", lambda _figure, _folder, stem: f"save {stem}")
     watched(report, "render_html", "page")
     print(f"  {'imports':<22} resident {resident_mb():6.0f} MB")
     report.write_report(folder)

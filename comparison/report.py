@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from comparison import figures, verdict_table
+from comparison import verdict_table
 from comparison.intervals import DEFAULT_N_BOOTSTRAP
 from comparison.labels import LABEL_COLUMNS, label_html, plain_label
 from comparison.metrics import (
@@ -52,7 +52,6 @@ from comparison.metrics import (
     summary_swept_columns,
 )
 from comparison.planner_table import planner_table_html
-from comparison.report_figures import FIGURE_STEMS, figure_trial_columns, report_figures
 from comparison.run_folder import holding_report_lock, write_atomic, write_csv
 from comparison.verdicts import VERDICTS
 from scenarios.limits import configured_limit
@@ -295,6 +294,8 @@ def _value_html(value: Any) -> str:
 
 def _summary_tables(summary: pd.DataFrame, metrics: Sequence[str] | None = None) -> str:
     """Per scenario: the chosen metrics at the last frame, and every metric in a fold."""
+    from comparison.figures import is_per_frame
+
     chosen = list(COMPACT_COLUMNS if metrics is None else metrics)
     unknown = [m for m in chosen if m not in METRIC_NAMES]
     if unknown:
@@ -314,7 +315,7 @@ def _summary_tables(summary: pd.DataFrame, metrics: Sequence[str] | None = None)
             continue
         compact = rows[rows["frame"] == latest[rows.index]][[*key_columns, *chosen]]
         full = rows.drop(columns="scenario")
-        note = " (last frame of each point)" if figures.is_per_frame(rows) else ""
+        note = " (last frame of each point)" if is_per_frame(rows) else ""
         parts.append(
             f'<section class="scenario-tables" data-scenario="{_escape(scenario)}">'
             f"<h3>{_escape(scenario)}{note}</h3>"
@@ -595,6 +596,10 @@ def write_report(
     else:
         (folder / "trials.csv").unlink(missing_ok=True)  # an earlier report's, now stale
         file_notes.append(trials_csv_note(n_rows, limit))
+    # matplotlib only now: the summary's peak memory does not carry it (about 30 MB)
+    from comparison import figures
+    from comparison.report_figures import FIGURE_STEMS, figure_trial_columns, report_figures
+
     if trials is None:  # the figures' columns only
         from comparison import store
 
