@@ -24,7 +24,8 @@ from comparison.engine import run_experiment
 from comparison.experiment import Experiment, load_experiment
 from comparison.labels import BIDI_CONTROLS, MAX_LABEL_CHARS, PLAIN_MARK
 from comparison.metrics import summarize
-from comparison.report import report_figures, write_report
+from comparison.report import write_report
+from comparison.report_figures import report_figures
 from comparison.run_folder import write_csv
 from comparison.store import read_trials
 from estimators.cls import Cls

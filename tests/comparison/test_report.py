@@ -18,7 +18,8 @@ import comparison
 from comparison import store
 from comparison.intervals import nees_band
 from comparison.metrics import CONTRACT_METRIC_NAMES, format_number, summarize
-from comparison.report import render_html, report_figures, scenario_tracks_m, write_report
+from comparison.report import render_html, scenario_tracks_m, write_report
+from comparison.report_figures import report_figures
 from comparison.verdict_table import first_screen_notes
 
 # name: (RMSE / √CRLB, ambiguous on one straight frame, has a covariance, bound factor)
