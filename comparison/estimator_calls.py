@@ -484,28 +484,13 @@ def call_columns(
     columns, fault, runtime_s = _guarded(estimate_columns, (), {}, batch.n_trials, estimator)
     change = changed_field(given, batch)
     if change is not None:
-        return _every_row_failed(
-            batch.n_trials, changed_message(change)
-        ), runtime_s / batch.n_trials
+        failed = BatchEstimates.failed(batch.n_trials, changed_message(change))
+        return failed, runtime_s / batch.n_trials
     if fault is not None or not isinstance(columns, BatchEstimates):
         return None  # retried one trial at a time, so each row gets its own outcome
     if len(columns) != batch.n_trials:
         return None
     return columns, runtime_s / batch.n_trials
-
-
-def _every_row_failed(n: int, message: str) -> BatchEstimates:
-    """The columns of ``n`` failed estimates, each with ``message``."""
-    return BatchEstimates(
-        estimator="",
-        position_m=np.full((n, 2), np.nan),
-        candidates_m=np.full((n, 0, 2), np.nan),
-        n_candidates=np.zeros(n, dtype=np.int64),
-        ambiguous=np.zeros(n, dtype=bool),
-        success=np.zeros(n, dtype=bool),
-        message_code=np.zeros(n, dtype=np.int64),
-        messages=(message,),
-    )
 
 
 class Stream:

@@ -178,12 +178,13 @@ class BatchEstimates:
                 set_(self, name, real_part(value))
 
     @classmethod
-    def from_estimates(cls, estimator: str, estimates: Sequence[Estimate]) -> BatchEstimates:
-        """The columns of per-trial estimates of one estimator (the diagnostics keys of the
-        successful ones must agree: :meth:`with_trials`)."""
-        n = len(estimates)
-        covariance = any(e.covariance_m2 is not None for e in estimates)
-        empty = cls(
+    def failed(
+        cls, n: int, message: str = "", *, estimator: str = "", covariance: bool = False
+    ) -> BatchEstimates:
+        """The columns of ``n`` failed estimates, each with ``message`` (and a NaN covariance
+        column when ``covariance``): :meth:`Estimate.failed <estimators.base.Estimate.failed>`
+        for a whole batch."""
+        return cls(
             estimator=estimator,
             position_m=np.full((n, 2), np.nan),
             candidates_m=np.full((n, 0, 2), np.nan),
@@ -191,9 +192,17 @@ class BatchEstimates:
             ambiguous=np.zeros(n, dtype=bool),
             success=np.zeros(n, dtype=bool),
             message_code=np.zeros(n, dtype=np.int64),
-            messages=("",),
+            messages=(message,),
             covariance_m2=np.full((n, 2, 2), np.nan) if covariance else None,
         )
+
+    @classmethod
+    def from_estimates(cls, estimator: str, estimates: Sequence[Estimate]) -> BatchEstimates:
+        """The columns of per-trial estimates of one estimator (the diagnostics keys of the
+        successful ones must agree: :meth:`with_trials`)."""
+        n = len(estimates)
+        covariance = any(e.covariance_m2 is not None for e in estimates)
+        empty = cls.failed(n, estimator=estimator, covariance=covariance)
         filled = empty.with_trials(range(n), estimates)
         return replace(filled, recomputed=np.zeros(n, dtype=bool))
 
