@@ -175,7 +175,7 @@ def estimate_columns(
         if single:  # numpy sums one column in another order: solve it as two, keep one
             r, f = np.repeat(r, 2, axis=1), np.repeat(f, 2, axis=1)
         with np.errstate(all="ignore"):
-            world, solution, doubt = _solve_chunk(shared, rows, r, f)
+            world, solution, doubt = solve_chunk(shared, rows, r, f)
             if single:
                 world, doubt = world[:1], doubt[:1]
                 solution = solution.first()
@@ -203,7 +203,7 @@ def estimate_columns(
         multiplier[part] = solution.multiplier
         rank[part] = solution.rank
 
-    redo, recomputed = _draw_and_redo(
+    redo, recomputed = draw_and_redo(
         name, solve_one, batch, generators, uncertain, draw, n_kept, chosen
     )
     rows_index = np.arange(n)
@@ -230,7 +230,7 @@ def estimate_columns(
     return columns.with_trials(redo, recomputed)
 
 
-def _draw_and_redo(
+def draw_and_redo(
     name: str,
     solve_one: SolveOne,
     batch: MeasurementBatch,
@@ -280,7 +280,7 @@ def _ordered_costs(solution: GtrsBatch) -> FloatArray:
     return np.where(solution.hard_case[:, None], pair_best[:, None], solution.costs)
 
 
-def _solve_chunk(
+def solve_chunk(
     shared: SharedGeometry, rows: str, r: FloatArray, f: FloatArray
 ) -> tuple[FloatArray, GtrsBatch, NDArray[np.bool_]]:
     """World candidates (n, 2, 2) in the one-trial path's order, the solution and doubts."""
@@ -288,7 +288,7 @@ def _solve_chunk(
     n = r.shape[1]
     scale = np.sqrt(shared.spread_sq + np.mean(r * r, axis=0))
     scale = np.where(scale > 0.0, scale, 1.0)
-    rows_of = _RowsOfChunk(shared, r, f, scale)
+    rows_of = RowsOfChunk(shared, r, f, scale)
     deficient = shared.collinear
     solution = solve_gtrs_batch(
         rows_of.blocks(rows), n, rank=rows != "weighted", rank_deficient=deficient
@@ -325,7 +325,7 @@ def _solve_chunk(
     return world, solution, doubt
 
 
-class _RowsOfChunk:
+class RowsOfChunk:
     """The row blocks of one chunk for each row variant (see the module docstring)."""
 
     def __init__(

@@ -91,7 +91,7 @@ Rngs = Sequence[np.random.Generator | None] | None
 MERGE_RTOL = 1e-6
 """Minima closer than ``MERGE_RTOL`` times the local length scale are one minimum."""
 
-_ON_TRACK_RTOL = 1e-6
+ON_TRACK_RTOL = 1e-6
 """A start this close (relative) to a straight track's vertical plane gets a second start off it."""
 
 HESSIAN_STEP_RTOL = 1e-6
@@ -440,7 +440,7 @@ def straight_track_starts(
     scale = scale_m
     # a mirror pair of starts folds onto one point: keep it once
     starts, cross = _distinct_minima(starts, np.abs(cross), scale)
-    on_track = np.abs(cross) <= _ON_TRACK_RTOL * scale
+    on_track = np.abs(cross) <= ON_TRACK_RTOL * scale
     if not np.any(on_track):
         return starts
     normal = np.array([-direction[1], direction[0]])

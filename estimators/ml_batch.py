@@ -52,7 +52,7 @@ from numpy.typing import NDArray
 
 from estimators.base import Estimate, finalize_estimate, require_batch
 from estimators.batch import BatchEstimates, FinalizedColumns, check_rngs, finalize_columns
-from estimators.cls_batch import SharedGeometry, _draw_and_redo
+from estimators.cls_batch import SharedGeometry, draw_and_redo
 from estimators.minpack_batch import INFO_CODES, lmder_batch, ordered_sum
 from estimators.ml import (
     MERGE_RTOL,
@@ -98,7 +98,7 @@ KEYS = (
 
 
 @dataclass(frozen=True, slots=True, eq=False)
-class _Context:
+class SharedContext:
     """What every trial of the batch shares, and its measured values (frames used)."""
 
     estimator: MaximumLikelihood
@@ -122,7 +122,7 @@ class _Context:
     side_prior_m: tuple[float, float] | None
 
     @classmethod
-    def of(cls, estimator: MaximumLikelihood, batch: MeasurementBatch) -> _Context:
+    def of(cls, estimator: MaximumLikelihood, batch: MeasurementBatch) -> SharedContext:
         shared = SharedGeometry.of(batch, estimator.frames)
         used = shared.used
         position = used.position_m
@@ -204,7 +204,7 @@ def estimate_columns(
     # nuisance parameters or Doppler alone (MATH §15): one trial at a time
     if estimator.method == "lm" and not batch.geometry.unknowns and _uses_toa(estimator, batch):
         try:
-            context = _Context.of(estimator, batch)
+            context = SharedContext.of(estimator, batch)
         except ValueError:  # e.g. a hovering sample: the one-trial path says what it does
             context = None
     if context is None:
@@ -217,7 +217,7 @@ def estimate_columns(
     def solve_one(data: MeasurementSet, rng: np.random.Generator | None) -> Estimate:
         return estimator.estimate_without_fit(data, rng=rng)
 
-    redo, recomputed = _draw_and_redo(
+    redo, recomputed = draw_and_redo(
         estimator.name,
         solve_one,
         batch,
@@ -255,7 +255,9 @@ class _Columns:
             wider[:, : value.shape[1]] = value
             setattr(self, name, wider)
 
-    def columns(self, estimator: MaximumLikelihood, context: _Context | None) -> BatchEstimates:
+    def columns(
+        self, estimator: MaximumLikelihood, context: SharedContext | None
+    ) -> BatchEstimates:
         """The columns, once the draws are made (``chosen``)."""
         n, ok = self.n, ~self.doubt
         rows = np.arange(n)
@@ -307,7 +309,7 @@ class _Columns:
 # --------------------------------------------------------------------------------------------
 
 
-def _solve_trials(context: _Context, trials: IntArray, out: _Columns) -> None:
+def _solve_trials(context: SharedContext, trials: IntArray, out: _Columns) -> None:
     """Everything of ``estimate`` for ``trials`` but the draws and the covariance."""
     n = len(trials)
     ranges, scale = context.frame_scales(trials)
@@ -374,7 +376,7 @@ def _solve_trials(context: _Context, trials: IntArray, out: _Columns) -> None:
 
 
 def _one_trial_starts(
-    context: _Context,
+    context: SharedContext,
     trials: IntArray,
     scale: FloatArray,
     gridded: FloatArray,
@@ -413,7 +415,7 @@ def _one_trial_starts(
 
 
 def _finalize(
-    context: _Context, minima: FloatArray, costs: FloatArray, count: IntArray
+    context: SharedContext, minima: FloatArray, costs: FloatArray, count: IntArray
 ) -> FinalizedColumns:
     """:func:`~estimators.batch.finalize_columns` of the minima; the trials where a comparison
     of it is too close to call with its margins (a mirror pair near the merge threshold, two
@@ -469,7 +471,7 @@ def _finalize(
 
 
 def _information(
-    context: _Context,
+    context: SharedContext,
     candidates: FloatArray,
     count: IntArray,
     wanted: BoolArray,
@@ -506,7 +508,7 @@ def _information(
 
 
 def _search(
-    context: _Context, trial: IntArray, start: FloatArray, scale: FloatArray
+    context: SharedContext, trial: IntArray, start: FloatArray, scale: FloatArray
 ) -> tuple[FloatArray, FloatArray, IntArray, IntArray, BoolArray, tuple[FloatArray, FloatArray]]:
     """Levenberg-Marquardt from each start (local units) of ``trial`` with its frame's
     ``scale``: world points, costs, MINPACK's info, evaluations, whether the start converged
@@ -547,7 +549,7 @@ def _search(
 
 
 def _minima(
-    context: _Context,
+    context: SharedContext,
     trials: IntArray,
     points: FloatArray,
     costs: FloatArray,

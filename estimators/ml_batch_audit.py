@@ -18,7 +18,7 @@ from estimators.convergence import DECREMENT_TOL
 from estimators.ml import HESSIAN_STEP_RTOL
 
 if TYPE_CHECKING:
-    from estimators.ml_batch import _Context
+    from estimators.ml_batch import SharedContext
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -39,7 +39,7 @@ not zero) leaves the decrement to the one-trial path."""
 
 
 def converged_for_certain(
-    context: _Context,
+    context: SharedContext,
     trial: IntArray,
     world: FloatArray,
     scale: FloatArray,
@@ -114,7 +114,7 @@ def _orthogonal_decrement(
 
 
 def _newton_decrement(
-    context: _Context, trial: IntArray, world: FloatArray, scale: FloatArray
+    context: SharedContext, trial: IntArray, world: FloatArray, scale: FloatArray
 ) -> tuple[FloatArray, BoolArray]:
     """``gᵀH⁻¹g`` with :func:`~estimators.ml.ml_decrement`'s central-difference Hessian, and
     where ``H`` is positive definite by a margin the one-trial rounding cannot close."""

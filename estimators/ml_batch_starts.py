@@ -19,12 +19,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from estimators.cls_batch import _solve_chunk
+from estimators.cls_batch import solve_chunk
 from estimators.gtrs_batch import POSITION_RTOL
-from estimators.ml import _ON_TRACK_RTOL, MERGE_RTOL
+from estimators.ml import MERGE_RTOL, ON_TRACK_RTOL
 
 if TYPE_CHECKING:
-    from estimators.ml_batch import _Context
+    from estimators.ml_batch import SharedContext
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -40,7 +40,7 @@ DISTANCE_RTOL = 1e-12
 
 
 def batch_starts(
-    context: _Context, trials: IntArray, ranges: FloatArray, scale: FloatArray
+    context: SharedContext, trials: IntArray, ranges: FloatArray, scale: FloatArray
 ) -> tuple[FloatArray, IntArray, FloatArray, BoolArray]:
     """Each trial's starts in world coordinates, in ``estimate``'s order: ``(starts (n, S, 2),
     count, error bound (n, S) in metres, doubt)``."""
@@ -50,7 +50,7 @@ def batch_starts(
     single = n == 1
     if single:  # as cls_batch: the sums of one column run in another order
         r, f = np.repeat(r, 2, axis=1), np.repeat(f, 2, axis=1)
-    world, solution, doubt = _solve_chunk(context.shared, "weighted", r, f)
+    world, solution, doubt = solve_chunk(context.shared, "weighted", r, f)
     if single:
         world, doubt, solution = world[:1], doubt[:1], solution.first()
     doubt = doubt | solution.uncertain
@@ -79,7 +79,7 @@ def batch_starts(
 
 
 def _straight_track_starts(
-    context: _Context,
+    context: SharedContext,
     trials: IntArray,
     points: FloatArray,
     valid: BoolArray,
@@ -135,7 +135,7 @@ def _straight_track_starts(
     size = np.take_along_axis(size, order, axis=1)
     error = np.take_along_axis(error, order, axis=1)
     keep = np.take_along_axis(keep, order, axis=1)
-    on_limit = _ON_TRACK_RTOL * scale[:, None]
+    on_limit = ON_TRACK_RTOL * scale[:, None]
     doubt |= np.any(keep & (np.abs(size - on_limit) <= error), axis=1)
     on_track = keep & (size <= on_limit)
     extra, extra_error = _off_plane_copies(context, trials, points, error, scale)
@@ -155,7 +155,11 @@ def _straight_track_starts(
 
 
 def _off_plane_copies(
-    context: _Context, trials: IntArray, points: FloatArray, error: FloatArray, scale: FloatArray
+    context: SharedContext,
+    trials: IntArray,
+    points: FloatArray,
+    error: FloatArray,
+    scale: FloatArray,
 ) -> tuple[FloatArray, FloatArray]:
     """Each start moved off the track's plane by the cross-track distance the ranges imply
     (``straight_track_starts``), and the error bound of the copy (metres)."""
@@ -182,7 +186,7 @@ def _off_plane_copies(
 
 
 def _doppler_starts(
-    context: _Context, trials: IntArray
+    context: SharedContext, trials: IntArray
 ) -> tuple[FloatArray, BoolArray, FloatArray, BoolArray]:
     """:func:`~estimators.ml_starts.doppler_frame_starts` of every trial's last frame: the pair
     ``(n, 2, 2)``, where it exists, its error bound (metres) and doubt."""

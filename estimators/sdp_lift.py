@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from estimators.cls_batch import SharedGeometry, _RowsOfChunk
+from estimators.cls_batch import RowsOfChunk, SharedGeometry
 from estimators.gtrs_batch import RowBlock
 
 FloatArray = NDArray[np.float64]
@@ -123,7 +123,7 @@ class ChunkRows:
         self.width = r.shape[1]
         scale = np.sqrt(shared.spread_sq + np.mean(r * r, axis=0))
         self.scale = np.where(scale > 0.0, scale, 1.0)
-        self.rows_of = _RowsOfChunk(shared, r, f, self.scale)
+        self.rows_of = RowsOfChunk(shared, r, f, self.scale)
 
     def systems(self, rows: str, weights_at: tuple[FloatArray, FloatArray] | None) -> FloatArray:
         """``[A | b]`` of every trial (m, 2K, 4) for the row variant ``rows`` (``weighted``

@@ -48,6 +48,34 @@ def test_imports_flow_one_way(package: str) -> None:
     assert not wrong, f"imports against the flow scenarios → estimators → comparison: {wrong}"
 
 
+def private_imports(path: Path) -> list[str]:
+    """``module:name`` for each private name (``_x``, not ``__x__``) that ``path`` imports
+    from another module of the project."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            if node.module.split(".")[0] not in PACKAGES:
+                continue
+            found += [
+                f"{node.module}:{alias.name}"
+                for alias in node.names
+                if alias.name.startswith("_") and not alias.name.endswith("__")
+            ]
+    return found
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_no_module_imports_another_modules_private_names(package: str) -> None:
+    reaching = {
+        str(path.relative_to(ROOT)): names
+        for path in modules(package)
+        if (names := private_imports(path))
+    }
+    assert not reaching, (
+        f"private names imported from another module (make them public): {reaching}"
+    )
+
+
 @pytest.mark.parametrize("package", sorted(MAX_LINES))
 def test_files_are_small_enough_to_read(package: str) -> None:
     long = {

@@ -15,28 +15,28 @@ import numpy as np
 
 from estimators.base import Estimate
 from estimators.checks.reference_problems import (
-    _FIXED_PROBLEMS,
+    FIXED_PROBLEMS,
     REFERENCE_PROBLEMS,
-    _batch,
-    _noisy,
-    _rng,
     degenerate_data,
+    noisy_reference,
+    reference_batch,
+    reference_rng,
 )
 from estimators.checks.results import (
     FIELD_OF_MODALITY,
-    _capabilities,
-    _estimate_differences,
-    _fail,
-    _is_sequential,
-    _object_state,
-    _run,
-    _same,
-    _stream,
-    _succeeded,
+    check_failed,
     constructor_parameters,
+    declared_capabilities,
+    estimate_or_fail,
     failure_problems,
+    is_sequential,
+    object_state,
     params_of,
+    require_success,
+    result_differences,
     result_problems,
+    same_value,
+    streamed_estimate,
 )
 from estimators.checks.tolerances import (
     EXACT_TOLERANCE_M,
@@ -65,29 +65,29 @@ def check_constructor_stores_params(estimator: Any) -> None:
     parameters = constructor_parameters(estimator)
     for p in parameters:
         if p.kind is p.VAR_POSITIONAL:
-            _fail(
+            check_failed(
                 f"{cls.__name__}.__init__ takes *{p.name}; list every option as a keyword "
                 "parameter with a default, so that the options can be introspected"
             )
         if p.kind is p.VAR_KEYWORD:
-            _fail(
+            check_failed(
                 f"{cls.__name__}.__init__ takes **{p.name}; list every option as a keyword "
                 "parameter with a default, so that the options can be introspected"
             )
         if p.default is p.empty:
-            _fail(
+            check_failed(
                 f"parameter {p.name!r} has no default; give every option a default so that "
                 "make_estimator(name) builds the estimator without options"
             )
         if not hasattr(estimator, p.name):
-            _fail(
+            check_failed(
                 f"parameter {p.name!r} is not stored as the attribute {p.name!r}; store every "
                 "constructor parameter unchanged under its own name"
             )
     names = {p.name for p in parameters}
-    extra = sorted(set(_object_state(estimator)) - names)
+    extra = sorted(set(object_state(estimator)) - names)
     if extra:
-        _fail(
+        check_failed(
             f"the constructor sets {extra}, which are not parameters; compute derived values "
             "inside estimate (or cache them at module level), the constructor only stores options"
         )
@@ -95,9 +95,10 @@ def check_constructor_stores_params(estimator: Any) -> None:
     for p in parameters:
         stored = getattr(defaults, p.name)
         if not (
-            stored is p.default or (type(stored) is type(p.default) and _same(stored, p.default))
+            stored is p.default
+            or (type(stored) is type(p.default) and same_value(stored, p.default))
         ):
-            _fail(
+            check_failed(
                 f"parameter {p.name!r}: the default {p.default!r} is stored as {stored!r}; store "
                 "parameters unchanged (validate them, convert them inside estimate)"
             )
@@ -105,8 +106,8 @@ def check_constructor_stores_params(estimator: Any) -> None:
     rebuilt = cls(**params)
     for key, value in params.items():
         stored = getattr(rebuilt, key)
-        if not (stored is value or (type(stored) is type(value) and _same(stored, value))):
-            _fail(
+        if not (stored is value or (type(stored) is type(value) and same_value(stored, value))):
+            check_failed(
                 f"parameter {key!r}: {value!r} passed to the constructor is stored as "
                 f"{stored!r}; store parameters unchanged (convert them inside estimate)"
             )
@@ -117,7 +118,7 @@ def check_repr_shows_params(estimator: Any) -> None:
     text = repr(estimator)
     missing = [f"{k}={v!r}" for k, v in params_of(estimator).items() if f"{k}={v!r}" not in text]
     if missing:
-        _fail(
+        check_failed(
             f"repr {text!r} does not show {missing}; make the estimator a dataclass or write a "
             "__repr__ listing every parameter as name=value"
         )
@@ -133,27 +134,27 @@ def check_class_attributes(estimator: Any) -> None:
     parameters = {p.name for p in constructor_parameters(estimator)}
     for attribute in ("name", "requires"):
         if attribute in parameters:
-            _fail(
+            check_failed(
                 f"{attribute!r} is a constructor parameter; declare it as a class attribute "
                 f"(typing.ClassVar in a dataclass)"
             )
     name = getattr(cls, "name", None)
     if not isinstance(name, str) or not name or re.search(r"[\s:]", name):
-        _fail(
+        check_failed(
             f"name is {name!r}; declare name: ClassVar[str] = 'my-method', a non-empty string "
             "without spaces or ':' (':' marks module:Class paths)"
         )
     requires = getattr(cls, "requires", None)
     if not isinstance(requires, frozenset) or not requires <= set(MODALITIES):
-        _fail(
+        check_failed(
             f"requires is {requires!r}; declare requires: ClassVar[frozenset[str]] = "
             f"frozenset({{...}}) with modalities from {set(MODALITIES)}"
         )
     if hasattr(cls, "noise_free_tolerance_m"):
         value = cls.noise_free_tolerance_m
-        declared = _capabilities(estimator).noise_free_tolerance_m
+        declared = declared_capabilities(estimator).noise_free_tolerance_m
         if not (isinstance(value, int | float) and value == declared):
-            _fail(
+            check_failed(
                 f"the class attribute noise_free_tolerance_m = {value!r} is not read (the "
                 f"declared tolerance is {declared:g} m); declare it in capabilities(): "
                 "Capabilities(..., noise_free_tolerance_m=..., tolerance_reason='why'), and "
@@ -170,24 +171,24 @@ def check_capabilities_declared(estimator: Any) -> None:
     ``tolerance_reason`` and is at most :data:`MAX_NOISE_FREE_TOLERANCE` of the RMS slant
     range of every fixed reference problem.
     """
-    capabilities = _capabilities(estimator)
+    capabilities = declared_capabilities(estimator)
     requires = frozenset(getattr(type(estimator), "requires", frozenset()))
     missing = sorted(requires - capabilities.modalities)
     if missing:
-        _fail(
+        check_failed(
             f"requires {sorted(requires)} but capabilities().modalities is "
             f"{sorted(capabilities.modalities)}, without {missing}; a required modality is "
             "used, so list it in Capabilities.modalities"
         )
     batch = callable(getattr(estimator, "estimate_batch", None))
     if capabilities.batch != batch:
-        _fail(
+        check_failed(
             f"capabilities().batch is {capabilities.batch} but the estimator "
             f"{'has' if batch else 'has no'} estimate_batch; declare batch={batch}"
         )
-    sequential = _is_sequential(estimator)
+    sequential = is_sequential(estimator)
     if capabilities.sequential != sequential:
-        _fail(
+        check_failed(
             f"capabilities().sequential is {capabilities.sequential} but the estimator "
             f"{'has' if sequential else 'lacks'} init/update/estimate_state; declare "
             f"sequential={sequential}"
@@ -196,24 +197,24 @@ def check_capabilities_declared(estimator: Any) -> None:
         try:
             importlib.import_module(module)
         except Exception as error:
-            _fail(
+            check_failed(
                 f"capabilities().modules lists {module!r}, which does not import "
                 f"({type(error).__name__}: {error}); install it, or list only the modules "
                 "the estimator imports"
             )
     declared = float(capabilities.noise_free_tolerance_m)
     if declared > EXACT_TOLERANCE_M and not capabilities.tolerance_reason.strip():
-        _fail(
+        check_failed(
             f"noise_free_tolerance_m = {declared:g} m is looser than the default "
             f"{EXACT_TOLERANCE_M:g} m without a tolerance_reason; say why the method is not "
             "exact (e.g. 'the refinement stops on a step of 1e-8 of the search radius'), or "
             "drop the declaration; until then the default applies"
         )
     for name in REFERENCE_PROBLEMS:
-        problem = _FIXED_PROBLEMS[name]()
+        problem = FIXED_PROBLEMS[name]()
         cap = tolerance_cap_m(problem)
         if declared > cap:
-            _fail(
+            check_failed(
                 f"noise_free_tolerance_m = {declared:g} m exceeds the cap on {problem.label}: "
                 f"{MAX_NOISE_FREE_TOLERANCE:g} of its RMS slant range {problem.rms_range_m():.1f}"
                 f" m, i.e. {cap:.3g} m. A noise-free answer that far off is not exact: make "
@@ -228,30 +229,28 @@ def check_pickle_round_trip(estimator: Any) -> None:
     try:
         copy_ = pickle.loads(pickle.dumps(estimator))
     except Exception as error:
-        _fail(
+        check_failed(
             f"pickling failed ({type(error).__name__}: {error}); keep only picklable options "
             "on the estimator and build solver objects inside estimate"
         )
     if type(copy_) is not type(estimator):
-        _fail(f"unpickled a {type(copy_).__name__}, not a {type(estimator).__name__}")
+        check_failed(f"unpickled a {type(copy_).__name__}, not a {type(estimator).__name__}")
     before, after = params_of(estimator), params_of(copy_)
-    changed = sorted(k for k in before if not _same(before[k], after.get(k)))
+    changed = sorted(k for k in before if not same_value(before[k], after.get(k)))
     if changed:
-        _fail(f"the unpickled copy has different parameters {changed}")
+        check_failed(f"the unpickled copy has different parameters {changed}")
     for scenario in ("paper-1m", "turn"):
         what = f"noisy '{scenario}' data"
-        original = _run(estimator, _noisy(scenario), what, rng=_rng())
-        again = _run(estimator, _noisy(scenario), what, rng=_rng())
-        if not isinstance(original, Estimate) or _estimate_differences(
-            original, again, atol_m=None
-        ):
+        original = estimate_or_fail(estimator, noisy_reference(scenario), what, rng=reference_rng())
+        again = estimate_or_fail(estimator, noisy_reference(scenario), what, rng=reference_rng())
+        if not isinstance(original, Estimate) or result_differences(original, again, atol_m=None):
             continue  # not deterministic: check_estimate_deterministic reports it
-        copied = _run(copy_, _noisy(scenario), what, rng=_rng())
+        copied = estimate_or_fail(copy_, noisy_reference(scenario), what, rng=reference_rng())
         if not isinstance(copied, Estimate):
-            _fail(f"the unpickled copy returned {type(copied).__name__} on {what}")
-        differences = _estimate_differences(original, copied, atol_m=None)
+            check_failed(f"the unpickled copy returned {type(copied).__name__} on {what}")
+        differences = result_differences(original, copied, atol_m=None)
         if differences:
-            _fail(
+            check_failed(
                 f"the unpickled copy gives a different estimate on {what}: "
                 f"{'; '.join(differences)}; an estimator's output may depend only on its "
                 "parameters, the data and rng"
@@ -269,12 +268,16 @@ def check_estimate_deterministic(estimator: Any) -> None:
     for scenario in ("paper-1m", "turn"):
         for seeded in (False, True):
             what = f"noisy '{scenario}' data" + (" with rng seeded alike" if seeded else "")
-            first = _run(estimator, _noisy(scenario), what, rng=_rng() if seeded else None)
-            second = _run(estimator, _noisy(scenario), what, rng=_rng() if seeded else None)
-            _succeeded(first, what)
-            differences = _estimate_differences(first, second, atol_m=None)
+            first = estimate_or_fail(
+                estimator, noisy_reference(scenario), what, rng=reference_rng() if seeded else None
+            )
+            second = estimate_or_fail(
+                estimator, noisy_reference(scenario), what, rng=reference_rng() if seeded else None
+            )
+            require_success(first, what)
+            differences = result_differences(first, second, atol_m=None)
             if differences:
-                _fail(
+                check_failed(
                     f"two calls on {what} differ: {'; '.join(differences)}; draw randomness "
                     "only from the rng argument and keep no state between calls"
                 )
@@ -284,19 +287,21 @@ def check_estimate_does_not_modify_estimator(estimator: Any) -> None:
     """``estimate`` (and ``estimate_batch``, ``init``/``update``/``estimate_state``) leave
     every attribute of the estimator unchanged (compare scikit-learn's
     ``check_dict_unchanged``)."""
-    before = _object_state(estimator)
+    before = object_state(estimator)
     for scenario in ("paper-1m", "turn"):
-        _run(estimator, _noisy(scenario), f"noisy '{scenario}' data", rng=_rng())
+        estimate_or_fail(
+            estimator, noisy_reference(scenario), f"noisy '{scenario}' data", rng=reference_rng()
+        )
     if callable(getattr(estimator, "estimate_batch", None)):
-        estimator.estimate_batch(_batch(), rngs=None)
-    if _is_sequential(estimator):
-        _stream(estimator, _noisy("turn"), rng=_rng())
-    after = _object_state(estimator)
+        estimator.estimate_batch(reference_batch(), rngs=None)
+    if is_sequential(estimator):
+        streamed_estimate(estimator, noisy_reference("turn"), rng=reference_rng())
+    after = object_state(estimator)
     changed = sorted(
-        k for k in before.keys() | after.keys() if not _same(before.get(k), after.get(k))
+        k for k in before.keys() | after.keys() if not same_value(before.get(k), after.get(k))
     )
     if changed:
-        _fail(
+        check_failed(
             f"estimating changed the estimator's attributes {changed}; keep results and caches "
             "out of the estimator (return them in the Estimate or a state value)"
         )
@@ -318,7 +323,7 @@ def _modified_fields(data: Any, snapshot: dict[str, tuple[Any, Any, bool | None]
         value = getattr(data, field)
         if value is not original:
             changed.append(f"{field} (replaced)")
-        elif not _same(value, saved):
+        elif not same_value(value, saved):
             changed.append(f"{field} (values)")
         elif isinstance(value, np.ndarray) and value.flags.writeable != writeable:
             changed.append(f"{field} (made writeable)")
@@ -329,23 +334,23 @@ def check_estimate_does_not_modify_inputs(estimator: Any) -> None:
     """``estimate`` changes no field of its :class:`MeasurementSet`: no array written in place,
     no flag flipped, no field replaced (``estimate_batch`` likewise for its batch)."""
     for scenario in ("paper-1m", "turn"):
-        data = _noisy(scenario)
+        data = noisy_reference(scenario)
         snapshot = _field_snapshot(data)
-        _run(estimator, data, f"noisy '{scenario}' data", rng=_rng())
+        estimate_or_fail(estimator, data, f"noisy '{scenario}' data", rng=reference_rng())
         changed = _modified_fields(data, snapshot)
         if changed:
-            _fail(
+            check_failed(
                 f"estimate modified its input on noisy '{scenario}' data: {changed}; work on "
                 "copies (np.array(data.toa_s)) or on dataclasses.replace(data, ...)"
             )
     if callable(getattr(estimator, "estimate_batch", None)):
-        batch = _batch()
+        batch = reference_batch()
         snapshot = _field_snapshot(batch)
         geometry = _field_snapshot(batch.geometry)
         estimator.estimate_batch(batch, rngs=None)
         changed = _modified_fields(batch, snapshot) + _modified_fields(batch.geometry, geometry)
         if changed:
-            _fail(f"estimate_batch modified its input batch: {changed}; work on copies")
+            check_failed(f"estimate_batch modified its input batch: {changed}; work on copies")
 
 
 def check_estimate_ignores_truth(estimator: Any) -> None:
@@ -353,15 +358,17 @@ def check_estimate_ignores_truth(estimator: Any) -> None:
     must not read it): data with a wrong truth give the estimate of data without one."""
     for scenario in ("paper-1m", "turn"):
         what = f"noisy '{scenario}' data"
-        blind = _run(estimator, _noisy(scenario), what, rng=_rng())
-        again = _run(estimator, _noisy(scenario), what, rng=_rng())
-        if not isinstance(blind, Estimate) or _estimate_differences(blind, again, atol_m=None):
+        blind = estimate_or_fail(estimator, noisy_reference(scenario), what, rng=reference_rng())
+        again = estimate_or_fail(estimator, noisy_reference(scenario), what, rng=reference_rng())
+        if not isinstance(blind, Estimate) or result_differences(blind, again, atol_m=None):
             continue  # not deterministic: check_estimate_deterministic reports it
-        told = replace(_noisy(scenario), truth_emitter_m=np.array([-1234.5, 678.9]))
-        informed = _run(estimator, told, what + " with a truth attached", rng=_rng())
-        differences = _estimate_differences(blind, informed, atol_m=None)
+        told = replace(noisy_reference(scenario), truth_emitter_m=np.array([-1234.5, 678.9]))
+        informed = estimate_or_fail(
+            estimator, told, what + " with a truth attached", rng=reference_rng()
+        )
+        differences = result_differences(blind, informed, atol_m=None)
         if differences:
-            _fail(
+            check_failed(
                 f"attaching a truth to {what} changed the estimate: {'; '.join(differences)}; "
                 "never read data.truth_emitter_m inside an estimator"
             )
@@ -377,23 +384,23 @@ def check_missing_modality_raises(estimator: Any) -> None:
     missing field (``doppler_hz``, ``toa_s``, ``rss_dbm``); ``require_modalities`` does it."""
     for modality in sorted(getattr(type(estimator), "requires", ())):
         field = FIELD_OF_MODALITY[modality]
-        data = _noisy().without(modality)
+        data = noisy_reference().without(modality)
         try:
             estimator.estimate(data)
         except ValueError as error:
             head = str(error).split(": ", 1)[0]
             if field not in head:
-                _fail(
+                check_failed(
                     f"data without {field} raised ValueError({str(error)!r}); start the message "
                     f"with the field, '{field}: ...' (estimators.base.require_modalities)"
                 )
             continue
         except Exception as error:
-            _fail(
+            check_failed(
                 f"data without {field} raised {type(error).__name__}: {error}; raise ValueError "
                 f"naming {field} (call estimators.base.require_modalities first)"
             )
-        _fail(
+        check_failed(
             f"data without {field} gave an estimate although requires contains {modality!r}; "
             "raise ValueError naming the field (estimators.base.require_modalities)"
         )
@@ -402,7 +409,7 @@ def check_missing_modality_raises(estimator: Any) -> None:
 def check_rejects_wrong_data_type(estimator: Any) -> None:
     """Something that is not a :class:`MeasurementSet` (None, a dict, a path, a batch) raises
     ``TypeError`` or ``ValueError`` at once, not an ``AttributeError`` deep inside."""
-    batch = _batch()
+    batch = reference_batch()
     for label, bad in (
         ("None", None),
         ("a dict", {"doppler_hz": [1.0, 2.0]}),
@@ -414,28 +421,30 @@ def check_rejects_wrong_data_type(estimator: Any) -> None:
         except (TypeError, ValueError):
             continue
         except Exception as error:
-            _fail(
+            check_failed(
                 f"estimate({label}) raised {type(error).__name__}: {error}; check the type "
                 "first and raise TypeError('data: expected a MeasurementSet, ...') "
                 "(estimators.base.require_modalities does)"
             )
         else:
-            _fail(f"estimate({label}) returned a result; it must raise TypeError or ValueError")
+            check_failed(
+                f"estimate({label}) returned a result; it must raise TypeError or ValueError"
+            )
 
 
 def check_rejects_wrong_rng_type(estimator: Any) -> None:
     """An ``rng`` that is neither None nor a ``numpy.random.Generator`` raises ``TypeError``
     or ``ValueError`` (not an ``AttributeError``, and not silently ignored)."""
     try:
-        estimator.estimate(_noisy(), rng="not a generator")
+        estimator.estimate(noisy_reference(), rng="not a generator")
     except (TypeError, ValueError):
         return
     except Exception as error:
-        _fail(
+        check_failed(
             f"estimate(data, rng='not a generator') raised {type(error).__name__}: {error}; "
             "raise TypeError naming rng (estimators.base.check_rng)"
         )
-    _fail(
+    check_failed(
         "estimate(data, rng='not a generator') was accepted; raise TypeError naming rng "
         "(estimators.base.check_rng)"
     )
@@ -450,7 +459,7 @@ def check_result_types(estimator: Any) -> None:
     ``ambiguous``. A refused estimate fails this check with the rule it broke."""
     for scenario in ("paper-1m", "turn"):
         what = f"noisy '{scenario}' data"
-        estimate = _run(estimator, _noisy(scenario), what, rng=_rng())
+        estimate = estimate_or_fail(estimator, noisy_reference(scenario), what, rng=reference_rng())
         problems = result_problems(estimate, estimator)
         if not problems and isinstance(estimate, Estimate):
             try:
@@ -458,7 +467,7 @@ def check_result_types(estimator: Any) -> None:
             except (TypeError, ValueError) as error:
                 problems.append(f"Estimate.to_dict() is not JSON ({error})")
         if problems:
-            _fail(f"on {what}: {'; '.join(problems)}")
+            check_failed(f"on {what}: {'; '.join(problems)}")
 
 
 def check_failed_estimate_is_data(estimator: Any) -> None:
@@ -473,26 +482,26 @@ def check_failed_estimate_is_data(estimator: Any) -> None:
             outcomes[label] = estimator.estimate(data)
         except ValueError as error:
             if not _FIELD_PREFIX.match(str(error)):
-                _fail(
+                check_failed(
                     f"{label} data raised ValueError({str(error)!r}); start the message with "
                     "the field at fault and say the fix, e.g. 'velocity_mps: ...'"
                 )
             continue
         except Exception as error:
-            _fail(
+            check_failed(
                 f"{label} data raised {type(error).__name__}: {error}; return "
                 "Estimate.failed(name, reason) or raise ValueError naming the field"
             )
-    if _is_sequential(estimator):
+    if is_sequential(estimator):
         try:
             before_any_frame = estimator.estimate_state(estimator.init())
         except Exception as error:
-            _fail(
+            check_failed(
                 f"estimate_state(init()) raised {type(error).__name__}: {error}; return "
                 "Estimate.failed(name, 'no frame has been processed yet')"
             )
         if getattr(before_any_frame, "success", None) is not False:
-            _fail(
+            check_failed(
                 "estimate_state(init()) does not fail before any frame; return "
                 "Estimate.failed(name, 'no frame has been processed yet')"
             )
@@ -500,4 +509,4 @@ def check_failed_estimate_is_data(estimator: Any) -> None:
     for label, estimate in outcomes.items():
         problems = failure_problems(estimate)
         if problems:
-            _fail(f"on {label}: {'; '.join(problems)}")
+            check_failed(f"on {label}: {'; '.join(problems)}")

@@ -11,14 +11,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from estimators.checks.forward_model import data_misfit
-from estimators.checks.reference_problems import _noisy, reference_problem
-from estimators.checks.results import _capabilities, _fail, _run, _succeeded
+from estimators.checks.reference_problems import noisy_reference, reference_problem
+from estimators.checks.results import (
+    check_failed,
+    declared_capabilities,
+    estimate_or_fail,
+    require_success,
+)
 from estimators.checks.tolerances import (
     MAX_NOISE_FREE_TOLERANCE,
     MISFIT_LIMIT,
-    _agreement_m,
-    _tolerance_text,
+    agreement_tolerance_m,
     problem_tolerance_m,
+    tolerance_text,
 )
 from scenarios.geometry import mirror_across_line, straight_track_line
 from scenarios.types import MeasurementSet
@@ -28,25 +33,27 @@ FloatArray = NDArray[np.float64]
 
 def _check_exact(estimator: Any, names: Iterable[str]) -> None:
     """Every optimum of the data the estimator uses has a candidate within the tolerance."""
-    capabilities = _capabilities(estimator)
+    capabilities = declared_capabilities(estimator)
     for name in names:
         problem = reference_problem(name)
         what = f"noise-free {problem.label} data"
-        estimate = _run(estimator, problem.data(), what)
-        _succeeded(estimate, what)
+        estimate = estimate_or_fail(estimator, problem.data(), what)
+        require_success(estimate, what)
         tolerance = problem_tolerance_m(capabilities, problem)
         candidates = np.asarray(estimate.candidates_m, dtype=float).reshape(-1, 2)
         if len(candidates) == 0:
-            _fail(f"no candidate on {what}; candidates_m must hold every equal-cost minimiser")
+            check_failed(
+                f"no candidate on {what}; candidates_m must hold every equal-cost minimiser"
+            )
         for optimum in problem.optima_for(capabilities.frames):
             distance = np.linalg.norm(candidates - optimum, axis=1)
             nearest = int(np.argmin(distance))
             if not distance[nearest] <= tolerance:
-                _fail(
+                check_failed(
                     f"on {what} no candidate is at the optimum {optimum.tolist()} "
                     f"({problem.source}): the nearest, {candidates[nearest].tolist()}, is "
                     f"{distance[nearest]:.3g} m away (tolerance "
-                    f"{_tolerance_text(capabilities, problem)}). Noise-free data determine the "
+                    f"{tolerance_text(capabilities, problem)}). Noise-free data determine the "
                     "emitter (and its mirror image on one straight frame): compute the answer "
                     "from the data; a method that stops short may declare a looser "
                     "Capabilities.noise_free_tolerance_m with a tolerance_reason, within "
@@ -98,7 +105,7 @@ def _mirror_closure(
     assert line is not None  # the reference frames are straight
     for point, mirror in zip(candidates, mirror_across_line(candidates, *line), strict=True):
         if np.min(np.linalg.norm(candidates - mirror, axis=1)) > tolerance:
-            _fail(
+            check_failed(
                 f"on {what} the candidate {point.tolist()} comes without its mirror image "
                 f"{mirror.tolist()} across the track; report both mirror candidates "
                 "(MATH §7; finalize_estimate adds them)"
@@ -107,7 +114,7 @@ def _mirror_closure(
 
 def _ambiguous_on_one_straight_frame(estimate: Any, what: str) -> None:
     if estimate.ambiguous is not True:
-        _fail(
+        check_failed(
             f"ambiguous is {estimate.ambiguous!r} on {what}; one straight frame cannot tell "
             "the side of the track (MATH §7): report ambiguous=True (finalize_estimate does)"
         )
@@ -122,13 +129,13 @@ def check_mirror_pair_reproduces_data(estimator: Any) -> None:
 
     So a wrong solution fails even when ``finalize_estimate`` adds its mirror image.
     """
-    capabilities = _capabilities(estimator)
+    capabilities = declared_capabilities(estimator)
     for name in ("paper-1m", "climb-straight", "random-straight"):
         problem = reference_problem(name)
         data = problem.data()
         what = f"one straight frame (noise-free {problem.label} data)"
-        estimate = _run(estimator, data, what)
-        _succeeded(estimate, what)
+        estimate = estimate_or_fail(estimator, data, what)
+        require_success(estimate, what)
         _ambiguous_on_one_straight_frame(estimate, what)
         tolerance = problem_tolerance_m(capabilities, problem)
         candidates = np.asarray(estimate.candidates_m, dtype=float).reshape(-1, 2)
@@ -137,29 +144,29 @@ def check_mirror_pair_reproduces_data(estimator: Any) -> None:
         for point in candidates:
             rms, step, unexplained = data_misfit(fresh, point, modalities)
             if not (step <= tolerance and unexplained <= MISFIT_LIMIT):
-                _fail(
+                check_failed(
                     f"on {what} the candidate {point.tolist()} does not reproduce the data: "
                     f"its {'+'.join(modalities)} residuals are {rms:.3g} σ RMS and the data put "
                     f"the emitter {step:.3g} m from it (tolerance "
-                    f"{_tolerance_text(capabilities, problem)}). Every candidate must fit the "
+                    f"{tolerance_text(capabilities, problem)}). Every candidate must fit the "
                     "data: compute the solution from the measurements; adding the mirror image "
                     "of a wrong point (finalize_estimate does) does not make it right"
                 )
         distinct = _distinct(candidates, 10.0 * tolerance)
         if len(distinct) < 2:
-            _fail(
+            check_failed(
                 f"on {what} the candidates {candidates.tolist()} are one point; the emitter "
                 "and its mirror image across the track are two distinct points that fit the "
                 "data equally (MATH §7): report both"
             )
         _mirror_closure(candidates, data, tolerance, what)
-    data = _noisy("paper-1m")
+    data = noisy_reference("paper-1m")
     what = "one straight frame (noisy 'paper-1m' data)"
-    estimate = _run(estimator, data, what)
-    _succeeded(estimate, what)
+    estimate = estimate_or_fail(estimator, data, what)
+    require_success(estimate, what)
     _ambiguous_on_one_straight_frame(estimate, what)
     candidates = np.asarray(estimate.candidates_m, dtype=float).reshape(-1, 2)
-    _mirror_closure(candidates, data, _agreement_m(estimator), what)
+    _mirror_closure(candidates, data, agreement_tolerance_m(estimator), what)
 
 
 def check_not_ambiguous_with_two_headings(estimator: Any) -> None:
@@ -169,10 +176,10 @@ def check_not_ambiguous_with_two_headings(estimator: Any) -> None:
     for name in ("turn", "far-turn", "climb", "random-turn"):
         problem = reference_problem(name)
         what = f"noise-free {problem.label} data"
-        estimate = _run(estimator, problem.data(), what)
-        _succeeded(estimate, what)
+        estimate = estimate_or_fail(estimator, problem.data(), what)
+        require_success(estimate, what)
         if estimate.ambiguous is not False:
-            _fail(
+            check_failed(
                 f"ambiguous is {estimate.ambiguous!r} on {what} (candidates "
                 f"{np.asarray(estimate.candidates_m).tolist()}); a second heading removes the "
                 "mirror ambiguity (MATH §7): use every frame and report one candidate, or "

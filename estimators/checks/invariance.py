@@ -17,20 +17,20 @@ from estimators.checks.reference_problems import (
     CHECK_SEED_ENV,
     NOISY_SNR_DB,
     ReferenceProblem,
-    _rng,
     check_seed,
     reference_problem,
+    reference_rng,
     select_frames,
 )
 from estimators.checks.results import (
     FIELD_OF_MODALITY,
-    _capabilities,
-    _fail,
-    _not_an_estimate,
-    _run,
-    _succeeded,
+    check_failed,
+    declared_capabilities,
+    estimate_or_fail,
+    not_an_estimate,
+    require_success,
 )
-from estimators.checks.tolerances import EXACT_RTOL, _agreement_m, problem_tolerance_m
+from estimators.checks.tolerances import EXACT_RTOL, agreement_tolerance_m, problem_tolerance_m
 from scenarios.types import MODALITIES, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -157,7 +157,7 @@ def _answer_differences(a: Any, b: Any, tolerance: float) -> list[str]:
     """How two answers differ: success, ambiguity, candidates as sets, the position when
     there is no tie (empty: the same answer)."""
     if not (isinstance(a, Estimate) and isinstance(b, Estimate)):
-        return [_not_an_estimate(b if isinstance(a, Estimate) else a)]
+        return [not_an_estimate(b if isinstance(a, Estimate) else a)]
     if a.success != b.success:
         return [f"success {a.success} vs {b.success} ({b.message or a.message!r})"]
     difference = _follows(a, b, lambda points: points, tolerance)
@@ -178,24 +178,26 @@ def check_equivariant_under_rigid_motions(estimator: Any) -> None:
     the emitter) moves every candidate the same way, within the tolerance, on noisy data of a
     straight frame (``paper-1m``) and of two climbing headings (``climb``). The motions are
     drawn from the check seed; the measured values do not change under them (MATH §1)."""
-    capabilities = _capabilities(estimator)
+    capabilities = declared_capabilities(estimator)
     seed = check_seed()
     for name in ("paper-1m", "climb"):
         problem = reference_problem(name)
         what = f"noisy {problem.label} data"
-        before = _run(estimator, problem.data(snr_db=NOISY_SNR_DB), what, rng=_rng())
-        _succeeded(before, what)
+        before = estimate_or_fail(
+            estimator, problem.data(snr_db=NOISY_SNR_DB), what, rng=reference_rng()
+        )
+        require_success(before, what)
         for description, matrix, offset in rigid_motions(seed):
             where = f"{what} {description} (check seed {seed}; replay with {CHECK_SEED_ENV}={seed})"
             moved_data = moved(problem.data(snr_db=NOISY_SNR_DB), matrix, offset)
             tolerance = _invariance_tolerance_m(capabilities, problem, moved_data)
-            after = _run(estimator, moved_data, where, rng=_rng())
-            _succeeded(after, where)
+            after = estimate_or_fail(estimator, moved_data, where, rng=reference_rng())
+            require_success(after, where)
             difference = _follows(
                 before, after, lambda points, m=matrix, o=offset: points @ m.T + o, tolerance
             )
             if difference:
-                _fail(
+                check_failed(
                     f"on {where}, {difference}. The estimate must move with the geometry: use "
                     "positions relative to the samples and directions relative to the velocity, "
                     "with no fixed origin, axis or heading (the paper's first-row Doppler line "
@@ -208,15 +210,19 @@ def check_unit_invariant(estimator: Any) -> None:
     kilometres (positions, velocities, c, the emitter height and the RSS reference distance
     divided by 1000; τ, f, P and every σ unchanged) give the same candidates, scaled (MATH §6).
     """
-    capabilities = _capabilities(estimator)
+    capabilities = declared_capabilities(estimator)
     for name in ("paper-1m", "climb"):
         problem = reference_problem(name)
         data = problem.data(snr_db=NOISY_SNR_DB)
         what = f"noisy {problem.label} data"
-        metres = _run(estimator, problem.data(snr_db=NOISY_SNR_DB), what, rng=_rng())
-        _succeeded(metres, what)
-        kilometres = _run(estimator, in_kilometres(data), what + " in kilometres", rng=_rng())
-        _succeeded(kilometres, what + " in kilometres")
+        metres = estimate_or_fail(
+            estimator, problem.data(snr_db=NOISY_SNR_DB), what, rng=reference_rng()
+        )
+        require_success(metres, what)
+        kilometres = estimate_or_fail(
+            estimator, in_kilometres(data), what + " in kilometres", rng=reference_rng()
+        )
+        require_success(kilometres, what + " in kilometres")
         scaled = replace(
             kilometres,
             position_m=1000.0 * np.asarray(kilometres.position_m),
@@ -229,7 +235,7 @@ def check_unit_invariant(estimator: Any) -> None:
             _invariance_tolerance_m(capabilities, problem, data),
         )
         if difference:
-            _fail(
+            check_failed(
                 f"on {what} in kilometres (times 1000), {difference}. It claims "
                 "unit_invariant=True: weight every residual by its σ (MATH §6) and use no "
                 "length or speed constant in metres; or declare unit_invariant=False"
@@ -245,7 +251,7 @@ def check_unused_modalities_ignored(estimator: Any) -> None:
     """Removing a modality that ``Capabilities.modalities`` does not list (one at a time and
     all together) changes nothing, on noisy data of ``paper-1m`` and ``climb`` that carry all
     three: the comparison scores an estimator against the CRLB of what it declares."""
-    capabilities = _capabilities(estimator)
+    capabilities = declared_capabilities(estimator)
     unused = [m for m in MODALITIES if m not in capabilities.modalities]
     if not unused:
         return
@@ -253,19 +259,21 @@ def check_unused_modalities_ignored(estimator: Any) -> None:
     for name in ("paper-1m", "climb"):
         problem = reference_problem(name)
         what = f"noisy {problem.label} data"
-        full = _run(estimator, problem.data(snr_db=NOISY_SNR_DB), what, rng=_rng())
-        _succeeded(full, what)
+        full = estimate_or_fail(
+            estimator, problem.data(snr_db=NOISY_SNR_DB), what, rng=reference_rng()
+        )
+        require_success(full, what)
         for removed in removals:
             fields_ = ", ".join(FIELD_OF_MODALITY[m] for m in removed)
             declared = sorted(capabilities.modalities)
             try:
                 reduced = estimator.estimate(
-                    problem.data(snr_db=NOISY_SNR_DB).without(*removed), rng=_rng()
+                    problem.data(snr_db=NOISY_SNR_DB).without(*removed), rng=reference_rng()
                 )
             except ValueError as error:
                 head = str(error).split(": ", 1)[0]
                 if any(FIELD_OF_MODALITY[m] in head for m in removed):
-                    _fail(
+                    check_failed(
                         f"without {fields_} the estimate raises ValueError({str(error)!r}), "
                         f"so it reads them, but capabilities().modalities is {declared}; "
                         f"declare {list(removed)} in Capabilities.modalities"
@@ -280,9 +288,9 @@ def check_unused_modalities_ignored(estimator: Any) -> None:
                     f"{what} without {fields_} raised {type(error).__name__}: {error}; a "
                     f"modality outside capabilities().modalities ({declared}) must not matter"
                 ) from error
-            differences = _answer_differences(full, reduced, _agreement_m(estimator))
+            differences = _answer_differences(full, reduced, agreement_tolerance_m(estimator))
             if differences:
-                _fail(
+                check_failed(
                     f"removing {fields_} from {what} changed the estimate: "
                     f"{'; '.join(differences)}; it uses them, but capabilities().modalities "
                     f"is {declared}: declare {list(removed)} in Capabilities.modalities (or "
@@ -294,21 +302,26 @@ def check_uses_the_declared_frames(estimator: Any) -> None:
     """``Capabilities.frames`` is truthful, on noisy data of ``turn`` and ``climb``: with
     ``frames="last"`` (or listed frames), dropping the other frames changes nothing; with
     ``frames="all"``, dropping the first frame changes the estimate."""
-    capabilities = _capabilities(estimator)
+    capabilities = declared_capabilities(estimator)
     frames = capabilities.frames
     for name in ("turn", "climb"):
         problem = reference_problem(name)
         data = problem.data(snr_db=NOISY_SNR_DB)
         what = f"noisy {problem.label} data"
-        full = _run(estimator, problem.data(snr_db=NOISY_SNR_DB), what, rng=_rng())
-        _succeeded(full, what)
+        full = estimate_or_fail(
+            estimator, problem.data(snr_db=NOISY_SNR_DB), what, rng=reference_rng()
+        )
+        require_success(full, what)
         if frames == "all":
             first = int(data.frame[0])
-            later = _run(
-                estimator, data.take(data.frame != first), what + " without frame 0", rng=_rng()
+            later = estimate_or_fail(
+                estimator,
+                data.take(data.frame != first),
+                what + " without frame 0",
+                rng=reference_rng(),
             )
-            if not _answer_differences(full, later, _agreement_m(estimator)):
-                _fail(
+            if not _answer_differences(full, later, agreement_tolerance_m(estimator)):
+                check_failed(
                     f"dropping frame {first} of {what} did not change the estimate, yet "
                     "capabilities().frames is 'all'; declare the frames it uses "
                     "(Capabilities(frames='last') for the last frame only)"
@@ -317,10 +330,12 @@ def check_uses_the_declared_frames(estimator: Any) -> None:
         used = select_frames(data, frames)
         if used is None:
             continue
-        kept = _run(estimator, used, f"{what}, frames {frames!r} only", rng=_rng())
-        differences = _answer_differences(full, kept, _agreement_m(estimator))
+        kept = estimate_or_fail(
+            estimator, used, f"{what}, frames {frames!r} only", rng=reference_rng()
+        )
+        differences = _answer_differences(full, kept, agreement_tolerance_m(estimator))
         if differences:
-            _fail(
+            check_failed(
                 f"keeping only frames {frames!r} (as declared) of {what} changed the estimate: "
                 f"{'; '.join(differences)}; it uses other frames too: declare frames='all' (or "
                 "the frames it reads)"

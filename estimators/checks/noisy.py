@@ -11,18 +11,18 @@ from estimators.checks.forward_model import crlb_rmse_m, whitened_misfit
 from estimators.checks.reference_problems import (
     DATA_SEED,
     RNG_SEED,
-    _rng,
     on_track_start_data,
     reference_problem,
+    reference_rng,
     select_frames,
 )
 from estimators.checks.results import (
-    _capabilities,
-    _fail,
-    _is_sequential,
-    _run,
-    _stream,
-    _succeeded,
+    check_failed,
+    declared_capabilities,
+    estimate_or_fail,
+    is_sequential,
+    require_success,
+    streamed_estimate,
 )
 from estimators.checks.tolerances import (
     CRLB_FACTOR,
@@ -41,7 +41,7 @@ def check_noisy_error_near_crlb(estimator: Any) -> None:
     emitter) is at most :data:`CRLB_FACTOR` times the CRLB √trace(J⁻¹) of the declared
     modalities and frames (MATH §8). Catches an estimate that ignores the data or collapses
     onto the track when there is noise."""
-    capabilities = _capabilities(estimator)
+    capabilities = declared_capabilities(estimator)
     modalities = sorted(capabilities.modalities)
     for name in ("paper-1m", "far-turn"):
         problem = reference_problem(name)
@@ -50,19 +50,19 @@ def check_noisy_error_near_crlb(estimator: Any) -> None:
         errors = []
         for index in range(batch.n_trials):
             what = f"noisy trial {index} of {problem.label} at {CRLB_SNR_DB:g} dB"
-            estimate = _run(
+            estimate = estimate_or_fail(
                 estimator, batch.trial(index), what, rng=np.random.default_rng(RNG_SEED + index)
             )
-            _succeeded(estimate, what)
+            require_success(estimate, what)
             candidates = np.asarray(estimate.candidates_m, dtype=float).reshape(-1, 2)
             if len(candidates) == 0:
-                _fail(f"no candidate on {what}; candidates_m must hold position_m")
+                check_failed(f"no candidate on {what}; candidates_m must hold position_m")
             errors.append(float(np.min(np.linalg.norm(candidates - truth, axis=1))))
         used = select_frames(batch.geometry, capabilities.frames)
         bound = crlb_rmse_m(used if used is not None else batch.geometry, truth, modalities)
         rmse = float(np.sqrt(np.mean(np.square(errors))))
         if not rmse <= CRLB_FACTOR * bound:
-            _fail(
+            check_failed(
                 f"on {batch.n_trials} noisy trials of {problem.label} at {CRLB_SNR_DB:g} dB the "
                 f"side-resolved RMSE (nearest candidate to the emitter {truth.tolist()}) is "
                 f"{rmse:.3g} m, {rmse / bound:.3g} times the CRLB √trace(J⁻¹) = {bound:.3g} m of "
@@ -83,16 +83,16 @@ def check_estimate_moves_with_the_emitter(estimator: Any) -> None:
     for emitter in emitters:
         data = simulate(base.replace(emitter_m=emitter), snr_db=CRLB_SNR_DB, seed=DATA_SEED)
         what = f"noisy 'turn' data with the emitter at {emitter.tolist()}"
-        estimate = _run(estimator, data.without_truth(), what, rng=_rng())
-        _succeeded(estimate, what)
+        estimate = estimate_or_fail(estimator, data.without_truth(), what, rng=reference_rng())
+        require_success(estimate, what)
         candidates = np.asarray(estimate.candidates_m, dtype=float).reshape(-1, 2)
         if len(candidates) == 0:
-            _fail(f"no candidate on {what}; candidates_m must hold position_m")
+            check_failed(f"no candidate on {what}; candidates_m must hold position_m")
         found.append(candidates[np.argmin(np.linalg.norm(candidates - emitter, axis=1))])
     shift = emitters[1] - emitters[0]
     along = float((found[1] - found[0]) @ shift / np.linalg.norm(shift))
     if not along >= 0.5 * float(np.linalg.norm(shift)):
-        _fail(
+        check_failed(
             f"the emitter moved {np.linalg.norm(shift):.1f} m, from {emitters[0].tolist()} to "
             f"{emitters[1].tolist()} (same flight, same noise), but the answer moved "
             f"{along:.3g} m that way, from {found[0].tolist()} to {found[1].tolist()}: the "
@@ -115,7 +115,7 @@ def check_leaves_the_track(estimator: Any) -> None:
     track's vertical plane: by symmetry nothing pulls it off while the track is straight, and
     with no cross-track variance left (that frame's Fisher information is rank-deficient
     there) not even the turn does."""
-    capabilities = _capabilities(estimator)
+    capabilities = declared_capabilities(estimator)
     modalities = sorted(capabilities.modalities)
     data, exact, truth = on_track_start_data()
     track = StraightTrack.of_frame(data.select_frames([int(data.frame[0])]))
@@ -124,21 +124,21 @@ def check_leaves_the_track(estimator: Any) -> None:
     used_exact = select_frames(exact, capabilities.frames)
     what = "the on-track-start data (first frame's ranges 3 m short, then a turn)"
     if used is None or used_exact is None:
-        _fail(f"the declared frames {capabilities.frames!r} select no sample of {what}")
+        check_failed(f"the declared frames {capabilities.frames!r} select no sample of {what}")
     assert used is not None and used_exact is not None
     exact_m = noise_free_tolerance_m(estimator)
     misfit = whitened_misfit(used, truth, modalities)
     bound = crlb_rmse_m(used_exact, truth, modalities)
     tolerance = misfit * bound + exact_m
-    answers = [("estimate", _run(estimator, data, what, rng=_rng()))]
-    if _is_sequential(estimator):
+    answers = [("estimate", estimate_or_fail(estimator, data, what, rng=reference_rng()))]
+    if is_sequential(estimator):
         answers.append(("streamed frame by frame", _stream_checked(estimator, data, what)))
     problems = []
     for how, estimate in answers:
-        _succeeded(estimate, f"{what} ({how})")
+        require_success(estimate, f"{what} ({how})")
         candidates = np.asarray(estimate.candidates_m, dtype=float).reshape(-1, 2)
         if len(candidates) == 0:
-            _fail(f"no candidate on {what} ({how}); candidates_m must hold position_m")
+            check_failed(f"no candidate on {what} ({how}); candidates_m must hold position_m")
         offsets = track.cross_track_m(candidates)
         errors = np.linalg.norm(candidates - truth, axis=1)
         nearest = int(np.argmin(errors))
@@ -162,7 +162,7 @@ def check_leaves_the_track(estimator: Any) -> None:
                 f"declares (frames {capabilities.frames!r})"
             )
     if problems:
-        _fail(
+        check_failed(
             f"on {what}: {'; '.join(problems)}. A filter or solver started at the first frame's "
             "on-track candidate stays on the track's vertical plane by symmetry; it must be able "
             "to leave it: keep the cross-track variance the data do not fix there (the first "
@@ -172,9 +172,9 @@ def check_leaves_the_track(estimator: Any) -> None:
 
 
 def _stream_checked(estimator: Any, data: Any, what: str) -> Any:
-    """:func:`~estimators.checks.results._stream`; an exception becomes a failure."""
+    """:func:`~estimators.checks.results.streamed_estimate`; an exception becomes a failure."""
     try:
-        return _stream(estimator, data, rng=_rng())
+        return streamed_estimate(estimator, data, rng=reference_rng())
     except Exception as error:
         raise AssertionError(
             f"streaming {what} raised {type(error).__name__}: {error}; valid data must give an "

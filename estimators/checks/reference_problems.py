@@ -250,7 +250,7 @@ def _climb_scenario(n_frames: int = 2) -> Scenario:
     )
 
 
-_FIXED_PROBLEMS: dict[str, Callable[[], ReferenceProblem]] = {
+FIXED_PROBLEMS: dict[str, Callable[[], ReferenceProblem]] = {
     "paper-1m": lambda: ReferenceProblem(
         name="paper-1m",
         scenario=get_scenario("paper-1m"),
@@ -389,8 +389,8 @@ def _well_posed(scenario: Scenario) -> bool:
 
 def reference_problem(name: str, *, seed: int | None = None) -> ReferenceProblem:
     """The named reference problem; a random one is drawn from ``seed`` (or :func:`check_seed`)."""
-    if name in _FIXED_PROBLEMS:
-        return _FIXED_PROBLEMS[name]()
+    if name in FIXED_PROBLEMS:
+        return FIXED_PROBLEMS[name]()
     if name in RANDOM_PROBLEMS:
         chosen = check_seed() if seed is None else seed
         return random_problem(chosen, straight=name == "random-straight")
@@ -419,7 +419,7 @@ def reference_data(
     frames : int or None
         Frames flown (None: the scenario's own).
     """
-    if scenario in _FIXED_PROBLEMS or scenario in RANDOM_PROBLEMS:
+    if scenario in FIXED_PROBLEMS or scenario in RANDOM_PROBLEMS:
         built = reference_problem(scenario).scenario
     elif scenario in CATALOG:
         built = get_scenario(scenario)
@@ -468,11 +468,13 @@ def on_track_start_data() -> tuple[MeasurementSet, MeasurementSet, FloatArray]:
     return data, exact.without_truth(), np.array(scenario.emitter_m, dtype=float)
 
 
-def _noisy(scenario: str = "paper-1m", frames: int | None = None) -> MeasurementSet:
+def noisy_reference(scenario: str = "paper-1m", frames: int | None = None) -> MeasurementSet:
+    """The reference problem's noisy data of ``scenario`` (:func:`reference_data`)."""
     return reference_data(scenario, noisy=True, frames=frames)[0]
 
 
-def _rng() -> np.random.Generator:
+def reference_rng() -> np.random.Generator:
+    """The checks' generator, seeded with :data:`RNG_SEED` (a new one per call)."""
     return np.random.default_rng(RNG_SEED)
 
 
@@ -485,7 +487,7 @@ def degenerate_data() -> dict[str, MeasurementSet]:
     the data types);
     ``one-sample``: a single sample.
     """
-    data = _noisy()
+    data = noisy_reference()
     n = data.n_samples
     return {
         "hovering": replace(
@@ -503,7 +505,7 @@ def degenerate_data() -> dict[str, MeasurementSet]:
     }
 
 
-def _batch() -> MeasurementBatch:
+def reference_batch() -> MeasurementBatch:
     """Four noisy trials of one straight frame (``paper-1m``)."""
     scenario = get_scenario("paper-1m")
     seeds = np.random.SeedSequence(DATA_SEED).spawn(4)

@@ -1,8 +1,8 @@
 """Running an estimator inside a check, and judging what it returns.
 
-:func:`_run` turns an exception on valid data into a failure that names the data; the
+:func:`estimate_or_fail` turns an exception on valid data into a failure that names the data; the
 ``*_problems`` functions list everything wrong with a result (empty: it conforms);
-:func:`_estimate_differences` compares two results bit for bit or within a tolerance.
+:func:`result_differences` compares two results bit for bit or within a tolerance.
 """
 
 from __future__ import annotations
@@ -30,11 +30,12 @@ _RULES = (
 )
 
 
-def _fail(message: str) -> None:
+def check_failed(message: str) -> None:
+    """Fail the check with ``message`` on one line (its whitespace collapsed)."""
     raise AssertionError(" ".join(message.split()))
 
 
-def _run(
+def estimate_or_fail(
     estimator: Any,
     data: MeasurementSet,
     what: str,
@@ -51,14 +52,14 @@ def _run(
         ) from error
 
 
-def _succeeded(estimate: Any, what: str) -> None:
+def require_success(estimate: Any, what: str) -> None:
     if not isinstance(estimate, Estimate):
-        _fail(
+        check_failed(
             f"estimate returned {type(estimate).__name__} on {what}, not an "
             "estimators.base.Estimate; build the result with Estimate(...) or finalize_estimate"
         )
     if not estimate.success:
-        _fail(
+        check_failed(
             f"estimate failed on {what} (message: {estimate.message!r}); these data determine "
             "the emitter, so it should succeed there: return Estimate.failed only when the data "
             "cannot give an answer"
@@ -79,7 +80,7 @@ def params_of(estimator: Any) -> dict[str, Any]:
     }
 
 
-def _capabilities(estimator: Any) -> Capabilities:
+def declared_capabilities(estimator: Any) -> Capabilities:
     """``capabilities_of(estimator)``; a broken declaration becomes a failure saying so."""
     try:
         return capabilities_of(estimator)
@@ -90,7 +91,7 @@ def _capabilities(estimator: Any) -> Capabilities:
         ) from error
 
 
-def _same(a: Any, b: Any) -> bool:
+def same_value(a: Any, b: Any) -> bool:
     """Deep equality for parameters and states: arrays by value, dtype and shape; NaN == NaN."""
     if a is b:
         return True
@@ -103,11 +104,11 @@ def _same(a: Any, b: Any) -> bool:
     if type(a) is not type(b):
         return False
     if isinstance(a, Mapping):
-        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+        return a.keys() == b.keys() and all(same_value(a[k], b[k]) for k in a)
     if is_dataclass(a):
-        return all(_same(getattr(a, f.name), getattr(b, f.name)) for f in fields(a))
+        return all(same_value(getattr(a, f.name), getattr(b, f.name)) for f in fields(a))
     if isinstance(a, list | tuple):
-        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+        return len(a) == len(b) and all(same_value(x, y) for x, y in zip(a, b, strict=True))
     if isinstance(a, float) and math.isnan(a) and math.isnan(b):
         return True
     try:
@@ -116,7 +117,7 @@ def _same(a: Any, b: Any) -> bool:
         return False
 
 
-def _object_state(obj: Any) -> dict[str, Any]:
+def object_state(obj: Any) -> dict[str, Any]:
     """Every instance attribute (``__dict__`` and ``__slots__``), deep-copied."""
     state = dict(getattr(obj, "__dict__", {}))
     for klass in type(obj).__mro__:
@@ -127,7 +128,7 @@ def _object_state(obj: Any) -> dict[str, Any]:
     return copy.deepcopy(state)
 
 
-def _estimate_differences(a: Estimate, b: Estimate, *, atol_m: float | None) -> list[str]:
+def result_differences(a: Estimate, b: Estimate, *, atol_m: float | None) -> list[str]:
     """How two estimates differ: bit for bit (``atol_m=None``) or within ``atol_m``.
 
     With a tolerance, candidates compare as sets and messages and diagnostics are ignored;
@@ -141,18 +142,18 @@ def _estimate_differences(a: Estimate, b: Estimate, *, atol_m: float | None) -> 
     ca = np.asarray(a.candidates_m, dtype=float).reshape(-1, 2)
     cb = np.asarray(b.candidates_m, dtype=float).reshape(-1, 2)
     if atol_m is None:
-        if not _same(pa, pb):
+        if not same_value(pa, pb):
             out.append(f"position_m {pa.tolist()} vs {pb.tolist()}")
-        if not _same(ca, cb):
+        if not same_value(ca, cb):
             out.append(f"candidates_m {ca.tolist()} vs {cb.tolist()}")
         ka, kb = a.covariance_m2, b.covariance_m2
-        if (ka is None) != (kb is None) or (ka is not None and not _same(ka, kb)):
+        if (ka is None) != (kb is None) or (ka is not None and not same_value(ka, kb)):
             out.append("covariance_m2 differs")
         if a.message != b.message:
             out.append(f"message {a.message!r} vs {b.message!r}")
         da = {k: v for k, v in dict(a.diagnostics).items() if not _is_timing(k)}
         db = {k: v for k, v in dict(b.diagnostics).items() if not _is_timing(k)}
-        keys = sorted(k for k in da.keys() | db.keys() if not _same(da.get(k), db.get(k)))
+        keys = sorted(k for k in da.keys() | db.keys() if not same_value(da.get(k), db.get(k)))
         if keys:
             out.append(f"diagnostics {keys} differ")
         return out
@@ -181,7 +182,7 @@ def _is_json_scalar(value: Any) -> bool:
 def result_problems(estimate: Any, estimator: Any) -> list[str]:
     """Everything wrong with one result's types, shapes and consistency (empty: conforms)."""
     if not isinstance(estimate, Estimate):
-        return [_not_an_estimate(estimate)]
+        return [not_an_estimate(estimate)]
     problems = []
     name = getattr(estimator, "name", None)
     if estimate.estimator != name:
@@ -228,7 +229,7 @@ def failure_problems(estimate: Any) -> list[str]:
     position and a message when it failed, a finite position when it succeeded; and an
     estimate refused by :mod:`estimators.validity` (a plug-in's bug, whatever the data)."""
     if not isinstance(estimate, Estimate):
-        return [_not_an_estimate(estimate)]
+        return [not_an_estimate(estimate)]
     if type(estimate.success) is not bool:
         return [f"success is {type(estimate.success).__name__}; expected bool"]
     if not isinstance(estimate.message, str):
@@ -254,7 +255,8 @@ def failure_problems(estimate: Any) -> list[str]:
     return []
 
 
-def _not_an_estimate(result: Any) -> str:
+def not_an_estimate(result: Any) -> str:
+    """The failure text of a result that is not an :class:`~estimators.base.Estimate`."""
     return (
         f"returned {type(result).__name__}, not an estimators.base.Estimate; build the "
         "result with Estimate(...), Estimate.failed(...) or finalize_estimate(...)"
@@ -279,11 +281,15 @@ def _diagnostics_problems(diagnostics: Any) -> list[str]:
     return problems
 
 
-def _is_sequential(estimator: Any) -> bool:
+def is_sequential(estimator: Any) -> bool:
+    """Whether ``estimator`` is fed frame by frame (``init``, ``update``, ``estimate_state``)."""
     return all(callable(getattr(estimator, m, None)) for m in ("init", "update", "estimate_state"))
 
 
-def _stream(estimator: Any, data: MeasurementSet, *, rng: np.random.Generator | None) -> Any:
+def streamed_estimate(
+    estimator: Any, data: MeasurementSet, *, rng: np.random.Generator | None
+) -> Any:
+    """A sequential estimator's estimate of ``data`` fed to it frame by frame."""
     state = estimator.init()
     for frame in data.iter_frames():
         state = estimator.update(state, frame)

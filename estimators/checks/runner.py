@@ -49,7 +49,7 @@ from estimators.checks.noisy import (
     check_leaves_the_track,
     check_noisy_error_near_crlb,
 )
-from estimators.checks.results import _is_sequential, _same, constructor_parameters
+from estimators.checks.results import constructor_parameters, is_sequential, same_value
 
 Check = Callable[[Any], None]
 
@@ -107,7 +107,7 @@ def estimator_checks(estimator: Any) -> Iterator[Check]:
             f"{estimator.__name__}()"
         )
     batch = callable(getattr(estimator, "estimate_batch", None))
-    sequential = _is_sequential(estimator)
+    sequential = is_sequential(estimator)
     try:
         capabilities: Capabilities | None = capabilities_of(estimator)
     except Exception:
@@ -239,7 +239,7 @@ def _estimator_id(estimator: Any) -> str:
         for p in constructor_parameters(estimator):
             if p.default is not p.empty and hasattr(estimator, p.name):
                 value = getattr(estimator, p.name)
-                if not _same(value, p.default):
+                if not same_value(value, p.default):
                     changed.append(f"{p.name}={value!r}")
     except (TypeError, ValueError):
         changed = []

@@ -30,7 +30,7 @@ from typing import Any
 
 from estimators.base import Capabilities, capabilities_of
 from estimators.checks.reference_problems import (
-    _FIXED_PROBLEMS,
+    FIXED_PROBLEMS,
     REFERENCE_PROBLEMS,
     ReferenceProblem,
 )
@@ -82,7 +82,8 @@ def problem_tolerance_m(capabilities: Capabilities, problem: ReferenceProblem) -
     return max(default, min(_honoured_tolerance_m(capabilities), tolerance_cap_m(problem)))
 
 
-def _tolerance_text(capabilities: Capabilities, problem: ReferenceProblem) -> str:
+def tolerance_text(capabilities: Capabilities, problem: ReferenceProblem) -> str:
+    """The tolerance on ``problem`` in words, with why it is what it is (declared, capped)."""
     tolerance = problem_tolerance_m(capabilities, problem)
     declared = float(capabilities.noise_free_tolerance_m)
     if declared > EXACT_TOLERANCE_M and not capabilities.tolerance_reason.strip():
@@ -99,7 +100,7 @@ def _tolerance_text(capabilities: Capabilities, problem: ReferenceProblem) -> st
 
 @functools.cache
 def _smallest_cap_m() -> float:
-    return min(tolerance_cap_m(_FIXED_PROBLEMS[name]()) for name in REFERENCE_PROBLEMS)
+    return min(tolerance_cap_m(FIXED_PROBLEMS[name]()) for name in REFERENCE_PROBLEMS)
 
 
 def noise_free_tolerance_m(estimator: Any, problem: ReferenceProblem | None = None) -> float:
@@ -114,5 +115,6 @@ def noise_free_tolerance_m(estimator: Any, problem: ReferenceProblem | None = No
     return problem_tolerance_m(capabilities, problem)
 
 
-def _agreement_m(estimator: Any) -> float:
+def agreement_tolerance_m(estimator: Any) -> float:
+    """How far two answers of ``estimator`` on the same data may lie apart, m."""
     return max(AGREEMENT_TOLERANCE_M, noise_free_tolerance_m(estimator))

@@ -43,7 +43,7 @@ from estimators.ml import (
     whitened_residual_jacobian,
     whitened_residuals,
 )
-from estimators.ml_batch import _Context
+from estimators.ml_batch import SharedContext
 from estimators.ml_batch_starts import batch_starts
 from estimators.ml_starts import doppler_frame_starts, ranges_uninformative
 from scenarios.catalog import get_scenario
@@ -292,7 +292,7 @@ def test_batch_starts_are_within_their_bound_and_on_the_same_grid_points(family)
     n = 300
     batch = family_batch(family, n, seed=9)
     estimator = MaximumLikelihood()
-    context = _Context.of(estimator, batch)
+    context = SharedContext.of(estimator, batch)
     trials = np.arange(n)
     ranges, scale = context.frame_scales(trials)
     starts, count, error, doubt = batch_starts(context, trials, ranges, scale)
