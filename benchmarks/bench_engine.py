@@ -32,7 +32,6 @@ import json
 import os
 import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +41,7 @@ for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import dataclasses  # noqa: E402
 
 import numpy as np  # noqa: E402
+from cpu_time import best_cpu_us  # noqa: E402
 
 from comparison.engine import read_trials, run_experiment  # noqa: E402
 from comparison.estimator_calls import call_batch, call_limits  # noqa: E402
@@ -59,18 +59,7 @@ from estimators.registry import make_estimator  # noqa: E402
 from scenarios.catalog import get_scenario  # noqa: E402
 from scenarios.simulate import simulate_trials, trial_seeds  # noqa: E402
 
-REPEATS = 3
 RUNTIME = ESTIMATE_COLUMNS.index("runtime_s")
-
-
-def _best_cpu_us(run: Callable[[], Any], count: int) -> float:
-    """Least CPU time of ``REPEATS`` calls of ``run``, in microseconds per trial."""
-    best = np.inf
-    for _ in range(REPEATS):
-        start = time.process_time()
-        run()
-        best = min(best, time.process_time() - start)
-    return best / count * 1e6
 
 
 def _line(label: str, before_us: float, after_us: float) -> None:
@@ -155,7 +144,7 @@ def bench_task_runner() -> None:
                 run_task(task)
 
         count = size * repeats
-        _line(f"chunks of {size}", _best_cpu_us(old, count), _best_cpu_us(new, count))
+        _line(f"chunks of {size}", best_cpu_us(old, count), best_cpu_us(new, count))
 
 
 # --------------------------------------------------------------------------------------------
@@ -176,19 +165,17 @@ def bench_scoring() -> None:
     reference = [estimate_columns(e, truth, track, 1e-5) for e in estimates]
     assert _same(score_outcomes(outcomes, truth, track), reference), "cls: the rows differ"
     n = len(columns)
-    after = _best_cpu_us(
-        lambda: score_outcomes(Outcomes.of_columns(columns, 1e-5), truth, track), n
-    )
+    after = best_cpu_us(lambda: score_outcomes(Outcomes.of_columns(columns, 1e-5), truth, track), n)
     _line(
         "cls, 500 trials",
-        _best_cpu_us(
+        best_cpu_us(
             lambda: [estimate_columns(e, truth, track, 1e-5) for e in columns.to_estimates()], n
         ),
         after,
     )
     _line(
         "cls, 500 trials, objects given",
-        _best_cpu_us(lambda: [estimate_columns(e, truth, track, 1e-5) for e in estimates], n),
+        best_cpu_us(lambda: [estimate_columns(e, truth, track, 1e-5) for e in estimates], n),
         after,
     )
 
@@ -202,8 +189,8 @@ def bench_scoring() -> None:
     mirrored = sum(e.ambiguous for e, _ in results)
     _line(
         f"ml, 200 objects ({mirrored} ambiguous)",
-        _best_cpu_us(lambda: [estimate_columns(e, truth, track, r) for e, r in results], 200),
-        _best_cpu_us(
+        best_cpu_us(lambda: [estimate_columns(e, truth, track, r) for e, r in results], 200),
+        best_cpu_us(
             lambda: score_outcomes(Outcomes.of_estimates(results), truth, track), len(results)
         ),
     )

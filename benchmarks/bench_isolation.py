@@ -30,7 +30,6 @@ from __future__ import annotations
 import json
 import os
 import sys
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -42,6 +41,7 @@ for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.comparison.plugins
 
 import numpy as np  # noqa: E402
+from cpu_time import best_cpu_s, best_cpu_us  # noqa: E402
 
 from comparison import estimator_calls  # noqa: E402
 from comparison.estimator_calls import changed_field, private_copy  # noqa: E402
@@ -88,23 +88,14 @@ def isolation_taken_out() -> Iterator[None]:
         ) = saved
 
 
-def _best_cpu_s(run: Callable[[], Any]) -> float:
-    best = np.inf
-    for _ in range(REPEATS):
-        start = time.process_time()
-        run()
-        best = min(best, time.process_time() - start)
-    return best
-
-
 def _best_pair_s(task: Task) -> tuple[float, float]:
     """Least CPU time of the task without the isolation and with it, taken in turns (the
     machine's load then weighs on both alike)."""
     without = isolated = np.inf
     for _ in range(REPEATS):
         with isolation_taken_out():
-            without = min(without, _best_cpu_s(lambda: run_task(task)))
-        isolated = min(isolated, _best_cpu_s(lambda: run_task(task)))
+            without = min(without, best_cpu_s(lambda: run_task(task)))
+        isolated = min(isolated, best_cpu_s(lambda: run_task(task)))
     return without, isolated
 
 
@@ -173,7 +164,7 @@ def time_parts() -> None:
     count = 2000
 
     def per_call_us(run: Callable[[], Any]) -> float:
-        return _best_cpu_s(lambda: [run() for _ in range(count)]) / count * 1e6
+        return best_cpu_us(lambda: [run() for _ in range(count)], count)
 
     print("parts (CPU µs per call):")
     chunk_copy = private_copy(batch)

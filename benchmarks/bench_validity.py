@@ -16,7 +16,6 @@ Run: ``python benchmarks/bench_validity.py``.
 from __future__ import annotations
 
 import os
-import time
 from collections.abc import Callable
 from typing import Any
 
@@ -24,23 +23,21 @@ for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_variable, "1")  # one core, before numpy loads its BLAS
 
 import numpy as np  # noqa: E402
+from cpu_time import best_cpu_us  # noqa: E402
 
 from estimators.base import Estimate  # noqa: E402
 from estimators.batch import BatchEstimates  # noqa: E402
 from estimators.validity import invalid_estimates  # noqa: E402
 
 REPEATS = 5
+
+
+def _cpu_us(run: Callable[[], Any], count: int) -> float:
+    """:func:`cpu_time.best_cpu_us` of ``REPEATS`` runs."""
+    return best_cpu_us(run, count, REPEATS)
+
+
 N = 10_000
-
-
-def best_cpu_us(run: Callable[[], Any], count: int) -> float:
-    """Least CPU time of ``REPEATS`` runs of ``run``, in microseconds per trial."""
-    best = np.inf
-    for _ in range(REPEATS):
-        start = time.process_time()
-        run()
-        best = min(best, time.process_time() - start)
-    return best / count * 1e6
 
 
 def valid_columns(n: int) -> dict[str, Any]:
@@ -66,13 +63,13 @@ def valid_columns(n: int) -> dict[str, Any]:
 def main() -> None:
     columns = valid_columns(N)
     fields = {key: columns[key] for key in ("position_m", "candidates_m", "n_candidates")}
-    check = best_cpu_us(
+    check = _cpu_us(
         lambda: invalid_estimates(
             **fields, covariance_m2=columns["covariance_m2"], success=columns["success"]
         ),
         N,
     )
-    build = best_cpu_us(
+    build = _cpu_us(
         lambda: BatchEstimates(
             **{k: np.array(v) if k != "messages" else v for k, v in columns.items()}
         ),
@@ -106,8 +103,8 @@ def main() -> None:
             )
 
     print(
-        f"one Estimate: building it {best_cpu_us(build_one, 2000):.1f} µs, "
-        f"the check alone {best_cpu_us(check_one, 2000):.1f} µs"
+        f"one Estimate: building it {_cpu_us(build_one, 2000):.1f} µs, "
+        f"the check alone {_cpu_us(check_one, 2000):.1f} µs"
     )
 
 
