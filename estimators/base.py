@@ -53,7 +53,7 @@ from estimators.validity import invalid_estimates, numeric_array, real_part, ref
 from scenarios.fields import vector_text
 from scenarios.geometry import TrackSoFar, moves_horizontally, single_horizontal_point
 from scenarios.nuisance import describe_unknowns, parse_unknowns, unknowns_used
-from scenarios.types import MeasurementBatch, MeasurementSet
+from scenarios.types import MEASURED_FIELD, MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -460,8 +460,7 @@ def require_modalities(estimator: Estimator, data: MeasurementSet) -> None:
         )
     missing = sorted(estimator.requires - data.modalities)
     if missing:
-        fields = {"doppler": "doppler_hz", "toa": "toa_s", "rss": "rss_dbm"}
-        names = ", ".join(fields[m] for m in missing)
+        names = ", ".join(MEASURED_FIELD[m] for m in missing)
         raise ValueError(
             f"{names}: estimator {estimator.name!r} needs {', '.join(missing)} measurements; "
             f"add them to the data or choose an estimator that works without them"

@@ -33,7 +33,7 @@ from estimators.base import Estimate, capabilities_of
 from estimators.batch import BatchEstimates
 from scenarios import measurement_model as model
 from scenarios.nuisance import unknowns_used
-from scenarios.types import MeasurementBatch, MeasurementSet
+from scenarios.types import MEASURED_FIELD, MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
 
@@ -49,8 +49,6 @@ batch at once is about 1.7 times slower per trial)."""
 
 N_POSITION_PARAMETERS = 2
 """``(x_s, y_s)``: the emitter's height is known (MATH §0)."""
-
-_MEASURED = {"doppler": "doppler_hz", "toa": "toa_s", "rss": "rss_dbm"}
 
 
 def fit_chi_square(
@@ -138,7 +136,7 @@ def fit_p_value(chi2_value: float, dof: int) -> float:
 def _used(estimator: Any, geometry: MeasurementSet) -> tuple[NDArray[np.bool_], list[str]]:
     """The samples (a mask) and the modalities the estimator uses on these data."""
     capabilities = capabilities_of(estimator)
-    modalities = [m for m in _MEASURED if m in capabilities.modalities & geometry.modalities]
+    modalities = [m for m in MEASURED_FIELD if m in capabilities.modalities & geometry.modalities]
     frames = capabilities.frames
     if frames == "all":
         mask = np.ones(geometry.n_samples, dtype=bool)
@@ -159,7 +157,7 @@ def fit_of(
     if not mask.any() or not modalities:
         return np.full(np.shape(position_m)[:-1], np.nan), 0
     used = geometry if mask.all() else geometry.take(mask)
-    measured = {m: np.asarray(getattr(data, _MEASURED[m]))[..., mask] for m in modalities}
+    measured = {m: np.asarray(getattr(data, MEASURED_FIELD[m]))[..., mask] for m in modalities}
     return fit_chi_square(position_m, used, measured)
 
 

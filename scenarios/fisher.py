@@ -62,7 +62,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from scenarios import measurement_model as model
 from scenarios.nuisance import AFFECTED_MODALITY, parse_unknowns
-from scenarios.types import MODALITIES, MeasurementSet
+from scenarios.types import MODALITIES, NOISE_FIELD, MeasurementSet
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -77,8 +77,6 @@ MODALITY_SETS: dict[str, tuple[str, ...]] = {
 
 SINGULAR_RTOL = 1e-12
 """A symmetric 2×2 matrix counts as singular when ``det ≤ SINGULAR_RTOL · |J₁₁ J₂₂|``."""
-
-_SIGMA_FIELD = {"doppler": "doppler_hz", "toa": "toa_s", "rss": "rss_db"}
 
 
 def parse_modalities(modalities: str | Iterable[str]) -> tuple[str, ...]:
@@ -114,7 +112,7 @@ def _whitened_blocks(
         sigma = data.noise.for_modality(modality)
         if sigma is None:
             raise ValueError(
-                f"noise.{_SIGMA_FIELD[modality]}: needed for the {modality} information but not "
+                f"noise.{NOISE_FIELD[modality]}: needed for the {modality} information but not "
                 "given; give the σ or drop the modality"
             )
         if modality == "toa":

@@ -77,6 +77,10 @@ MODALITIES = ("doppler", "toa", "rss")
 """Measurement kinds, in the order noise is drawn for them (MATH §1)."""
 MEASURED = ("doppler_hz", "toa_s", "rss_dbm")
 """The measurement fields, one per modality in that order."""
+MEASURED_FIELD = dict(zip(MODALITIES, MEASURED, strict=True))
+"""The :class:`MeasurementSet` field of each modality's measurements."""
+NOISE_FIELD = {"doppler": "doppler_hz", "toa": "toa_s", "rss": "rss_db"}
+"""The :class:`NoiseModel` field of each modality's standard deviation."""
 
 FloatArray = NDArray[np.float64]
 
@@ -156,7 +160,7 @@ class NoiseSigmas:
 
     def for_modality(self, modality: str) -> float | None:
         """The σ of ``modality`` (one of :data:`MODALITIES`)."""
-        return {"doppler": self.doppler_hz, "toa": self.toa_s, "rss": self.rss_db}[modality]
+        return getattr(self, NOISE_FIELD[modality])
 
     def as_dict(self) -> dict[str, float | None]:
         return {"doppler_hz": self.doppler_hz, "toa_s": self.toa_s, "rss_db": self.rss_db}
@@ -336,7 +340,7 @@ class Scenario:
         for modality in self.modalities:
             if self.noise.for_modality(modality) is None:
                 raise ValueError(
-                    f"noise.{_NOISE_FIELD[modality]}: scenario simulates {modality} "
+                    f"noise.{NOISE_FIELD[modality]}: scenario simulates {modality} "
                     "but gives no reference noise level"
                 )
 
@@ -349,8 +353,6 @@ class Scenario:
         """A copy with some fields changed (validated again)."""
         return replace(self, **changes)
 
-
-_NOISE_FIELD = {"doppler": "doppler_hz", "toa": "toa_s", "rss": "rss_db"}
 
 _FIX_POSITION = (
     "positions are metres in a local frame (MATH §0); check the unit, or move the origin near "
@@ -526,7 +528,7 @@ class MeasurementSet:
         for modality in self.modalities:
             if self.noise.for_modality(modality) is None:
                 raise ValueError(
-                    f"noise.{_NOISE_FIELD[modality]}: {modality} measurements are present, so "
+                    f"noise.{NOISE_FIELD[modality]}: {modality} measurements are present, so "
                     "their noise standard deviation is required"
                 )
         if self.rss_model is not None and not isinstance(self.rss_model, RssModel):
@@ -612,8 +614,7 @@ class MeasurementSet:
         unknown = set(modalities) - set(MODALITIES)
         if unknown:
             raise ValueError(f"modalities: unknown {sorted(unknown)}; choose from {MODALITIES}")
-        field_of = {"doppler": "doppler_hz", "toa": "toa_s", "rss": "rss_dbm"}
-        return replace(self, **{field_of[m]: None for m in modalities})
+        return replace(self, **{MEASURED_FIELD[m]: None for m in modalities})
 
     def without_truth(self) -> MeasurementSet:
         return replace(
@@ -657,7 +658,7 @@ class MeasurementBatch:
             object.__setattr__(self, name, frozen_array(value, name, (n_trials, n)))
             if self.geometry.noise.for_modality(modality) is None:
                 raise ValueError(
-                    f"noise.{_NOISE_FIELD[modality]}: {modality} measurements are present, so "
+                    f"noise.{NOISE_FIELD[modality]}: {modality} measurements are present, so "
                     "their noise standard deviation is required (in geometry.noise)"
                 )
         if self.rss_dbm is not None and self.geometry.rss_model is None:

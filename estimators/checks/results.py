@@ -18,10 +18,11 @@ import numpy as np
 
 from estimators.base import Capabilities, Estimate, capabilities_of
 from estimators.validity import INVALID, invalid_estimates
-from scenarios.types import MeasurementSet
+from scenarios.types import MEASURED_FIELD, MeasurementSet
 
-FIELD_OF_MODALITY = {"doppler": "doppler_hz", "toa": "toa_s", "rss": "rss_dbm"}
-"""The :class:`~scenarios.types.MeasurementSet` field of each modality."""
+FIELD_OF_MODALITY = MEASURED_FIELD
+"""The :class:`~scenarios.types.MeasurementSet` field of each modality (exported to plug-in
+authors under this name; :data:`scenarios.types.MEASURED_FIELD`)."""
 
 _RULES = (
     ": a valid estimate holds real numbers, and a success a finite position that is one of its "

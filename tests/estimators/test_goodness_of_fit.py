@@ -29,10 +29,8 @@ from estimators.ml import MaximumLikelihood
 from scenarios import get_scenario, noise_free
 from scenarios.fisher import fisher_information
 from scenarios.simulate import simulate, simulate_trials, trial_seeds
-from scenarios.types import MeasurementSet
+from scenarios.types import MEASURED_FIELD, MeasurementSet
 from tests.paths import EPS, SAFETY
-
-MEASURED = {"doppler": "doppler_hz", "toa": "toa_s", "rss": "rss_dbm"}
 
 # estimator, scenario it handles, measurements it uses per sample, nuisance parameters
 BUILT_INS = [
@@ -55,7 +53,7 @@ def whitened_size(data: MeasurementSet, modalities) -> float:
     """``‖z/σ‖``: the size of the whitened measurements, whose rounding χ² inherits."""
     return math.sqrt(
         sum(
-            float(np.sum((getattr(data, MEASURED[m]) / data.noise.for_modality(m)) ** 2))
+            float(np.sum((getattr(data, MEASURED_FIELD[m]) / data.noise.for_modality(m)) ** 2))
             for m in modalities
         )
     )
@@ -106,7 +104,7 @@ def test_at_the_truth_chi2_has_mean_n_and_variance_2n(scenario, nuisance):
     trials = 4000
     batch = simulate_trials(s, snr_db=10.0, seeds=trial_seeds(21, trials))
     g = batch.geometry
-    measured = {m: getattr(batch, MEASURED[m]) for m in ("doppler", "toa")}
+    measured = {m: getattr(batch, MEASURED_FIELD[m]) for m in ("doppler", "toa")}
     chi2, dof = fit_chi_square(np.broadcast_to(s.emitter_m, (trials, 2)), g, measured)
     n = 2 * g.n_samples - nuisance  # the profiled χ² at the truth (no position fitted)
     assert dof == n - 2
