@@ -52,8 +52,8 @@ for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
-from estimators.cls import Cls, ClsPaper  # noqa: E402
-from estimators.ml import MaximumLikelihood  # noqa: E402
+from estimators.closed_form.cls import Cls, ClsPaper  # noqa: E402
+from estimators.ml.ml import MaximumLikelihood  # noqa: E402
 from scenarios.catalog import get_scenario  # noqa: E402
 from scenarios.simulate import simulate_trials, trial_seeds  # noqa: E402
 from scenarios.types import MeasurementSet  # noqa: E402

@@ -18,7 +18,7 @@ For every scenario, on the same trials:
   time as cvxpy reports it (``solver_stats.solve_time``);
 - with ``--breakdown``, the batch path's time per estimate by part (a separate pass with
   timing wrappers, about a microsecond per wrapped call): the rows of every trial (the shared
-  geometry and :class:`~estimators.sdp_lift.ChunkRows`), the QR compression and whitening,
+  geometry and :class:`~estimators.sdp.sdp_lift.ChunkRows`), the QR compression and whitening,
   the Clarabel call (building the solver and solving), the recovery and costs, the mirror
   rule and draws, and the rest (the per-trial loop around Clarabel, status bookkeeping,
   diagnostics).
@@ -43,13 +43,13 @@ from unittest import mock
 
 import numpy as np
 
-import estimators.sdp_cls as sdp_cls
-import estimators.sdp_lift as sdp_lift
-import estimators.sdp_solvers as sdp_solvers
-from estimators.cls import Cls, cls_rows
-from estimators.cls_batch import SharedGeometry
-from estimators.cls_rows import LocalFrame
-from estimators.sdp_cls import SdpCls
+import estimators.sdp.sdp_cls as sdp_cls
+import estimators.sdp.sdp_lift as sdp_lift
+import estimators.sdp.sdp_solvers as sdp_solvers
+from estimators.closed_form.cls import Cls, cls_rows
+from estimators.closed_form.cls_batch import SharedGeometry
+from estimators.closed_form.cls_rows import LocalFrame
+from estimators.sdp.sdp_cls import SdpCls
 from scenarios.catalog import get_scenario
 from scenarios.simulate import simulate_trials, trial_seeds
 
@@ -111,10 +111,10 @@ def cvxpy_estimate(data) -> tuple[float, float]:
     """One estimate through a plain cvxpy transcription: the wall time and Clarabel's own time.
 
     Both stages of ``SdpCls()`` (weighted rows, stage 2 weighted at the first stage-1
-    point): the rows of :func:`estimators.cls.cls_rows`, the same compression and whitening,
-    then a new ``cvxpy.Problem`` over a symmetric 4×4 ``W`` with ``W ⪰ 0``, ``W₄₄ = 1`` and
-    ``tr(C W) = 0``, solved by Clarabel at the tight rung's settings, and the recovery of
-    :mod:`estimators.sdp_lift`. The position is not kept: only the times are compared.
+    point): the rows of :func:`estimators.closed_form.cls.cls_rows`, the same compression and
+    whitening, then a new ``cvxpy.Problem`` over a symmetric 4×4 ``W`` with ``W ⪰ 0``, ``W₄₄ = 1``
+    and ``tr(C W) = 0``, solved by Clarabel at the tight rung's settings, and the recovery of
+    :mod:`estimators.sdp.sdp_lift`. The position is not kept: only the times are compared.
     """
     import cvxpy as cp
 

@@ -27,8 +27,8 @@ import time
 
 import numpy as np
 
-from estimators.ekf import Ekf
-from estimators.gtsam_smoother import GtsamSmoother
+from estimators.sequential.ekf import Ekf
+from estimators.sequential.gtsam_smoother import GtsamSmoother
 from scenarios.catalog import get_scenario
 from scenarios.simulate import simulate
 from scenarios.types import MeasurementSet

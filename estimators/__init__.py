@@ -6,6 +6,7 @@ Look them up with :func:`make_estimator`; plug-ins register under the entry-poin
 ``emitterbench.estimators``.
 """
 
+from estimators import moved
 from estimators.base import (
     BatchEstimator,
     Estimate,
@@ -14,6 +15,8 @@ from estimators.base import (
     finalize_estimate,
 )
 from estimators.registry import all_entries, estimator_class, make_estimator
+
+moved.install()
 
 __all__ = [
     "BatchEstimator",

@@ -1,6 +1,7 @@
 """The common estimator interface and its one result type.
 
-An estimator is any object with a ``name``, the set of modalities it ``requires`` and an
+The protocols and :class:`Capabilities` are defined in :mod:`estimators.interface` and
+importable from here. An estimator is any object with a ``name``, the set of modalities it ``requires`` and an
 ``estimate(data, *, rng=None)`` method returning an :class:`Estimate`. No inheritance is
 needed (a ``typing.Protocol``, as optax does). It declares what the comparison needs to know
 in ``capabilities() -> Capabilities`` (the modalities and frames it uses, the modules it needs,
@@ -41,18 +42,23 @@ Two rules hold for every estimator, built-in or plug-in, in one place each:
 from __future__ import annotations
 
 import dataclasses
-import inspect
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Protocol, TypeVar, runtime_checkable
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from estimators.interface import BatchEstimator as BatchEstimator
+from estimators.interface import Capabilities as Capabilities
+from estimators.interface import Estimator, capabilities_of
+from estimators.interface import SequentialEstimator as SequentialEstimator
+from estimators.interface import protocol_problems as protocol_problems
+from estimators.registry import estimators_handling
 from estimators.validity import invalid_estimates, numeric_array, real_part, refused_message
 from scenarios.fields import vector_text
 from scenarios.geometry import TrackSoFar, moves_horizontally, single_horizontal_point
-from scenarios.nuisance import describe_unknowns, parse_unknowns, unknowns_used
+from scenarios.nuisance import describe_unknowns, unknowns_used
 from scenarios.types import MEASURED_FIELD, MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -174,206 +180,6 @@ class Estimate:
             "message": self.message,
             "diagnostics": {key: clean(value) for key, value in self.diagnostics.items()},
         }
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Capabilities:
-    """What an estimator uses and claims, declared by the estimator (``capabilities()``).
-
-    The comparison reads only this to score an estimator against the right bound (the CRLB of
-    the modalities and frames it uses, MATH §8), to check what it needs is installed and to
-    feed it batches or frames; the conformance suite (:mod:`estimators.checks`) checks every
-    field against what the estimator does.
-
-    Attributes
-    ----------
-    modalities : frozenset of {"doppler", "toa", "rss"}
-        Every modality the estimate depends on: the required ones (``requires``) and the
-        optional ones it uses when they are present (e.g. ``ml(use_rss=True)`` adds ``rss``).
-    frames : "all", "last" or tuple of int
-        The frames of the data it uses: every frame so far, only the last, or those listed.
-    modules : tuple of str
-        Importable modules it needs (``("gtsam",)``); checked before a run starts.
-    batch : bool
-        It has ``estimate_batch(batch, *, rngs)`` (:class:`BatchEstimator`).
-    sequential : bool
-        It has ``init``, ``update`` and ``estimate_state`` (:class:`SequentialEstimator`).
-    unit_invariant : bool
-        It claims the same answer, scaled, in any consistent unit system (MATH §6).
-    noise_free_tolerance_m : float
-        Distance from the emitter within which its noise-free candidates are exact; looser
-        than the suite's default only with a ``tolerance_reason`` and within the suite's cap.
-    tolerance_reason : str
-        Why the tolerance is looser than the default (an iterative stop, a grid).
-    unknowns : frozenset of {"carrier_offset_hz", "emission_time_s"}
-        The nuisance parameters of a non-cooperative emitter it estimates alongside the
-        emitter (MATH §15). Data declaring an unknown it does not handle, in a modality it
-        uses, are refused (:func:`require_modalities`).
-    """
-
-    modalities: frozenset[str]
-    frames: str | tuple[int, ...] = "all"
-    modules: tuple[str, ...] = ()
-    batch: bool = False
-    sequential: bool = False
-    unit_invariant: bool = False
-    noise_free_tolerance_m: float = 1e-6
-    tolerance_reason: str = ""
-    unknowns: frozenset[str] = frozenset()
-
-    def __post_init__(self) -> None:
-        from scenarios.types import MODALITIES
-
-        object.__setattr__(self, "unknowns", frozenset(parse_unknowns(self.unknowns)))
-
-        modalities = frozenset(self.modalities)
-        unknown = sorted(modalities - set(MODALITIES))
-        if unknown or not modalities:
-            raise ValueError(
-                f"modalities: expected a non-empty subset of {sorted(MODALITIES)}, got "
-                f"{sorted(modalities)}"
-            )
-        object.__setattr__(self, "modalities", modalities)
-        frames = self.frames
-        if isinstance(frames, str):
-            if frames not in ("all", "last"):
-                raise ValueError(f"frames: expected 'all', 'last' or frame indices, got {frames!r}")
-        else:
-            object.__setattr__(self, "frames", tuple(int(f) for f in frames))
-        object.__setattr__(self, "modules", tuple(str(m) for m in self.modules))
-        if not (self.noise_free_tolerance_m > 0 and np.isfinite(self.noise_free_tolerance_m)):
-            raise ValueError(
-                f"noise_free_tolerance_m: must be a positive finite distance in metres, got "
-                f"{self.noise_free_tolerance_m!r}"
-            )
-
-
-def capabilities_of(estimator: Any) -> Capabilities:
-    """The estimator's declared :class:`Capabilities`.
-
-    An estimator without a ``capabilities()`` method is taken at its protocol: it uses exactly
-    its ``requires``, every frame, the modules of its class attribute ``required_modules``
-    (default none), and it is batch or sequential when it has those methods. Nothing is
-    inferred from option names.
-    """
-    declare = getattr(estimator, "capabilities", None)
-    if callable(declare):
-        declared = declare()
-        if not isinstance(declared, Capabilities):
-            raise TypeError(
-                f"capabilities: {type(estimator).__name__}.capabilities() returned "
-                f"{type(declared).__name__}; return an estimators.base.Capabilities"
-            )
-        return declared
-    return Capabilities(
-        modalities=frozenset(getattr(estimator, "requires", ())),
-        modules=tuple(getattr(type(estimator), "required_modules", ())),
-        batch=callable(getattr(estimator, "estimate_batch", None)),
-        sequential=all(
-            callable(getattr(estimator, m, None)) for m in ("init", "update", "estimate_state")
-        ),
-    )
-
-
-def _takes_keyword(method: Any, keyword: str) -> bool:
-    try:
-        parameters = inspect.signature(method).parameters
-    except (TypeError, ValueError):
-        return False
-    return keyword in parameters or any(
-        p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values()
-    )
-
-
-def protocol_problems(estimator: Any) -> list[str]:
-    """What an object lacks to be used as an estimator by the comparison (empty: nothing).
-
-    ``estimate(data, *, rng)`` (and ``estimate_state(state, *, rng)``,
-    ``estimate_batch(batch, *, rngs)`` when declared) must take the generator the runner
-    passes for tie-breaking (MATH §7); ``capabilities()`` must return :class:`Capabilities`.
-    """
-    problems = []
-    for attribute in ("name", "requires"):
-        if not hasattr(type(estimator), attribute):
-            problems.append(f"the class attribute {attribute} is missing")
-    if not callable(getattr(estimator, "estimate", None)):
-        return [*problems, "estimate(data, *, rng=None) is missing"]
-    if not _takes_keyword(estimator.estimate, "rng"):
-        problems.append("estimate must take the keyword rng (a numpy Generator or None)")
-    try:
-        capabilities = capabilities_of(estimator)
-    except (TypeError, ValueError) as error:
-        return [*problems, str(error)]
-    if capabilities.sequential:
-        for method in ("init", "update", "estimate_state"):
-            if not callable(getattr(estimator, method, None)):
-                problems.append(f"capabilities says sequential, but {method}() is missing")
-        state = getattr(estimator, "estimate_state", None)
-        if callable(state) and not _takes_keyword(state, "rng"):
-            problems.append("estimate_state must take the keyword rng")
-    if capabilities.batch:
-        batch = getattr(estimator, "estimate_batch", None)
-        if not callable(batch):
-            problems.append("capabilities says batch, but estimate_batch() is missing")
-        elif not _takes_keyword(batch, "rngs"):
-            problems.append("estimate_batch must take the keyword rngs")
-    return problems
-
-
-@runtime_checkable
-class Estimator(Protocol):
-    """Locates the emitter from one :class:`~scenarios.types.MeasurementSet`.
-
-    ``rng`` breaks exact ties between equal-cost candidates (MATH §7) and drives any
-    randomised method; the runner passes one generator per trial.
-    """
-
-    name: ClassVar[str]
-    requires: ClassVar[frozenset[str]]
-
-    def estimate(
-        self, data: MeasurementSet, *, rng: np.random.Generator | None = None
-    ) -> Estimate: ...
-
-
-@runtime_checkable
-class BatchEstimator(Estimator, Protocol):
-    """An estimator that is faster on a whole batch of Monte Carlo trials at once.
-
-    Trial ``i`` of ``estimate_batch(batch, rngs=rngs)`` must equal
-    ``estimate(batch.trial(i), rng=rngs[i])``, tie-break included, and must not depend on the
-    other trials of the batch. The built-ins equal it to rounding, at a tolerance from the
-    problem's conditioning (``estimate`` of the closed forms is their batch of one, ``ml``'s
-    batch performs MINPACK's operations in MINPACK's order, ``sdp-cls`` solves each trial
-    alone; a batch of one and a batch of many, or two CPUs, may still round a sum otherwise),
-    so a run's rows depend on its chunking or on a fallback to one call per trial only in
-    their last digits, a plug-in's as the built-ins'. An estimator may also offer
-    ``estimate_columns(batch, *, rngs)`` returning :class:`estimators.batch.BatchEstimates`:
-    the same results as columns (one array per field, diagnostics as arrays, messages as
-    codes), with no object per trial; the engine stores those directly.
-    """
-
-    def estimate_batch(
-        self, batch: MeasurementBatch, *, rngs: list[np.random.Generator] | None = None
-    ) -> list[Estimate]: ...
-
-
-@runtime_checkable
-class SequentialEstimator(Estimator, Protocol[State]):
-    """An estimator fed one frame at a time, as a pure ``init``/``update`` pair.
-
-    ``estimate_state`` has no data: it finishes with :func:`finalize_from_track` on the
-    :class:`~scenarios.geometry.TrackSoFar` the state keeps (the mirror rule of MATH §7, as
-    :func:`finalize_estimate` applies it to data).
-    """
-
-    def init(self) -> State: ...
-
-    def update(self, state: State, frame: MeasurementSet) -> State: ...
-
-    def estimate_state(
-        self, state: State, *, rng: np.random.Generator | None = None
-    ) -> Estimate: ...
 
 
 # --------------------------------------------------------------------------------------------
@@ -508,8 +314,6 @@ def unknowns_problem(
     missing = [name for name in needed if name not in handled]
     if not missing:
         return None
-    from estimators.registry import estimators_handling  # the registry imports this module
-
     able = estimators_handling(missing)
     use = f"use {', '.join(repr(name) for name in able)}, or " if able else ""
     them = "it" if len(missing) == 1 else "them"
@@ -560,7 +364,8 @@ def choose_candidate(
     nearest to ``side_prior_m`` when one is given; otherwise an exact tie is broken by ``rng``
     (a fair coin, ``rng.integers(len(kept))``: the data hold no side information) or, without
     one, by the lowest cost. The one rule behind :func:`choose_position` and the filters'
-    choice among their hypotheses (:func:`estimators.mirror_hypotheses.hypotheses_estimate`).
+    choice among their hypotheses
+    (:func:`estimators.sequential.mirror_hypotheses.hypotheses_estimate`).
     """
     check_rng(rng)
     points = np.asarray(candidates_m, dtype=float).reshape(-1, 2)

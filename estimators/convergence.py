@@ -1,7 +1,8 @@
 r"""Iterated updates of one frame and when they count as converged (no silent divergence).
 
-The frame-by-frame estimators (:mod:`estimators.ekf`, :mod:`estimators.gtsam_smoother`) and
-:mod:`estimators.ml` solve for the posterior mode of one frame's whitened model
+The frame-by-frame estimators (:mod:`estimators.sequential.ekf`,
+:mod:`estimators.sequential.gtsam_smoother`) and
+:mod:`estimators.ml.ml` solve for the posterior mode of one frame's whitened model
 (:class:`~estimators.frame_model.FrameModel`) given a Gaussian prior in information form
 (:func:`iterated_update`), and report how the solve ended (:class:`SolverReport`).
 

@@ -1,5 +1,5 @@
 r"""One frame's stacked, whitened measurement model (MATH §1, §8, §10), shared by the frame-by-frame
-estimators (:mod:`estimators.ekf`, :mod:`estimators.gtsam_smoother`).
+estimators (:mod:`estimators.sequential.ekf`, :mod:`estimators.sequential.gtsam_smoother`).
 
 A frame of K samples gives ``m = 2K`` measurements ``z = [f_1..f_K, r_1..r_K]``, Doppler in Hz
 (physical sign) and ToA as range ``r_k = c τ_k`` in metres with ``σ_r = c σ_τ``. Its whitened

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from importlib.metadata import entry_points
 from typing import Any
 
-from estimators.base import Estimator, capabilities_of, protocol_problems
+from estimators.interface import Estimator, capabilities_of, protocol_problems
 from scenarios.planners.registry import check_options, checked_class, import_target, method_takes
 from scenarios.types import MODALITIES
 
@@ -79,41 +79,47 @@ BUILTIN: dict[str, RegistryEntry] = {
     for entry in (
         RegistryEntry(
             "cls",
-            "estimators.cls:Cls",
+            "estimators.closed_form.cls:Cls",
             "corrected closed-form Doppler-ToA CLS, weighted (MATH §3-§6)",
         ),
         RegistryEntry(
-            "cls-paper", "estimators.cls:ClsPaper", "paper's unweighted CLS with errata fixed"
+            "cls-paper",
+            "estimators.closed_form.cls:ClsPaper",
+            "paper's unweighted CLS with errata fixed",
         ),
         RegistryEntry(
             "cls-as-printed",
-            "estimators.cls:ClsAsPrinted",
+            "estimators.closed_form.cls:ClsAsPrinted",
             "paper's CLS as printed (wrong: no height term)",
         ),
         RegistryEntry(
-            "lls-toa", "estimators.lls:LlsToa", "conventional linear LS on squared ranges (MATH §9)"
+            "lls-toa",
+            "estimators.baselines.lls:LlsToa",
+            "conventional linear LS on squared ranges (MATH §9)",
         ),
         RegistryEntry(
-            "lls-rss", "estimators.lls:LlsRss", "So & Lin linear LS on RSS distances (MATH §9)"
+            "lls-rss",
+            "estimators.baselines.lls:LlsRss",
+            "So & Lin linear LS on RSS distances (MATH §9)",
         ),
         RegistryEntry(
             "sdp-cls",
-            "estimators.sdp_cls:SdpCls",
+            "estimators.sdp.sdp_cls:SdpCls",
             "Shor SDP relaxation of the CLS, cvxpy + Clarabel (MATH §11)",
         ),
         RegistryEntry(
             "ekf",
-            "estimators.ekf:Ekf",
+            "estimators.sequential.ekf:Ekf",
             "iterated EKF (or UKF) over frames, one filter per mirror hypothesis (MATH §7-§8)",
         ),
         RegistryEntry(
             "gtsam-smoother",
-            "estimators.gtsam_smoother:GtsamSmoother",
+            "estimators.sequential.gtsam_smoother:GtsamSmoother",
             "GTSAM factor-graph smoother: LM in batch, ISAM2 streaming, mirror hypotheses",
         ),
         RegistryEntry(
             "ml",
-            "estimators.ml:MaximumLikelihood",
+            "estimators.ml.ml:MaximumLikelihood",
             "maximum likelihood, Gauss-Newton from the CLS candidates (MATH §10)",
         ),
     )

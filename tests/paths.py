@@ -31,8 +31,9 @@ each quantity differs by at most ``SAFETY · κ · EPS`` times its scale:
   335 km out 1500 ``EPS · L`` apart between paths, where its measured ``κ`` is 57). It is
   measured only for a pair further apart than ``SAFETY · EPS · L`` (``κ = 1``), and never
   below one. A batch path that bounds its own rounding and leaves to the one-trial path
-  every trial it cannot certify (the closed forms' :data:`estimators.gtrs_batch.POSITION_RTOL`
-  of the local unit) agrees within that certified bound too.
+  every trial it cannot certify (the closed forms'
+  :data:`estimators.closed_form.gtrs_batch.POSITION_RTOL` of the local unit) agrees within that
+  certified bound too.
 - a number derived from those (an error, a NEES, a cost, a multiplier): the same
   ``SAFETY · κ · EPS`` of the scale of what it is made of (stated where it is compared). A
   trial row (:func:`row_problems`) takes ``κ`` from its covariance, or without one from the
@@ -65,7 +66,7 @@ import pandas as pd
 from numpy.typing import ArrayLike
 
 from estimators.base import Estimate
-from estimators.cls_rows import LocalFrame
+from estimators.closed_form.cls_rows import LocalFrame
 from scenarios.fisher import fisher_information
 from scenarios.types import MeasurementSet
 

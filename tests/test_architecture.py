@@ -313,7 +313,7 @@ def test_two_code_paths_are_compared_through_the_rule() -> None:
 BROKEN_TESTS = """
 import numpy as np
 import pytest
-from estimators.ml import MaximumLikelihood
+from estimators.ml.ml import MaximumLikelihood
 from tests.estimators.batch_support import path_problems
 
 def test_batch_to_the_bit(batch):
@@ -388,3 +388,148 @@ def test_no_test_reads_a_clock() -> None:
         if (lines := clock_reads(tree))
     }
     assert not found, f"tests that read a clock (module: lines): {found}"
+
+
+# --------------------------------------------------------------------------------------------
+# estimators/: a folder per family, a small shared core, no module circles
+# --------------------------------------------------------------------------------------------
+
+ESTIMATOR_CORE = frozenset(
+    {
+        "__init__",
+        "base",
+        "batch",
+        "convergence",
+        "frame_model",
+        "goodness_of_fit",
+        "interface",
+        "moved",
+        "registry",
+        "validity",
+    }
+)
+"""The modules shared by every family, directly in ``estimators/`` (docs/architecture.md)."""
+
+ESTIMATOR_FAMILIES = frozenset({"baselines", "checks", "closed_form", "ml", "sdp", "sequential"})
+"""The folders of ``estimators/``: one per family of methods, and the conformance suite."""
+
+
+def test_estimators_are_a_core_and_a_folder_per_family() -> None:
+    top = {path.stem for path in (ROOT / "estimators").glob("*.py")}
+    folders = {
+        path.name
+        for path in (ROOT / "estimators").iterdir()
+        if path.is_dir() and (path / "__init__.py").exists()
+    }
+    assert top == ESTIMATOR_CORE, (
+        f"estimators/ holds modules outside the core: {top ^ ESTIMATOR_CORE}"
+    )
+    assert folders == ESTIMATOR_FAMILIES, (
+        f"unexpected family folders: {folders ^ ESTIMATOR_FAMILIES}"
+    )
+
+
+def test_every_family_states_its_public_api_and_reference() -> None:
+    for family in sorted(ESTIMATOR_FAMILIES - {"checks"}):
+        init = ast.parse((ROOT / "estimators" / family / "__init__.py").read_text("utf-8"))
+        exported = next(
+            (
+                node.value
+                for node in init.body
+                if isinstance(node, ast.Assign)
+                and any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets)
+            ),
+            None,
+        )
+        assert ast.get_docstring(init), f"estimators/{family}/__init__.py has no docstring"
+        assert isinstance(exported, ast.List) and exported.elts, f"{family} exports nothing"
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _runtime_imports(tree: ast.Module) -> list[ast.Import | ast.ImportFrom]:
+    """Every import of a module at any depth, except under ``if TYPE_CHECKING:``."""
+    found: list[ast.Import | ast.ImportFrom] = []
+    stack: list[ast.AST] = [tree]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            stack += node.orelse
+            continue
+        if isinstance(node, ast.Import | ast.ImportFrom):
+            found.append(node)
+        stack += ast.iter_child_nodes(node)
+    return found
+
+
+def import_graph() -> dict[str, set[str]]:
+    """Project module → the project modules it imports (``from package import module`` is an
+    edge to the module, not to the package's ``__init__``)."""
+    paths = {_module_name(path): path for package in PACKAGES for path in modules(package)}
+    graph: dict[str, set[str]] = {}
+    for name, path in paths.items():
+        edges = set()
+        for node in _runtime_imports(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                edges |= {alias.name for alias in node.names if alias.name in paths}
+            elif node.level == 0 and node.module in paths:
+                for alias in node.names:
+                    sub = f"{node.module}.{alias.name}"
+                    edges.add(sub if sub in paths else node.module)
+        graph[name] = edges - {name}
+    return graph
+
+
+def module_circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan, iteratively)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    circles = []
+    for root in sorted(graph):
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            node, children = work[-1]
+            child = next(children, None)
+            if child is not None:
+                if child not in index:
+                    index[child] = low[child] = len(index)
+                    stack.append(child)
+                    on_stack.add(child)
+                    work.append((child, iter(sorted(graph[child]))))
+                elif child in on_stack:
+                    low[node] = min(low[node], index[child])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                component = []
+                while True:
+                    member = stack.pop()
+                    on_stack.discard(member)
+                    component.append(member)
+                    if member == node:
+                        break
+                if len(component) > 1:
+                    circles.append(sorted(component))
+    return circles
+
+
+def test_module_circles_are_found() -> None:
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}, "e": set()}
+    assert module_circles(graph) == [["a", "b", "c"]]
+
+
+def test_no_module_circles() -> None:
+    circles = module_circles(import_graph())
+    assert not circles, f"modules that import each other, directly or around a circle: {circles}"

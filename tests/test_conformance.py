@@ -29,7 +29,7 @@ from estimators.checks import (
     parametrize_with_checks,
     run_checks,
 )
-from estimators.cls import Cls
+from estimators.closed_form.cls import Cls
 from estimators.registry import BUILTIN, make_estimator
 from scenarios import measurement_model as model
 from scenarios.fisher import fisher_information

@@ -98,7 +98,7 @@ def times_its_tolerance_unweighted() -> float:
         on_track_start_data,
         whitened_misfit,
     )
-    from estimators.cls import Cls
+    from estimators.closed_form.cls import Cls
 
     estimator = Cls(weighting="none")
     data, exact, truth = on_track_start_data()

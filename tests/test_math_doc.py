@@ -127,7 +127,7 @@ def test_the_printed_rows_put_the_paper_emitter_at_52_2() -> None:
 
 def test_the_printed_doppler_line_vanishes_flying_north() -> None:
     """§3: the first row of the rank-one system is all zeros when v_x = 0."""
-    from estimators.cls_rows import doppler_rows_as_printed
+    from estimators.closed_form.cls_rows import doppler_rows_as_printed
 
     K = 10
     position = np.column_stack([np.zeros(K), 0.5 * np.arange(K), np.full(K, 50.0)])
@@ -141,7 +141,7 @@ def test_the_printed_doppler_line_vanishes_flying_north() -> None:
 
 def test_one_straight_frame_is_the_hard_case_with_two_minimisers() -> None:
     """§5: rank B⁺ = 2, λ* = 0 and the emitter and its mirror at equal cost."""
-    from estimators.cls import solve_doppler_toa_cls
+    from estimators.closed_form.cls import solve_doppler_toa_cls
     from scenarios import get_scenario, noise_free, simulate
 
     scenario = get_scenario("paper-1m")

@@ -25,8 +25,8 @@ from estimators.base import (
     require_modalities,
 )
 from estimators.checks import check_estimator, reference_data
-from estimators.cls_rows import LocalFrame, toa_rows
-from estimators.gtrs import solve_gtrs
+from estimators.closed_form.cls_rows import LocalFrame, toa_rows
+from estimators.closed_form.gtrs import solve_gtrs
 from scenarios import get_scenario, simulate
 from scenarios.geometry import StraightTrack, TrackSoFar
 from scenarios.types import MeasurementSet

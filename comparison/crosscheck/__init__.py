@@ -1,8 +1,8 @@
 """Cross-check the closed-form CLS against its SDP relaxation on seeded instances (MATH §5, §11).
 
-The SDP relaxation (:func:`estimators.sdp_cls.solve_sdp_relaxation`) is an independent witness
-for the closed form (:func:`estimators.gtrs.solve_gtrs`): on the same stacked rows its optimal
-value must equal the closed form's on every instance, and its argmin must equal the closed
+The SDP relaxation (:func:`estimators.sdp.sdp_cls.solve_sdp_relaxation`) is an independent witness
+for the closed form (:func:`estimators.closed_form.gtrs.solve_gtrs`): on the same stacked rows its
+optimal value must equal the closed form's on every instance, and its argmin must equal the closed
 form's minimiser when that is unique; in the hard case (MATH §5) the mirror pair recovered from
 the rank-two lift must equal the closed form's pair. Where they part, the report says why, with
 the instance's own seed so :func:`replay` can re-run it verbosely.
@@ -21,15 +21,15 @@ Families of instances (each drawn from its own ``SeedSequence``):
     random SNR (MATH §2), weighted rows.
 
 Length scale: every distance is also given relative to the problem's length scale, the
-:class:`~estimators.cls_rows.LocalFrame` scale (RMS of the track spread and the ranges).
+:class:`~estimators.closed_form.cls_rows.LocalFrame` scale (RMS of the track spread and the ranges).
 
 Another closed form (``run_validation(estimator=...)``, ``emitterbench validate --estimator
 NAME``). An estimator that exposes the constrained least squares it minimises,
-``constrained_ls(data) -> ConstrainedLS`` (:mod:`estimators.constrained_ls`), is run on every
-instance's measurements (the same geometry and noise draws). Its own rows replace the family's:
-the closed form and the SDP are compared on them as above, and every candidate the estimator
-returns is lifted onto the paraboloid and must attain the closed-form optimum (relative cost
-gap ``<= rtol_objective``, within ``rtol_argmin`` of the length scale of a closed-form
+``constrained_ls(data) -> ConstrainedLS`` (:mod:`estimators.closed_form.constrained_ls`), is run on
+every instance's measurements (the same geometry and noise draws). Its own rows replace the
+family's: the closed form and the SDP are compared on them as above, and every candidate the
+estimator returns is lifted onto the paraboloid and must attain the closed-form optimum (relative
+cost gap ``<= rtol_objective``, within ``rtol_argmin`` of the length scale of a closed-form
 minimiser), and every closed-form minimiser must be among its candidates (both mirror images in
 the hard case, MATH §5). A disagreement is replayed with ``--replay SEED --families F
 --estimator NAME``.
@@ -71,13 +71,11 @@ from comparison.crosscheck.reports import (
     markdown_report,
     write_reports,
 )
+from comparison.crosscheck.result import FamilySummary, ValidationResult, replay_command
 from comparison.crosscheck.run import (
     MULTIPLIER_ZERO_RTOL,
-    FamilySummary,
     Progress,
-    ValidationResult,
     estimator_cli_args,
-    replay_command,
     run_validation,
     summarise_family,
 )

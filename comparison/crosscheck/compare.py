@@ -11,9 +11,9 @@ import numpy as np
 
 from comparison.crosscheck.instances import FloatArray, ValidationInstance
 from estimators.base import Estimate
-from estimators.constrained_ls import PROTOCOL_METHOD, ConstrainedLS
-from estimators.gtrs import GtrsSolution, constrained_cost, solve_gtrs
-from estimators.sdp_cls import SdpSolution, solve_sdp_relaxation
+from estimators.closed_form.constrained_ls import PROTOCOL_METHOD, ConstrainedLS
+from estimators.closed_form.gtrs import GtrsSolution, constrained_cost, solve_gtrs
+from estimators.sdp.sdp_cls import SdpSolution, solve_sdp_relaxation
 
 NOT_RUN = "not_run"
 """Status of an instance on which the estimator raised: no rows, no SDP."""
@@ -233,8 +233,8 @@ def check_protocol(estimator: Any) -> None:
         raise ValueError(
             f"estimator: {estimator_label(estimator)!r} ({where}) does not expose the constrained "
             f"least squares it minimises; add a method {PROTOCOL_METHOD}(self, data) returning "
-            "an estimators.constrained_ls.ConstrainedLS (the rows A, b and their local frame "
-            "whose minimisers estimate(data) returns; see docs/writing-an-estimator.md)"
+            "an estimators.closed_form.constrained_ls.ConstrainedLS (the rows A, b and their local "
+            "frame whose minimisers estimate(data) returns; see docs/writing-an-estimator.md)"
         )
     requires = frozenset(getattr(estimator, "requires", ()))
     extra = sorted(requires - {"doppler", "toa"})
@@ -374,7 +374,8 @@ def validate_estimator_instance(
     The closed form and the SDP are compared on the returned rows as in
     :func:`validate_instance`, and the candidates as in :func:`check_candidates`. An exception
     raised by the estimator is recorded as a disagreement; ``constrained_ls`` returning
-    anything but a :class:`~estimators.constrained_ls.ConstrainedLS` raises ``ValueError``.
+    anything but a :class:`~estimators.closed_form.constrained_ls.ConstrainedLS` raises
+    ``ValueError``.
     """
     data = instance.data.without_truth()
     try:
@@ -388,7 +389,8 @@ def validate_estimator_instance(
     if not isinstance(problem, ConstrainedLS):
         raise ValueError(
             f"estimator: {estimator_label(estimator)!r}.{PROTOCOL_METHOD}(data) returned "
-            f"{type(problem).__name__}; return an estimators.constrained_ls.ConstrainedLS"
+            f"{type(problem).__name__}; return an "
+            "estimators.closed_form.constrained_ls.ConstrainedLS"
         )
     on_rows = replace(
         instance,

@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from estimators.cls import Rows, cls_rows
-from estimators.cls_rows import LocalFrame
+from estimators.closed_form.cls import Rows, cls_rows
+from estimators.closed_form.cls_rows import LocalFrame
 from scenarios.catalog import heading_velocities_mps, paper_scenario
 from scenarios.simulate import simulate
 from scenarios.types import FlightPlan, MeasurementSet, NoiseSigmas, Scenario

@@ -16,7 +16,8 @@ from comparison.crosscheck.compare import (
     validate_instance,
 )
 from comparison.crosscheck.instances import FloatArray, make_instance
-from comparison.crosscheck.run import estimator_cli_args, json_clean
+from comparison.crosscheck.result import json_clean
+from comparison.crosscheck.run import estimator_cli_args
 
 
 def _matrix_text(matrix: FloatArray) -> str:

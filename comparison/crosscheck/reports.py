@@ -9,12 +9,11 @@ import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from comparison.crosscheck.run import ValidationResult
+from comparison.crosscheck.result import ValidationResult
 
 _COLUMNS = (
     ("family", "family"),

@@ -8,8 +8,8 @@ import os
 import sys
 from typing import ClassVar
 
-from estimators.cls import Cls
-from estimators.ekf import Ekf
+from estimators.closed_form.cls import Cls
+from estimators.sequential.ekf import Ekf
 
 
 @dataclasses.dataclass(frozen=True)

@@ -499,7 +499,7 @@ class Held:
     gate: str = ""
 
     def estimate(self, data, *, rng=None):
-        from estimators.cls import Cls
+        from estimators.closed_form.cls import Cls
 
         held = bool(os.environ.get(HELD_RUN)) and os.path.exists(self.gate)
         if held:
@@ -519,7 +519,7 @@ class Noisy:
     def estimate(self, data, *, rng=None):
         import warnings
 
-        from estimators.cls import Cls
+        from estimators.closed_form.cls import Cls
 
         np.ones(1) / np.zeros(1)
         warnings.warn("first line\nsecond line", UserWarning, stacklevel=1)

@@ -1,6 +1,7 @@
 """Tests of comparison.closed_loop and of closed-loop experiments in the engine (MATH §12-§13).
 
-The plug-ins at the top are referred to by experiments as ``tests.comparison.test_closed_loop:Name``.
+The plug-ins at the top are referred to by experiments as
+``tests.comparison.test_closed_loop:Name``.
 """
 
 import dataclasses
@@ -20,7 +21,7 @@ from comparison.store import read_flights, read_trials
 from comparison.tasks import tie_rng
 from comparison.trial_rows import FLIGHT_COLUMNS
 from estimators.base import Estimate
-from estimators.cls import Cls
+from estimators.closed_form.cls import Cls
 from estimators.registry import make_estimator
 from scenarios.catalog import get_scenario
 from scenarios.planners import get_planner

@@ -24,7 +24,7 @@ from comparison.specs import EstimatorSpec
 from comparison.tasks import Task, run_task, tie_rng, trial_seed
 from comparison.trial_rows import ESTIMATE_COLUMNS
 from estimators.base import Capabilities
-from estimators.cls import Cls
+from estimators.closed_form.cls import Cls
 from scenarios.catalog import get_scenario
 from scenarios.simulate import noise_free, simulate_trials
 from scenarios.types import MeasurementBatch

@@ -31,9 +31,9 @@ from comparison.store import read_points, read_trials
 from comparison.tasks import tie_rng, trial_seed
 from comparison.trial_rows import TRIAL_COLUMNS
 from estimators.base import Capabilities, Estimate
-from estimators.cls import Cls
+from estimators.closed_form.cls import Cls
 from estimators.goodness_of_fit import FIT_KEYS
-from estimators.ml import MaximumLikelihood
+from estimators.ml.ml import MaximumLikelihood
 from estimators.registry import make_estimator
 from scenarios.catalog import get_scenario
 from scenarios.simulate import noise_free, simulate_trials, trial_seeds

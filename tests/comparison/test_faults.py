@@ -23,7 +23,7 @@ from comparison.experiment import Experiment, load_experiment
 from comparison.specs import EstimatorSpec
 from comparison.tasks import Task, tie_rng
 from comparison.trial_rows import ESTIMATE_COLUMNS
-from estimators.cls import Cls
+from estimators.closed_form.cls import Cls
 from scenarios.catalog import get_scenario
 
 HERE = "tests.comparison.test_faults"

@@ -28,7 +28,7 @@ from comparison.report import write_report
 from comparison.report_figures import report_figures
 from comparison.run_folder import write_csv
 from comparison.store import read_trials
-from estimators.cls import Cls
+from estimators.closed_form.cls import Cls
 from tests.comparison.cli_support import clean_error, invoke
 from tests.comparison.test_report import synthetic_run
 

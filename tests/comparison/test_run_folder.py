@@ -41,7 +41,7 @@ from comparison.run_folder import (
     write_experiment,
 )
 from comparison.store import read_trials
-from estimators.cls import Cls
+from estimators.closed_form.cls import Cls
 from tests.comparison.cli_support import clean_error, invoke
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -445,7 +445,7 @@ def test_the_digest_covers_a_plugins_package_without_importing_it(plugin_site, t
         f"{PLUGIN_PACKAGE}/{name}": hashlib.sha256((plugin_site / name).read_bytes()).hexdigest()
         for name in ("__init__.py", "helpers.py", "shifted.py")
     }
-    assert "comparison/run_folder.py" in files and "estimators/cls.py" in files
+    assert "comparison/run_folder.py" in files and "estimators/closed_form/cls.py" in files
     assert files == code_files(experiment)
     assert not set(files) - set(mine) - set(code_files(smoke()))  # the rest: emitterbench's
 

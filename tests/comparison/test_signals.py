@@ -58,7 +58,7 @@ class HeldAt:
     crash: bool = False
 
     def estimate(self, data, *, rng=None):
-        from estimators.cls import Cls
+        from estimators.closed_form.cls import Cls
 
         if os.environ.get(HELD_RUN):
             if data.noise.doppler_hz >= self.below_doppler_sigma_hz:

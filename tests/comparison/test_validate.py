@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-import estimators.sdp_solvers as sdp_solvers
+import estimators.sdp.sdp_solvers as sdp_solvers
 from comparison.cli import app
 from comparison.crosscheck import (
     FAMILIES,
@@ -24,8 +24,8 @@ from comparison.crosscheck import (
     validate_instance,
 )
 from estimators.base import finalize_estimate, require_modalities
-from estimators.cls import Cls, ClsAsPrinted, ClsPaper
-from estimators.gtrs import solve_gtrs
+from estimators.closed_form.cls import Cls, ClsAsPrinted, ClsPaper
+from estimators.closed_form.gtrs import solve_gtrs
 from estimators.registry import make_estimator
 
 

@@ -23,7 +23,7 @@ from comparison.engine import read_trials, run_experiment
 from comparison.experiment import Experiment, load_experiment
 from estimators.base import Capabilities, Estimate
 from estimators.batch import BatchEstimates
-from estimators.cls import Cls
+from estimators.closed_form.cls import Cls
 from estimators.validity import INVALID
 from scenarios.catalog import get_scenario
 from scenarios.files import write_measurements

@@ -28,6 +28,7 @@ from estimators.base import (
     finalize_estimate,
     require_modalities,
 )
+from estimators.baselines.lls import LlsRss, LlsToa
 from estimators.checks import (
     CHECK_NAMES,
     CHECK_SEED_ENV,
@@ -44,9 +45,8 @@ from estimators.checks import (
     reference_problem,
     run_checks,
 )
-from estimators.cls import Cls, ClsAsPrinted, ClsPaper
-from estimators.lls import LlsRss, LlsToa
-from estimators.ml import MaximumLikelihood
+from estimators.closed_form.cls import Cls, ClsAsPrinted, ClsPaper
+from estimators.ml.ml import MaximumLikelihood
 from estimators.registry import BUILTIN, make_estimator
 from scenarios.fisher import whitened_jacobian
 from scenarios.geometry import mirror_across_line, straight_track_line

@@ -7,7 +7,7 @@ import pytest
 
 from comparison.crlb import fisher_information, rmse_bound_m
 from estimators.checks.invariance import in_kilometres
-from estimators.cls import Cls, ClsAsPrinted, ClsPaper
+from estimators.closed_form.cls import Cls, ClsAsPrinted, ClsPaper
 from estimators.registry import make_estimator
 from scenarios.catalog import get_scenario
 from scenarios.simulate import noise_free, simulate, simulate_trials, trial_seeds
@@ -124,7 +124,7 @@ def test_paper_cls_depends_on_the_unit_system(name: str) -> None:
 def test_paper_cls_row_has_the_paper_scale() -> None:
     """On the paper's track (v = (10, 0, 0) m/s, K = 10) the projected row is ``K|v|² = 1000``
     times the unit row, i.e. exactly the paper's ``[k1, k2, 0]`` with ``k1 = Σ v_x² = 1000``."""
-    from estimators.cls_rows import paper_row_scale_m2ps2
+    from estimators.closed_form.cls_rows import paper_row_scale_m2ps2
 
     data = noise_free(get_scenario("paper-1m"))
     np.testing.assert_allclose(paper_row_scale_m2ps2(data.frame, data.velocity_mps), [1000.0])

@@ -20,12 +20,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import estimators.gtrs_batch as gtrs_batch
+import estimators.closed_form.gtrs_batch as gtrs_batch
 from estimators.base import Estimate, capabilities_of, protocol_problems
 from estimators.batch import BatchEstimates
-from estimators.cls import Cls, ClsAsPrinted, ClsPaper, _estimate
-from estimators.cls_batch import estimate_columns
-from estimators.gtrs_rounding import row_dot
+from estimators.closed_form.cls import Cls, ClsAsPrinted, ClsPaper, _estimate
+from estimators.closed_form.cls_batch import estimate_columns
+from estimators.closed_form.gtrs_rounding import row_dot
 from scenarios.catalog import get_scenario, heading_velocities_mps
 from scenarios.simulate import simulate_trials, trial_seeds
 from scenarios.types import FlightPlan, MeasurementBatch, Scenario
@@ -211,8 +211,8 @@ def test_estimate_of_a_trial_in_doubt_is_the_one_trial_solvers() -> None:
 
 
 def test_single_columns_are_summed_in_the_order_of_many() -> None:
-    """:func:`~estimators.gtrs_rounding.row_dot` sums one system by ``cumsum`` and many by an
-    outer-axis reduction: both add row after row, so a system's sums do not depend on how many
+    """:func:`~estimators.closed_form.gtrs_rounding.row_dot` sums one system by ``cumsum`` and many
+    by an outer-axis reduction: both add row after row, so a system's sums do not depend on how many
     share its batch."""
     rng = np.random.default_rng(15)
     for rows in (1, 2, 7, 8, 9, 17, 100, 1000):

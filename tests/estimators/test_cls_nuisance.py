@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from estimators.cls import solve_doppler_toa_cls
-from estimators.gtrs import solve_gtrs
+from estimators.closed_form.cls import solve_doppler_toa_cls
+from estimators.closed_form.gtrs import solve_gtrs
 from estimators.registry import make_estimator
 from scenarios import get_scenario
 from scenarios.fisher import fisher_information, rmse_bound_m
@@ -45,7 +45,7 @@ def test_the_projected_gtrs_minimises_the_cost_over_the_offset_too() -> None:
     side never goes below the projected optimum, and reaches it at the returned δ."""
     data = simulate(with_offset("turn"), snr_db=10.0, seed=4)
     solution = solve_doppler_toa_cls(data)
-    from estimators.cls import cls_rows
+    from estimators.closed_form.cls import cls_rows
 
     frame = solution.frame
     A, b = cls_rows(

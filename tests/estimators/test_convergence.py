@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from comparison.crlb import fisher_information, rmse_bound_m
-from estimators.mirror_hypotheses import single_mode
 from estimators.registry import make_estimator
+from estimators.sequential.mirror_hypotheses import single_mode
 from scenarios import get_scenario, simulate, trial_seeds
 
 pytest.importorskip("gtsam")

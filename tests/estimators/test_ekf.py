@@ -14,15 +14,15 @@ from comparison.crlb import fisher_information, rmse_bound_m
 from estimators import convergence
 from estimators.base import SequentialEstimator
 from estimators.convergence import DECREMENT_TOL, iterated_update, map_cost
-from estimators.ekf import Ekf, ekf_update
 from estimators.frame_model import FrameModel
-from estimators.mirror_hypotheses import (
+from estimators.registry import make_estimator
+from estimators.sequential.ekf import Ekf, ekf_update
+from estimators.sequential.mirror_hypotheses import (
     DIFFUSE_PRIOR_SCALE,
     diffuse_prior_information,
     first_frame_candidates,
     hypotheses_estimate,
 )
-from estimators.registry import make_estimator
 from scenarios.catalog import get_scenario, heading_velocities_mps, paper_scenario
 from scenarios.simulate import noise_free, simulate, simulate_trials, trial_seeds
 from scenarios.types import FlightPlan, MeasurementSet, Scenario
@@ -82,7 +82,8 @@ def frame_after_turn() -> tuple[FrameModel, np.ndarray, np.ndarray]:
 
 
 def test_single_pass_is_the_kalman_update() -> None:
-    """``max_iterations=1``: ``s̄ + K(z − h(s̄))``, ``K = P̄Hᵀ(HP̄Hᵀ + R)⁻¹``, ``P = (I − KH)P̄``."""
+    """``max_iterations=1``: ``s̄ + K(z − h(s̄))``, ``K = P̄Hᵀ(HP̄Hᵀ + R)⁻¹``, ``P = (I −
+    KH)P̄``."""
     frame, prior_mean, prior_covariance = frame_after_turn()
     mean, covariance, report = ekf_update(frame, prior_mean, prior_covariance, max_iterations=1)
     H = frame.jacobian(prior_mean)
@@ -146,7 +147,8 @@ def test_noise_free_covariance_is_the_accumulated_crlb() -> None:
 
 
 def test_random_walk_covariance_follows_the_information_recursion() -> None:
-    """``P_t = ((P_{t−1} + (qΔt)² I)⁻¹ + J_t)⁻¹`` with the frames' Fisher information at the truth."""
+    """``P_t = ((P_{t−1} + (qΔt)² I)⁻¹ + J_t)⁻¹`` with the frames' Fisher information at the
+    truth."""
     q = 0.2
     data = noise_free(flight_scenario(EAST_THEN_NORTH))
     frames = [FrameModel.from_measurements(f) for f in data.iter_frames()]
@@ -278,7 +280,7 @@ def test_closed_form_failure_becomes_a_failed_estimate(monkeypatch) -> None:
     def broken(self, data, *, rng=None):
         raise np.linalg.LinAlgError("singular matrix")
 
-    monkeypatch.setattr("estimators.cls.Cls.estimate", broken)
+    monkeypatch.setattr("estimators.closed_form.cls.Cls.estimate", broken)
     estimate = Ekf().estimate(noise_free(flight_scenario([0.0] * 2)))
     assert not estimate.success
     assert "closed form failed" in estimate.message

@@ -1,9 +1,10 @@
 """The EKF and the GTSAM smoother with unknown nuisance parameters (MATH §7, §8, §10, §15).
 
 A non-cooperative emitter's carrier offset δ and emission time b are carried as constant states
-(:mod:`estimators.nuisance_states`, :mod:`estimators.smoother_nuisance`): the new measurement
-functions against central differences, the starts of :mod:`estimators.nuisance_starts`, the
-noise-free answers and nuisance values, and a Monte Carlo against the nuisance CRLB of
+(:mod:`estimators.sequential.nuisance_states`, :mod:`estimators.sequential.smoother_nuisance`): the
+new measurement functions against central differences, the starts of
+:mod:`estimators.sequential.nuisance_starts`, the noise-free answers and nuisance values, and a
+Monte Carlo against the nuisance CRLB of
 :func:`scenarios.fisher.fisher_information`.
 """
 
@@ -19,20 +20,20 @@ gtsam = pytest.importorskip("gtsam")
 from gtsam.symbol_shorthand import N, X  # noqa: E402
 
 from estimators.base import require_modalities  # noqa: E402
-from estimators.ekf import Ekf  # noqa: E402
-from estimators.gtsam_smoother import GtsamSmoother  # noqa: E402
-from estimators.nuisance_graph import (  # noqa: E402
+from estimators.sequential.ekf import Ekf  # noqa: E402
+from estimators.sequential.gtsam_smoother import GtsamSmoother  # noqa: E402
+from estimators.sequential.nuisance_graph import (  # noqa: E402
     nuisance_factor,
     nuisance_fit,
     nuisance_graph,
     nuisance_values,
 )
-from estimators.nuisance_starts import (  # noqa: E402
+from estimators.sequential.nuisance_starts import (  # noqa: E402
     closed_form_point,
     profiled_errors,
     straight_frame_starts,
 )
-from estimators.nuisance_states import (  # noqa: E402
+from estimators.sequential.nuisance_states import (  # noqa: E402
     NUISANCE_UNKNOWNS,
     NuisanceFrame,
     frame_model,
@@ -108,8 +109,8 @@ def streamed(estimator, data):
 @pytest.mark.parametrize("unknowns", UNKNOWNS, ids=str)
 def test_nuisance_jacobian_and_hessian_match_central_differences(unknowns, reference) -> None:
     """``∂h/∂θ`` and ``∂²h/∂θ²`` of the state ``(x, y, δ|D, β|R)`` (module text of
-    :mod:`estimators.nuisance_states`) against central differences, after the turn, off the
-    truth; the nuisance columns are exactly 0/1."""
+    :mod:`estimators.sequential.nuisance_states`) against central differences, after the turn, off
+    the truth; the nuisance columns are exactly 0/1."""
     data = simulate(noncooperative("paper-1m-turn", unknowns), seed=4)
     model = models(data, reference)[6]
     offsets = np.array([2.0, -3.0])[: len(unknowns)]
@@ -235,8 +236,8 @@ def test_position_information_is_the_nuisance_fisher_information(reference: bool
 
 @pytest.mark.parametrize("unknowns", UNKNOWNS, ids=str)
 def test_first_frame_starts_are_exact_on_noise_free_data(unknowns) -> None:
-    """The linear rows of :mod:`estimators.nuisance_starts` give the emitter, its mirror and the
-    nuisance values exactly on one noise-free straight frame."""
+    """The linear rows of :mod:`estimators.sequential.nuisance_starts` give the emitter, its mirror
+    and the nuisance values exactly on one noise-free straight frame."""
     data = noise_free(noncooperative("paper-1m", unknowns))
     model = models(data)[0]
     np.testing.assert_allclose(closed_form_point(model), [35.0, 15.0], atol=1e-6)
@@ -356,7 +357,8 @@ def test_streaming_smoother_equals_its_batch_solve() -> None:
 def test_a_misfit_optimum_is_restarted_from_a_later_frame() -> None:
     """``turn``, δ unknown, 0 dB, trial 128: both starts of the first frame lead to a wrong
     minimum (χ² 120 for 40 measurements); the start pair of frame 1 finds the optimum near the
-    emitter (χ² 29), in batch and streaming (:func:`estimators.smoother_nuisance.rescued`)."""
+    emitter (χ² 29), in batch and streaming
+    (:func:`estimators.sequential.smoother_nuisance.rescued`)."""
     scenario = noncooperative("turn", DELTA)
     data = simulate_trials(scenario, snr_db=0.0, seeds=trial_seeds(0, 129)).trial(128)
     for estimate in (GtsamSmoother().estimate(data), streamed(GtsamSmoother(), data)[1]):

@@ -25,7 +25,7 @@ from estimators.goodness_of_fit import (
     fit_warning,
     with_fit,
 )
-from estimators.ml import MaximumLikelihood
+from estimators.ml.ml import MaximumLikelihood
 from scenarios import get_scenario, noise_free
 from scenarios.fisher import fisher_information
 from scenarios.simulate import simulate, simulate_trials, trial_seeds

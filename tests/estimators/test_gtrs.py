@@ -1,8 +1,8 @@
 """The GTRS solver of MATH §5 against a brute-force minimisation of the same quartic objective.
 
 ``constrained_cost(A, b, xy) = ‖A (x, y, x² + y²) − b‖²`` is a quartic in ``(x, y)``; its global
-minimum is found here independently of :func:`estimators.gtrs.solve_gtrs`: a grid over a disc
-that provably contains every global minimiser, then ``scipy.optimize.minimize`` (trust-exact,
+minimum is found here independently of :func:`estimators.closed_form.gtrs.solve_gtrs`: a grid over a
+disc that provably contains every global minimiser, then ``scipy.optimize.minimize`` (trust-exact,
 exact gradient and Hessian) from every local minimum of the grid.
 """
 
@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from estimators.cls import cls_rows
-from estimators.cls_rows import LocalFrame
-from estimators.gtrs import constrained_cost, solve_gtrs
+from estimators.closed_form.cls import cls_rows
+from estimators.closed_form.cls_rows import LocalFrame
+from estimators.closed_form.gtrs import constrained_cost, solve_gtrs
 from scenarios.catalog import get_scenario, heading_velocities_mps
 from scenarios.geometry import mirror_across_line, straight_track_line
 from scenarios.simulate import noise_free, simulate
@@ -290,13 +290,13 @@ def test_zero_rz_column_is_rejected() -> None:
 
 
 # --------------------------------------------------------------------------------------------
-# the batch solver (estimators.gtrs_batch) against solve_gtrs
+# the batch solver (estimators.closed_form.gtrs_batch) against solve_gtrs
 # --------------------------------------------------------------------------------------------
 
 
 def _blocks(A: np.ndarray, b: np.ndarray) -> list:
     """Systems stacked along the last axis: A (m, 3, n), b (m, n) as one row block."""
-    from estimators.gtrs_batch import RowBlock
+    from estimators.closed_form.gtrs_batch import RowBlock
 
     return [RowBlock(ax=A[:, 0], ay=A[:, 1], az=A[:, 2], b=b)]
 
@@ -329,7 +329,7 @@ def test_batch_solver_matches_solve_gtrs_on_cls_rows(rows: str, headings: int) -
     may leave a trial to the one-trial solver when its rounding bounds cannot certify a choice:
     6 of the 40 straight weighted instances (weights of 1e5 make ``M`` 1e10 while the hard-case
     screen's threshold is 1e-4), none of the others but one."""
-    from estimators.gtrs_batch import solve_gtrs_batch
+    from estimators.closed_form.gtrs_batch import solve_gtrs_batch
 
     decided = 0
     for seed in range(40):
@@ -342,7 +342,7 @@ def test_batch_solver_matches_solve_gtrs_on_cls_rows(rows: str, headings: int) -
 @pytest.mark.parametrize("rank", [2, 3])
 def test_batch_solver_matches_solve_gtrs_on_random_systems_in_one_call(rank: int) -> None:
     """500 random systems of 8 rows solved in one call; rank 2 is the hard case (MATH §5)."""
-    from estimators.gtrs_batch import solve_gtrs_batch
+    from estimators.closed_form.gtrs_batch import solve_gtrs_batch
 
     rng = np.random.default_rng(10 + rank)
     n = 500
@@ -366,7 +366,7 @@ def test_batch_solver_matches_solve_gtrs_on_random_systems_in_one_call(rank: int
 def test_batch_solver_flags_what_it_cannot_solve() -> None:
     """A zero r_z column (no ToA rows), for which solve_gtrs raises, and non-finite rows are
     flagged, without an exception or a warning."""
-    from estimators.gtrs_batch import solve_gtrs_batch
+    from estimators.closed_form.gtrs_batch import solve_gtrs_batch
 
     A = np.zeros((4, 3, 3))
     A[:, :2, :] = np.random.default_rng(0).standard_normal((4, 2, 3))

@@ -16,8 +16,8 @@ from estimators import gtsam_smoother, smoother_batch, smoother_hypotheses  # no
 from estimators.base import SequentialEstimator  # noqa: E402
 from estimators.convergence import DECREMENT_TOL  # noqa: E402
 from estimators.frame_model import FrameModel  # noqa: E402
-from estimators.gtsam_smoother import GtsamSmoother  # noqa: E402
 from estimators.registry import make_estimator  # noqa: E402
+from estimators.sequential.gtsam_smoother import GtsamSmoother  # noqa: E402
 from scenarios.catalog import get_scenario  # noqa: E402
 from scenarios.simulate import noise_free, simulate, simulate_trials, trial_seeds  # noqa: E402
 from tests.estimators.test_ekf import (  # noqa: E402
@@ -188,7 +188,7 @@ def test_closed_form_failure_becomes_a_failed_estimate(monkeypatch) -> None:
     def broken(self, data, *, rng=None):
         raise np.linalg.LinAlgError("singular matrix")
 
-    monkeypatch.setattr("estimators.cls.Cls.estimate", broken)
+    monkeypatch.setattr("estimators.closed_form.cls.Cls.estimate", broken)
     data = noise_free(flight_scenario([0.0, 90.0]))
     for estimate in (GtsamSmoother().estimate(data), streamed(GtsamSmoother(), data)[1]):
         assert not estimate.success and "closed form failed" in estimate.message

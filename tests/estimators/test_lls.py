@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from comparison.crlb import fisher_information, rmse_bound_m
-from estimators.lls import (
+from estimators.baselines.lls import (
     LlsRss,
     LlsToa,
     rss_bias_factor,

@@ -1,4 +1,5 @@
-"""Maximum likelihood (MATH §10): exact noise-free, brute-force optima, Jacobian, CRLB efficiency."""
+"""Maximum likelihood (MATH §10): exact noise-free, brute-force optima, Jacobian, CRLB
+efficiency."""
 
 from __future__ import annotations
 
@@ -9,13 +10,13 @@ import pytest
 from scipy.optimize import minimize
 
 from comparison.crlb import crlb_m2, fisher_information
-from estimators.ml import (
+from estimators.ml.ml import (
     MaximumLikelihood,
     _distinct_minima,
     whitened_residual_jacobian,
     whitened_residuals,
 )
-from estimators.ml_starts import doppler_frame_starts, ranges_uninformative
+from estimators.ml.ml_starts import doppler_frame_starts, ranges_uninformative
 from estimators.registry import make_estimator
 from scenarios.catalog import get_scenario
 from scenarios.simulate import noise_free, simulate, simulate_trials, trial_seeds
@@ -295,7 +296,7 @@ def test_ml_at_its_iteration_cap_is_a_failed_estimate(max_nfev):
 def test_ml_stalled_away_from_a_minimum_is_not_converged(monkeypatch):
     """A tolerance met where the gradient is not zero (a collapsed trust region) is a stall:
     the decrement at the point exceeds ``DECREMENT_TOL`` and the start gives no minimum."""
-    import estimators.ml as ml_module
+    import estimators.ml.ml as ml_module
 
     real = ml_module.least_squares
 
@@ -315,7 +316,7 @@ def test_ml_stalled_away_from_a_minimum_is_not_converged(monkeypatch):
 def test_ml_fails_when_an_unconverged_start_ends_below_the_minima(monkeypatch):
     """If a start that hit its cap ended lower than every converged minimum, the reported
     optimum is not the best the data allow: a failure, not a success."""
-    import estimators.ml as ml_module
+    import estimators.ml.ml as ml_module
 
     real = ml_module.least_squares
     calls = []

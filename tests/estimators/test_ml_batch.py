@@ -22,11 +22,11 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-import estimators.ml_batch_starts as ml_batch_starts
+import estimators.ml.ml_batch_starts as ml_batch_starts
 from estimators.base import Estimate, capabilities_of, protocol_problems
-from estimators.cls import solve_doppler_toa_cls
-from estimators.cls_rows import LocalFrame
-from estimators.minpack_batch import (
+from estimators.closed_form.cls import solve_doppler_toa_cls
+from estimators.closed_form.cls_rows import LocalFrame
+from estimators.ml.minpack_batch import (
     INFO_CODES,
     RDWARF,
     RGIANT,
@@ -34,7 +34,7 @@ from estimators.minpack_batch import (
     lmder_batch,
     ordered_sum,
 )
-from estimators.ml import (
+from estimators.ml.ml import (
     MINPACK_STATUS,
     START_GRID,
     MaximumLikelihood,
@@ -43,9 +43,9 @@ from estimators.ml import (
     whitened_residual_jacobian,
     whitened_residuals,
 )
-from estimators.ml_batch import SharedContext
-from estimators.ml_batch_starts import batch_starts
-from estimators.ml_starts import doppler_frame_starts, ranges_uninformative
+from estimators.ml.ml_batch import SharedContext
+from estimators.ml.ml_batch_starts import batch_starts
+from estimators.ml.ml_starts import doppler_frame_starts, ranges_uninformative
 from scenarios.catalog import get_scenario
 from scenarios.geometry import straight_track_line
 from scenarios.types import MeasurementBatch, Scenario

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from estimators.ml import whitened_residual_jacobian, whitened_residuals
+from estimators.ml.ml import whitened_residual_jacobian, whitened_residuals
 from estimators.registry import make_estimator
 from scenarios import get_scenario
 from scenarios.fisher import fisher_information, inverse_2x2

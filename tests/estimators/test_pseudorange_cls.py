@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from estimators.gtrs_indefinite import (
+from estimators.closed_form.gtrs_indefinite import (
     constraint_value,
     indefinite_cost,
     solve_gtrs_indefinite,
     stationary_points,
 )
-from estimators.pseudorange_cls import relaxed_fisher_information, solve_pseudorange_cls
+from estimators.closed_form.pseudorange_cls import relaxed_fisher_information, solve_pseudorange_cls
 from scenarios.catalog import get_scenario
 from scenarios.fisher import fisher_information, rmse_bound_m
 from scenarios.simulate import noise_free, simulate, simulate_trials, trial_seeds

@@ -2,17 +2,18 @@
 one-at-a-time path, trial by trial, with each trial's own generator.
 
 ``estimate`` is the batch computation on a batch of one trial, and every per-trial number of
-it depends on that trial alone (MATH §11 module notes in :mod:`estimators.sdp_cls`); a batch of
+it depends on that trial alone (MATH §11 module notes in :mod:`estimators.sdp.sdp_cls`); a batch of
 one and a batch of many are still other arrays, so they agree by the rule of
 :mod:`tests.paths` (to rounding, at a tolerance from the problem's conditioning): the same
 statuses, rungs, messages and tie-break draws, the candidates and positions as positions, and
 every diagnostic but the solver's timings to rounding (its floats in the whitened units of
-:func:`estimators.sdp_lift.whiten_batch`, where the problem's scale is one). The families cover one straight frame (every trial the hard case: a rank-two lift,
-a mirror pair and a draw), a turn, the paper's 300 km ToA noise and the turn scenario.
+:func:`estimators.sdp.sdp_lift.whiten_batch`, where the problem's scale is one). The families cover
+one straight frame (every trial the hard case: a rank-two lift, a mirror pair and a draw), a turn,
+the paper's 300 km ToA noise and the turn scenario.
 
-Against the rows of the previous one-at-a-time path (:func:`estimators.cls.cls_rows`, which
-differ from :mod:`estimators.cls_batch`'s in the last bits) the solves differ at the solver's
-tolerance; that bound is checked too.
+Against the rows of the previous one-at-a-time path (:func:`estimators.closed_form.cls.cls_rows`,
+which differ from :mod:`estimators.closed_form.cls_batch`'s in the last bits) the solves differ at
+the solver's tolerance; that bound is checked too.
 """
 
 from __future__ import annotations
@@ -23,13 +24,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import estimators.sdp_cls as sdp_cls
-import estimators.sdp_lift as sdp_lift
-import estimators.sdp_solvers as sdp_solvers
+import estimators.sdp.sdp_cls as sdp_cls
+import estimators.sdp.sdp_lift as sdp_lift
+import estimators.sdp.sdp_solvers as sdp_solvers
 from estimators.base import Estimate, capabilities_of, protocol_problems
-from estimators.cls import cls_rows
-from estimators.cls_rows import LocalFrame
-from estimators.sdp_cls import SdpCls, solve_sdp_relaxation
+from estimators.closed_form.cls import cls_rows
+from estimators.closed_form.cls_rows import LocalFrame
+from estimators.sdp.sdp_cls import SdpCls, solve_sdp_relaxation
 from scenarios.catalog import get_scenario
 from scenarios.geometry import mirror_across_line, straight_track_line
 from scenarios.simulate import simulate_trials, trial_seeds
@@ -319,7 +320,7 @@ POINT_RTOL = 1e-8
 """Candidates from the two row codes agree within this times the frame's length scale.
 
 The rows differ in the last bits only; each solve stops at a relative gap of 1e−10 on a
-whitened problem whose curvature is of order one (:func:`estimators.sdp_lift.whiten_batch`),
+whitened problem whose curvature is of order one (:func:`estimators.sdp.sdp_lift.whiten_batch`),
 so a point can move by about √1e−10 = 1e−5 of a whitened unit before the gap notices, and by
 much less in practice (Clarabel's iterates converge linearly near the solution). Measured
 over 2000 trials per family: at most 7e−10 (``paper``, the flattest), 7e−12 (``turn``),

@@ -12,14 +12,14 @@ import cvxpy as cp
 import numpy as np
 import pytest
 
-import estimators.sdp_lift as sdp_lift
-import estimators.sdp_solvers as sdp_solvers
-from estimators.cls import Cls, cls_rows
-from estimators.cls_rows import LocalFrame
-from estimators.gtrs import constrained_cost, solve_gtrs
-from estimators.sdp_cls import SdpCls, solve_sdp_relaxation
-from estimators.sdp_lift import compress_rows, whiten_relaxation
-from estimators.sdp_solvers import relaxation_problem, solver_attempts
+import estimators.sdp.sdp_lift as sdp_lift
+import estimators.sdp.sdp_solvers as sdp_solvers
+from estimators.closed_form.cls import Cls, cls_rows
+from estimators.closed_form.cls_rows import LocalFrame
+from estimators.closed_form.gtrs import constrained_cost, solve_gtrs
+from estimators.sdp.sdp_cls import SdpCls, solve_sdp_relaxation
+from estimators.sdp.sdp_lift import compress_rows, whiten_relaxation
+from estimators.sdp.sdp_solvers import relaxation_problem, solver_attempts
 from scenarios.catalog import get_scenario
 from scenarios.geometry import mirror_across_line, straight_track_line
 from scenarios.simulate import noise_free, simulate

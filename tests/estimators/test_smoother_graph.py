@@ -1,6 +1,6 @@
-"""The smoother's factor graph (:mod:`estimators.smoother_graph`): the frame factor's Jacobian,
-the numpy evidence, decrements and block elimination against GTSAM's own (MATH §8), and the
-third-order expansion the streaming smoother reads."""
+"""The smoother's factor graph (:mod:`estimators.sequential.smoother_graph`): the frame factor's
+Jacobian, the numpy evidence, decrements and block elimination against GTSAM's own (MATH §8), and
+the third-order expansion the streaming smoother reads."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ gtsam = pytest.importorskip("gtsam")
 from gtsam.symbol_shorthand import X  # noqa: E402
 
 from estimators.frame_model import FrameModel  # noqa: E402
-from estimators.smoother_graph import (  # noqa: E402
+from estimators.sequential.smoother_graph import (  # noqa: E402
     N_TERMS,
     Expansion,
     _block_elimination,

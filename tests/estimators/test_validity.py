@@ -17,7 +17,7 @@ import pytest
 from estimators.base import Estimate
 from estimators.batch import BatchEstimates
 from estimators.checks import check_result_types
-from estimators.cls import Cls
+from estimators.closed_form.cls import Cls
 from estimators.registry import make_estimator
 from estimators.validity import COVARIANCE_RTOL, INVALID, POSITION_RTOL
 from scenarios.catalog import get_scenario

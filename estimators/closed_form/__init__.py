@@ -1,0 +1,27 @@
+"""The closed-form constrained least squares (docs/math.md §3-§6) and its pseudo-range forms
+for non-cooperative emitters (§15).
+
+Estimators: ``cls`` (:class:`Cls`), ``cls-paper`` (:class:`ClsPaper`), ``cls-as-printed``
+(:class:`ClsAsPrinted`). The rows are built in :mod:`~estimators.closed_form.cls_rows` (§3-§4),
+the GTRS solved exactly in :mod:`~estimators.closed_form.gtrs` (§5), weighted in
+:mod:`~estimators.closed_form.cls` (§6), and vectorised over trials in
+:mod:`~estimators.closed_form.cls_batch` and :mod:`~estimators.closed_form.gtrs_batch`.
+The reference path is the batch: ``Cls.estimate`` is the batch of one trial.
+"""
+
+from estimators.closed_form.cls import Cls, ClsAsPrinted, ClsPaper, solve_doppler_toa_cls
+from estimators.closed_form.cls_rows import LocalFrame, doppler_rows, toa_rows
+from estimators.closed_form.constrained_ls import ConstrainedLS
+from estimators.closed_form.gtrs import solve_gtrs
+
+__all__ = [
+    "Cls",
+    "ClsAsPrinted",
+    "ClsPaper",
+    "ConstrainedLS",
+    "LocalFrame",
+    "doppler_rows",
+    "solve_doppler_toa_cls",
+    "solve_gtrs",
+    "toa_rows",
+]

@@ -1,0 +1,555 @@
+r"""The closed-form Doppler-ToA constrained least squares (MATH §3-§6) and the paper's versions.
+
+Three estimators share one pipeline, :func:`solve_doppler_toa_cls`:
+
+``cls`` (:class:`Cls`)
+    The corrected method: one Doppler·range row per sample (§3), squared-range rows with the
+    height term (§4), the exact GTRS solve whose hard case returns both mirror minimisers (§5),
+    and two-stage optimal weighting by the exact second moments (§6), which makes it invariant
+    to the unit system, the speed and the heading.
+``cls-paper`` (:class:`ClsPaper`)
+    The paper's unweighted system with its errata fixed: one projected Doppler row per frame at
+    the paper's scale ``K|v|²`` (MATH §3), the height term, the transpose, λ solved exactly.
+``cls-as-printed`` (:class:`ClsAsPrinted`)
+    The printed formulas: the first row of the rank-one Doppler system and no height term, λ
+    solved exactly. On the paper's own scenario its noise-free answer is (35, ±52.2), not
+    (35, ±15). Kept only to show what the errors cost.
+
+Unweighted variants minimise the rows as written in SI units, as the paper does: a ToA residual
+in m², the paper's Doppler rows (``cls-paper``, ``cls-as-printed``) in m³/s², the per-sample unit
+rows of ``cls(weighting="none")`` in metres. In an unweighted least squares the scale of a row is
+its weight, so these variants depend on the unit system (MATH §3, §6); the weighted ``cls`` does
+not. All are solved in a centred, scaled frame for conditioning.
+
+Each exposes the system it minimises, ``constrained_ls(data)`` (the rows of the last stage, in
+its local frame; :mod:`estimators.closed_form.constrained_ls`), so that ``emitterbench validate
+--estimator`` can check its candidates against the exact optimum and the SDP relaxation (MATH §5,
+§11).
+
+Each also solves a whole :class:`~scenarios.types.MeasurementBatch` at once:
+``estimate_columns(batch, rngs=...)`` returns a :class:`~estimators.batch.BatchEstimates` (one
+array per field) and ``estimate_batch`` the same as one :class:`Estimate` per trial. Trial ``i``
+gets exactly what ``estimate(batch.trial(i), rng=rngs[i])`` returns, tie-break included; the
+vectorised path is :mod:`estimators.closed_form.cls_batch`.
+
+In the hard case the pair is handed to the mirror rule in a fixed order, the point left of the
+last heading first (:func:`ordered_candidates`), so that which point a tie-break returns does not
+depend on the rounding of the two costs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from estimators.base import (
+    Capabilities,
+    Estimate,
+    check_side_prior,
+    finalize_estimate,
+    require_batch,
+    require_modalities,
+)
+from estimators.batch import BatchEstimates, check_rngs
+from estimators.closed_form.cls_batch import estimate_columns
+from estimators.closed_form.cls_rows import (
+    LocalFrame,
+    carrier_offset_column,
+    doppler_rows,
+    doppler_rows_as_printed,
+    frame_mean_rows,
+    horizontal_speed_mps,
+    paper_row_scale_m2ps2,
+    project_out,
+    sample_pair_covariance,
+    toa_rows,
+    whiten_sample_pairs,
+)
+from estimators.closed_form.constrained_ls import ConstrainedLS
+from estimators.closed_form.gtrs import GtrsSolution, solve_gtrs
+from estimators.closed_form.pseudorange_cls import OffsetMethod, solve_pseudorange_cls
+from estimators.goodness_of_fit import with_fit, with_fit_columns
+from scenarios import measurement_model as model
+from scenarios.geometry import straight_track_line
+from scenarios.types import MeasurementBatch, MeasurementSet
+
+FloatArray = NDArray[np.float64]
+Rows = Literal["weighted", "per-sample", "per-frame", "as-printed"]
+Frames = Literal["all", "last"]
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class ClsSolution:
+    """Minimisers in world coordinates with the GTRS diagnostics of the last stage.
+
+    ``A``, ``b`` are the rows of the last stage in ``frame``: the system ``gtrs`` solves. With
+    an unknown carrier offset (MATH §15) they are the rows with δ projected out, and
+    ``carrier_offset_hz`` holds δ's least-squares value at each candidate.
+    """
+
+    candidates_m: FloatArray
+    costs: FloatArray
+    gtrs: GtrsSolution
+    frame: LocalFrame
+    stages: int
+    A: FloatArray
+    b: FloatArray
+    carrier_offset_hz: FloatArray | None = None
+
+
+def cls_rows(
+    data: MeasurementSet,
+    frame: LocalFrame,
+    rows: Rows,
+    *,
+    weights_at_local_xy: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """The stacked system ``B⁺ r = p⁺`` of MATH §5 in the local frame, for one row variant.
+
+    ``weighted``: per-sample Doppler and ToA rows, whitened per sample with
+    the MATH §6 covariances evaluated at the measured ``(r_k, f_k)`` or, when
+    ``weights_at_local_xy`` is given, at that estimate. The unweighted variants rescale the
+    Doppler rows so the objective is the SI-unit one of the paper. With an unknown carrier
+    offset in ``data.unknowns`` the system has a fourth column, δ's (MATH §15), which
+    :func:`solve_doppler_toa_cls` projects out.
+    """
+    position = frame.positions(data.position_m)
+    range_local = data.range_m / frame.scale_m
+    height = data.emitter_height_m / frame.scale_m
+    gamma = data.gamma_per_m
+    if rows == "as-printed":
+        A_d, b_d = doppler_rows_as_printed(
+            data.frame, position, data.velocity_mps, range_local, data.doppler_hz, gamma
+        )
+        A_t, b_t = toa_rows(position, range_local, height, height_term=False)
+    else:
+        A_d, b_d = doppler_rows(
+            position, data.velocity_mps, range_local, data.doppler_hz, gamma, height
+        )
+        A_t, b_t = toa_rows(position, range_local, height)
+        if "carrier_offset_hz" in data.unknowns and rows != "per-frame":
+            # δ's column, eliminated by the caller (MATH §15)
+            offset = carrier_offset_column(range_local, data.velocity_mps, gamma)
+            A_d, A_t = np.column_stack([A_d, offset]), np.column_stack([A_t, 0.0 * offset])
+        range_sigma = data.noise.toa_s * data.speed_of_light_mps / frame.scale_m
+        if rows == "weighted":
+            if weights_at_local_xy is None:
+                rho, doppler = range_local, data.doppler_hz
+            else:
+                rho = model.slant_range_m(position, weights_at_local_xy, height)
+                doppler = model.doppler_hz(
+                    position, data.velocity_mps, weights_at_local_xy, gamma, height
+                )
+            covariance = sample_pair_covariance(
+                rho,
+                doppler,
+                horizontal_speed_mps(data.velocity_mps),
+                gamma,
+                data.noise.doppler_hz,
+                range_sigma,
+            )
+            return whiten_sample_pairs(A_d, b_d, A_t, b_t, *covariance)
+        if rows == "per-frame":
+            A_d, b_d = frame_mean_rows(data.frame, A_d, b_d)
+    # Unweighted in SI units, a ToA residual in m². In the local frame lengths shrink by L, so a
+    # ToA residual shrinks by L² and a unit-row Doppler residual (metres) by L: the Doppler rows
+    # get the factor 1/L (L in metres), times the row's own SI scale. The per-sample rows keep
+    # the unit scale (a residual in metres); the paper's per-frame row has the scale K|v|², a
+    # residual in m³/s² (MATH §3, "Row scale in the unweighted system").
+    doppler_weight = np.full(len(b_d), 1.0 / frame.scale_m)
+    if rows == "per-frame":
+        doppler_weight *= paper_row_scale_m2ps2(data.frame, data.velocity_mps)
+    return (
+        np.vstack([A_d * doppler_weight[:, None], A_t]),
+        np.concatenate([b_d * doppler_weight, b_t]),
+    )
+
+
+def solve_doppler_toa_cls(
+    data: MeasurementSet,
+    rows: Rows = "weighted",
+    *,
+    stages: int = 2,
+    hard_case_rtol: float = 1e-10,
+) -> ClsSolution:
+    """Every global minimiser of the Doppler-ToA CLS (MATH §3-§6), in world coordinates.
+
+    ``stages`` applies to ``weighted`` rows: stage 1 weights from the data, stage 2 from the
+    stage-1 estimate (both mirror candidates give the same weights, MATH §6).
+    """
+    frame = LocalFrame.fit(data.position_m, data.range_m)
+
+    def solve(weights_at: FloatArray | None) -> tuple[GtrsSolution, FloatArray, FloatArray, Any]:
+        A, b = cls_rows(data, frame, rows, weights_at_local_xy=weights_at)
+        offset = None
+        if A.shape[1] == 4:  # an unknown carrier offset: eliminate its column (MATH §15)
+            offset = (A[:, :3], b, A[:, 3])
+            A, b = project_out(*offset)
+        return solve_gtrs(A, b, hard_case_rtol=hard_case_rtol), A, b, offset
+
+    solution, A, b, offset = solve(None)
+    n_stages = 1
+    if rows == "weighted":
+        for _ in range(stages - 1):
+            solution, A, b, offset = solve(solution.points[0, :2])
+            n_stages += 1
+    carrier_offset = None
+    if offset is not None:
+        A_full, b_full, column = offset  # δ = cᵀ(b − A r)/‖c‖² at each candidate r
+        carrier_offset = (b_full - solution.points @ A_full.T) @ column / (column @ column)
+    return ClsSolution(
+        candidates_m=frame.to_world(solution.points[:, :2]),
+        costs=solution.costs,
+        gtrs=solution,
+        frame=frame,
+        stages=n_stages,
+        A=A,
+        b=b,
+        carrier_offset_hz=carrier_offset,
+    )
+
+
+def ordered_candidates(
+    candidates: FloatArray, costs: FloatArray, hard_case: bool, data: MeasurementSet
+) -> tuple[FloatArray, FloatArray]:
+    """The candidates and costs handed to :func:`~estimators.base.finalize_estimate`.
+
+    The hard case's two minimisers have equal cost (MATH §5); their computed costs differ only
+    by rounding, so ordering them by cost would let the rounding decide which comes first, and
+    with it which one a tie-break by ``rng`` returns. Instead the point to the left of the last
+    sample's heading comes first, at the smaller cost: the answer is then a function of the
+    data and the generator alone. On a straight track the other point is that one's mirror
+    image (MATH §7), which ``finalize_estimate`` adds; elsewhere both go, at one cost.
+    """
+    if not hard_case or len(candidates) != 2:
+        return candidates, costs
+    velocity = data.velocity_mps[-1]
+    left = np.array([-velocity[1], velocity[0]])
+    if (candidates[0] - candidates[1]) @ left < 0.0:
+        candidates = candidates[::-1]
+    best = np.full(2, np.min(costs))
+    if straight_track_line(data.position_m, data.velocity_mps) is not None:
+        return candidates[:1], best[:1]
+    return candidates, best
+
+
+def _estimate(
+    name: str,
+    rows: Rows,
+    frames: Frames,
+    data: MeasurementSet,
+    rng: np.random.Generator | None,
+    side_prior_m: tuple[float, float] | None,
+    **solve_options,
+) -> Estimate:
+    used = data.select_frames(frames)
+    if "emission_time_s" in used.unknowns:
+        return _estimate_pseudorange(name, used, rng, side_prior_m, **solve_options)
+    solution = solve_doppler_toa_cls(used, rows, **solve_options)
+    gtrs = solution.gtrs
+    candidates, costs = ordered_candidates(
+        solution.candidates_m, solution.costs, gtrs.hard_case, used
+    )
+    return finalize_estimate(
+        name,
+        candidates,
+        costs,
+        used,
+        rng=rng,
+        side_prior_m=side_prior_m,
+        message="hard case: mirror pair (MATH §5)" if gtrs.hard_case else "",
+        diagnostics={
+            "multiplier": gtrs.multiplier,
+            "hard_case": gtrs.hard_case,
+            "rank": gtrs.rank,
+            "stages": solution.stages,
+            "n_samples": used.n_samples,
+            **(
+                {}
+                if solution.carrier_offset_hz is None
+                else {"carrier_offset_hz": float(solution.carrier_offset_hz[0])}
+            ),
+        },
+    )
+
+
+def _estimate_pseudorange(
+    name: str,
+    data: MeasurementSet,
+    rng: np.random.Generator | None,
+    side_prior_m: tuple[float, float] | None,
+    offset_method: OffsetMethod = "relaxed",
+) -> Estimate:
+    """:func:`_estimate` with an unknown emission time: the pseudo-range closed form, an
+    indefinite GTRS (MATH §15, :mod:`estimators.closed_form.pseudorange_cls`)."""
+    offset_unknown = "carrier_offset_hz" in data.unknowns
+    solution = solve_pseudorange_cls(
+        data, carrier_offset_unknown=offset_unknown, offset_method=offset_method
+    )
+    info = solution.diagnostics
+    nuisance = {"emission_time_s": float(solution.emission_time_s[0])}
+    if solution.carrier_offset_hz is not None:
+        nuisance["carrier_offset_hz"] = float(solution.carrier_offset_hz[0])
+    diagnostics = {
+        key: info[key] for key in ("status", "multiplier", "hard_case", "rank", "stages")
+    }
+    if not info["success"] or not len(solution.candidates_m):
+        return Estimate.failed(
+            name, f"pseudo-range closed form: {info['status']} (MATH §15)", **diagnostics
+        )
+    candidates, costs = ordered_candidates(
+        solution.candidates_m, solution.costs, bool(info["hard_case"]), data
+    )
+    notes = ["hard case: mirror pair (MATH §15)"] if info["hard_case"] else []
+    if not info.get("on_physical_sheet", True):
+        notes.append(
+            "the global minimiser has a negative reference range: the best point "
+            "on the physical sheet is returned (MATH §15)"
+        )
+    return finalize_estimate(
+        name,
+        candidates,
+        costs,
+        data,
+        rng=rng,
+        side_prior_m=side_prior_m,
+        message="; ".join(notes),
+        diagnostics={**diagnostics, "n_samples": data.n_samples, **nuisance},
+    )
+
+
+def _constrained_ls(rows: Rows, frames: Frames, data: MeasurementSet) -> ConstrainedLS:
+    """The rows whose minimisers :func:`_estimate` returns: the last stage's, frames used."""
+    if "emission_time_s" in data.unknowns:
+        raise ValueError(
+            "unknowns: with an unknown emission time the CLS is an indefinite GTRS over "
+            "(x, y, ρ_j) (MATH §15), not the paraboloid GTRS of §5 that constrained_ls describes"
+        )
+    solution = solve_doppler_toa_cls(data.select_frames(frames), rows)
+    return ConstrainedLS.in_frame(solution.A, solution.b, solution.frame)
+
+
+def _check_options(frames: str, side_prior_m: object) -> None:
+    if frames not in ("all", "last"):
+        raise ValueError(f"frames: expected 'all' or 'last', got {frames!r}")
+    check_side_prior(side_prior_m)
+
+
+class _Batches:
+    """``estimate``, ``estimate_batch`` and ``estimate_columns`` of the closed forms.
+
+    ``estimate`` is the batch's answer for a batch of one (:mod:`estimators.closed_form.cls_batch`),
+    so a run's row, a batch's column and ``estimate`` of the same trial are the same bits however
+    the trials were chunked or called. :meth:`estimate_one_trial` is the one-trial solver (the
+    eigen-decomposition of MATH §5), to which the batch leaves the trials its rounding bounds
+    cannot decide; the two agree to 1e-9 of the problem's length scale
+    (``tests/estimators/test_cls_batch.py``). With nuisance parameters (MATH §15) there is no
+    batch: every path is the one-trial solver.
+    """
+
+    name: ClassVar[str]
+    frames: Frames
+    side_prior_m: tuple[float, float] | None
+
+    def _rows(self) -> Rows:
+        raise NotImplementedError
+
+    def _options(self, data: MeasurementSet) -> dict[str, Any]:
+        return {}
+
+    def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
+        require_modalities(self, data)
+        if data.unknowns:
+            return self.estimate_one_trial(data, rng=rng)
+        return self._columns(MeasurementBatch.of_one(data), [rng]).estimate(0)
+
+    def estimate_one_trial(
+        self, data: MeasurementSet, *, rng: np.random.Generator | None = None
+    ) -> Estimate:
+        """The one-trial solver on ``data`` (class text): ``estimate`` to 1e-9, not to the bit."""
+        require_modalities(self, data)
+        return with_fit(self, self._solve_one(data, rng), data)
+
+    def _solve_one(self, data: MeasurementSet, rng: np.random.Generator | None) -> Estimate:
+        return _estimate(
+            self.name,
+            self._rows(),
+            self.frames,
+            data,
+            rng,
+            self.side_prior_m,
+            **self._options(data),
+        )
+
+    def estimate_batch(
+        self,
+        batch: MeasurementBatch,
+        *,
+        rngs: Sequence[np.random.Generator | None] | None = None,
+    ) -> list[Estimate]:
+        """``estimate`` of every trial (trial ``i`` with ``rngs[i]``), solved together."""
+        return self.estimate_columns(batch, rngs=rngs).to_estimates()
+
+    def estimate_columns(
+        self,
+        batch: MeasurementBatch,
+        *,
+        rngs: Sequence[np.random.Generator | None] | None = None,
+    ) -> BatchEstimates:
+        """``estimate_batch`` as columns, without an object per trial."""
+        require_batch(self, batch)
+        if batch.geometry.unknowns:  # not vectorised (MATH §15): one trial at a time
+            rngs = check_rngs(rngs, batch.n_trials)
+            return BatchEstimates.from_estimates(
+                self.name,
+                [self.estimate_one_trial(batch.trial(i), rng=rng) for i, rng in enumerate(rngs)],
+            )
+        return self._columns(batch, rngs)
+
+    def _columns(
+        self, batch: MeasurementBatch, rngs: Sequence[np.random.Generator | None] | None
+    ) -> BatchEstimates:
+        """:func:`estimators.closed_form.cls_batch.estimate_columns` with this estimator's options,
+        and the goodness of fit of every trial (MATH §17)."""
+        columns = estimate_columns(
+            self.name,
+            self._rows(),
+            self.frames,
+            batch,
+            rngs,
+            self.side_prior_m,
+            self._solve_one,
+        )
+        return with_fit_columns(self, columns, batch)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Cls(_Batches):
+    """The corrected closed-form CLS (MATH §3-§6): weighted, exact GTRS, both mirror minimisers.
+
+    Parameters
+    ----------
+    weighting : {"optimal", "none"}
+        ``optimal``: two-stage whitening by the exact second moments (MATH §6).
+        ``none``: the same per-sample rows unweighted, in SI units.
+    frames : {"all", "last"}
+        Use every frame so far, or only the last (as the paper does).
+    side_prior_m : (x, y) or None
+        A rough emitter position; picks the nearer mirror candidate (MATH §7).
+    offset_method : {"relaxed", "profile"}
+        With both the carrier offset and the emission time unknown (MATH §15): ``relaxed`` is
+        the closed form (``w = ρ_j δ`` relaxed and projected out), ``profile`` minimises the
+        exact cost over δ by a scalar search, one GTRS per step: no longer closed form, but
+        without the relaxation's price.
+
+    An unknown carrier offset is projected out of the rows; an unknown emission time turns the
+    ranges into pseudo-ranges, whose differences give the indefinite GTRS of MATH §15
+    (``weighting="optimal"`` only).
+    """
+
+    name: ClassVar[str] = "cls"
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+
+    weighting: Literal["optimal", "none"] = "optimal"
+    frames: Frames = "all"
+    side_prior_m: tuple[float, float] | None = None
+    offset_method: OffsetMethod = "relaxed"
+
+    def __post_init__(self) -> None:
+        if self.weighting not in ("optimal", "none"):
+            raise ValueError(f"weighting: expected 'optimal' or 'none', got {self.weighting!r}")
+        if self.offset_method not in ("relaxed", "profile"):
+            raise ValueError(
+                f"offset_method: expected 'relaxed' or 'profile', got {self.offset_method!r}"
+            )
+        _check_options(self.frames, self.side_prior_m)
+
+    def _rows(self) -> Rows:
+        return "weighted" if self.weighting == "optimal" else "per-sample"
+
+    def capabilities(self) -> Capabilities:
+        """Doppler and ToA on the frames used; the optimal weighting is unit-invariant (MATH §6)."""
+        return Capabilities(
+            modalities=self.requires,
+            frames=self.frames,
+            batch=True,
+            unit_invariant=self.weighting == "optimal",
+            unknowns=frozenset(
+                {"carrier_offset_hz", "emission_time_s"}
+                if self.weighting == "optimal"
+                else {"carrier_offset_hz"}
+            ),
+        )
+
+    def _options(self, data: MeasurementSet) -> dict[str, Any]:
+        return {"offset_method": self.offset_method} if "emission_time_s" in data.unknowns else {}
+
+    def constrained_ls(self, data: MeasurementSet) -> ConstrainedLS:
+        """The system ``estimate`` minimises: with ``optimal`` weighting, stage 2's rows."""
+        require_modalities(self, data)
+        return _constrained_ls(self._rows(), self.frames, data)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ClsPaper(_Batches):
+    """The paper's unweighted CLS with the errata fixed (MATH §3-§5, paper eq ``finalest``).
+
+    One projected Doppler row per frame at the paper's scale ``K|v|²``, a residual in m³/s²
+    (MATH §3, "Row scale in the unweighted system"), and the squared-range rows with the
+    height term, in m² (MATH §4), solved exactly (MATH §5). Unweighted, so its answer depends
+    on the unit system, as the paper's does; ``frames="last"`` is Algorithm 1.
+    """
+
+    name: ClassVar[str] = "cls-paper"
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+
+    frames: Frames = "last"
+    side_prior_m: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        _check_options(self.frames, self.side_prior_m)
+
+    def capabilities(self) -> Capabilities:
+        # No unknown carrier offset: the frame's mean row loses the within-frame variation of
+        # δ's column r_k/(γ|v|), so δ would take a frame's whole Doppler information (§15).
+        return Capabilities(modalities=self.requires, frames=self.frames, batch=True)
+
+    def _rows(self) -> Rows:
+        return "per-frame"
+
+    def constrained_ls(self, data: MeasurementSet) -> ConstrainedLS:
+        """The system ``estimate`` minimises (unweighted, SI-unit rows, frames used)."""
+        require_modalities(self, data)
+        return _constrained_ls("per-frame", self.frames, data)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ClsAsPrinted(_Batches):
+    """The paper's CLS as printed (first-row Doppler line, no height term); λ solved exactly.
+
+    Labelled as the printed version wherever it appears; it shows what the errata cost.
+    """
+
+    name: ClassVar[str] = "cls-as-printed"
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+
+    frames: Frames = "last"
+    side_prior_m: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        _check_options(self.frames, self.side_prior_m)
+
+    def capabilities(self) -> Capabilities:
+        return Capabilities(modalities=self.requires, frames=self.frames, batch=True)
+
+    def _rows(self) -> Rows:
+        return "as-printed"
+
+    def constrained_ls(self, data: MeasurementSet) -> ConstrainedLS:
+        """The system ``estimate`` minimises (the printed rows, frames used)."""
+        require_modalities(self, data)
+        return _constrained_ls("as-printed", self.frames, data)
