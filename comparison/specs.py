@@ -8,7 +8,7 @@ An experiment file lists ``[[estimators]]`` and ``[[planners]]`` tables (or bare
 :func:`built_specs` checks an entry in the order that runs the least code: the name must
 resolve to a class with the estimator (or planner) interface, found without calling anything
 of it, then the options must fit the constructor's signature and simple annotations
-(:func:`scenarios.planners.registry.check_options`); only then is the class built. Errors
+(:func:`scenarios.plugins.check_options`); only then is the class built. Errors
 name ``estimators[i].name`` or ``estimators[i].options.<option>``.
 """
 

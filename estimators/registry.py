@@ -13,7 +13,7 @@ A ``package.module:Class`` path or an entry point is resolved by importing its m
 runs the module's code (that is why an experiment file is code, docs/writing-an-experiment.md).
 What it names is then used only if it is a class with the estimator interface
 (:func:`estimator_class_problems`, read without calling anything of it), and its options are
-checked against the constructor (:func:`scenarios.planners.registry.check_options`) before it
+checked against the constructor (:func:`scenarios.plugins.check_options`) before it
 is built: ``os:system`` or ``builtins:eval`` are refused, never called.
 """
 
@@ -29,7 +29,7 @@ from importlib.metadata import entry_points
 from typing import Any
 
 from estimators.interface import Estimator, capabilities_of, protocol_problems
-from scenarios.planners.registry import check_options, checked_class, import_target, method_takes
+from scenarios.plugins import check_options, checked_class, import_target, method_takes
 from scenarios.types import MODALITIES
 
 ENTRY_POINT_GROUP = "emitterbench.estimators"
@@ -219,7 +219,7 @@ def make_estimator(name: str, **options: Any) -> Estimator:
     """Construct the estimator ``name`` with keyword ``options``; errors name the option.
 
     The class is checked first (:func:`estimator_class`), then the options against its
-    constructor (:func:`scenarios.planners.registry.check_options`), and only then is it built.
+    constructor (:func:`scenarios.plugins.check_options`), and only then is it built.
     """
     cls = estimator_class(name)
     check_options(cls, options, f"estimator {name!r}")
