@@ -41,10 +41,9 @@ import pandas as pd
 from comparison import verdict_table
 from comparison.intervals import DEFAULT_N_BOOTSTRAP
 from comparison.labels import LABEL_COLUMNS, label_html, plain_label
+from comparison.metric_groups import SUMMARY_TRIAL_COLUMNS
+from comparison.metric_registry import METRIC_NAMES, METRICS, UNITS
 from comparison.metrics import (
-    METRIC_DESCRIPTIONS,
-    METRIC_NAMES,
-    SUMMARY_TRIAL_COLUMNS,
     format_number,
     has_planners,
     summarize,
@@ -430,9 +429,10 @@ def _closed_loop_section(summary: pd.DataFrame, experiment: Mapping[str, Any]) -
 
 
 def _metric_definitions() -> str:
+    """Every metric of :mod:`comparison.metric_registry`: its column, unit and meaning."""
     items = "".join(
-        f"<dt>{_escape(name)}</dt><dd>{_escape(text)}</dd>"
-        for name, text in METRIC_DESCRIPTIONS.items()
+        f"<dt>{_escape(m.name)} ({_escape(UNITS[m.unit])})</dt><dd>{_escape(m.description)}</dd>"
+        for m in METRICS
     )
     return f"<dl>{items}</dl>"
 
