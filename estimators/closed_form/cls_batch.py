@@ -136,7 +136,9 @@ class SharedGeometry:
             line=line,
             collinear=collinear,
             mean_xy=position[:, :2].mean(axis=0),
-            column={key: value[:, None].copy() for key, value in per_sample.items()},
+            column=dict(
+                zip(per_sample, np.stack(list(per_sample.values()))[..., None], strict=True)
+            ),
         )
 
     def frame_sums(self, values: FloatArray) -> FloatArray:
