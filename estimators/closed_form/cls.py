@@ -41,7 +41,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import cached_property
+from functools import lru_cache
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -341,6 +341,14 @@ def _check_options(frames: str, side_prior_m: object) -> None:
     check_side_prior(side_prior_m)
 
 
+@lru_cache(maxsize=64)
+def _declared(estimator: _Batches) -> Capabilities:
+    """``estimator._declare()``, cached by the estimator's options (its fields: equal
+    estimators of one class declare the same). Module level, so that an instance holds only its
+    options (the constructor rule of :mod:`estimators.checks`)."""
+    return estimator._declare()
+
+
 class _Batches:
     """``estimate``, ``estimate_batch`` and ``estimate_columns`` of the closed forms.
 
@@ -366,13 +374,12 @@ class _Batches:
         return {}
 
     def capabilities(self) -> Capabilities:
-        """What the estimator declares (:meth:`_declare`), built once: it depends only on the
-        options, and every call (the checks, the goodness of fit) reads it."""
-        return self._capabilities
-
-    @cached_property
-    def _capabilities(self) -> Capabilities:
-        return self._declare()
+        """What the estimator declares (:meth:`_declare`), built once per set of options
+        (:func:`_declared`): every call reads it (the checks, the goodness of fit)."""
+        try:
+            return _declared(self)
+        except TypeError:  # an option that cannot be hashed (a list as side_prior_m, say)
+            return self._declare()
 
     def _declare(self) -> Capabilities:
         raise NotImplementedError
