@@ -7,7 +7,9 @@ candidate order of :func:`estimators.closed_form.cls.ordered_candidates` and the
 
 Layout: the trials share one geometry, so every per-sample quantity is an array of shape
 ``(K, n)`` (sample × trial) and every per-trial scalar one of shape ``(n,)``; trials are
-processed in chunks of about :data:`CHUNK_ELEMENTS` samples × trials.
+processed in chunks of about :data:`CHUNK_ELEMENTS` samples × trials (:func:`solve_trials`).
+:func:`estimate_columns` finishes a batch as columns, :func:`estimate_trial` one trial, the
+batch of one, as its :class:`~estimators.base.Estimate`.
 
 Rows in the local frame of each trial (``L`` its scale, ``X`` the sample offsets from the
 frame's origin in metres, ``r`` the ToA ranges, ``f`` the Doppler shifts):
