@@ -41,6 +41,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -49,13 +50,14 @@ from numpy.typing import NDArray
 from estimators.base import (
     Capabilities,
     Estimate,
+    check_rng,
     check_side_prior,
     finalize_estimate,
     require_batch,
     require_modalities,
 )
 from estimators.batch import BatchEstimates, check_rngs
-from estimators.closed_form.cls_batch import estimate_columns
+from estimators.closed_form.cls_batch import estimate_columns, estimate_trial
 from estimators.closed_form.cls_rows import (
     LocalFrame,
     carrier_offset_column,
@@ -72,7 +74,7 @@ from estimators.closed_form.cls_rows import (
 from estimators.closed_form.constrained_ls import ConstrainedLS
 from estimators.closed_form.gtrs import GtrsSolution, solve_gtrs
 from estimators.closed_form.pseudorange_cls import OffsetMethod, solve_pseudorange_cls
-from estimators.goodness_of_fit import with_fit, with_fit_columns
+from estimators.goodness_of_fit import FIT_KEYS, fit_of, with_fit, with_fit_columns
 from scenarios import measurement_model as model
 from scenarios.geometry import straight_track_line
 from scenarios.types import MeasurementBatch, MeasurementSet
@@ -339,10 +341,20 @@ def _check_options(frames: str, side_prior_m: object) -> None:
     check_side_prior(side_prior_m)
 
 
+@lru_cache(maxsize=64)
+def _declared(estimator: _Batches) -> Capabilities:
+    """``estimator._declare()``, cached by the estimator's options (its fields: equal
+    estimators of one class declare the same). Module level, so that an instance holds only its
+    options (the constructor rule of :mod:`estimators.checks`)."""
+    return estimator._declare()
+
+
 class _Batches:
     """``estimate``, ``estimate_batch`` and ``estimate_columns`` of the closed forms.
 
-    ``estimate`` is the batch's answer for a batch of one (:mod:`estimators.closed_form.cls_batch`),
+    ``estimate`` is the batch's answer for a batch of one: the same vectorised solve
+    (:func:`estimators.closed_form.cls_batch.solve_trials`) with one trial, finished as one
+    :class:`Estimate` instead of columns (:func:`~estimators.closed_form.cls_batch.estimate_trial`),
     so a run's row, a batch's column and ``estimate`` of the same trial are the same bits however
     the trials were chunked or called. :meth:`estimate_one_trial` is the one-trial solver (the
     eigen-decomposition of MATH §5), to which the batch leaves the trials its rounding bounds
@@ -361,11 +373,38 @@ class _Batches:
     def _options(self, data: MeasurementSet) -> dict[str, Any]:
         return {}
 
+    def capabilities(self) -> Capabilities:
+        """What the estimator declares (:meth:`_declare`), built once per set of options
+        (:func:`_declared`): every call reads it (the checks, the goodness of fit)."""
+        try:
+            return _declared(self)
+        except TypeError:  # an option that cannot be hashed (a list as side_prior_m, say)
+            return self._declare()
+
+    def _declare(self) -> Capabilities:
+        raise NotImplementedError
+
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)
+        check_rng(rng)
         if data.unknowns:
             return self.estimate_one_trial(data, rng=rng)
-        return self._columns(MeasurementBatch.of_one(data), [rng]).estimate(0)
+        return estimate_trial(
+            self.name,
+            self._rows(),
+            self.frames,
+            data,
+            rng,
+            self.side_prior_m,
+            self._solve_one,
+            lambda position: self._fit(data, position),
+        )
+
+    def _fit(self, data: MeasurementSet, position_m: FloatArray) -> dict[str, Any]:
+        """The goodness of fit (MATH §17) at ``position_m`` (1, 2), as ``with_fit_columns``
+        computes it for a batch of one (the same arrays, the same bits)."""
+        value, dof = fit_of(self, data, position_m)
+        return dict(zip(FIT_KEYS, (float(value[0]), int(dof)), strict=True))
 
     def estimate_one_trial(
         self, data: MeasurementSet, *, rng: np.random.Generator | None = None
@@ -471,7 +510,7 @@ class Cls(_Batches):
     def _rows(self) -> Rows:
         return "weighted" if self.weighting == "optimal" else "per-sample"
 
-    def capabilities(self) -> Capabilities:
+    def _declare(self) -> Capabilities:
         """Doppler and ToA on the frames used; the optimal weighting is unit-invariant (MATH §6)."""
         return Capabilities(
             modalities=self.requires,
@@ -513,7 +552,7 @@ class ClsPaper(_Batches):
     def __post_init__(self) -> None:
         _check_options(self.frames, self.side_prior_m)
 
-    def capabilities(self) -> Capabilities:
+    def _declare(self) -> Capabilities:
         # No unknown carrier offset: the frame's mean row loses the within-frame variation of
         # δ's column r_k/(γ|v|), so δ would take a frame's whole Doppler information (§15).
         return Capabilities(modalities=self.requires, frames=self.frames, batch=True)
@@ -543,7 +582,7 @@ class ClsAsPrinted(_Batches):
     def __post_init__(self) -> None:
         _check_options(self.frames, self.side_prior_m)
 
-    def capabilities(self) -> Capabilities:
+    def _declare(self) -> Capabilities:
         return Capabilities(modalities=self.requires, frames=self.frames, batch=True)
 
     def _rows(self) -> Rows:

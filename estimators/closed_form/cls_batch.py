@@ -7,7 +7,9 @@ candidate order of :func:`estimators.closed_form.cls.ordered_candidates` and the
 
 Layout: the trials share one geometry, so every per-sample quantity is an array of shape
 ``(K, n)`` (sample × trial) and every per-trial scalar one of shape ``(n,)``; trials are
-processed in chunks of about :data:`CHUNK_ELEMENTS` samples × trials.
+processed in chunks of about :data:`CHUNK_ELEMENTS` samples × trials (:func:`solve_trials`).
+:func:`estimate_columns` finishes a batch as columns, :func:`estimate_trial` one trial, the
+batch of one, as its :class:`~estimators.base.Estimate`.
 
 Rows in the local frame of each trial (``L`` its scale, ``X`` the sample offsets from the
 frame's origin in metres, ``r`` the ToA ranges, ``f`` the Doppler shifts):
@@ -29,8 +31,9 @@ when and as the one-trial path does, in trial order.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -83,8 +86,9 @@ class SharedGeometry:
     column: dict[str, FloatArray]
 
     @classmethod
-    def of(cls, batch: MeasurementBatch, frames: str) -> SharedGeometry:
-        geometry = batch.geometry
+    def of(cls, batch: MeasurementBatch | MeasurementSet, frames: str) -> SharedGeometry:
+        """The samples of ``frames`` of a batch's geometry, or of one trial's."""
+        geometry = batch.geometry if isinstance(batch, MeasurementBatch) else batch
         used = geometry.select_frames(frames)
         if frames == "last":
             columns = np.flatnonzero(geometry.frame == geometry.frame[-1])
@@ -114,6 +118,11 @@ class SharedGeometry:
             "dz_sq": dz * dz,
             "gv": used.gamma_per_m * speed,
         }
+        line = straight_track_line(position, velocity)
+        # collinear to COLLINEAR_RTOL implies straight to the default 1e-9
+        collinear = line is not None and (
+            straight_track_line(position, velocity, rtol=COLLINEAR_RTOL) is not None
+        )
         return cls(
             used=used,
             columns=columns,
@@ -126,10 +135,12 @@ class SharedGeometry:
             velocity=velocity,
             frame_starts=starts,
             frame_counts=counts.astype(float),
-            line=straight_track_line(position, velocity),
-            collinear=straight_track_line(position, velocity, rtol=COLLINEAR_RTOL) is not None,
+            line=line,
+            collinear=collinear,
             mean_xy=position[:, :2].mean(axis=0),
-            column={key: value[:, None].copy() for key, value in per_sample.items()},
+            column=dict(
+                zip(per_sample, np.stack(list(per_sample.values()))[..., None], strict=True)
+            ),
         )
 
     def frame_sums(self, values: FloatArray) -> FloatArray:
@@ -137,26 +148,38 @@ class SharedGeometry:
         return np.add.reduceat(values, self.frame_starts, axis=0)
 
 
-def estimate_columns(
-    name: str,
-    rows: str,
-    frames: str,
-    batch: MeasurementBatch,
-    rngs: Sequence[np.random.Generator | None] | None,
-    side_prior_m: tuple[float, float] | None,
-    solve_one: SolveOne,
-) -> BatchEstimates:
-    """The CLS estimates of every trial of ``batch``, as columns (see module docstring)."""
-    n = batch.n_trials
-    generators = check_rngs(rngs, n)
-    shared = SharedGeometry.of(batch, frames)
-    speed_of_light = shared.used.speed_of_light_mps
-    ranges = speed_of_light * batch.toa_s[:, shared.columns]
-    doppler = batch.doppler_hz[:, shared.columns]
+@dataclass(frozen=True, slots=True, eq=False)
+class SolvedTrials:
+    """What the vectorised CLS decides for each of ``n`` trials, before the tie-break draws.
 
-    stages = 2 if rows == "weighted" else 1
+    ``candidates`` (n, 4, 2) holds trial ``i``'s kept candidates in its first
+    ``n_candidates[i]`` slots; ``chosen`` is the returned one unless ``draw`` (a tie with no
+    prior: ``rng.integers(n_candidates)`` decides); ``uncertain`` trials are left to the
+    one-trial path (module docstring).
+    """
+
+    candidates: FloatArray
+    n_candidates: NDArray[np.int64]
+    chosen: NDArray[np.int64]
+    draw: NDArray[np.bool_]
+    ambiguous: NDArray[np.bool_]
+    uncertain: NDArray[np.bool_]
+    hard_case: NDArray[np.bool_]
+    multiplier: FloatArray
+    rank: NDArray[np.int64]
+
+
+def solve_trials(
+    shared: SharedGeometry,
+    rows: str,
+    ranges: FloatArray,
+    doppler: FloatArray,
+    side_prior_m: tuple[float, float] | None,
+) -> SolvedTrials:
+    """The CLS of every trial: ``ranges`` and ``doppler`` (n, K) on the samples used, in
+    chunks of about :data:`CHUNK_ELEMENTS` (one chunk for one trial)."""
+    n = len(ranges)
     k = shared.used.n_samples
-    position = np.full((n, 2), np.nan)
     kept = np.full((n, 4, 2), np.nan)
     n_kept = np.zeros(n, dtype=np.int64)
     chosen = np.zeros(n, dtype=np.int64)
@@ -166,7 +189,7 @@ def estimate_columns(
     hard = np.zeros(n, dtype=bool)
     multiplier = np.full(n, np.nan)
     rank = np.zeros(n, dtype=np.int64)
-    chunk = int(np.clip(CHUNK_ELEMENTS // max(k, 1), 256, MAX_CHUNK))
+    chunk = n if n == 1 else int(np.clip(CHUNK_ELEMENTS // max(k, 1), 256, MAX_CHUNK))
     for start in range(0, n, chunk):
         part = slice(start, min(start + chunk, n))
         r = np.ascontiguousarray(ranges[part].T)
@@ -202,32 +225,101 @@ def estimate_columns(
         hard[part] = solution.hard_case
         multiplier[part] = solution.multiplier
         rank[part] = solution.rank
+    return SolvedTrials(kept, n_kept, chosen, draw, ambiguous, uncertain, hard, multiplier, rank)
 
+
+def _diagnostics(
+    solved: SolvedTrials, rows: str, shared: SharedGeometry
+) -> dict[str, NDArray[np.generic]]:
+    """The diagnostics columns, in the one-trial path's key order."""
+    n = len(solved.rank)
+    return {
+        "multiplier": solved.multiplier,
+        "hard_case": solved.hard_case,
+        "rank": solved.rank,
+        "stages": np.full(n, 2 if rows == "weighted" else 1, dtype=np.int64),
+        "n_samples": np.full(n, shared.used.n_samples, dtype=np.int64),
+        "straight_track": np.full(n, shared.line is not None),
+    }
+
+
+def estimate_columns(
+    name: str,
+    rows: str,
+    frames: str,
+    batch: MeasurementBatch,
+    rngs: Sequence[np.random.Generator | None] | None,
+    side_prior_m: tuple[float, float] | None,
+    solve_one: SolveOne,
+) -> BatchEstimates:
+    """The CLS estimates of every trial of ``batch``, as columns (see module docstring)."""
+    n = batch.n_trials
+    generators = check_rngs(rngs, n)
+    shared = SharedGeometry.of(batch, frames)
+    speed_of_light = shared.used.speed_of_light_mps
+    ranges = speed_of_light * batch.toa_s[:, shared.columns]
+    doppler = batch.doppler_hz[:, shared.columns]
+    solved = solve_trials(shared, rows, ranges, doppler, side_prior_m)
+    chosen, uncertain = solved.chosen, solved.uncertain
     redo, recomputed = draw_and_redo(
-        name, solve_one, batch, generators, uncertain, draw, n_kept, chosen
+        name, solve_one, batch, generators, uncertain, solved.draw, solved.n_candidates, chosen
     )
-    rows_index = np.arange(n)
-    position[:] = kept[rows_index, np.minimum(chosen, 3)]
+    position = solved.candidates[np.arange(n), np.minimum(chosen, 3)]
     ok = ~uncertain
     columns = BatchEstimates(
         estimator=name,
         position_m=np.where(ok[:, None], position, np.nan),
-        candidates_m=kept,
-        n_candidates=np.where(ok, n_kept, 0),
-        ambiguous=ambiguous & ok,
+        candidates_m=solved.candidates,
+        n_candidates=np.where(ok, solved.n_candidates, 0),
+        ambiguous=solved.ambiguous & ok,
         success=ok.copy(),
-        message_code=np.where(hard & ok, 1, 0).astype(np.int64),
+        message_code=np.where(solved.hard_case & ok, 1, 0).astype(np.int64),
         messages=("", HARD_CASE_MESSAGE),
-        diagnostics={
-            "multiplier": multiplier,
-            "hard_case": hard,
-            "rank": rank,
-            "stages": np.full(n, stages, dtype=np.int64),
-            "n_samples": np.full(n, k, dtype=np.int64),
-            "straight_track": np.full(n, shared.line is not None),
-        },
+        diagnostics=_diagnostics(solved, rows, shared),
     )
     return columns.with_trials(redo, recomputed)
+
+
+def estimate_trial(
+    name: str,
+    rows: str,
+    frames: str,
+    data: MeasurementSet,
+    rng: np.random.Generator | None,
+    side_prior_m: tuple[float, float] | None,
+    solve_one: SolveOne,
+    fit: Callable[[FloatArray], dict[str, Any]],
+) -> Estimate:
+    """:func:`estimate_columns` of one trial, ``data``, as its :class:`Estimate`: the same
+    vectorised solve (:func:`solve_trials`) on a batch of one, without the batch's columns.
+    ``fit(position (1, 2))`` gives the goodness-of-fit diagnostics of a success."""
+    shared = SharedGeometry.of(data, frames)
+    ranges = shared.used.speed_of_light_mps * data.toa_s[shared.columns][None]
+    solved = solve_trials(shared, rows, ranges, data.doppler_hz[shared.columns][None], side_prior_m)
+    if solved.uncertain[0]:
+        estimate = _solve_one_safely(name, solve_one, data, rng)
+        if not estimate.success:
+            return estimate
+        return replace(
+            estimate, diagnostics={**estimate.diagnostics, **fit(estimate.position_m[None])}
+        )
+    count = int(solved.n_candidates[0])
+    chosen = int(solved.chosen[0])
+    if solved.draw[0] and rng is not None:
+        chosen = int(rng.integers(count))
+    position = solved.candidates[:1, min(chosen, 3)]
+    hard = bool(solved.hard_case[0])
+    diagnostics = {
+        key: value[0].item() for key, value in _diagnostics(solved, rows, shared).items()
+    }
+    return Estimate(
+        estimator=name,
+        position_m=position[0],
+        candidates_m=solved.candidates[0, :count],
+        ambiguous=bool(solved.ambiguous[0]),
+        message=HARD_CASE_MESSAGE if hard else "",
+        diagnostics={**diagnostics, **fit(position)},
+    )
 
 
 def draw_and_redo(

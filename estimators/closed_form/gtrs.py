@@ -39,6 +39,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import brentq
 
+from estimators.closed_form.gtrs_batch import equal_to_rounding
+from estimators.closed_form.gtrs_rounding import RANK_RTOL
+
 FloatArray = NDArray[np.float64]
 
 
@@ -103,7 +106,7 @@ def solve_gtrs(A: ArrayLike, b: ArrayLike, *, hard_case_rtol: float = 1e-10) -> 
     if not m33 > 0.0:
         raise ValueError("A: the r_z column is zero; the CLS needs at least one ToA row (MATH §4)")
     singular_values = np.linalg.svd(A, compute_uv=False)
-    rank = int(np.sum(singular_values > singular_values[0] * 1e-10))
+    rank = int(np.sum(singular_values > singular_values[0] * RANK_RTOL))
 
     S = M[:2, :2] - np.outer(m, m) / m33
     mu, U = np.linalg.eigh(S)  # ascending, μ₁ ≤ μ₂
@@ -135,7 +138,7 @@ def solve_gtrs(A: ArrayLike, b: ArrayLike, *, hard_case_rtol: float = 1e-10) -> 
         # A small but real e₁ (two headings a few millidegrees apart) passes the screen above,
         # yet the pair's costs then differ by 4|e₁|√(−φ(−μ₁)): keep the pair only when its costs
         # agree to rounding, else the minimiser is the unique root below.
-        hard = _equal_to_rounding(costs, A, b, points)
+        hard = costs_equal_to_rounding(costs, A, b, points)
     if not hard:
         shift = _root_of_decreasing(phi, e, mu_scale)
         lam = shift - mu[0]
@@ -153,22 +156,20 @@ def _lift_and_cost(xy: FloatArray, A: FloatArray, b: FloatArray) -> tuple[FloatA
     return points, np.sum((points @ A.T - b) ** 2, axis=1)
 
 
-def _equal_to_rounding(costs: FloatArray, A: FloatArray, b: FloatArray, points: FloatArray) -> bool:
-    """Whether the two hard-case costs differ by no more than the rounding of their evaluation.
-
-    The residual ``A r − b`` is computed with an error up to ``δ = ε √m (‖A‖_F ‖r‖ + ‖b‖)``, so a
-    cost ``C`` is known to about ``2 √C δ + δ²``; the bound used is 16 times that, plus a relative
-    ``1e-12``. On exactly straight frames the gap stays below that rounding term.
-    """
-    eps = np.finfo(float).eps
-    delta = (
-        eps
-        * np.sqrt(len(b))
-        * (np.linalg.norm(A) * np.max(np.linalg.norm(points, axis=1)) + np.linalg.norm(b))
+def costs_equal_to_rounding(
+    costs: FloatArray, A: FloatArray, b: FloatArray, points: FloatArray
+) -> bool:
+    """Whether two hard-case costs ``‖A r − b‖²`` differ by no more than the rounding of their
+    evaluation: :func:`~estimators.closed_form.gtrs_batch.equal_to_rounding` (the rule and its
+    bound) for this one pair of points ``r`` (the rows of ``points``)."""
+    equal, _ = equal_to_rounding(
+        costs[None],
+        np.max(np.linalg.norm(points, axis=1))[None],
+        np.linalg.norm(A)[None],
+        np.linalg.norm(b)[None],
+        len(b),
     )
-    best = float(np.min(costs))
-    tolerance = 1e-12 * best + 16.0 * (2.0 * np.sqrt(best) * delta + delta**2)
-    return bool(np.max(costs) - best <= tolerance)
+    return bool(equal[0])
 
 
 def _root_of_decreasing(phi, e: FloatArray, scale: float) -> float:

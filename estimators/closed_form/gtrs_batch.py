@@ -10,7 +10,7 @@ one numpy call over the whole batch.
 - The hard case (MATH §5) is screened and confirmed as in
 :func:`~estimators.closed_form.gtrs.solve_gtrs`:
   ``φ(−μ₁) < 0`` without the ``e₁`` term, ``|e₁| ≤ rtol·μ₂·√(−φ(−μ₁))``, and the two points'
-  costs equal to rounding (:func:`equal_to_rounding`, the rule of ``gtrs._equal_to_rounding``).
+  costs equal to rounding (:func:`equal_to_rounding`, the one rule both solvers use).
 - Otherwise the root of the secular equation ``φ(−μ₁ + s) = 0`` is found by Newton's method
   from a lower bound of the root. ``φ`` is convex and strictly decreasing in ``s > 0``, so
   every Newton iterate stays below the root and the iterates increase monotonically to it:
@@ -478,11 +478,15 @@ def equal_to_rounding(
     b_norm: FloatArray,
     n_rows: int,
 ) -> tuple[BoolArray, BoolArray]:
-    """``gtrs._equal_to_rounding`` for many pairs, and whether each answer is in doubt.
+    """Whether each pair's two hard-case costs are equal to the rounding of their evaluation,
+    and whether that answer is in doubt (MATH §5; ``gtrs.solve_gtrs`` uses the same rule).
 
-    The gap ``max − min`` of the two costs is itself rounding (or a real difference); the
-    answer is in doubt when the gap is within a factor :data:`DECISION_MARGIN` of the
-    tolerance, where the one-trial solver's own rounding may decide either way.
+    The residual ``A r − b`` is computed with an error up to ``δ = ε √m (‖A‖_F ‖r‖ + ‖b‖)``,
+    so a cost ``C`` is known to about ``2 √C δ + δ²``; the pair is equal when its costs differ
+    by at most 16 times that plus a relative ``1e-12``. On exactly straight frames the gap stays
+    below that rounding term. The gap ``max − min`` is itself rounding (or a real difference);
+    the answer is in doubt when the gap is within a factor :data:`DECISION_MARGIN` of the
+    tolerance, where another order of the same operations may decide either way.
     """
     delta = EPS * np.sqrt(n_rows) * (a_norm * point_norms + b_norm)
     best = np.min(costs, axis=1)

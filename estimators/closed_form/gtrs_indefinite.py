@@ -58,6 +58,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import brentq
 
+from estimators.closed_form.gtrs import costs_equal_to_rounding
+from estimators.closed_form.gtrs_rounding import RANK_RTOL
+
 FloatArray = NDArray[np.float64]
 
 _EPS = np.finfo(float).eps
@@ -168,7 +171,7 @@ def solve_gtrs_indefinite(
     if np.any(d == 0.0) or not (np.any(d > 0.0) and np.any(d < 0.0)):
         raise ValueError(f"d: expected nonzero entries of both signs, got {d.tolist()}")
     singular_values = np.linalg.svd(A, compute_uv=False)
-    rank = int(np.sum(singular_values > max(singular_values[0], _EPS) * 1e-10))
+    rank = int(np.sum(singular_values > max(singular_values[0], _EPS) * RANK_RTOL))
     M, q = A.T @ A, A.T @ b
     pencil = _diagonalise(M, q, d, g, float(c))
     if pencil is None:
@@ -207,7 +210,7 @@ def solve_gtrs_indefinite(
         ys[1, index] -= t
         points = pencil.theta(ys)
         costs = indefinite_cost(A, b, points)
-        if _equal_to_rounding(costs, A, b, points):
+        if costs_equal_to_rounding(costs, A, b, points):
             return IndefiniteGtrsSolution(
                 points=points,
                 costs=costs,
@@ -385,20 +388,6 @@ def _interior_root(
     gap = brentq(phi, low, high, xtol=1e-300, rtol=4 * _EPS, maxiter=500)
     mu = mu_hi - gap if sign < 0 else mu_lo + gap
     return mu, base + gap * slope
-
-
-def _equal_to_rounding(costs: FloatArray, A: FloatArray, b: FloatArray, points: FloatArray) -> bool:
-    """Whether two hard-case costs differ by no more than the rounding of their evaluation
-    (the bound of :func:`estimators.closed_form.gtrs.solve_gtrs`: 16 times the error of ``Aθ −
-    b``)."""
-    delta = (
-        _EPS
-        * np.sqrt(len(b))
-        * (np.linalg.norm(A) * np.max(np.linalg.norm(points, axis=1)) + np.linalg.norm(b))
-    )
-    best = float(np.min(costs))
-    tolerance = 1e-12 * best + 16.0 * (2.0 * np.sqrt(best) * delta + delta**2)
-    return bool(np.max(costs) - best <= tolerance)
 
 
 __all__ = [
