@@ -71,7 +71,11 @@ from estimators.closed_form.cls_rows import (
 )
 from estimators.closed_form.constrained_ls import ConstrainedLS
 from estimators.closed_form.gtrs import GtrsSolution, solve_gtrs
-from estimators.closed_form.pseudorange_cls import OffsetMethod, solve_pseudorange_cls
+from estimators.closed_form.pseudorange_cls import (
+    OffsetMethod,
+    estimate_pseudorange_columns,
+    solve_pseudorange_cls,
+)
 from estimators.goodness_of_fit import with_fit, with_fit_columns
 from scenarios import measurement_model as model
 from scenarios.geometry import straight_track_line
@@ -402,6 +406,11 @@ class _Batches:
     ) -> BatchEstimates:
         """``estimate_batch`` as columns, without an object per trial."""
         require_batch(self, batch)
+        if self._pseudorange_columns(batch.geometry):  # MATH §15, relaxed: vectorised
+            columns = estimate_pseudorange_columns(
+                self.name, batch, self.frames, rngs, self.side_prior_m, self._solve_one
+            )
+            return with_fit_columns(self, columns, batch)
         if batch.geometry.unknowns:  # not vectorised (MATH §15): one trial at a time
             rngs = check_rngs(rngs, batch.n_trials)
             return BatchEstimates.from_estimates(
@@ -409,6 +418,14 @@ class _Batches:
                 [self.estimate_one_trial(batch.trial(i), rng=rng) for i, rng in enumerate(rngs)],
             )
         return self._columns(batch, rngs)
+
+    def _pseudorange_columns(self, geometry: MeasurementSet) -> bool:
+        """Whether the columns are the relaxed pseudo-range closed form's, all trials at once
+        (an unknown emission time; the ``"profile"`` offset goes one trial at a time)."""
+        return (
+            "emission_time_s" in geometry.unknowns
+            and self._options(geometry).get("offset_method", "relaxed") == "relaxed"
+        )
 
     def _columns(
         self, batch: MeasurementBatch, rngs: Sequence[np.random.Generator | None] | None

@@ -539,14 +539,16 @@ def _decreasing_root(function, low: FloatArray, high: FloatArray) -> FloatArray:
     each of a set of strictly decreasing functions, to full precision.
 
     ``function(x, at)`` returns the values and derivatives at ``x`` of the functions ``at``
-    (indices into the set). A safeguarded Newton iteration (Numerical Recipes' ``rtsafe``):
-    the Newton step when it stays inside the bracket and halves the step before last, else a
-    bisection of the bracket (geometric while its ends are more than a factor 4 apart). It
-    stops when a step is below ``4ε`` of the point, or the bracket below ``4ε`` of its end.
+    (indices into the set). A safeguarded Newton iteration (Numerical Recipes' ``rtsafe``) on
+    the model of a pole at 0, ``f ≈ a/x² + c`` matched to the value and slope at ``x`` (exact
+    when only the pole term varies; a Newton step where the model has no root): the step when
+    it stays inside the bracket and halves the step before last, else a bisection of the
+    bracket (geometric while its ends are more than a factor 4 apart). It stops when a step is
+    below ``4ε`` of the point, or the bracket below ``4ε`` of its end.
     """
     low, high = low.copy(), high.copy()
-    x = low.copy()
-    previous = high - low  # the last step taken
+    x = high.copy()
+    previous = np.full(len(low), np.inf)  # the last step taken
     active = np.arange(len(low))
     for _ in range(200):
         if active.size == 0:
@@ -555,17 +557,26 @@ def _decreasing_root(function, low: FloatArray, high: FloatArray) -> FloatArray:
         x_a, lo, hi = x[active], low[active], high[active]
         lo = np.where(value > 0.0, x_a, lo)
         hi = np.where(value < 0.0, x_a, hi)
-        newton = x_a - value / derivative
+        newton = -value / derivative
+        # the model's root x·√r, r = f′x/(2f + f′x), as the step x(r − 1)/(√r + 1)
+        denominator = 2.0 * value + derivative * x_a
+        ratio = derivative * x_a / denominator
+        modelled = x_a * (-2.0 * value / denominator) / (np.sqrt(np.abs(ratio)) + 1.0)
+        step = np.where(ratio > 0.0, modelled, newton)
+        following = x_a + step
+        inside = (following > lo) & (following < hi)
         bisect = np.where(hi > 4.0 * lo, np.sqrt(lo * hi), 0.5 * (lo + hi))
-        fast = np.abs(newton - x_a) <= 0.5 * np.abs(previous[active])
-        following = np.where(fast & (newton > lo) & (newton < hi), newton, bisect)
-        following = np.where(value == 0.0, x_a, following)
+        fast = inside & (np.abs(step) <= 0.5 * np.abs(previous[active]))
+        finished = (
+            (value == 0.0)
+            | (np.abs(newton) <= 4.0 * _EPS * np.abs(x_a))
+            | (hi - lo <= 4.0 * _EPS * hi)
+        )
+        following = np.where(finished, np.where(inside, following, x_a), following)
+        following = np.where(finished | fast, following, bisect)
         previous[active] = following - x_a
         x[active] = following
         low[active], high[active] = lo, hi
-        finished = (np.abs(following - x_a) <= 4.0 * _EPS * np.abs(following)) | (
-            hi - lo <= 4.0 * _EPS * hi
-        )
         active = active[~finished]
     return x
 
