@@ -351,8 +351,11 @@ class _Batches:
     the trials were chunked or called. :meth:`estimate_one_trial` is the one-trial solver (the
     eigen-decomposition of MATH §5), to which the batch leaves the trials its rounding bounds
     cannot decide; the two agree to 1e-9 of the problem's length scale
-    (``tests/estimators/test_cls_batch.py``). With nuisance parameters (MATH §15) there is no
-    batch: every path is the one-trial solver.
+    (``tests/estimators/test_cls_batch.py``). With an unknown emission time (MATH §15) the
+    columns are the pseudo-range closed form's, every trial at once
+    (:func:`~estimators.closed_form.pseudorange_cls.estimate_pseudorange_columns`), and
+    ``estimate`` runs the same solver on a batch of one; with the carrier offset alone, or the ``"profile"`` offset,
+    every path is the one-trial solver.
     """
 
     name: ClassVar[str]

@@ -500,10 +500,13 @@ def _interior_root(
 
     def phi(gap: FloatArray, rows: NDArray[np.int64]) -> tuple[FloatArray, FloatArray]:
         """sign·φ and its derivative in ``gap``, for the systems ``rows``."""
-        den = base[rows] + gap[:, None] * slope[rows]
-        term = weight[rows] / den**2
-        value = sign[rows] * (np.sum(term, axis=1) - offset[rows])
-        derivative = sign[rows] * np.sum(-2.0 * term * slope[rows] / den, axis=1)
+        at = _every_or(rows, len(nu))
+        row_slope = slope[at]
+        den = base[at] + gap[:, None] * row_slope
+        term = weight[at] / den**2
+        row_sign = sign[at]
+        value = row_sign * (np.sum(term, axis=1) - offset[at])
+        derivative = row_sign * np.sum(-2.0 * term * row_slope / den, axis=1)
         return value, derivative
 
     middle = phi_mid == 0.0
@@ -553,32 +556,40 @@ def _decreasing_root(function, low: FloatArray, high: FloatArray) -> FloatArray:
     for _ in range(200):
         if active.size == 0:
             break
-        value, derivative = function(x[active], active)
-        x_a, lo, hi = x[active], low[active], high[active]
-        lo = np.where(value > 0.0, x_a, lo)
-        hi = np.where(value < 0.0, x_a, hi)
-        newton = -value / derivative
+        at = _every_or(active, len(low))
+        x_a = x[at].copy()
+        value, derivative = function(x_a, active)
+        positive = value > 0.0
+        lo = np.where(positive, x_a, low[at])
+        hi = np.where(positive, high[at], x_a)  # a zero value ends the search at x
+        newton = value / derivative  # minus Newton's step
         # the model's root x·√r, r = f′x/(2f + f′x), as the step x(r − 1)/(√r + 1)
-        denominator = 2.0 * value + derivative * x_a
-        ratio = derivative * x_a / denominator
-        modelled = x_a * (-2.0 * value / denominator) / (np.sqrt(np.abs(ratio)) + 1.0)
-        step = np.where(ratio > 0.0, modelled, newton)
+        slope_x = derivative * x_a
+        denominator = 2.0 * value + slope_x
+        ratio = slope_x / denominator
+        modelled = (-2.0 * value / denominator) * x_a / (np.sqrt(np.abs(ratio)) + 1.0)
+        step = np.where(ratio > 0.0, modelled, -newton)
         following = x_a + step
-        inside = (following > lo) & (following < hi)
-        bisect = np.where(hi > 4.0 * lo, np.sqrt(lo * hi), 0.5 * (lo + hi))
-        fast = inside & (np.abs(step) <= 0.5 * np.abs(previous[active]))
-        finished = (
-            (value == 0.0)
-            | (np.abs(newton) <= 4.0 * _EPS * np.abs(x_a))
-            | (hi - lo <= 4.0 * _EPS * hi)
-        )
-        following = np.where(finished, np.where(inside, following, x_a), following)
-        following = np.where(finished | fast, following, bisect)
-        previous[active] = following - x_a
-        x[active] = following
-        low[active], high[active] = lo, hi
+        accept = (following > lo) & (following < hi)
+        finished = (np.abs(newton) <= 4.0 * _EPS * x_a) | (hi - lo <= 4.0 * _EPS * hi)
+        accept &= np.abs(step) <= 0.5 * np.abs(previous[at])
+        if not np.all(accept | finished):  # bisect the bracket where the step is refused
+            bisect = np.where(hi > 4.0 * lo, np.sqrt(lo * hi), 0.5 * (lo + hi))
+            following = np.where(accept | finished, following, bisect)
+        if finished.any():  # converged: x, or its last step when that stays in the bracket
+            kept = finished & ~((following > lo) & (following < hi))
+            following = np.where(kept, x_a, following)
+        previous[at] = following - x_a
+        x[at] = following
+        low[at], high[at] = lo, hi
         active = active[~finished]
     return x
+
+
+def _every_or(index: NDArray[np.int64], n: int) -> NDArray[np.int64] | slice:
+    """``index`` (sorted, distinct, in ``range(n)``), or the slice of all when it is all:
+    a batch of one, or a batch whose systems all go on, is then not gathered."""
+    return slice(None) if len(index) == n else index
 
 
 def _batch_costs(A: FloatArray, b: FloatArray, points: FloatArray) -> FloatArray:

@@ -77,6 +77,8 @@ OffsetMethod = Literal["relaxed", "profile"]
 HYPERBOLOID = np.array([1.0, 1.0, -1.0])
 """The diagonal of D for ``θ = (x', y', ρ_j)``."""
 
+_GTRS_FIELDS = tuple(f.name for f in fields(IndefiniteGtrsBatch))
+
 WRONG_SHEET_NOTE = (
     "the global minimiser has a negative reference range: the best point on the physical "
     "sheet is returned (MATH §15)"
@@ -423,18 +425,17 @@ def solve_pseudorange_batch(
                 found_status[i] = STATUSES.index(reason)
             points[active], count[active], status[active] = found, found_count, found_status
             arrays = {"A": A, "b": b, "A_full": A_full, "b_full": b_full, "nuisance": N}
-            arrays |= {f.name: getattr(gtrs, f.name) for f in fields(gtrs)}
+            arrays |= {name: getattr(gtrs, name) for name in _GTRS_FIELDS}
             for key, value in arrays.items():
-                if value is None:
-                    last[key] = None
+                if value is None or len(active) == n:  # every trial reached this stage
+                    last[key] = value
                     continue
-                if key not in last:
-                    last[key] = np.zeros((n, *value.shape[1:]), dtype=value.dtype)
+                last[key] = last[key].copy()  # one stage's arrays, now merged with the next's
                 last[key][active] = value
             active = active[found_count > 0]
             if active.size == 0:
                 break
-        gtrs_last = IndefiniteGtrsBatch(**{f.name: last[f.name] for f in fields(gtrs)})
+        gtrs_last = IndefiniteGtrsBatch(**{name: last[name] for name in _GTRS_FIELDS})
         valid = np.arange(2)[None, :] < count[:, None]
         residual = points @ np.swapaxes(last["A"], -1, -2) - last["b"][:, None, :]
         costs = np.where(valid, np.sum(residual**2, axis=-1), np.nan)

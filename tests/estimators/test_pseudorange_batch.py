@@ -116,6 +116,7 @@ def test_noise_free_columns_with_unknowns_are_exact(scenario_name) -> None:
     assert set(columns.diagnostics["status"]) == {"interior-root"}
 
 
+@pytest.mark.bits("solve_pseudorange_cls runs solve_pseudorange_batch on the same one-row arrays")
 def test_batch_of_one_is_solve_pseudorange_cls() -> None:
     """``solve_pseudorange_cls`` is the batch of one: the same arrays give the same bits."""
     batch = simulate_trials(
