@@ -6,7 +6,8 @@ On ``beacon-pass`` (a 406 MHz beacon, 40 samples) and ``turn-noncooperative`` (t
 trials:
 
 - ``one-at-a-time``: ``estimate(batch.trial(i), rng=rngs[i])``: the pseudo-range closed form
-  on one trial (its batch of one), what the columns cost per trial before they were vectorised;
+  on one trial (its batch of one); the columns were this call per trial before they were
+  vectorised;
 - ``columns``: ``estimate_columns(batch, rngs=rngs)``: the relaxed pseudo-range closed form of
   every trial at once (``estimators.closed_form.pseudorange_cls.solve_pseudorange_batch``).
 

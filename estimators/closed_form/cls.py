@@ -354,8 +354,8 @@ class _Batches:
     (``tests/estimators/test_cls_batch.py``). With an unknown emission time (MATH §15) the
     columns are the pseudo-range closed form's, every trial at once
     (:func:`~estimators.closed_form.pseudorange_cls.estimate_pseudorange_columns`), and
-    ``estimate`` runs the same solver on a batch of one; with the carrier offset alone, or the ``"profile"`` offset,
-    every path is the one-trial solver.
+    ``estimate`` runs the same solver on a batch of one; with the carrier offset alone every
+    path is the one-trial solver.
     """
 
     name: ClassVar[str]
@@ -409,9 +409,15 @@ class _Batches:
     ) -> BatchEstimates:
         """``estimate_batch`` as columns, without an object per trial."""
         require_batch(self, batch)
-        if self._pseudorange_columns(batch.geometry):  # MATH §15, relaxed: vectorised
+        if "emission_time_s" in batch.geometry.unknowns:  # MATH §15: vectorised
             columns = estimate_pseudorange_columns(
-                self.name, batch, self.frames, rngs, self.side_prior_m, self._solve_one
+                self.name,
+                batch,
+                self.frames,
+                rngs,
+                self.side_prior_m,
+                self._solve_one,
+                **self._options(batch.geometry),
             )
             return with_fit_columns(self, columns, batch)
         if batch.geometry.unknowns:  # not vectorised (MATH §15): one trial at a time
@@ -421,14 +427,6 @@ class _Batches:
                 [self.estimate_one_trial(batch.trial(i), rng=rng) for i, rng in enumerate(rngs)],
             )
         return self._columns(batch, rngs)
-
-    def _pseudorange_columns(self, geometry: MeasurementSet) -> bool:
-        """Whether the columns are the relaxed pseudo-range closed form's, all trials at once
-        (an unknown emission time; the ``"profile"`` offset goes one trial at a time)."""
-        return (
-            "emission_time_s" in geometry.unknowns
-            and self._options(geometry).get("offset_method", "relaxed") == "relaxed"
-        )
 
     def _columns(
         self, batch: MeasurementBatch, rngs: Sequence[np.random.Generator | None] | None

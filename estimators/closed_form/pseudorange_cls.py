@@ -50,7 +50,6 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import brentq
 
 from estimators.batch import BatchEstimates, check_rngs, finalize_columns
 from estimators.closed_form.cls_batch import SolveOne, draw_and_redo
@@ -59,7 +58,6 @@ from estimators.closed_form.gtrs_indefinite import STATUSES as GTRS_STATUSES
 from estimators.closed_form.gtrs_indefinite import (
     IndefiniteGtrsBatch,
     IndefiniteGtrsSolution,
-    solve_gtrs_indefinite,
     solve_gtrs_indefinite_batch,
     stationary_points,
 )
@@ -78,6 +76,7 @@ HYPERBOLOID = np.array([1.0, 1.0, -1.0])
 """The diagonal of D for ``θ = (x', y', ρ_j)``."""
 
 _GTRS_FIELDS = tuple(f.name for f in fields(IndefiniteGtrsBatch))
+_EPS = np.finfo(float).eps
 
 WRONG_SHEET_NOTE = (
     "the global minimiser has a negative reference range: the best point on the physical "
@@ -154,6 +153,9 @@ class PseudorangeBatch:
         (None with δ known) the same rows before the projection.
     candidates_m, costs, emission_time_s, reference_range_m : (n, 2, 2), (n, 2), (n, 2), (n, 2)
         Per returned point, NaN beyond ``count``; ``carrier_offset_hz`` (n, 2) or None.
+    profiled, profile_evaluations : (n,), (n,)
+        With ``offset_method="profile"``: the trials whose δ is the profile's (the others keep
+        the relaxed estimate) and the slope evaluations of each search.
     """
 
     reference_sample: int
@@ -173,6 +175,8 @@ class PseudorangeBatch:
     emission_time_s: FloatArray
     carrier_offset_hz: FloatArray | None
     reference_range_m: FloatArray
+    profiled: BoolArray
+    profile_evaluations: IntArray
 
     @property
     def on_physical_sheet(self) -> BoolArray:
@@ -373,6 +377,7 @@ def solve_pseudorange_batch(
     carrier_offset_unknown: bool,
     stages: int = 2,
     reference: Reference = "centre",
+    offset_method: OffsetMethod = "relaxed",
     hard_case_rtol: float = 1e-10,
 ) -> PseudorangeBatch:
     """The relaxed pseudo-range CLS (module text, MATH §15) of ``n`` trials at once.
@@ -383,8 +388,12 @@ def solve_pseudorange_batch(
     arrays: the rows, the weighting stages, the indefinite GTRS
     (:func:`~estimators.closed_form.gtrs_indefinite.solve_gtrs_indefinite_batch`); a trial
     whose global minimisers all lie on the wrong sheet gets the lowest-cost stationary point on
-    the physical one, and a trial without a minimiser stops at the stage it reached.
+    the physical one, and a trial without a minimiser stops at the stage it reached. With δ
+    unknown and ``offset_method="profile"`` the last stage's rows then go to
+    :func:`profile_offset` (every trial at once), from the relaxed (δ, w).
     """
+    if offset_method not in ("relaxed", "profile"):
+        raise ValueError(f"offset_method: expected 'relaxed' or 'profile', got {offset_method!r}")
     if int(stages) != stages or stages < 1:
         raise ValueError(f"stages: must be a whole number >= 1, got {stages!r}")
     # C order: a trial's rows then reduce in the same order in a batch of any size
@@ -435,6 +444,45 @@ def solve_pseudorange_batch(
             active = active[found_count > 0]
             if active.size == 0:
                 break
+        profiled = np.zeros(n, dtype=bool)
+        evaluations = np.zeros(n, dtype=np.int64)
+        delta = None
+        trials = np.flatnonzero(count > 0)
+        if offset_unknown and offset_method == "profile" and trials.size:
+            N = last["nuisance"][trials]
+            A_full, b_full = last["A_full"][trials], last["b_full"][trials]
+            theta = points[trials, 0]
+            residual = b_full - (A_full @ theta[..., None])[..., 0]
+            relaxed = (np.linalg.pinv(N) @ residual[..., None])[..., 0]  # the free (δ, w)
+            step = np.maximum(
+                np.abs(relaxed[:, 1] / theta[:, 2] - relaxed[:, 0]), sigma_f / np.sqrt(N.shape[1])
+            )
+            profile = profile_offset(
+                A_full, b_full, N, constraint, relaxed[:, 0], step, hard_case_rtol=hard_case_rtol
+            )
+            evaluations[trials] = profile.evaluations
+            found = np.flatnonzero(profile.found)
+            done = trials[found]
+            delta = profile.carrier_offset_hz[found]
+            A, b = _offset_system(A_full[found], b_full[found], N[found], delta)
+            at_delta = profile.gtrs
+            for key in ("A", "b", *_GTRS_FIELDS):
+                last[key] = last[key].copy()
+            last["A"][done], last["b"][done] = A, b
+            for name in _GTRS_FIELDS:
+                last[name][done] = getattr(at_delta, name)[found]
+            points[done] = at_delta.points[found]
+            count[done] = at_delta.count[found]
+            status[done] = at_delta.status[found]
+            valid = np.arange(2)[None, :] < count[done, None]
+            wrong = np.all(np.where(valid, points[done, :, 2] < 0.0, True), axis=1)
+            for i in np.flatnonzero(wrong & (count[done] > 0)):
+                fallback, reason = _physical_sheet_fallback(A[i], b[i], constraint)
+                points[done[i]] = np.nan
+                points[done[i], : len(fallback)] = fallback
+                count[done[i]] = len(fallback)
+                status[done[i]] = STATUSES.index(reason)
+            profiled[done] = True
         gtrs_last = IndefiniteGtrsBatch(**{name: last[name] for name in _GTRS_FIELDS})
         valid = np.arange(2)[None, :] < count[:, None]
         residual = points @ np.swapaxes(last["A"], -1, -2) - last["b"][:, None, :]
@@ -443,6 +491,8 @@ def solve_pseudorange_batch(
         emission, offset = _nuisance_estimates(
             geometry, ranges, doppler, candidates, offset_unknown
         )
+        if delta is not None:  # the profile's δ for its points
+            offset[profiled] = np.where(valid[profiled], delta[:, None], np.nan)
     return PseudorangeBatch(
         reference_sample=ref,
         frame=frame,
@@ -461,6 +511,8 @@ def solve_pseudorange_batch(
         emission_time_s=emission,
         carrier_offset_hz=offset,
         reference_range_m=points[..., 2] * frame.scale_m,
+        profiled=profiled,
+        profile_evaluations=evaluations,
     )
 
 
@@ -493,15 +545,13 @@ def solve_pseudorange_cls(
         With δ unknown: ``"relaxed"`` is the closed form, (δ, w) free and projected out;
         ``"profile"`` then restores ``w = ρ_jδ`` and minimises the exact GLS cost over δ
         (:func:`profile_offset`, a scalar root search, one GTRS per step), with the weights
-        of the last relaxed stage (one trial at a time).
+        of the last relaxed stage.
 
     If the global minimiser lies on the wrong sheet (``ρ_j < 0``, possible only at high
     noise) the lowest-cost stationary point on the physical sheet is returned instead and
     ``status`` says so; ``success`` is false when there is none or no definite interval.
     """
     _check_options(data, carrier_offset_unknown, stages)
-    if offset_method not in ("relaxed", "profile"):
-        raise ValueError(f"offset_method: expected 'relaxed' or 'profile', got {offset_method!r}")
     offset_unknown = carrier_offset_unknown and data.doppler_hz is not None
     batch = solve_pseudorange_batch(
         data,
@@ -510,6 +560,7 @@ def solve_pseudorange_cls(
         carrier_offset_unknown=carrier_offset_unknown,
         stages=stages,
         reference=reference,
+        offset_method=offset_method,
         hard_case_rtol=hard_case_rtol,
     )
     ref, frame = batch.reference_sample, batch.frame
@@ -519,37 +570,11 @@ def solve_pseudorange_cls(
     A, b = batch.A[0], batch.b[0]
     A_full, b_full = batch.A_full[0], batch.b_full[0]
     N = None if batch.nuisance is None else batch.nuisance[0]
-    constraint = batch.constraint
     candidates = batch.candidates_m[0, :count]
     emission = batch.emission_time_s[0, :count]
     offset = None if batch.carrier_offset_hz is None else batch.carrier_offset_hz[0, :count]
     costs = batch.costs[0, :count]
-
-    profile = None
-    if offset_unknown and offset_method == "profile" and count:
-        relaxed = np.linalg.lstsq(N, b_full - A_full @ points[0], rcond=None)[0]
-        step = max(
-            abs(relaxed[1] / points[0, 2] - relaxed[0]), data.noise.doppler_hz / np.sqrt(len(N))
-        )
-        try:
-            profile = profile_offset(
-                A_full, b_full, N, constraint, relaxed[0], step, hard_case_rtol=hard_case_rtol
-            )
-        except (RuntimeError, ValueError):  # a GTRS without minimiser on the way, or no sign
-            profile = None  # change of the slope: keep the relaxed estimate, and say so
-        if profile is not None:
-            delta, gtrs, _ = profile
-            A, b = _offset_system(A_full, b_full, N, delta)
-            points, status = gtrs.points, gtrs.status
-            if len(points) and np.all(points[:, 2] < 0.0):
-                points, status = _physical_sheet_fallback(A, b, constraint)
-            candidates = frame.to_world(points[:, :2]) if len(points) else np.zeros((0, 2))
-            emission, offset = _nuisance_estimates(
-                data, data.range_m[None], data.doppler_hz[None], candidates[None], True
-            )
-            emission = emission[0]
-            offset = np.full(len(points), delta)
-            costs = np.sum((points @ A.T - b) ** 2, axis=1) if len(points) else np.zeros(0)
+    profiled = bool(batch.profiled[0])
 
     on_sheet = bool(len(gtrs.points) and np.all(gtrs.points[:, 2] > 0.0))
     diagnostics: dict[str, Any] = {
@@ -567,14 +592,14 @@ def solve_pseudorange_cls(
         "stages": int(stages),
         "offset_method": offset_method if offset_unknown else None,
     }
-    if offset_unknown and offset_method == "profile" and profile is None:
+    if offset_unknown and offset_method == "profile" and not profiled:
         diagnostics["offset_method"] = "relaxed (profile failed)"
-    if offset_unknown and len(points) and profile is None:
+    if offset_unknown and len(points) and not profiled:
         relaxed = np.linalg.lstsq(N, b_full - A_full @ points[0], rcond=None)[0]
         diagnostics["relaxed_carrier_offset_hz"] = float(relaxed[0])
         diagnostics["relaxation_gap_hz"] = float(relaxed[1] / points[0, 2] - relaxed[0])
-    if profile is not None:
-        diagnostics["profile_evaluations"] = profile[2]
+    if profiled:
+        diagnostics["profile_evaluations"] = int(batch.profile_evaluations[0])
     return PseudorangeSolution(
         candidates_m=candidates,
         costs=costs,
@@ -590,12 +615,24 @@ def solve_pseudorange_cls(
 
 
 def _offset_system(
-    A: FloatArray, b: FloatArray, N: FloatArray, delta: float
+    A: FloatArray, b: FloatArray, N: FloatArray, delta: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """The rows with δ given and ``w = ρ_jδ`` restored: ``(A + δ N_w e₃ᵀ) θ = b − δ N_δ``."""
+    """The rows with δ given and ``w = ρ_jδ`` restored: ``(A + δ N_w e₃ᵀ) θ = b − δ N_δ``, per
+    trial (``A`` (n, m, 3), ``b`` (n, m), ``N`` (n, m, 2), ``delta`` (n,))."""
     A_delta = A.copy()
-    A_delta[:, 2] += delta * N[:, 1]
-    return A_delta, b - delta * N[:, 0]
+    A_delta[..., 2] += delta[:, None] * N[..., 1]
+    return A_delta, b - delta[:, None] * N[..., 0]
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class ProfiledOffset:
+    """:func:`profile_offset` of ``n`` trials: δ* (n,), the GTRS at δ*, whether the search
+    found it (else the relaxed estimate stays), and the slope evaluations per trial."""
+
+    carrier_offset_hz: FloatArray
+    gtrs: IndefiniteGtrsBatch
+    found: BoolArray
+    evaluations: IntArray
 
 
 def profile_offset(
@@ -603,58 +640,123 @@ def profile_offset(
     b: FloatArray,
     N: FloatArray,
     constraint: tuple[FloatArray, FloatArray, float],
-    delta0: float,
-    step: float,
+    delta0: FloatArray,
+    step: FloatArray,
     *,
     hard_case_rtol: float = 1e-10,
-) -> tuple[float, IndefiniteGtrsSolution, int]:
-    """Minimise the exact cost ``min_θ ‖(A + δN_w e₃ᵀ)θ − (b − δN_δ)‖²`` over δ (hyperboloid).
+) -> ProfiledOffset:
+    """Minimise the exact cost ``min_θ ‖(A + δN_w e₃ᵀ)θ − (b − δN_δ)‖²`` over δ (hyperboloid),
+    for ``n`` trials at once.
 
-    ``A, b, N`` are whitened rows of the relaxed system (columns of N: δ, w), ``constraint``
-    the ``(d, g, c)`` of the hyperboloid. The constraint
-    does not depend on δ, so by the envelope theorem the profile's derivative is
-    ``2 rᵀ(θ*₃ N_w + N_δ)`` at the GTRS minimiser θ* (r its residual): a root search on it
-    (expanding from ``delta0`` by ``step`` until the sign changes, then Brent) reaches the
-    minimum to rounding, where a search on the cost alone stops at ``√ε``. Returns
-    ``(δ*, the GTRS at δ*, evaluations)``.
+    ``A, b, N`` are whitened rows of the relaxed systems (n, m, ·) (columns of N: δ, w),
+    ``constraint`` the ``(d, g, c)`` of the hyperboloid. The constraint does not depend on δ,
+    so by the envelope theorem the profile's derivative is ``2 rᵀ(θ*₃ N_w + N_δ)`` at the GTRS
+    minimiser θ* (r its residual): a root search on it (expanding from ``delta0`` by ``step``
+    until the sign changes, then regula falsi with the Illinois modification) reaches the
+    minimum to rounding, where a search on the cost alone stops at ``√ε``. Each step solves
+    the GTRS of every trial still searching at once. A trial whose GTRS has no minimiser on the
+    way, or whose slope changes no sign, is not ``found``.
     """
-    cache: dict[float, IndefiniteGtrsSolution] = {}
+    n = len(A)
+    evaluations = np.zeros(n, dtype=np.int64)
 
-    def slope(delta: float) -> float:
-        A_delta, b_delta = _offset_system(A, b, N, delta)
-        solution = solve_gtrs_indefinite(
+    def slope(delta: FloatArray, at: NDArray[np.int64]) -> tuple[FloatArray, IndefiniteGtrsBatch]:
+        A_delta, b_delta = _offset_system(A[at], b[at], N[at], delta)
+        gtrs = solve_gtrs_indefinite_batch(
             A_delta, b_delta, *constraint, hard_case_rtol=hard_case_rtol
         )
-        cache[delta] = solution
-        if len(solution.points) == 0:
-            raise RuntimeError(f"profile_offset: no minimiser at δ = {delta!r}")
-        theta = solution.points[0]
-        residual = A_delta @ theta - b_delta
-        return float(2.0 * residual @ (theta[2] * N[:, 1] + N[:, 0]))
+        evaluations[at] += 1
+        theta = gtrs.points[:, 0]
+        residual = (A_delta @ theta[..., None])[..., 0] - b_delta
+        value = 2.0 * np.sum(residual * (theta[:, 2:] * N[at][..., 1] + N[at][..., 0]), axis=1)
+        return np.where(gtrs.count > 0, value, np.nan), gtrs
 
-    low = high = float(delta0)
-    s_low = s_high = slope(low)
-    width = max(float(step), np.finfo(float).eps * max(abs(delta0), 1.0))
+    delta0 = np.asarray(delta0, dtype=float)
+    every = np.arange(n)
+    low, high = delta0.copy(), delta0.copy()
+    s_low = slope(delta0, every)[0]
+    s_high = s_low.copy()
+    width = np.maximum(step, _EPS * np.maximum(np.abs(delta0), 1.0))
+    failed = np.zeros(n, dtype=bool)
     for _ in range(60):
-        if s_low < 0.0 < s_high or s_low == 0.0 or s_high == 0.0:
+        bracketed = ((s_low < 0.0) & (s_high > 0.0)) | (s_low == 0.0) | (s_high == 0.0)
+        failed |= ~bracketed & ~(np.isfinite(s_low) & np.isfinite(s_high))
+        searching = np.flatnonzero(~bracketed & ~failed)
+        if searching.size == 0:
             break
-        if not (np.isfinite(s_low) and np.isfinite(s_high)):
-            raise RuntimeError("profile_offset: the slope is not finite")
-        if s_low >= 0.0:
-            low -= width
-            s_low = slope(low)
-        if s_high <= 0.0:
-            high += width
-            s_high = slope(high)
-        width *= 2.0
-    if s_low == 0.0 or s_high == 0.0:
-        delta = low if s_low == 0.0 else high
-    elif not s_low < 0.0 < s_high:
-        raise RuntimeError("profile_offset: no sign change of the slope found")
-    else:
-        delta = brentq(slope, low, high, xtol=1e-300, rtol=4 * np.finfo(float).eps)
-        slope(delta)
-    return float(delta), cache[delta], len(cache)
+        lower = searching[s_low[searching] >= 0.0]
+        if lower.size:
+            low[lower] -= width[lower]
+            s_low[lower] = slope(low[lower], lower)[0]
+        upper = searching[s_high[searching] <= 0.0]
+        if upper.size:
+            high[upper] += width[upper]
+            s_high[upper] = slope(high[upper], upper)[0]
+        width[searching] *= 2.0
+    at_low = ~failed & (s_low == 0.0)
+    at_high = ~failed & ~at_low & (s_high == 0.0)
+    inside = ~failed & ~at_low & ~at_high & (s_low < 0.0) & (s_high > 0.0)
+    failed |= ~(at_low | at_high | inside)
+    delta = np.where(at_low, low, high)
+    rows = np.flatnonzero(inside)
+    if rows.size:
+        delta[rows], lost = _increasing_root(
+            lambda x, at: slope(x, rows[at])[0], low[rows], high[rows], s_low[rows], s_high[rows]
+        )
+        failed[rows[lost]] = True
+    delta[failed] = np.nan
+    found = np.flatnonzero(~failed)
+    value, at_delta = slope(delta[found], found)
+    failed[found[np.isnan(value)]] = True
+    merged = {}  # the GTRS at δ* of the trials found; NaN and zeros for the others
+    for name in _GTRS_FIELDS:
+        value_found = getattr(at_delta, name)
+        column = np.zeros((n, *value_found.shape[1:]), dtype=value_found.dtype)
+        if column.dtype.kind == "f":
+            column[:] = np.nan
+        column[found] = value_found
+        merged[name] = column
+    return ProfiledOffset(
+        carrier_offset_hz=np.where(failed, np.nan, delta),
+        gtrs=IndefiniteGtrsBatch(**merged),
+        found=~failed,
+        evaluations=evaluations,
+    )
+
+
+def _increasing_root(function, low, high, f_low, f_high) -> tuple[FloatArray, BoolArray]:
+    """The root in ``(low, high)`` of each of a set of increasing functions (value < 0 at
+    ``low``, > 0 at ``high``), to rounding: regula falsi with the Illinois modification (the
+    value kept at an end twice in a row is halved), bisecting where the secant leaves the
+    bracket. ``function(x, at)`` returns the values at ``x`` of the functions ``at``; a NaN
+    value loses that function (the second result). Stops when the bracket is within ``4ε``
+    of its ends, or a value is zero."""
+    a, b, fa, fb = low.copy(), high.copy(), f_low.copy(), f_high.copy()
+    x = 0.5 * (a + b)
+    kept = np.zeros(len(a), dtype=np.int64)  # −1: the low end moved last, +1: the high end
+    lost = np.zeros(len(a), dtype=bool)
+    active = np.arange(len(a))
+    for _ in range(200):
+        if active.size == 0:
+            break
+        aa, bb, faa, fbb = a[active], b[active], fa[active], fb[active]
+        secant = (aa * fbb - bb * faa) / (fbb - faa)
+        x_a = np.where((secant > aa) & (secant < bb), secant, 0.5 * (aa + bb))
+        fx = function(x_a, active)
+        left, right = fx < 0.0, fx > 0.0
+        last = kept[active]
+        a[active] = np.where(left, x_a, aa)
+        fa[active] = np.where(left, fx, np.where(right & (last == 1), 0.5 * faa, faa))
+        b[active] = np.where(right, x_a, bb)
+        fb[active] = np.where(right, fx, np.where(left & (last == -1), 0.5 * fbb, fbb))
+        kept[active] = np.where(left, -1, np.where(right, 1, 0))
+        x[active] = x_a
+        lost[active] = np.isnan(fx)
+        span = b[active] - a[active]
+        scale = np.maximum(np.abs(a[active]), np.abs(b[active]))
+        finished = np.isnan(fx) | (fx == 0.0) | (span <= 4.0 * _EPS * scale) | (span <= 1e-300)
+        active = active[~finished]
+    return x, lost
 
 
 def _physical_sheet_fallback(
@@ -699,8 +801,9 @@ def estimate_pseudorange_columns(
     rngs: Sequence[np.random.Generator | None] | None,
     side_prior_m: tuple[float, float] | None,
     solve_one: SolveOne,
+    offset_method: OffsetMethod = "relaxed",
 ) -> BatchEstimates:
-    """The relaxed pseudo-range closed form's estimates of every trial of ``batch``, as columns.
+    """The pseudo-range closed form's estimates of every trial of ``batch``, as columns.
 
     What ``estimate`` of :mod:`estimators.closed_form.cls` returns trial by trial with an
     unknown emission time (MATH §15): :func:`solve_pseudorange_batch` on the frames used, the
@@ -727,6 +830,7 @@ def estimate_pseudorange_columns(
         geometry.speed_of_light_mps * batch.toa_s[:, columns],
         None if batch.doppler_hz is None else batch.doppler_hz[:, columns],
         carrier_offset_unknown=offset_unknown,
+        offset_method=offset_method,
     )
     success = solution.count > 0
     hard = solution.gtrs.hard_case
@@ -835,6 +939,7 @@ __all__ = [
     "HYPERBOLOID",
     "STATUSES",
     "WRONG_SHEET_NOTE",
+    "ProfiledOffset",
     "PseudorangeBatch",
     "PseudorangeSolution",
     "estimate_pseudorange_columns",
