@@ -652,8 +652,8 @@ def profile_offset(
     ``constraint`` the ``(d, g, c)`` of the hyperboloid. The constraint does not depend on δ,
     so by the envelope theorem the profile's derivative is ``2 rᵀ(θ*₃ N_w + N_δ)`` at the GTRS
     minimiser θ* (r its residual): a root search on it (expanding from ``delta0`` by ``step``
-    until the sign changes, then regula falsi with the Illinois modification) reaches the
-    minimum to rounding, where a search on the cost alone stops at ``√ε``. Each step solves
+    until the sign changes, then Brent's method, :func:`_brent_root`) reaches the minimum to
+    rounding, where a search on the cost alone stops at ``√ε``. Each step solves
     the GTRS of every trial still searching at once. A trial whose GTRS has no minimiser on the
     way, or whose slope changes no sign, is not ``found``.
     """
@@ -700,7 +700,7 @@ def profile_offset(
     delta = np.where(at_low, low, high)
     rows = np.flatnonzero(inside)
     if rows.size:
-        delta[rows], lost = _increasing_root(
+        delta[rows], lost = _brent_root(
             lambda x, at: slope(x, rows[at])[0], low[rows], high[rows], s_low[rows], s_high[rows]
         )
         failed[rows[lost]] = True
@@ -724,39 +724,64 @@ def profile_offset(
     )
 
 
-def _increasing_root(function, low, high, f_low, f_high) -> tuple[FloatArray, BoolArray]:
-    """The root in ``(low, high)`` of each of a set of increasing functions (value < 0 at
-    ``low``, > 0 at ``high``), to rounding: regula falsi with the Illinois modification (the
-    value kept at an end twice in a row is halved), bisecting where the secant leaves the
-    bracket. ``function(x, at)`` returns the values at ``x`` of the functions ``at``; a NaN
-    value loses that function (the second result). Stops when the bracket is within ``4ε``
-    of its ends, or a value is zero."""
-    a, b, fa, fb = low.copy(), high.copy(), f_low.copy(), f_high.copy()
-    x = 0.5 * (a + b)
-    kept = np.zeros(len(a), dtype=np.int64)  # −1: the low end moved last, +1: the high end
-    lost = np.zeros(len(a), dtype=bool)
-    active = np.arange(len(a))
-    for _ in range(200):
+def _brent_root(
+    function, low: FloatArray, high: FloatArray, f_low: FloatArray, f_high: FloatArray
+) -> tuple[FloatArray, BoolArray]:
+    """The root in ``[low, high]`` of each of a set of functions whose values at the ends have
+    opposite signs, by Brent's method step for step as scipy's ``brentq`` takes it
+    (``xtol = 1e-300``, ``rtol = 4ε``, 100 iterations), every function of the set at once.
+
+    ``function(x, at)`` returns the values at ``x`` of the functions ``at`` (indices into the
+    set); a NaN value, or no convergence in 100 iterations, loses that function (the second
+    result).
+    """
+    xtol, rtol = 1e-300, 4.0 * _EPS
+    xpre, xcur, fpre, fcur = low.copy(), high.copy(), f_low.copy(), f_high.copy()
+    xblk, fblk = np.zeros_like(xpre), np.zeros_like(xpre)
+    spre, scur = np.zeros_like(xpre), np.zeros_like(xpre)
+    lost = np.zeros(len(xpre), dtype=bool)
+    active = np.arange(len(xpre))
+    for _ in range(100):
+        at = active
+        xp, xc, xb = xpre[at], xcur[at], xblk[at]
+        fp, fc, fb = fpre[at], fcur[at], fblk[at]
+        sp, sc = spre[at], scur[at]
+        straddle = (fp != 0.0) & (fc != 0.0) & (np.signbit(fp) != np.signbit(fc))
+        xb, fb = np.where(straddle, xp, xb), np.where(straddle, fp, fb)
+        sp, sc = np.where(straddle, xc - xp, sp), np.where(straddle, xc - xp, sc)
+        swap = np.abs(fb) < np.abs(fc)
+        xp, xc, xb = np.where(swap, xc, xp), np.where(swap, xb, xc), np.where(swap, xc, xb)
+        fp, fc, fb = np.where(swap, fc, fp), np.where(swap, fb, fc), np.where(swap, fc, fb)
+        delta = (xtol + rtol * np.abs(xc)) / 2.0
+        sbis = (xb - xc) / 2.0
+        converged = (fc == 0.0) | (np.abs(sbis) < delta)
+        xcur[at], xpre[at], xblk[at] = xc, xp, xb
+        fcur[at], fpre[at], fblk[at] = fc, fp, fb
+        spre[at], scur[at] = sp, sc
+        active = at[~converged]
         if active.size == 0:
             break
-        aa, bb, faa, fbb = a[active], b[active], fa[active], fb[active]
-        secant = (aa * fbb - bb * faa) / (fbb - faa)
-        x_a = np.where((secant > aa) & (secant < bb), secant, 0.5 * (aa + bb))
-        fx = function(x_a, active)
-        left, right = fx < 0.0, fx > 0.0
-        last = kept[active]
-        a[active] = np.where(left, x_a, aa)
-        fa[active] = np.where(left, fx, np.where(right & (last == 1), 0.5 * faa, faa))
-        b[active] = np.where(right, x_a, bb)
-        fb[active] = np.where(right, fx, np.where(left & (last == -1), 0.5 * fbb, fbb))
-        kept[active] = np.where(left, -1, np.where(right, 1, 0))
-        x[active] = x_a
-        lost[active] = np.isnan(fx)
-        span = b[active] - a[active]
-        scale = np.maximum(np.abs(a[active]), np.abs(b[active]))
-        finished = np.isnan(fx) | (fx == 0.0) | (span <= 4.0 * _EPS * scale) | (span <= 1e-300)
-        active = active[~finished]
-    return x, lost
+        keep = ~converged
+        xp, xc, xb, fp, fc, fb = xp[keep], xc[keep], xb[keep], fp[keep], fc[keep], fb[keep]
+        sp, sc, delta, sbis = sp[keep], sc[keep], delta[keep], sbis[keep]
+        with np.errstate(all="ignore"):
+            interpolate = -fc * (xc - xp) / (fc - fp)
+            dpre = (fp - fc) / (xp - xc)
+            dblk = (fb - fc) / (xb - xc)
+            extrapolate = -fc * (fb * dblk - fp * dpre) / (dblk * dpre * (fb - fp))
+        stry = np.where(xp == xb, interpolate, extrapolate)
+        trying = (np.abs(sp) > delta) & (np.abs(fc) < np.abs(fp))
+        good = trying & (2.0 * np.abs(stry) < np.minimum(np.abs(sp), 3.0 * np.abs(sbis) - delta))
+        sp, sc = np.where(good, sc, sbis), np.where(good, stry, sbis)
+        xp, fp = xc, fc
+        xc = xc + np.where(np.abs(sc) > delta, sc, np.where(sbis > 0.0, delta, -delta))
+        fc = function(xc, active)
+        xpre[active], fpre[active], xcur[active], fcur[active] = xp, fp, xc, fc
+        spre[active], scur[active] = sp, sc
+        lost[active[np.isnan(fc)]] = True
+        active = active[~np.isnan(fc)]
+    lost[active] = True  # no convergence in 100 iterations
+    return xcur, lost
 
 
 def _physical_sheet_fallback(
