@@ -73,7 +73,11 @@ from estimators.closed_form.cls_rows import (
 )
 from estimators.closed_form.constrained_ls import ConstrainedLS
 from estimators.closed_form.gtrs import GtrsSolution, solve_gtrs
-from estimators.closed_form.pseudorange_cls import OffsetMethod, solve_pseudorange_cls
+from estimators.closed_form.pseudorange_cls import (
+    OffsetMethod,
+    estimate_pseudorange_columns,
+    solve_pseudorange_cls,
+)
 from estimators.goodness_of_fit import FIT_KEYS, fit_of, with_fit, with_fit_columns
 from scenarios import measurement_model as model
 from scenarios.geometry import straight_track_line
@@ -359,8 +363,11 @@ class _Batches:
     the trials were chunked or called. :meth:`estimate_one_trial` is the one-trial solver (the
     eigen-decomposition of MATH §5), to which the batch leaves the trials its rounding bounds
     cannot decide; the two agree to 1e-9 of the problem's length scale
-    (``tests/estimators/test_cls_batch.py``). With nuisance parameters (MATH §15) there is no
-    batch: every path is the one-trial solver.
+    (``tests/estimators/test_cls_batch.py``). With an unknown emission time (MATH §15) the
+    columns are the pseudo-range closed form's, every trial at once
+    (:func:`~estimators.closed_form.pseudorange_cls.estimate_pseudorange_columns`), and
+    ``estimate`` runs the same solver on a batch of one; with the carrier offset alone every
+    path is the one-trial solver.
     """
 
     name: ClassVar[str]
@@ -441,6 +448,17 @@ class _Batches:
     ) -> BatchEstimates:
         """``estimate_batch`` as columns, without an object per trial."""
         require_batch(self, batch)
+        if "emission_time_s" in batch.geometry.unknowns:  # MATH §15: vectorised
+            columns = estimate_pseudorange_columns(
+                self.name,
+                batch,
+                self.frames,
+                rngs,
+                self.side_prior_m,
+                self._solve_one,
+                **self._options(batch.geometry),
+            )
+            return with_fit_columns(self, columns, batch)
         if batch.geometry.unknowns:  # not vectorised (MATH §15): one trial at a time
             rngs = check_rngs(rngs, batch.n_trials)
             return BatchEstimates.from_estimates(

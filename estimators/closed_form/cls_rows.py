@@ -243,6 +243,12 @@ def project_out(A: FloatArray, b: FloatArray, columns: FloatArray) -> tuple[Floa
     For any ``r`` the best ``t`` is the least-squares solution of ``N t = b − A r``, and the cost
     left is ``‖Q(A r − b)‖²`` with ``Q = I − N N⁺`` the projection off the columns ``N``
     (``(n,)`` or ``(n, m)``): the same GTRS in ``r`` on ``(QA, Qb)``, with the same minimisers.
+    A stack of systems (``A`` (t, n, k), ``b`` (t, n), ``columns`` (t, n, m)) is projected
+    system by system.
     """
+    if np.ndim(b) == 2:
+        basis, _ = np.linalg.qr(np.asarray(columns, dtype=float))
+        basis_t = np.swapaxes(basis, -1, -2)
+        return A - basis @ (basis_t @ A), b - (basis @ (basis_t @ b[..., None]))[..., 0]
     basis, _ = np.linalg.qr(np.asarray(columns, dtype=float).reshape(len(b), -1))
     return A - basis @ (basis.T @ A), b - basis @ (basis.T @ b)

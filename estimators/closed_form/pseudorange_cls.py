@@ -44,30 +44,44 @@ scalar search (:func:`profile_offset`). Not a closed form any more, but efficien
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field, fields, replace
 from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import brentq
 
+from estimators.batch import BatchEstimates, check_rngs, finalize_columns
+from estimators.closed_form.cls_batch import SolveOne, draw_and_redo
 from estimators.closed_form.cls_rows import LocalFrame, horizontal_speed_mps, project_out
+from estimators.closed_form.gtrs_indefinite import STATUSES as GTRS_STATUSES
 from estimators.closed_form.gtrs_indefinite import (
+    IndefiniteGtrsBatch,
     IndefiniteGtrsSolution,
-    solve_gtrs_indefinite,
+    solve_gtrs_indefinite_batch,
     stationary_points,
 )
 from scenarios import measurement_model as model
 from scenarios.fisher import gram_information
-from scenarios.types import MeasurementSet
+from scenarios.geometry import moves_horizontally, single_horizontal_point, straight_track_line
+from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
 Reference = Literal["centre", "first"] | int
 OffsetMethod = Literal["relaxed", "profile"]
 
 HYPERBOLOID = np.array([1.0, 1.0, -1.0])
 """The diagonal of D for ``θ = (x', y', ρ_j)``."""
+
+_GTRS_FIELDS = tuple(f.name for f in fields(IndefiniteGtrsBatch))
+_EPS = np.finfo(float).eps
+
+WRONG_SHEET_NOTE = (
+    "the global minimiser has a negative reference range: the best point on the physical "
+    "sheet is returned (MATH §15)"
+)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -111,20 +125,98 @@ class PseudorangeSolution:
     b: FloatArray = field(repr=False)
 
 
+STATUSES = (*GTRS_STATUSES, "wrong-sheet-fallback", "wrong-sheet-no-physical-point")
+"""``status`` of :class:`PseudorangeBatch` indexes this: the GTRS's, or the fallback's."""
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class PseudorangeBatch:
+    """The pseudo-range CLS of ``n`` trials of one geometry, field by field (trials first).
+
+    Attributes
+    ----------
+    reference_sample : int
+    frame : LocalFrame
+        Centred on the reference sample (the trials share it).
+    constraint : ``(d, g, c)``
+        The hyperboloid ``‖s'‖² − ρ_j² = −h_j²`` in the local frame.
+    points : (n, 2, 3)
+        The returned minimisers ``θ = (x', y', ρ_j)`` in the local frame: trial ``i``'s are
+        ``points[i, :count[i]]`` (the global ones, or the physical sheet's), NaN beyond.
+    count : (n,)
+    status : (n,)
+        An index into :data:`STATUSES`.
+    gtrs : IndefiniteGtrsBatch
+        Each trial's last solve (the last stage it reached).
+    A, b : (n, m, 3), (n, m)
+        The last stage's whitened, projected rows; ``A_full``, ``b_full`` and ``nuisance``
+        (None with δ known) the same rows before the projection.
+    candidates_m, costs, emission_time_s, reference_range_m : (n, 2, 2), (n, 2), (n, 2), (n, 2)
+        Per returned point, NaN beyond ``count``; ``carrier_offset_hz`` (n, 2) or None.
+    profiled, profile_evaluations : (n,), (n,)
+        With ``offset_method="profile"``: the trials whose δ is the profile's (the others keep
+        the relaxed estimate) and the slope evaluations of each search.
+    """
+
+    reference_sample: int
+    frame: LocalFrame
+    constraint: tuple[FloatArray, FloatArray, float]
+    points: FloatArray
+    count: IntArray
+    status: IntArray
+    gtrs: IndefiniteGtrsBatch
+    A: FloatArray = field(repr=False)
+    b: FloatArray = field(repr=False)
+    A_full: FloatArray = field(repr=False)
+    b_full: FloatArray = field(repr=False)
+    nuisance: FloatArray | None = field(repr=False)
+    candidates_m: FloatArray
+    costs: FloatArray
+    emission_time_s: FloatArray
+    carrier_offset_hz: FloatArray | None
+    reference_range_m: FloatArray
+    profiled: BoolArray
+    profile_evaluations: IntArray
+
+    @property
+    def on_physical_sheet(self) -> BoolArray:
+        """Every global minimiser has ``ρ_j > 0``."""
+        valid = np.arange(2)[None, :] < self.gtrs.count[:, None]
+        positive = np.where(valid, self.gtrs.points[..., 2] > 0.0, True)
+        return (self.gtrs.count > 0) & np.all(positive, axis=1)
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class _Rows:
-    """Raw rows in the local frame, one entry per sample (the ToA row of ``ref`` is unused)."""
+    """Raw rows in the local frame, (trials, samples) (the ToA row of ``ref`` is unused)."""
 
     ref: int
-    A_d: FloatArray | None  # (N, 3)
-    b_d: FloatArray | None  # (N,)
-    nuisance: FloatArray | None  # (N, 2): columns of δ and w on the Doppler rows
-    A_t: FloatArray  # (N, 3)
-    b_t: FloatArray  # (N,)
+    A_d: FloatArray | None  # (n, K, 3)
+    b_d: FloatArray | None  # (n, K)
+    nuisance: FloatArray | None  # (n, K, 2): columns of δ and w on the Doppler rows
+    A_t: FloatArray  # (n, K, 3)
+    b_t: FloatArray  # (n, K)
     h_ref: float
-    q: FloatArray  # (N, 2)
-    h: FloatArray  # (N,)
-    gv: FloatArray | None  # γ|v_xy| per sample
+    q: FloatArray  # (K, 2)
+    h: FloatArray  # (K,)
+    gv: FloatArray | None  # (K,) γ|v_xy| per sample
+    doppler_hz: FloatArray | None  # (n, K)
+
+    def take(self, trials: NDArray[np.int64]) -> _Rows:
+        """The rows of the trials ``trials``."""
+
+        def part(value: FloatArray | None) -> FloatArray | None:
+            return None if value is None else value[trials]
+
+        return replace(
+            self,
+            A_d=part(self.A_d),
+            b_d=part(self.b_d),
+            nuisance=part(self.nuisance),
+            A_t=self.A_t[trials],
+            b_t=self.b_t[trials],
+            doppler_hz=part(self.doppler_hz),
+        )
 
 
 def reference_sample(position_m: ArrayLike, reference: Reference = "centre") -> int:
@@ -154,86 +246,274 @@ def pseudorange_frame(data: MeasurementSet, ref: int) -> LocalFrame:
 
 
 def pseudorange_rows(
-    data: MeasurementSet, frame: LocalFrame, ref: int, *, carrier_offset_unknown: bool
+    geometry: MeasurementSet,
+    frame: LocalFrame,
+    ref: int,
+    range_m: FloatArray,
+    doppler_hz: FloatArray | None,
+    *,
+    carrier_offset_unknown: bool,
 ) -> _Rows:
-    """The rows of the module text in the local frame (unweighted)."""
-    position = frame.positions(data.position_m)
+    """The rows of the module text in the local frame (unweighted), for the trials' pseudo-
+    ranges ``range_m`` and Doppler ``doppler_hz`` (n, K) on the samples of ``geometry``."""
+    position = frame.positions(geometry.position_m)
     q = position[:, :2]  # the frame's origin is p_j's xy
-    h = position[:, 2] - data.emitter_height_m / frame.scale_m
-    d = (data.range_m - data.range_m[ref]) / frame.scale_m
-    A_t = np.column_stack([-2.0 * q, -2.0 * d])
-    b_t = d**2 - np.sum(q**2, axis=1) - h**2 + h[ref] ** 2
+    h = position[:, 2] - geometry.emitter_height_m / frame.scale_m
+    d = (range_m - range_m[:, ref : ref + 1]) / frame.scale_m
+    n, k = d.shape
+    A_t = np.empty((n, k, 3))
+    A_t[:, :, :2] = -2.0 * q
+    A_t[:, :, 2] = -2.0 * d
+    b_t = d**2 - (np.sum(q**2, axis=1) + h**2 - h[ref] ** 2)
     A_d = b_d = nuisance = gv = None
-    if data.doppler_hz is not None:
-        velocity = data.velocity_mps
+    if doppler_hz is not None:
+        velocity = geometry.velocity_mps
         speed = horizontal_speed_mps(velocity)
-        gamma = data.gamma_per_m
-        f = data.doppler_hz
+        gamma = geometry.gamma_per_m
+        f = doppler_hz
         gv = gamma * speed
-        A_d = np.column_stack([velocity[:, :2] / speed[:, None], -f / gv])
-        b_d = (np.einsum("ij,ij->i", velocity[:, :2], q) + velocity[:, 2] * h + d * f / gamma) / (
-            speed
-        )
+        A_d = np.empty((n, k, 3))
+        A_d[:, :, :2] = velocity[:, :2] / speed[:, None]
+        A_d[:, :, 2] = -f / gv
+        geometric = np.sum(velocity[:, :2] * q, axis=1) + velocity[:, 2] * h
+        b_d = (geometric + d * f / gamma) / speed
         if carrier_offset_unknown:
-            nuisance = np.column_stack([d / gv, 1.0 / gv])
-    return _Rows(ref, A_d, b_d, nuisance, A_t, b_t, float(h[ref]), q, h, gv)
+            nuisance = np.stack([d / gv, np.broadcast_to(1.0 / gv, d.shape)], axis=-1)
+    return _Rows(ref, A_d, b_d, nuisance, A_t, b_t, float(h[ref]), q, h, gv, doppler_hz)
 
 
 def _whitened_system(
     rows: _Rows, rho: FloatArray, f_bar: FloatArray | None, sigma_f: float, sigma_r: float
 ) -> tuple[FloatArray, FloatArray, FloatArray | None]:
-    """``(A, b, nuisance)`` whitened by the exact second moments of the module text.
+    """``(A, b, nuisance)`` of every trial whitened by the exact second moments of the module
+    text.
 
-    ``rho`` are the ranges and ``f_bar`` the offset-free Doppler (local units) at which the
-    moments are evaluated.
+    ``rho`` are the ranges and ``f_bar`` the offset-free Doppler (local units, (n, K)) at which
+    the moments are evaluated.
     """
-    n = len(rows.b_t)
-    keep = np.arange(n) != rows.ref
+    n, k = rows.b_t.shape
+    keep = np.arange(k) != rows.ref
     s2 = sigma_r**2
-    a_t = 2.0 * rho
     var_t = 4.0 * rho**2 * s2 + 6.0 * s2**2
     n_extra = 0 if rows.nuisance is None else 2
     # columns: θ (3), rhs (1), nuisance (0 or 2), low-rank U (2)
-    T = np.column_stack([rows.A_t, rows.b_t, np.zeros((n, n_extra)), s2**0.5 * a_t, 0 * rho])
-    T[:, -1] = np.sqrt(2.0) * s2
+    width = 6 + n_extra
+    T = np.zeros((n, k, width))
+    T[:, :, :3] = rows.A_t
+    T[:, :, 3] = rows.b_t
+    T[:, :, -2] = s2**0.5 * (2.0 * rho)
+    T[:, :, -1] = np.sqrt(2.0) * s2
     if rows.A_d is None:
-        blocks = T[keep] / np.sqrt(var_t[keep])[:, None]
+        blocks = T[:, keep] / np.sqrt(var_t[:, keep])[..., None]
     else:
-        a_d = np.where(keep, f_bar / rows.gv, 0.0)
-        var_d = (rho**2 * sigma_f**2 + keep * (f_bar**2 * s2 + 2.0 * sigma_f**2 * s2)) / rows.gv**2
-        cov = 2.0 * rho * f_bar * s2 / rows.gv
-        nuisance = np.zeros((n, 0)) if rows.nuisance is None else rows.nuisance
-        D = np.column_stack([rows.A_d, rows.b_d, nuisance, s2**0.5 * a_d, np.zeros(n)])
+        gv = rows.gv
+        a_d = np.where(keep, f_bar / gv, 0.0)
+        var_d = (rho**2 * sigma_f**2 + keep * (f_bar**2 * s2 + 2.0 * sigma_f**2 * s2)) / gv**2
+        cov = 2.0 * rho * f_bar * s2 / gv
+        D = np.zeros((n, k, width))
+        D[:, :, :3] = rows.A_d
+        D[:, :, 3] = rows.b_d
+        if n_extra:
+            D[:, :, 4:6] = rows.nuisance
+        D[:, :, -2] = s2**0.5 * a_d
         l11 = np.sqrt(var_d)
-        D = D / l11[:, None]
-        l21 = cov[keep] / l11[keep]
-        l22 = np.sqrt(var_t[keep] - l21**2)
-        blocks = np.vstack([D, (T[keep] - l21[:, None] * D[keep]) / l22[:, None]])
-    X, U = blocks[:, :-2], blocks[:, -2:]
+        D = D / l11[..., None]
+        l21 = cov[:, keep] / l11[:, keep]
+        l22 = np.sqrt(var_t[:, keep] - l21**2)
+        blocks = np.concatenate([D, (T[:, keep] - l21[..., None] * D[:, keep]) / l22[..., None]], 1)
+    X, U = blocks[..., :-2], blocks[..., -2:]
     # (I + ŨŨᵀ)^(-1/2) = I + P (diag(1/√(1 + s²)) − I) Pᵀ for Ũ = P S Rᵀ
     P, S, _ = np.linalg.svd(U, full_matrices=False)
-    X = X + P @ ((1.0 / np.sqrt(1.0 + S**2) - 1.0)[:, None] * (P.T @ X))
-    A, b = X[:, :3], X[:, 3]
-    return A, b, (X[:, 4:] if n_extra else None)
+    X = X + P @ ((1.0 / np.sqrt(1.0 + S**2) - 1.0)[..., None] * (np.swapaxes(P, -1, -2) @ X))
+    A, b = X[..., :3], X[..., 3]
+    return A, b, (X[..., 4:] if n_extra else None)
 
 
-def _moments_at(rows: _Rows, theta: FloatArray | None, data: MeasurementSet):
-    """Ranges and offset-free Doppler (local units) for the weights: stage 1 or at ``theta``."""
-    n = len(rows.b_t)
+def _moments_at(
+    rows: _Rows, theta: FloatArray | None, geometry: MeasurementSet
+) -> tuple[FloatArray, FloatArray | None]:
+    """Ranges and offset-free Doppler (local units, (n, K)) for the weights: stage 1, or at
+    each trial's ``theta`` (n, 3)."""
+    n, k = rows.b_t.shape
+    f = rows.doppler_hz
     if theta is None:
-        rho = np.ones(n)  # ρ̃ = the frame scale
+        rho = np.ones((n, k))  # ρ̃ = the frame scale
         f_bar = None
-        if data.doppler_hz is not None:
-            f = data.doppler_hz
-            f_bar = f - f.mean() if rows.nuisance is not None else f.copy()
+        if f is not None:
+            f_bar = f - f.mean(axis=1, keepdims=True) if rows.nuisance is not None else f.copy()
         return rho, f_bar
-    offset = np.column_stack([rows.q - theta[:2], rows.h])
-    rho = np.linalg.norm(offset, axis=1)
+    offset = np.empty((n, k, 3))
+    offset[..., :2] = rows.q - theta[:, None, :2]
+    offset[..., 2] = rows.h
+    rho = np.linalg.norm(offset, axis=-1)
     f_bar = None
-    if data.doppler_hz is not None:
-        radial = np.einsum("ij,ij->i", data.velocity_mps, offset) / rho
-        f_bar = -data.gamma_per_m * radial
+    if f is not None:
+        radial = np.sum(geometry.velocity_mps * offset, axis=-1) / rho
+        f_bar = -geometry.gamma_per_m * radial
     return rho, f_bar
+
+
+def _check_options(data: MeasurementSet, carrier_offset_unknown: bool, stages: int) -> None:
+    if data.toa_s is None:
+        raise ValueError("toa_s: the pseudo-range closed form needs ToA measurements (MATH §15)")
+    if (
+        "carrier_offset_hz" in data.unknowns
+        and not carrier_offset_unknown
+        and (data.doppler_hz is not None)
+    ):
+        raise ValueError(
+            "carrier_offset_unknown: the data declare the carrier offset unknown; pass "
+            "carrier_offset_unknown=True, or data.assuming_known() to see the bias"
+        )
+    if int(stages) != stages or stages < 1:
+        raise ValueError(f"stages: must be a whole number >= 1, got {stages!r}")
+
+
+def solve_pseudorange_batch(
+    geometry: MeasurementSet,
+    range_m: ArrayLike,
+    doppler_hz: ArrayLike | None,
+    *,
+    carrier_offset_unknown: bool,
+    stages: int = 2,
+    reference: Reference = "centre",
+    offset_method: OffsetMethod = "relaxed",
+    hard_case_rtol: float = 1e-10,
+) -> PseudorangeBatch:
+    """The relaxed pseudo-range CLS (module text, MATH §15) of ``n`` trials at once.
+
+    ``geometry`` gives the samples (positions, velocities, constants, noise σ; its own
+    measurements are not used), ``range_m`` the trials' pseudo-ranges ``cτ_k`` and
+    ``doppler_hz`` their Doppler (or None), both (n, K). Every trial goes through the same
+    arrays: the rows, the weighting stages, the indefinite GTRS
+    (:func:`~estimators.closed_form.gtrs_indefinite.solve_gtrs_indefinite_batch`); a trial
+    whose global minimisers all lie on the wrong sheet gets the lowest-cost stationary point on
+    the physical one, and a trial without a minimiser stops at the stage it reached. With δ
+    unknown and ``offset_method="profile"`` the last stage's rows then go to
+    :func:`profile_offset` (every trial at once), from the relaxed (δ, w).
+    """
+    if offset_method not in ("relaxed", "profile"):
+        raise ValueError(f"offset_method: expected 'relaxed' or 'profile', got {offset_method!r}")
+    if int(stages) != stages or stages < 1:
+        raise ValueError(f"stages: must be a whole number >= 1, got {stages!r}")
+    # C order: a trial's rows then reduce in the same order in a batch of any size
+    ranges = np.ascontiguousarray(range_m, dtype=float)
+    doppler = None if doppler_hz is None else np.ascontiguousarray(doppler_hz, dtype=float)
+    offset_unknown = carrier_offset_unknown and doppler is not None
+    ref = reference_sample(geometry.position_m, reference)
+    frame = pseudorange_frame(geometry, ref)
+    rows = pseudorange_rows(
+        geometry, frame, ref, ranges, doppler, carrier_offset_unknown=offset_unknown
+    )
+    sigma_r = geometry.noise.toa_s * geometry.speed_of_light_mps / frame.scale_m
+    sigma_f = geometry.noise.doppler_hz if doppler is not None else 1.0
+    constraint = (HYPERBOLOID, np.zeros(3), -(rows.h_ref**2))
+
+    n = len(ranges)
+    points = np.full((n, 2, 3), np.nan)
+    count = np.zeros(n, dtype=np.int64)
+    status = np.zeros(n, dtype=np.int64)
+    last: dict[str, Any] = {}
+    active = np.arange(n)
+    with np.errstate(all="ignore"):
+        for stage in range(int(stages)):
+            part = rows if len(active) == n else rows.take(active)
+            theta = None if stage == 0 else points[active, 0]
+            rho, f_bar = _moments_at(part, theta, geometry)
+            A_full, b_full, N = _whitened_system(part, rho, f_bar, sigma_f, sigma_r)
+            A, b = (A_full, b_full) if N is None else project_out(A_full, b_full, N)
+            gtrs = solve_gtrs_indefinite_batch(A, b, *constraint, hard_case_rtol=hard_case_rtol)
+            found, found_count, found_status = gtrs.points.copy(), gtrs.count.copy(), gtrs.status
+            valid = np.arange(2)[None, :] < found_count[:, None]
+            wrong = (found_count > 0) & np.all(np.where(valid, found[..., 2] < 0.0, True), axis=1)
+            for i in np.flatnonzero(wrong):
+                fallback, reason = _physical_sheet_fallback(A[i], b[i], constraint)
+                found[i] = np.nan
+                found[i, : len(fallback)] = fallback
+                found_count[i] = len(fallback)
+                found_status[i] = STATUSES.index(reason)
+            points[active], count[active], status[active] = found, found_count, found_status
+            arrays = {"A": A, "b": b, "A_full": A_full, "b_full": b_full, "nuisance": N}
+            arrays |= {name: getattr(gtrs, name) for name in _GTRS_FIELDS}
+            for key, value in arrays.items():
+                if value is None or len(active) == n:  # every trial reached this stage
+                    last[key] = value
+                    continue
+                last[key] = last[key].copy()  # one stage's arrays, now merged with the next's
+                last[key][active] = value
+            active = active[found_count > 0]
+            if active.size == 0:
+                break
+        profiled = np.zeros(n, dtype=bool)
+        evaluations = np.zeros(n, dtype=np.int64)
+        delta = None
+        trials = np.flatnonzero(count > 0)
+        if offset_unknown and offset_method == "profile" and trials.size:
+            N = last["nuisance"][trials]
+            A_full, b_full = last["A_full"][trials], last["b_full"][trials]
+            theta = points[trials, 0]
+            residual = b_full - (A_full @ theta[..., None])[..., 0]
+            relaxed = (np.linalg.pinv(N) @ residual[..., None])[..., 0]  # the free (δ, w)
+            step = np.maximum(
+                np.abs(relaxed[:, 1] / theta[:, 2] - relaxed[:, 0]), sigma_f / np.sqrt(N.shape[1])
+            )
+            profile = profile_offset(
+                A_full, b_full, N, constraint, relaxed[:, 0], step, hard_case_rtol=hard_case_rtol
+            )
+            evaluations[trials] = profile.evaluations
+            found = np.flatnonzero(profile.found)
+            done = trials[found]
+            delta = profile.carrier_offset_hz[found]
+            A, b = _offset_system(A_full[found], b_full[found], N[found], delta)
+            at_delta = profile.gtrs
+            for key in ("A", "b", *_GTRS_FIELDS):
+                last[key] = last[key].copy()
+            last["A"][done], last["b"][done] = A, b
+            for name in _GTRS_FIELDS:
+                last[name][done] = getattr(at_delta, name)[found]
+            points[done] = at_delta.points[found]
+            count[done] = at_delta.count[found]
+            status[done] = at_delta.status[found]
+            valid = np.arange(2)[None, :] < count[done, None]
+            wrong = np.all(np.where(valid, points[done, :, 2] < 0.0, True), axis=1)
+            for i in np.flatnonzero(wrong & (count[done] > 0)):
+                fallback, reason = _physical_sheet_fallback(A[i], b[i], constraint)
+                points[done[i]] = np.nan
+                points[done[i], : len(fallback)] = fallback
+                count[done[i]] = len(fallback)
+                status[done[i]] = STATUSES.index(reason)
+            profiled[done] = True
+        gtrs_last = IndefiniteGtrsBatch(**{name: last[name] for name in _GTRS_FIELDS})
+        valid = np.arange(2)[None, :] < count[:, None]
+        residual = points @ np.swapaxes(last["A"], -1, -2) - last["b"][:, None, :]
+        costs = np.where(valid, np.sum(residual**2, axis=-1), np.nan)
+        candidates = points[..., :2] * frame.scale_m + frame.origin_m
+        emission, offset = _nuisance_estimates(
+            geometry, ranges, doppler, candidates, offset_unknown
+        )
+        if delta is not None:  # the profile's δ for its points
+            offset[profiled] = np.where(valid[profiled], delta[:, None], np.nan)
+    return PseudorangeBatch(
+        reference_sample=ref,
+        frame=frame,
+        constraint=constraint,
+        points=points,
+        count=count,
+        status=status,
+        gtrs=gtrs_last,
+        A=last["A"],
+        b=last["b"],
+        A_full=last["A_full"],
+        b_full=last["b_full"],
+        nuisance=last["nuisance"],
+        candidates_m=candidates,
+        costs=costs,
+        emission_time_s=emission,
+        carrier_offset_hz=offset,
+        reference_range_m=points[..., 2] * frame.scale_m,
+        profiled=profiled,
+        profile_evaluations=evaluations,
+    )
 
 
 def solve_pseudorange_cls(
@@ -246,6 +526,8 @@ def solve_pseudorange_cls(
     hard_case_rtol: float = 1e-10,
 ) -> PseudorangeSolution:
     """Every global minimiser of the pseudo-range CLS with b unknown (module text, MATH §15).
+
+    The relaxed closed form is :func:`solve_pseudorange_batch`'s batch of one.
 
     Parameters
     ----------
@@ -269,58 +551,30 @@ def solve_pseudorange_cls(
     noise) the lowest-cost stationary point on the physical sheet is returned instead and
     ``status`` says so; ``success`` is false when there is none or no definite interval.
     """
-    if data.toa_s is None:
-        raise ValueError("toa_s: the pseudo-range closed form needs ToA measurements (MATH §15)")
-    if (
-        "carrier_offset_hz" in data.unknowns
-        and not carrier_offset_unknown
-        and (data.doppler_hz is not None)
-    ):
-        raise ValueError(
-            "carrier_offset_unknown: the data declare the carrier offset unknown; pass "
-            "carrier_offset_unknown=True, or data.assuming_known() to see the bias"
-        )
-    if int(stages) != stages or stages < 1:
-        raise ValueError(f"stages: must be a whole number >= 1, got {stages!r}")
+    _check_options(data, carrier_offset_unknown, stages)
     offset_unknown = carrier_offset_unknown and data.doppler_hz is not None
-    ref = reference_sample(data.position_m, reference)
-    frame = pseudorange_frame(data, ref)
-    rows = pseudorange_rows(data, frame, ref, carrier_offset_unknown=offset_unknown)
-    sigma_r = data.noise.toa_s * data.speed_of_light_mps / frame.scale_m
-    sigma_f = data.noise.doppler_hz if data.doppler_hz is not None else 1.0
-    constraint = (HYPERBOLOID, np.zeros(3), -(rows.h_ref**2))
-
-    theta_w: FloatArray | None = None
-    for _ in range(int(stages)):
-        rho, f_bar = _moments_at(rows, theta_w, data)
-        A_full, b_full, N = _whitened_system(rows, rho, f_bar, sigma_f, sigma_r)
-        A, b = (A_full, b_full) if N is None else project_out(A_full, b_full, N)
-        gtrs = solve_gtrs_indefinite(A, b, *constraint, hard_case_rtol=hard_case_rtol)
-        points, status = gtrs.points, gtrs.status
-        if len(points) and np.all(points[:, 2] < 0.0):
-            points, status = _physical_sheet_fallback(A, b, constraint)
-        if len(points) == 0:
-            break
-        theta_w = points[0]
-
-    profile = None
-    if offset_unknown and offset_method == "profile" and len(points):
-        relaxed = np.linalg.lstsq(N, b_full - A_full @ points[0], rcond=None)[0]
-        step = max(abs(relaxed[1] / points[0, 2] - relaxed[0]), sigma_f / np.sqrt(len(N)))
-        try:
-            profile = profile_offset(
-                A_full, b_full, N, constraint, relaxed[0], step, hard_case_rtol=hard_case_rtol
-            )
-        except (RuntimeError, ValueError):  # a GTRS without minimiser on the way, or no sign
-            profile = None  # change of the slope: keep the relaxed estimate, and say so
-        if profile is not None:
-            delta, gtrs, _ = profile
-            A, b = _offset_system(A_full, b_full, N, delta)
-            points, status = gtrs.points, gtrs.status
-            if len(points) and np.all(points[:, 2] < 0.0):
-                points, status = _physical_sheet_fallback(A, b, constraint)
-    elif offset_method not in ("relaxed", "profile"):
-        raise ValueError(f"offset_method: expected 'relaxed' or 'profile', got {offset_method!r}")
+    batch = solve_pseudorange_batch(
+        data,
+        data.range_m[None],
+        None if data.doppler_hz is None else data.doppler_hz[None],
+        carrier_offset_unknown=carrier_offset_unknown,
+        stages=stages,
+        reference=reference,
+        offset_method=offset_method,
+        hard_case_rtol=hard_case_rtol,
+    )
+    ref, frame = batch.reference_sample, batch.frame
+    count = int(batch.count[0])
+    points, status = batch.points[0, :count], STATUSES[int(batch.status[0])]
+    gtrs = batch.gtrs.solution(0)
+    A, b = batch.A[0], batch.b[0]
+    A_full, b_full = batch.A_full[0], batch.b_full[0]
+    N = None if batch.nuisance is None else batch.nuisance[0]
+    candidates = batch.candidates_m[0, :count]
+    emission = batch.emission_time_s[0, :count]
+    offset = None if batch.carrier_offset_hz is None else batch.carrier_offset_hz[0, :count]
+    costs = batch.costs[0, :count]
+    profiled = bool(batch.profiled[0])
 
     on_sheet = bool(len(gtrs.points) and np.all(gtrs.points[:, 2] > 0.0))
     diagnostics: dict[str, Any] = {
@@ -338,19 +592,14 @@ def solve_pseudorange_cls(
         "stages": int(stages),
         "offset_method": offset_method if offset_unknown else None,
     }
-    candidates = frame.to_world(points[:, :2]) if len(points) else np.zeros((0, 2))
-    emission, offset = _nuisance_estimates(data, candidates, offset_unknown)
-    if offset_unknown and offset_method == "profile" and profile is None:
+    if offset_unknown and offset_method == "profile" and not profiled:
         diagnostics["offset_method"] = "relaxed (profile failed)"
-    if offset_unknown and len(points) and profile is None:
+    if offset_unknown and len(points) and not profiled:
         relaxed = np.linalg.lstsq(N, b_full - A_full @ points[0], rcond=None)[0]
         diagnostics["relaxed_carrier_offset_hz"] = float(relaxed[0])
         diagnostics["relaxation_gap_hz"] = float(relaxed[1] / points[0, 2] - relaxed[0])
-    if profile is not None:
-        diagnostics["profile_evaluations"] = profile[2]
-        if len(points):
-            offset = np.full(len(points), profile[0])
-    costs = np.sum((points @ A.T - b) ** 2, axis=1) if len(points) else np.zeros(0)
+    if profiled:
+        diagnostics["profile_evaluations"] = int(batch.profile_evaluations[0])
     return PseudorangeSolution(
         candidates_m=candidates,
         costs=costs,
@@ -366,12 +615,24 @@ def solve_pseudorange_cls(
 
 
 def _offset_system(
-    A: FloatArray, b: FloatArray, N: FloatArray, delta: float
+    A: FloatArray, b: FloatArray, N: FloatArray, delta: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """The rows with δ given and ``w = ρ_jδ`` restored: ``(A + δ N_w e₃ᵀ) θ = b − δ N_δ``."""
+    """The rows with δ given and ``w = ρ_jδ`` restored: ``(A + δ N_w e₃ᵀ) θ = b − δ N_δ``, per
+    trial (``A`` (n, m, 3), ``b`` (n, m), ``N`` (n, m, 2), ``delta`` (n,))."""
     A_delta = A.copy()
-    A_delta[:, 2] += delta * N[:, 1]
-    return A_delta, b - delta * N[:, 0]
+    A_delta[..., 2] += delta[:, None] * N[..., 1]
+    return A_delta, b - delta[:, None] * N[..., 0]
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class ProfiledOffset:
+    """:func:`profile_offset` of ``n`` trials: δ* (n,), the GTRS at δ*, whether the search
+    found it (else the relaxed estimate stays), and the slope evaluations per trial."""
+
+    carrier_offset_hz: FloatArray
+    gtrs: IndefiniteGtrsBatch
+    found: BoolArray
+    evaluations: IntArray
 
 
 def profile_offset(
@@ -379,58 +640,148 @@ def profile_offset(
     b: FloatArray,
     N: FloatArray,
     constraint: tuple[FloatArray, FloatArray, float],
-    delta0: float,
-    step: float,
+    delta0: FloatArray,
+    step: FloatArray,
     *,
     hard_case_rtol: float = 1e-10,
-) -> tuple[float, IndefiniteGtrsSolution, int]:
-    """Minimise the exact cost ``min_θ ‖(A + δN_w e₃ᵀ)θ − (b − δN_δ)‖²`` over δ (hyperboloid).
+) -> ProfiledOffset:
+    """Minimise the exact cost ``min_θ ‖(A + δN_w e₃ᵀ)θ − (b − δN_δ)‖²`` over δ (hyperboloid),
+    for ``n`` trials at once.
 
-    ``A, b, N`` are whitened rows of the relaxed system (columns of N: δ, w), ``constraint``
-    the ``(d, g, c)`` of the hyperboloid. The constraint
-    does not depend on δ, so by the envelope theorem the profile's derivative is
-    ``2 rᵀ(θ*₃ N_w + N_δ)`` at the GTRS minimiser θ* (r its residual): a root search on it
-    (expanding from ``delta0`` by ``step`` until the sign changes, then Brent) reaches the
-    minimum to rounding, where a search on the cost alone stops at ``√ε``. Returns
-    ``(δ*, the GTRS at δ*, evaluations)``.
+    ``A, b, N`` are whitened rows of the relaxed systems (n, m, ·) (columns of N: δ, w),
+    ``constraint`` the ``(d, g, c)`` of the hyperboloid. The constraint does not depend on δ,
+    so by the envelope theorem the profile's derivative is ``2 rᵀ(θ*₃ N_w + N_δ)`` at the GTRS
+    minimiser θ* (r its residual): a root search on it (expanding from ``delta0`` by ``step``
+    until the sign changes, then Brent's method, :func:`_brent_root`) reaches the minimum to
+    rounding, where a search on the cost alone stops at ``√ε``. Each step solves
+    the GTRS of every trial still searching at once. A trial whose GTRS has no minimiser on the
+    way, or whose slope changes no sign, is not ``found``.
     """
-    cache: dict[float, IndefiniteGtrsSolution] = {}
+    n = len(A)
+    evaluations = np.zeros(n, dtype=np.int64)
 
-    def slope(delta: float) -> float:
-        A_delta, b_delta = _offset_system(A, b, N, delta)
-        solution = solve_gtrs_indefinite(
+    def slope(delta: FloatArray, at: NDArray[np.int64]) -> tuple[FloatArray, IndefiniteGtrsBatch]:
+        A_delta, b_delta = _offset_system(A[at], b[at], N[at], delta)
+        gtrs = solve_gtrs_indefinite_batch(
             A_delta, b_delta, *constraint, hard_case_rtol=hard_case_rtol
         )
-        cache[delta] = solution
-        if len(solution.points) == 0:
-            raise RuntimeError(f"profile_offset: no minimiser at δ = {delta!r}")
-        theta = solution.points[0]
-        residual = A_delta @ theta - b_delta
-        return float(2.0 * residual @ (theta[2] * N[:, 1] + N[:, 0]))
+        evaluations[at] += 1
+        theta = gtrs.points[:, 0]
+        residual = (A_delta @ theta[..., None])[..., 0] - b_delta
+        value = 2.0 * np.sum(residual * (theta[:, 2:] * N[at][..., 1] + N[at][..., 0]), axis=1)
+        return np.where(gtrs.count > 0, value, np.nan), gtrs
 
-    low = high = float(delta0)
-    s_low = s_high = slope(low)
-    width = max(float(step), np.finfo(float).eps * max(abs(delta0), 1.0))
+    delta0 = np.asarray(delta0, dtype=float)
+    every = np.arange(n)
+    low, high = delta0.copy(), delta0.copy()
+    s_low = slope(delta0, every)[0]
+    s_high = s_low.copy()
+    width = np.maximum(step, _EPS * np.maximum(np.abs(delta0), 1.0))
+    failed = np.zeros(n, dtype=bool)
     for _ in range(60):
-        if s_low < 0.0 < s_high or s_low == 0.0 or s_high == 0.0:
+        bracketed = ((s_low < 0.0) & (s_high > 0.0)) | (s_low == 0.0) | (s_high == 0.0)
+        failed |= ~bracketed & ~(np.isfinite(s_low) & np.isfinite(s_high))
+        searching = np.flatnonzero(~bracketed & ~failed)
+        if searching.size == 0:
             break
-        if not (np.isfinite(s_low) and np.isfinite(s_high)):
-            raise RuntimeError("profile_offset: the slope is not finite")
-        if s_low >= 0.0:
-            low -= width
-            s_low = slope(low)
-        if s_high <= 0.0:
-            high += width
-            s_high = slope(high)
-        width *= 2.0
-    if s_low == 0.0 or s_high == 0.0:
-        delta = low if s_low == 0.0 else high
-    elif not s_low < 0.0 < s_high:
-        raise RuntimeError("profile_offset: no sign change of the slope found")
-    else:
-        delta = brentq(slope, low, high, xtol=1e-300, rtol=4 * np.finfo(float).eps)
-        slope(delta)
-    return float(delta), cache[delta], len(cache)
+        lower = searching[s_low[searching] >= 0.0]
+        if lower.size:
+            low[lower] -= width[lower]
+            s_low[lower] = slope(low[lower], lower)[0]
+        upper = searching[s_high[searching] <= 0.0]
+        if upper.size:
+            high[upper] += width[upper]
+            s_high[upper] = slope(high[upper], upper)[0]
+        width[searching] *= 2.0
+    at_low = ~failed & (s_low == 0.0)
+    at_high = ~failed & ~at_low & (s_high == 0.0)
+    inside = ~failed & ~at_low & ~at_high & (s_low < 0.0) & (s_high > 0.0)
+    failed |= ~(at_low | at_high | inside)
+    delta = np.where(at_low, low, high)
+    rows = np.flatnonzero(inside)
+    if rows.size:
+        delta[rows], lost = _brent_root(
+            lambda x, at: slope(x, rows[at])[0], low[rows], high[rows], s_low[rows], s_high[rows]
+        )
+        failed[rows[lost]] = True
+    delta[failed] = np.nan
+    found = np.flatnonzero(~failed)
+    value, at_delta = slope(delta[found], found)
+    failed[found[np.isnan(value)]] = True
+    merged = {}  # the GTRS at δ* of the trials found; NaN and zeros for the others
+    for name in _GTRS_FIELDS:
+        value_found = getattr(at_delta, name)
+        column = np.zeros((n, *value_found.shape[1:]), dtype=value_found.dtype)
+        if column.dtype.kind == "f":
+            column[:] = np.nan
+        column[found] = value_found
+        merged[name] = column
+    return ProfiledOffset(
+        carrier_offset_hz=np.where(failed, np.nan, delta),
+        gtrs=IndefiniteGtrsBatch(**merged),
+        found=~failed,
+        evaluations=evaluations,
+    )
+
+
+def _brent_root(
+    function, low: FloatArray, high: FloatArray, f_low: FloatArray, f_high: FloatArray
+) -> tuple[FloatArray, BoolArray]:
+    """The root in ``[low, high]`` of each of a set of functions whose values at the ends have
+    opposite signs, by Brent's method step for step as scipy's ``brentq`` takes it
+    (``xtol = 1e-300``, ``rtol = 4ε``, 100 iterations), every function of the set at once.
+
+    ``function(x, at)`` returns the values at ``x`` of the functions ``at`` (indices into the
+    set); a NaN value, or no convergence in 100 iterations, loses that function (the second
+    result).
+    """
+    xtol, rtol = 1e-300, 4.0 * _EPS
+    xpre, xcur, fpre, fcur = low.copy(), high.copy(), f_low.copy(), f_high.copy()
+    xblk, fblk = np.zeros_like(xpre), np.zeros_like(xpre)
+    spre, scur = np.zeros_like(xpre), np.zeros_like(xpre)
+    lost = np.zeros(len(xpre), dtype=bool)
+    active = np.arange(len(xpre))
+    for _ in range(100):
+        at = active
+        xp, xc, xb = xpre[at], xcur[at], xblk[at]
+        fp, fc, fb = fpre[at], fcur[at], fblk[at]
+        sp, sc = spre[at], scur[at]
+        straddle = (fp != 0.0) & (fc != 0.0) & (np.signbit(fp) != np.signbit(fc))
+        xb, fb = np.where(straddle, xp, xb), np.where(straddle, fp, fb)
+        sp, sc = np.where(straddle, xc - xp, sp), np.where(straddle, xc - xp, sc)
+        swap = np.abs(fb) < np.abs(fc)
+        xp, xc, xb = np.where(swap, xc, xp), np.where(swap, xb, xc), np.where(swap, xc, xb)
+        fp, fc, fb = np.where(swap, fc, fp), np.where(swap, fb, fc), np.where(swap, fc, fb)
+        delta = (xtol + rtol * np.abs(xc)) / 2.0
+        sbis = (xb - xc) / 2.0
+        converged = (fc == 0.0) | (np.abs(sbis) < delta)
+        xcur[at], xpre[at], xblk[at] = xc, xp, xb
+        fcur[at], fpre[at], fblk[at] = fc, fp, fb
+        spre[at], scur[at] = sp, sc
+        active = at[~converged]
+        if active.size == 0:
+            break
+        keep = ~converged
+        xp, xc, xb, fp, fc, fb = xp[keep], xc[keep], xb[keep], fp[keep], fc[keep], fb[keep]
+        sp, sc, delta, sbis = sp[keep], sc[keep], delta[keep], sbis[keep]
+        with np.errstate(all="ignore"):
+            interpolate = -fc * (xc - xp) / (fc - fp)
+            dpre = (fp - fc) / (xp - xc)
+            dblk = (fb - fc) / (xb - xc)
+            extrapolate = -fc * (fb * dblk - fp * dpre) / (dblk * dpre * (fb - fp))
+        stry = np.where(xp == xb, interpolate, extrapolate)
+        trying = (np.abs(sp) > delta) & (np.abs(fc) < np.abs(fp))
+        good = trying & (2.0 * np.abs(stry) < np.minimum(np.abs(sp), 3.0 * np.abs(sbis) - delta))
+        sp, sc = np.where(good, sc, sbis), np.where(good, stry, sbis)
+        xp, fp = xc, fc
+        xc = xc + np.where(np.abs(sc) > delta, sc, np.where(sbis > 0.0, delta, -delta))
+        fc = function(xc, active)
+        xpre[active], fpre[active], xcur[active], fcur[active] = xp, fp, xc, fc
+        spre[active], scur[active] = sp, sc
+        lost[active[np.isnan(fc)]] = True
+        active = active[~np.isnan(fc)]
+    lost[active] = True  # no convergence in 100 iterations
+    return xcur, lost
 
 
 def _physical_sheet_fallback(
@@ -445,25 +796,132 @@ def _physical_sheet_fallback(
 
 
 def _nuisance_estimates(
-    data: MeasurementSet, candidates_m: FloatArray, offset_unknown: bool
+    geometry: MeasurementSet,
+    range_m: FloatArray,
+    doppler_hz: FloatArray | None,
+    candidates_m: FloatArray,
+    offset_unknown: bool,
 ) -> tuple[FloatArray, FloatArray | None]:
-    """``b̂ = mean(r_k − ρ̂_k)/c`` and, when unknown, ``δ̂ = mean(f_k − f_k(ŝ))`` per candidate."""
-    if len(candidates_m) == 0:
-        return np.zeros(0), (np.zeros(0) if offset_unknown else None)
-    ranges = model.slant_range_m(data.position_m, candidates_m, data.emitter_height_m)
-    beta = np.mean(data.range_m - ranges, axis=-1)
-    emission = beta / data.speed_of_light_mps
+    """``b̂ = mean(r_k − ρ̂_k)/c`` and, when unknown, ``δ̂ = mean(f_k − f_k(ŝ))`` per candidate:
+    ``candidates_m`` (n, c, 2) of the trials' ``range_m`` and ``doppler_hz`` (n, K)."""
+    ranges = model.slant_range_m(geometry.position_m, candidates_m, geometry.emitter_height_m)
+    emission = np.mean(range_m[:, None, :] - ranges, axis=-1) / geometry.speed_of_light_mps
     offset = None
     if offset_unknown:
         doppler = model.doppler_hz(
-            data.position_m,
-            data.velocity_mps,
+            geometry.position_m,
+            geometry.velocity_mps,
             candidates_m,
-            data.gamma_per_m,
-            data.emitter_height_m,
+            geometry.gamma_per_m,
+            geometry.emitter_height_m,
         )
-        offset = np.mean(data.doppler_hz - doppler, axis=-1)
+        offset = np.mean(doppler_hz[:, None, :] - doppler, axis=-1)
     return emission, offset
+
+
+def estimate_pseudorange_columns(
+    name: str,
+    batch: MeasurementBatch,
+    frames: str,
+    rngs: Sequence[np.random.Generator | None] | None,
+    side_prior_m: tuple[float, float] | None,
+    solve_one: SolveOne,
+    offset_method: OffsetMethod = "relaxed",
+) -> BatchEstimates:
+    """The pseudo-range closed form's estimates of every trial of ``batch``, as columns.
+
+    What ``estimate`` of :mod:`estimators.closed_form.cls` returns trial by trial with an
+    unknown emission time (MATH §15): :func:`solve_pseudorange_batch` on the frames used, the
+    hard-case pair ordered by side (``ordered_candidates`` of that module) and the mirror rule
+    of :func:`~estimators.batch.finalize_columns`. Trials whose choices the rule cannot
+    certify, and every trial when the samples used hover (``finalize_estimate`` fails them),
+    are solved one at a time by ``solve_one``; the others draw their tie-break as the one-trial
+    path does, in trial order.
+    """
+    n = batch.n_trials
+    generators = check_rngs(rngs, n)
+    geometry = batch.geometry
+    used = geometry.select_frames(frames)
+    if single_horizontal_point(used.position_m) and not moves_horizontally(used.velocity_mps):
+        redo = [solve_one(batch.trial(i), rng) for i, rng in enumerate(generators)]
+        return BatchEstimates.from_estimates(name, redo)
+    if frames == "last":
+        columns = np.flatnonzero(geometry.frame == geometry.frame[-1])
+    else:
+        columns = np.arange(geometry.n_samples)
+    offset_unknown = "carrier_offset_hz" in used.unknowns
+    solution = solve_pseudorange_batch(
+        used,
+        geometry.speed_of_light_mps * batch.toa_s[:, columns],
+        None if batch.doppler_hz is None else batch.doppler_hz[:, columns],
+        carrier_offset_unknown=offset_unknown,
+        offset_method=offset_method,
+    )
+    success = solution.count > 0
+    hard = solution.gtrs.hard_case
+    # ordered_candidates: the hard-case pair left of the last heading first, at one cost; on
+    # a straight track only that one (the mirror rule adds the other)
+    candidates, count = solution.candidates_m.copy(), solution.count.copy()
+    pair = hard & (count == 2)
+    velocity = used.velocity_mps[-1]
+    left = np.array([-velocity[1], velocity[0]])
+    swap = pair & ((candidates[:, 0] - candidates[:, 1]) @ left < 0.0)
+    candidates[swap] = candidates[swap, ::-1]
+    costs = np.where(pair[:, None], np.min(solution.costs, axis=1)[:, None], solution.costs)
+    line = straight_track_line(used.position_m, used.velocity_mps)
+    if line is not None:
+        count = np.where(pair, 1, count)
+    with np.errstate(invalid="ignore"):
+        final = finalize_columns(
+            candidates,
+            count,
+            costs,
+            used.position_m[:, :2].mean(axis=0),
+            line,
+            side_prior_m=side_prior_m,
+        )
+    n_kept = np.where(success, final.n_candidates, 0)
+    chosen = final.chosen.copy()
+    uncertain = final.uncertain & success
+    redo, recomputed = draw_and_redo(
+        name, solve_one, batch, generators, uncertain, final.draw & success, n_kept, chosen
+    )
+    ok = success & ~uncertain
+    width = final.candidates.shape[1]
+    position = final.candidates[np.arange(n), np.minimum(chosen, width - 1)]
+    messages = [
+        "",
+        "hard case: mirror pair (MATH §15)",
+        WRONG_SHEET_NOTE,
+        f"hard case: mirror pair (MATH §15); {WRONG_SHEET_NOTE}",
+        *(f"pseudo-range closed form: {status} (MATH §15)" for status in STATUSES),
+    ]
+    wrong_sheet = ~solution.on_physical_sheet
+    code = np.where(success, hard + 2 * wrong_sheet, 4 + solution.status)
+    diagnostics: dict[str, NDArray[Any]] = {
+        "status": np.array(STATUSES, dtype=object)[solution.status],
+        "multiplier": solution.gtrs.multiplier,
+        "hard_case": hard,
+        "rank": solution.gtrs.rank,
+        "stages": np.full(n, 2, dtype=np.int64),
+        "n_samples": np.full(n, used.n_samples, dtype=np.int64),
+        "emission_time_s": solution.emission_time_s[:, 0],
+    }
+    if solution.carrier_offset_hz is not None:
+        diagnostics["carrier_offset_hz"] = solution.carrier_offset_hz[:, 0]
+    diagnostics["straight_track"] = np.full(n, line is not None)
+    columns_out = BatchEstimates(
+        estimator=name,
+        position_m=np.where(ok[:, None], position, np.nan),
+        candidates_m=np.where(ok[:, None, None], final.candidates, np.nan),
+        n_candidates=np.where(ok, n_kept, 0),
+        ambiguous=final.ambiguous & ok,
+        success=ok,
+        message_code=code.astype(np.int64),
+        messages=tuple(messages),
+        diagnostics=diagnostics,
+    )
+    return columns_out.with_trials(redo, recomputed)
 
 
 def relaxed_fisher_information(
@@ -504,11 +962,17 @@ def relaxed_fisher_information(
 
 __all__ = [
     "HYPERBOLOID",
+    "STATUSES",
+    "WRONG_SHEET_NOTE",
+    "ProfiledOffset",
+    "PseudorangeBatch",
     "PseudorangeSolution",
+    "estimate_pseudorange_columns",
     "profile_offset",
     "pseudorange_frame",
     "pseudorange_rows",
     "reference_sample",
     "relaxed_fisher_information",
+    "solve_pseudorange_batch",
     "solve_pseudorange_cls",
 ]

@@ -1,0 +1,90 @@
+"""Per-estimate time of ``cls`` with unknown emission time and carrier offset (MATH §15): one
+trial at a time against the whole batch's columns.
+
+On ``beacon-pass`` (a 406 MHz beacon, 40 samples) and ``turn-noncooperative`` (the paper's turn,
+20 samples), both with the carrier offset and the emission time unknown, at 10 dB, N = 2,000
+trials, with the relaxed closed form (``offset_method="relaxed"``, the default) and with the
+profiled offset (``"profile"``: a root search over δ, one GTRS per step):
+
+- ``one-at-a-time``: ``estimate(batch.trial(i), rng=rngs[i])``: the pseudo-range closed form
+  on one trial (its batch of one); the columns were this call per trial before they were
+  vectorised;
+- ``columns``: ``estimate_columns(batch, rngs=rngs)``: the relaxed pseudo-range closed form of
+  every trial at once (``estimators.closed_form.pseudorange_cls.solve_pseudorange_batch``).
+
+Times are CPU seconds of this process (``benchmarks/cpu_time.py``) with BLAS held to one thread;
+each path is timed three times and the best kept. The one-at-a-time path runs on the first
+``min(N, 300)`` trials (60 for the profile; its cost per trial does not depend on N).
+Printed: microseconds per estimate, the ratio ``one-at-a-time / columns``, the trials the
+columns left to the one-trial path (``recomputed``) and the largest distance between the two
+paths' positions.
+
+Run: ``python benchmarks/bench_unknowns_batch.py`` (``--trials N``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_variable, "1")  # one core, before numpy loads its BLAS
+
+import numpy as np  # noqa: E402
+from cpu_time import best_cpu_us  # noqa: E402
+
+from estimators.closed_form.cls import Cls  # noqa: E402
+from scenarios.catalog import get_scenario  # noqa: E402
+from scenarios.simulate import simulate_trials, trial_seeds  # noqa: E402
+
+PER_TRIAL = 300
+PER_TRIAL_PROFILE = 60
+SNR_DB = 10.0
+SCENARIOS = ("beacon-pass", "turn-noncooperative")
+
+
+def bench(scenario_name: str, n: int, offset_method: str) -> None:
+    scenario = get_scenario(scenario_name)
+    batch = simulate_trials(scenario, snr_db=SNR_DB, seeds=trial_seeds(2026, n))
+    estimator = Cls(offset_method=offset_method)
+    single = min(n, PER_TRIAL if offset_method == "relaxed" else PER_TRIAL_PROFILE)
+    trials = [batch.trial(i) for i in range(single)]
+
+    def rngs(count: int) -> list[np.random.Generator]:
+        return [np.random.default_rng(i) for i in range(count)]
+
+    def one_at_a_time() -> list:
+        generators = rngs(single)
+        return [estimator.estimate(t, rng=g) for t, g in zip(trials, generators, strict=True)]
+
+    def columns():
+        return estimator.estimate_columns(batch, rngs=rngs(n))
+
+    per_trial_us = best_cpu_us(one_at_a_time, single)
+    columns_us = best_cpu_us(columns, n)
+    result = columns()
+    singles = one_at_a_time()
+    positions = np.array([e.position_m for e in singles])
+    distance = np.nanmax(np.linalg.norm(positions - result.position_m[:single], axis=1))
+    print(
+        f"{scenario_name:>20}  N={n:>6,}  offset_method={offset_method}  "
+        f"unknowns={','.join(scenario.unknowns)}\n"
+        f"{'':>22}one-at-a-time {per_trial_us:9.1f} µs/estimate\n"
+        f"{'':>22}columns       {columns_us:9.1f} µs/estimate  "
+        f"(×{per_trial_us / columns_us:.1f}; recomputed {int(result.recomputed.sum())}/{n}, "
+        f"success {int(result.success.sum())}/{n})\n"
+        f"{'':>22}largest position difference columns vs one-at-a-time: {distance:.2e} m"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--trials", type=int, default=2_000, help="N (default 2,000)")
+    args = parser.parse_args()
+    for offset_method in ("relaxed", "profile"):
+        for name in SCENARIOS:
+            bench(name, args.trials, offset_method)
+
+
+if __name__ == "__main__":
+    main()
