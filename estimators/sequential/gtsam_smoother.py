@@ -97,11 +97,11 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from estimators import smoother_nuisance
 from estimators.base import Capabilities, Estimate, require_modalities
 from estimators.convergence import COST_ROUNDING_RTOL, DECREMENT_TOL, EstimationFailure
 from estimators.frame_model import FrameModel
 from estimators.goodness_of_fit import with_fit
+from estimators.sequential import smoother_nuisance
 from estimators.sequential.mirror_hypotheses import (
     DIFFUSE_PRIOR_SCALE,
     MERGE_RTOL,
