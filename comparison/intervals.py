@@ -450,12 +450,15 @@ def axis_squared_errors(error_m: ArrayLike, crlb_m2: ArrayLike) -> FloatArray:
     return out
 
 
-def nees_band(n: ArrayLike, confidence: float = 0.95) -> tuple[FloatArray, FloatArray]:
-    """Two-sided interval for the mean of ``n`` independent 2-dof NEES values.
+def nees_band(
+    n: ArrayLike, confidence: float = 0.95, *, dof: int = 2
+) -> tuple[FloatArray, FloatArray]:
+    """Two-sided interval for the mean of ``n`` independent NEES values of ``dof`` degrees of
+    freedom (the coordinates of the position: 2, or 3 with the height estimated).
 
-    If the estimator's covariance is consistent, each NEES is χ²(2) and ``n`` times their mean
-    is χ²(2n) (Bar-Shalom, Li & Kirubarajan 2001, sec. 5.4.2), so the mean lies in
-    ``chi2.ppf([α/2, 1 − α/2], 2n) / n`` with probability ``confidence``.
+    If the estimator's covariance is consistent, each NEES is χ²(dof) and ``n`` times their
+    mean is χ²(dof·n) (Bar-Shalom, Li & Kirubarajan 2001, sec. 5.4.2), so the mean lies in
+    ``chi2.ppf([α/2, 1 − α/2], dof·n) / n`` with probability ``confidence``.
 
     Parameters
     ----------
@@ -463,11 +466,15 @@ def nees_band(n: ArrayLike, confidence: float = 0.95) -> tuple[FloatArray, Float
         Number of NEES values averaged; 0 gives NaN.
     confidence : float
         Coverage of the band, in (0, 1).
+    dof : int
+        Degrees of freedom of each NEES value.
 
     Returns
     -------
     low, high : arrays shaped like ``n``
     """
+    if int(dof) != dof or dof < 1:
+        raise ValueError(f"dof: a whole number of degrees of freedom >= 1, got {dof!r}")
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence: must lie in (0, 1), got {confidence!r}")
     count = np.asarray(n, dtype=float)
@@ -475,7 +482,7 @@ def nees_band(n: ArrayLike, confidence: float = 0.95) -> tuple[FloatArray, Float
         raise ValueError("n: counts of NEES values must be >= 0")
     alpha = 1.0 - confidence
     with np.errstate(divide="ignore", invalid="ignore"):
-        dof = np.where(count > 0, 2.0 * count, np.nan)
-        low = stats.chi2.ppf(alpha / 2, dof) / count
-        high = stats.chi2.ppf(1 - alpha / 2, dof) / count
+        total = np.where(count > 0, float(dof) * count, np.nan)
+        low = stats.chi2.ppf(alpha / 2, total) / count
+        high = stats.chi2.ppf(1 - alpha / 2, total) / count
     return np.asarray(low, dtype=float), np.asarray(high, dtype=float)

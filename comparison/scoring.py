@@ -30,7 +30,7 @@ from comparison.trial_rows import ESTIMATE_COLUMNS
 from estimators.base import Estimate
 from estimators.batch import BatchEstimates
 from estimators.goodness_of_fit import FIT_KEYS
-from scenarios.fisher import inverse_2x2
+from scenarios.fisher import inverse_symmetric
 from scenarios.types import MeasurementSet
 
 Track = tuple[np.ndarray, np.ndarray]
@@ -160,10 +160,10 @@ def mirrored_covariance(covariance_m2: np.ndarray, direction: np.ndarray) -> np.
 
 
 def normalized_error_squared(error_m: np.ndarray, covariance_m2: np.ndarray) -> float:
-    """``eᵀ P⁻¹ e`` (NEES, 2 degrees of freedom); NaN when ``P`` is singular or not finite
-    (:func:`scenarios.fisher.inverse_2x2`)."""
+    """``eᵀ P⁻¹ e`` (NEES, as many degrees of freedom as ``e`` has coordinates); NaN when
+    ``P`` is singular or not finite (:func:`scenarios.fisher.inverse_symmetric`)."""
     error = np.asarray(error_m, dtype=float)
-    return float(error @ inverse_2x2(covariance_m2) @ error)
+    return float(error @ inverse_symmetric(covariance_m2) @ error)
 
 
 def jsonable(value: Any) -> Any:
@@ -216,6 +216,19 @@ def diagnostics_text(diagnostics: Mapping[str, Any]) -> str:
     return _SORTED_JSON.encode(jsonable(dict(diagnostics)))
 
 
+SCORED_DIMENSION = 2
+"""The coordinates the comparison scores: ``(x, y)``, the scenarios' emitters being at a known
+height. An estimate of another dimension fails its own rows (:func:`dimension_message`)."""
+
+
+def dimension_message(dimension: int) -> str:
+    """Why an estimate of ``dimension`` coordinates is not scored."""
+    return (
+        f"position_m: {dimension} coordinates, but the scenario's emitter height is known and "
+        f"the comparison scores (x, y); return the horizontal position"
+    )
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class Outcomes:
     """One estimator's results on the trials of a task at one frame, ready to be scored.
@@ -237,7 +250,14 @@ class Outcomes:
 
     @classmethod
     def of_columns(cls, columns: BatchEstimates, runtime_s: float) -> Outcomes:
-        """A column-returning estimator's results, every trial given ``runtime_s``."""
+        """A column-returning estimator's results, every trial given ``runtime_s`` (failed
+        when they are not of the scored dimension, :data:`SCORED_DIMENSION`)."""
+        if columns.position_m.shape[1] != SCORED_DIMENSION:
+            columns = BatchEstimates.failed(
+                len(columns),
+                dimension_message(columns.position_m.shape[1]),
+                estimator=columns.estimator,
+            )
         return cls(columns, np.full(len(columns), float(runtime_s)))
 
     @classmethod
@@ -248,7 +268,12 @@ class Outcomes:
         those of a failed estimate, keys that differ between trials, nested values.
         """
         n = len(results)
-        estimates = [estimate for estimate, _ in results]
+        estimates = [
+            estimate
+            if len(estimate.position_m) == SCORED_DIMENSION
+            else Estimate.failed(estimate.estimator, dimension_message(len(estimate.position_m)))
+            for estimate, _ in results
+        ]
         counts = [len(estimate.candidates_m) for estimate in estimates]
         candidates = np.full((n, max(counts, default=0), 2), np.nan)
         position = np.full((n, 2), np.nan)
@@ -400,7 +425,7 @@ def _fit_column(columns: BatchEstimates, key: str, success: NDArray[np.bool_]) -
 
 def _nees(error_m: NDArray[np.float64], covariance_m2: NDArray[np.float64]) -> NDArray[Any]:
     """:func:`normalized_error_squared` of each row: ``(e P⁻¹) e`` as ``np.matmul`` does it."""
-    left = np.matmul(error_m[:, None, :], inverse_2x2(covariance_m2))
+    left = np.matmul(error_m[:, None, :], inverse_symmetric(covariance_m2))
     return np.matmul(left, error_m[:, :, None])[:, 0, 0]
 
 

@@ -55,7 +55,13 @@ from estimators.interface import Estimator, capabilities_of
 from estimators.interface import SequentialEstimator as SequentialEstimator
 from estimators.interface import protocol_problems as protocol_problems
 from estimators.registry import estimators_handling
-from estimators.validity import invalid_estimates, numeric_array, real_part, refused_message
+from estimators.validity import (
+    invalid_estimates,
+    numeric_array,
+    position_dimension,
+    real_part,
+    refused_message,
+)
 from scenarios.fields import vector_text
 from scenarios.geometry import TrackSoFar, moves_horizontally, single_horizontal_point
 from scenarios.nuisance import describe_unknowns, unknowns_used
@@ -66,6 +72,18 @@ IntArray = NDArray[np.int64]
 State = TypeVar("State")
 
 
+def _shaped(array: NDArray[Any], shape: tuple[int, ...], field: str = "") -> NDArray[Any]:
+    """``array`` reshaped to ``shape`` (``-1``: any length), or one line naming the field."""
+    try:
+        return array.reshape(shape)
+    except ValueError:
+        want = ", ".join("n" if n == -1 else str(n) for n in shape)
+        raise ValueError(
+            f"{field}: expected shape ({want}) for a position of {shape[-1]} coordinates, "
+            f"got {array.shape}"
+        ) from None
+
+
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
 class Estimate:
     """What an estimator returns (a frozen ``scipy.optimize.OptimizeResult``).
@@ -74,16 +92,18 @@ class Estimate:
     ----------
     estimator : str
         Registry name of the estimator.
-    position_m : (2,)
-        The returned emitter position ``(x_s, y_s)``; NaN when ``success`` is false.
-    candidates_m : (n, 2)
+    position_m : (2,) or (3,)
+        The returned emitter position ``(x_s, y_s)``, or ``(x_s, y_s, z_s)`` when the
+        estimator estimates the height too (:data:`~estimators.validity.POSITION_DIMENSIONS`);
+        NaN when ``success`` is false.
+    candidates_m : (n, 2) or (n, 3)
         Every minimiser of equal cost, ``position_m`` among them (MATH §7). Two mirror
         images on one straight frame, one point once a turn resolves the side.
     ambiguous : bool
         True when the data cannot tell the side of the track (MATH §7): every sample on one
         straight line, or several candidates of equal cost. ``position_m`` is then a guess,
         even when the single candidate lies on the track and is its own mirror image.
-    covariance_m2 : (2, 2) or None
+    covariance_m2 : (2, 2), (3, 3) or None
         The estimator's own error covariance of ``position_m``, when it has one: the error
         given that the returned side is right. The comparison reflects it across the track,
         ``R P Rᵀ``, for a mirror candidate (MATH §7, §16).
@@ -111,12 +131,17 @@ class Estimate:
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        position = numeric_array(self.position_m, "position_m").reshape(2)
-        candidates = numeric_array(self.candidates_m, "candidates_m").reshape(-1, 2)
+        position = numeric_array(self.position_m, "position_m").reshape(-1)
+        dim = position_dimension(position.size)
+        candidates = _shaped(
+            numeric_array(self.candidates_m, "candidates_m"), (-1, dim), "candidates_m"
+        )
         covariance = (
             None
             if self.covariance_m2 is None
-            else numeric_array(self.covariance_m2, "covariance_m2").reshape(2, 2)
+            else _shaped(
+                numeric_array(self.covariance_m2, "covariance_m2"), (dim, dim), "covariance_m2"
+            )
         )
         set_(self, "ambiguous", bool(self.ambiguous))
         set_(self, "success", bool(self.success))
@@ -132,7 +157,7 @@ class Estimate:
             set_(self, "message", refused_message(reasons[0], self.message))
             set_(self, "success", False)
             set_(self, "ambiguous", False)
-            position, candidates, covariance = np.full(2, np.nan), np.empty((0, 2)), None
+            position, candidates, covariance = np.full(dim, np.nan), np.empty((0, dim)), None
         position, candidates = real_part(position), real_part(candidates)
         position.flags.writeable = False
         candidates.flags.writeable = False
@@ -144,12 +169,15 @@ class Estimate:
         set_(self, "covariance_m2", covariance)
 
     @classmethod
-    def failed(cls, estimator: str, message: str, **diagnostics: Any) -> Estimate:
-        """A failed estimate: NaN position, no candidates, the reason in ``message``."""
+    def failed(
+        cls, estimator: str, message: str, *, dimension: int = 2, **diagnostics: Any
+    ) -> Estimate:
+        """A failed estimate: NaN position (of ``dimension`` coordinates), no candidates, the
+        reason in ``message``."""
         return cls(
             estimator=estimator,
-            position_m=np.full(2, np.nan),
-            candidates_m=np.empty((0, 2)),
+            position_m=np.full(dimension, np.nan),
+            candidates_m=np.empty((0, dimension)),
             ambiguous=False,
             success=False,
             message=message,

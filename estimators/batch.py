@@ -24,7 +24,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from estimators.base import Estimate, check_rng
-from estimators.validity import invalid_estimates, numeric_array, real_part, refused_message
+from estimators.validity import (
+    invalid_estimates,
+    numeric_array,
+    position_dimension,
+    real_part,
+    refused_message,
+)
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -56,9 +62,10 @@ class BatchEstimates:
     Attributes
     ----------
     estimator : str
-    position_m : (n, 2)
-        NaN where ``success`` is false.
-    candidates_m : (n, k, 2)
+    position_m : (n, d)
+        NaN where ``success`` is false; ``d`` is 2, or 3 with the height estimated
+        (:data:`~estimators.validity.POSITION_DIMENSIONS`).
+    candidates_m : (n, k, d)
         Trial ``i``'s candidates are ``candidates_m[i, :n_candidates[i]]``; NaN beyond.
     n_candidates : (n,)
     ambiguous, success : (n,) bool
@@ -72,7 +79,7 @@ class BatchEstimates:
     recomputed : (n,) bool
         Trials solved one at a time because a choice of the batch solver was within rounding
         of its threshold (their values are the one-trial path's own).
-    covariance_m2 : (n, 2, 2) or None
+    covariance_m2 : (n, d, d) or None
 
     The arrays are made read-only (not copied): a result is a value. Built, the columns obey
     the rules of :mod:`estimators.validity`, checked on every trial at once: a trial that
@@ -96,9 +103,10 @@ class BatchEstimates:
         n = len(self.position_m)
         if self.recomputed is None:
             object.__setattr__(self, "recomputed", np.zeros(n, dtype=bool))
+        d = position_dimension(np.shape(self.position_m)[-1]) if np.ndim(self.position_m) else 2
         columns = {
-            "position_m": (self.position_m, (n, 2)),
-            "candidates_m": (self.candidates_m, (n, None, 2)),
+            "position_m": (self.position_m, (n, d)),
+            "candidates_m": (self.candidates_m, (n, None, d)),
             "n_candidates": (self.n_candidates, (n,)),
             "ambiguous": (self.ambiguous, (n,)),
             "success": (self.success, (n,)),
@@ -106,7 +114,7 @@ class BatchEstimates:
             "recomputed": (self.recomputed, (n,)),
         }
         if self.covariance_m2 is not None:
-            columns["covariance_m2"] = (self.covariance_m2, (n, 2, 2))
+            columns["covariance_m2"] = (self.covariance_m2, (n, d, d))
         for key, value in self.diagnostics.items():
             columns[f"diagnostics[{key!r}]"] = (value, (n,))
         for name, (value, shape) in columns.items():
@@ -179,21 +187,28 @@ class BatchEstimates:
 
     @classmethod
     def failed(
-        cls, n: int, message: str = "", *, estimator: str = "", covariance: bool = False
+        cls,
+        n: int,
+        message: str = "",
+        *,
+        estimator: str = "",
+        covariance: bool = False,
+        dimension: int = 2,
     ) -> BatchEstimates:
-        """The columns of ``n`` failed estimates, each with ``message`` (and a NaN covariance
-        column when ``covariance``): :meth:`Estimate.failed <estimators.base.Estimate.failed>`
-        for a whole batch."""
+        """The columns of ``n`` failed estimates of positions of ``dimension`` coordinates,
+        each with ``message`` (and a NaN covariance column when ``covariance``):
+        :meth:`Estimate.failed <estimators.base.Estimate.failed>` for a whole batch."""
+        d = dimension
         return cls(
             estimator=estimator,
-            position_m=np.full((n, 2), np.nan),
-            candidates_m=np.full((n, 0, 2), np.nan),
+            position_m=np.full((n, d), np.nan),
+            candidates_m=np.full((n, 0, d), np.nan),
             n_candidates=np.zeros(n, dtype=np.int64),
             ambiguous=np.zeros(n, dtype=bool),
             success=np.zeros(n, dtype=bool),
             message_code=np.zeros(n, dtype=np.int64),
             messages=(message,),
-            covariance_m2=np.full((n, 2, 2), np.nan) if covariance else None,
+            covariance_m2=np.full((n, d, d), np.nan) if covariance else None,
         )
 
     @classmethod
@@ -202,7 +217,15 @@ class BatchEstimates:
         successful ones must agree: :meth:`with_trials`)."""
         n = len(estimates)
         covariance = any(e.covariance_m2 is not None for e in estimates)
-        empty = cls.failed(n, estimator=estimator, covariance=covariance)
+        dimensions = {len(e.position_m) for e in estimates} or {2}
+        if len(dimensions) > 1:
+            raise ValueError(
+                f"position_m: the trials' positions have {sorted(dimensions)} coordinates; one "
+                "estimator returns the same number for every trial"
+            )
+        empty = cls.failed(
+            n, estimator=estimator, covariance=covariance, dimension=dimensions.pop()
+        )
         filled = empty.with_trials(range(n), estimates)
         return replace(filled, recomputed=np.zeros(n, dtype=bool))
 
@@ -247,7 +270,7 @@ class BatchEstimates:
         if len(index) == 0:
             return self
         width = max([self.candidates_m.shape[1], *(len(e.candidates_m) for e in estimates)])
-        candidates = np.full((len(self), width, 2), np.nan)
+        candidates = np.full((len(self), width, self.position_m.shape[1]), np.nan)
         candidates[:, : self.candidates_m.shape[1]] = self.candidates_m
         position = self.position_m.copy()
         n_candidates = self.n_candidates.copy()

@@ -18,14 +18,18 @@ The rules, in the order they are checked (the first broken one is named):
    refused, never cast (numpy's cast would drop the imaginary part in silence).
 2. **A success is finite.** Its ``position_m`` and every candidate are finite.
 3. **A success's position is one of its candidates** (MATH §7): ``candidates_m`` is not empty
-   and the nearest candidate lies within :data:`POSITION_RTOL` ``× max(1 m, |x|, |y|)`` of
+   and the nearest candidate lies within :data:`POSITION_RTOL` ``× max(1 m, |x|, |y|, |z|)`` of
    ``position_m``: rounding of coordinates of that size, nothing more (a refined position is
    a candidate; report it as one).
 4. **A success's covariance is a covariance**: None, all NaN (the columns' "none"), or finite,
-   symmetric and positive semi-definite to rounding: ``|P₁₂ − P₂₁|`` and the negative part of
+   symmetric and positive semi-definite to rounding: ``max |Pᵢⱼ − Pⱼᵢ|`` and the negative part of
    the smallest eigenvalue of ``(P + Pᵀ)/2`` at most :data:`COVARIANCE_RTOL` ``× ‖P‖_F``
    (a covariance ``E[e eᵀ]`` is symmetric PSD; the NEES ``eᵀP⁻¹e`` of any other matrix can be
    negative, MATH §16).
+
+A position has :data:`POSITION_DIMENSIONS` coordinates, ``(x, y)`` or ``(x, y, z)``
+(:func:`position_dimension`); the candidates and the covariance have as many. The 2×2
+covariance's eigenvalue is in closed form; a larger one is checked by ``eigvalsh``.
 
 A failed estimate is checked for rule 1 only: its position is NaN and nothing else of it is
 scored. The check costs about 0.3 µs a trial on columns and 20-35 µs for one
@@ -38,6 +42,10 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+POSITION_DIMENSIONS = (2, 3)
+"""The coordinates a position may have: ``(x_s, y_s)`` at a known emitter height, or
+``(x_s, y_s, z_s)``."""
 
 INVALID = "invalid estimate: "
 """How the message of a refused estimate begins."""
@@ -79,6 +87,17 @@ def numeric_array(value: Any, field: str) -> NDArray[Any]:
         raise ValueError(f"{field}: expected numbers, got {value!r} ({error})") from None
 
 
+def position_dimension(size: int, field: str = "position_m") -> int:
+    """The number of coordinates of a position of ``size`` numbers, checked to be one of
+    :data:`POSITION_DIMENSIONS`; ``ValueError`` naming ``field`` otherwise."""
+    if size not in POSITION_DIMENSIONS:
+        raise ValueError(
+            f"{field}: expected (x, y) or (x, y, z) in metres, got {size} numbers; return the "
+            "emitter's horizontal position, or all three coordinates when its height is estimated"
+        )
+    return size
+
+
 def real_part(array: NDArray[Any]) -> NDArray[np.float64]:
     """The float array of a real or complex one (the imaginary part checked to be zero)."""
     return np.ascontiguousarray(array.real, dtype=float)
@@ -95,10 +114,11 @@ def invalid_estimates(
 
     Parameters
     ----------
-    position_m : (n, 2), candidates_m : (n, k, 2)
-        Trial ``i``'s candidates are ``candidates_m[i, :n_candidates[i]]``. Float or complex.
+    position_m : (n, d), candidates_m : (n, k, d)
+        Trial ``i``'s candidates are ``candidates_m[i, :n_candidates[i]]``. Float or complex;
+        ``d`` one of :data:`POSITION_DIMENSIONS`.
     n_candidates : (n,) int
-    covariance_m2 : (n, 2, 2) or None
+    covariance_m2 : (n, d, d) or None
     success : (n,) bool
 
     Each reason starts with :data:`INVALID`. Vectorised over the trials; Python runs only
@@ -120,7 +140,11 @@ def invalid_estimates(
     with np.errstate(invalid="ignore", over="ignore"):
         finite_position = np.isfinite(p).all(axis=1)
         finite_candidates = (np.isfinite(c) | ~slot[..., None]).all(axis=(1, 2))
-        gap = np.hypot(c[..., 0] - p[:, None, 0], c[..., 1] - p[:, None, 1])
+        gap = (
+            np.hypot(c[..., 0] - p[:, None, 0], c[..., 1] - p[:, None, 1])
+            if p.shape[1] == 2
+            else np.sqrt(np.sum((c - p[:, None]) ** 2, axis=-1))
+        )
         nearest = np.min(np.where(slot, gap, np.inf), axis=1, initial=np.inf)
         scale = np.maximum(np.max(np.abs(p), axis=1, initial=0.0), 1.0)
         bad = ~(finite_position & finite_candidates & (nearest <= POSITION_RTOL * scale))
@@ -161,12 +185,21 @@ def _imaginary(
 def _covariance_measures(
     P: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """``|P₁₂ − P₂₁|``, the smallest eigenvalue of ``(P + Pᵀ)/2`` and ``‖P‖_F`` of each
-    ``(2, 2)``: ``λ = m − √(((a − d)/2)² + b²)`` with ``m = (a + d)/2`` (closed form, hypot
-    against overflow)."""
-    a, b, c, d = P[:, 0, 0], P[:, 0, 1], P[:, 1, 0], P[:, 1, 1]
-    smallest = 0.5 * (a + d) - np.hypot(0.5 * (a - d), 0.5 * (b + c))
-    return np.abs(b - c), smallest, np.hypot(np.hypot(a, b), np.hypot(c, d))
+    """``max |Pᵢⱼ − Pⱼᵢ|``, the smallest eigenvalue of ``(P + Pᵀ)/2`` and ``‖P‖_F`` of each
+    ``(d, d)``. For ``(2, 2)`` in closed form, ``λ = m − √(((a − d)/2)² + b²)`` with
+    ``m = (a + d)/2`` (hypot against overflow); larger ones by ``eigvalsh`` (NaN where an entry
+    is not finite)."""
+    if P.shape[-1] == 2:
+        a, b, c, d = P[:, 0, 0], P[:, 0, 1], P[:, 1, 0], P[:, 1, 1]
+        smallest = 0.5 * (a + d) - np.hypot(0.5 * (a - d), 0.5 * (b + c))
+        return np.abs(b - c), smallest, np.hypot(np.hypot(a, b), np.hypot(c, d))
+    transposed = np.swapaxes(P, -1, -2)
+    asymmetry = np.max(np.abs(P - transposed), axis=(1, 2), initial=0.0)
+    finite = np.isfinite(P).all(axis=(1, 2))
+    smallest = np.full(len(P), np.nan)
+    if finite.any():
+        smallest[finite] = np.linalg.eigvalsh(0.5 * (P + transposed)[finite])[:, 0]
+    return asymmetry, smallest, np.sqrt(np.sum(P**2, axis=(1, 2)))
 
 
 def _numbers(values: NDArray[Any]) -> str:
@@ -211,13 +244,16 @@ def _reason(
             f"{shown['candidates_m']}: {nearest[i]:.3g} m from the nearest (tolerance "
             f"{POSITION_RTOL * scale[i]:.3g} m); return one of the candidates (MATH §7)"
         )
-    P = real_part(covariance[i]) if covariance is not None and success else np.zeros((2, 2))
+    dim = position.shape[-1]
+    P = real_part(covariance[i]) if covariance is not None and success else np.zeros((dim, dim))
     if not np.isfinite(P).all():
         return f"covariance_m2 is not finite {_numbers(P)}; return None when there is none"
     with np.errstate(invalid="ignore", over="ignore"):
         asymmetry, smallest, norm = (float(v[0]) for v in _covariance_measures(P[None]))
     if asymmetry > COVARIANCE_RTOL * norm:
-        what = f"covariance_m2[0, 1] = {P[0, 1]:.6g} but covariance_m2[1, 0] = {P[1, 0]:.6g} m²"
+        j, k = np.unravel_index(np.argmax(np.abs(P - P.T)), P.shape)
+        j, k = min(j, k), max(j, k)
+        what = f"covariance_m2[{j}, {k}] = {P[j, k]:.6g} but covariance_m2[{k}, {j}] = {P[k, j]:.6g} m²"
     else:
         what = f"smallest eigenvalue {smallest:.3g} m²"
     return (

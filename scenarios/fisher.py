@@ -489,6 +489,27 @@ def inverse_2x2(matrix: ArrayLike) -> FloatArray:
     return inverse
 
 
+def inverse_symmetric(matrix: ArrayLike) -> FloatArray:
+    """The inverse of symmetric matrices ``(..., d, d)`` of any size, NaN where singular.
+
+    ``d = 2`` is :func:`inverse_2x2` (closed form, its rule of regularity). A larger one is
+    regular where every eigenvalue exceeds ``SINGULAR_RTOL`` times the largest (a covariance or
+    an information matrix is positive semi-definite; NaN or ``inf`` entries count as singular)
+    and is inverted through its eigendecomposition.
+    """
+    J = np.asarray(matrix, dtype=float)
+    if J.shape[-1] == 2:
+        return inverse_2x2(J)
+    inverse = np.full(J.shape, np.nan)
+    finite = np.isfinite(J).all(axis=(-2, -1))
+    if finite.any():
+        values, vectors = np.linalg.eigh(J[finite])
+        regular = values[..., 0] > SINGULAR_RTOL * np.maximum(values[..., -1], 0.0)
+        scaled = vectors / np.where(regular[..., None], values, np.nan)[..., None, :]
+        inverse[finite] = scaled @ np.swapaxes(vectors, -1, -2)
+    return inverse
+
+
 def rmse_bound_m(information: ArrayLike) -> FloatArray:
     """``√trace(J⁻¹)`` of information ``(..., 2, 2)``: the RMSE bound in metres (MATH §8),
     shape ``(...)``; NaN where ``J`` is singular."""
