@@ -76,6 +76,9 @@ from estimators.closed_form.pseudorange_cls import solve_pseudorange_cls
 from estimators.convergence import DECREMENT_TOL, stationarity_decrement
 from estimators.goodness_of_fit import with_fit, with_fit_columns
 from estimators.ml.minpack_batch import ordered_sum
+from estimators.ml.ml_batch import estimate_columns
+from estimators.ml.ml_batch_audit import HESSIAN_STEP_RTOL
+from estimators.ml.ml_batch_starts import MERGE_RTOL, ON_TRACK_RTOL, on_start_grid
 from estimators.ml.ml_residuals import ResidualModel, profiled_offsets
 from estimators.ml.ml_starts import doppler_frame_starts, doppler_grid_starts, ranges_uninformative
 from scenarios.fisher import gram_information, inverse_2x2, regular_2x2
@@ -87,18 +90,6 @@ FloatArray = NDArray[np.float64]
 Frames = Literal["all", "last"]
 Method = Literal["lm", "trf"]
 Rngs = Sequence[np.random.Generator | None] | None
-
-MERGE_RTOL = 1e-6
-"""Minima closer than ``MERGE_RTOL`` times the local length scale are one minimum."""
-
-ON_TRACK_RTOL = 1e-6
-"""A start this close (relative) to a straight track's vertical plane gets a second start off it."""
-
-HESSIAN_STEP_RTOL = 1e-6
-"""Central-difference step of the exact Hessian (module text), relative to the length scale."""
-
-START_GRID = 2.0**-16
-"""Starts are rounded to this grid in local units (module text, "Reproducibility")."""
 
 MINPACK_STATUS = {
     -1: "improper input",
@@ -145,11 +136,6 @@ def whitened_residual_jacobian(
     emitter = np.asarray(emitter_m, dtype=float)
     columns = ResidualModel.of(data).jacobian(emitter[..., 0, None], emitter[..., 1, None], use_rss)
     return np.stack([np.concatenate(c, axis=-1) for c in columns], axis=-1)
-
-
-def on_start_grid(local_xy: ArrayLike) -> FloatArray:
-    """Starts in local units rounded to ``START_GRID`` (module text, "Reproducibility")."""
-    return np.round(np.asarray(local_xy, dtype=float) / START_GRID) * START_GRID
 
 
 # --------------------------------------------------------------------------------------------
@@ -538,8 +524,6 @@ class MaximumLikelihood:
     def estimate_columns(self, batch: MeasurementBatch, *, rngs: Rngs = None) -> BatchEstimates:
         """``estimate_batch`` as columns (:mod:`estimators.ml.ml_batch`): the same answers, bit
         for bit, with the trials the batch cannot reproduce solved one at a time."""
-        from estimators.ml.ml_batch import estimate_columns
-
         return with_fit_columns(self, estimate_columns(self, batch, rngs), batch)
 
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:

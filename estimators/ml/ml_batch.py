@@ -54,14 +54,15 @@ from estimators.base import Estimate, finalize_estimate, require_batch
 from estimators.batch import BatchEstimates, FinalizedColumns, check_rngs, finalize_columns
 from estimators.closed_form.cls_batch import SharedGeometry, draw_and_redo
 from estimators.ml.minpack_batch import INFO_CODES, lmder_batch, ordered_sum
-from estimators.ml.ml import (
+from estimators.ml.ml_batch_audit import converged_for_certain
+from estimators.ml.ml_batch_starts import (
+    DISTANCE_RTOL,
     MERGE_RTOL,
     START_GRID,
-    ResidualModel,
+    batch_starts,
     on_start_grid,
 )
-from estimators.ml.ml_batch_audit import converged_for_certain
-from estimators.ml.ml_batch_starts import DISTANCE_RTOL, batch_starts
+from estimators.ml.ml_residuals import ResidualModel
 from estimators.ml.ml_starts import ranges_uninformative
 from scenarios.fisher import SINGULAR_RTOL, gram_information, inverse_2x2, regular_2x2
 from scenarios.types import MeasurementBatch, MeasurementSet

@@ -15,7 +15,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from estimators.convergence import DECREMENT_TOL
-from estimators.ml.ml import HESSIAN_STEP_RTOL
 
 if TYPE_CHECKING:
     from estimators.ml.ml_batch import SharedContext
@@ -24,6 +23,9 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
+HESSIAN_STEP_RTOL = 1e-6
+"""Central-difference step of the exact Hessian (:mod:`estimators.ml.ml`, "Convergence"),
+relative to the length scale."""
 DECREMENT_MARGIN = 8.0
 """A start is converged for certain when its Gauss-Newton decrement is below
 ``DECREMENT_TOL / DECREMENT_MARGIN`` (the one-trial decrement is never larger)."""

@@ -17,11 +17,10 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from estimators.closed_form.cls_batch import solve_chunk
 from estimators.closed_form.gtrs_batch import POSITION_RTOL
-from estimators.ml.ml import MERGE_RTOL, ON_TRACK_RTOL
 
 if TYPE_CHECKING:
     from estimators.ml.ml_batch import SharedContext
@@ -33,10 +32,22 @@ BoolArray = NDArray[np.bool_]
 START_ERROR_FACTOR = 4.0
 """The batch CLS answer is within ``POSITION_RTOL (1 + |u|)`` of the one-trial one (local
 units); starts are trusted to this multiple of that."""
+MERGE_RTOL = 1e-6
+"""Minima closer than ``MERGE_RTOL`` times the local length scale are one minimum."""
+ON_TRACK_RTOL = 1e-6
+"""A start this close (relative) to a straight track's vertical plane gets a second start off it."""
+START_GRID = 2.0**-16
+"""Starts are rounded to this grid in local units (:mod:`estimators.ml.ml`, "Reproducibility")."""
 FIT_ERROR_RTOL = 1e-12
 """Relative error allowed for the closed-form Doppler fit, times its condition number."""
 DISTANCE_RTOL = 1e-12
 """A distance within this (relative) of a merge threshold is in doubt."""
+
+
+def on_start_grid(local_xy: ArrayLike) -> FloatArray:
+    """Starts in local units rounded to ``START_GRID`` (:mod:`estimators.ml.ml`,
+    "Reproducibility")."""
+    return np.round(np.asarray(local_xy, dtype=float) / START_GRID) * START_GRID
 
 
 def batch_starts(

@@ -36,15 +36,13 @@ from estimators.ml.minpack_batch import (
 )
 from estimators.ml.ml import (
     MINPACK_STATUS,
-    START_GRID,
     MaximumLikelihood,
-    on_start_grid,
     straight_track_starts,
     whitened_residual_jacobian,
     whitened_residuals,
 )
 from estimators.ml.ml_batch import SharedContext
-from estimators.ml.ml_batch_starts import batch_starts
+from estimators.ml.ml_batch_starts import START_GRID, batch_starts, on_start_grid
 from estimators.ml.ml_starts import doppler_frame_starts, ranges_uninformative
 from scenarios.catalog import get_scenario
 from scenarios.geometry import straight_track_line
