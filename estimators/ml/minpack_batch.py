@@ -1,22 +1,17 @@
 r"""MINPACK's Levenberg-Marquardt for many two-unknown least-squares problems at once.
 
-``scipy.optimize.least_squares(method="lm")`` calls MINPACK's ``lmder`` (More 1978; scipy's C
-translation, ``x_scale="jac"``, ``factor=100``): QR with column pivoting of the Jacobian
-(``qrfac``), the Levenberg-Marquardt parameter by Newton's method on the trust-region
-equation (``lmpar``, at most 10 iterations), the damped system by Givens rotations
-(``qrsolv``), and the step bound, acceptance and the ``ftol``/``xtol``/``gtol`` tests. This
-module performs the same floating-point operations in the same order, with the problems
-along the first axis of every array: two unknowns make every matrix 2 × 2 and every loop of
-``lmpar`` and ``qrsolv`` a fixed sequence of elementwise operations, and the sums over the
-``m`` residuals are evaluated in order (:func:`ordered_sum`) as ``enorm`` and the inner
-products of ``qrfac`` evaluate them. Residuals are kept rows first, ``(m, P)``. Given residuals and
-Jacobians equal bit for bit to those the one-problem call sees, every iterate, the evaluation count
-and the termination code are those of ``least_squares`` bit for bit, including the final step whose
-reduction is below the rounding of the cost (where no tolerance-based reproduction can agree).
-
-Two parts of MINPACK are not reproduced; a problem that reaches them is flagged ``odd`` and
-left to the one-problem call: ``enorm``'s scaled sums for components below ``3.8e-20`` or above
-``1.3e19 / m`` (and non-finite values), and a Jacobian whose pivot column is zero.
+``lmder`` of MINPACK (More 1978; ``x_scale="jac"``, ``factor=100``, the method
+``scipy.optimize.least_squares(method="lm")`` calls): QR with column pivoting of the Jacobian
+(``qrfac``), the Levenberg-Marquardt parameter by Newton's method on the trust-region equation
+(``lmpar``, at most 10 iterations), the damped system by Givens rotations (``qrsolv``), and the
+step bound, acceptance and the ``ftol``/``xtol``/``gtol`` tests, with the problems along the
+first axis of every array: two unknowns make every matrix 2 × 2 and every loop of ``lmpar`` and
+``qrsolv`` a fixed sequence of elementwise operations. Residuals are kept rows first,
+``(m, P)``. This is the reference solver of ``ml`` (one trial is a batch of one); scipy's
+``least_squares`` is its cross-check in the tests, at a tolerance. Norms are plain
+``√Σ v²`` (MINPACK's ``enorm`` scales only components below ``3.8e-20`` or above
+``1.3e19 / m``, which no whitened residual reaches); a problem whose residuals or Jacobian turn
+non-finite stops there (``info`` 0).
 """
 
 from __future__ import annotations
@@ -38,57 +33,60 @@ Jacobian = Callable[[IntArray, FloatArray], tuple[FloatArray, FloatArray]]
 
 EPSMCH = 2.220446049250313e-16
 DWARF = 2.2250738585072014e-308
-RGIANT = 2.0**63.5
-RDWARF = 0.5 / RGIANT
 FACTOR = 100.0
 """MINPACK's initial step bound factor, as ``least_squares`` passes it."""
 LMPAR_ITERATIONS = 10
 
-INFO_CODES = {1: "ftol", 2: "xtol", 3: "ftol+xtol", 4: "gtol", 5: "max_nfev"}
-"""MINPACK's ``info`` as the tolerance ``least_squares`` reports (``estimators.ml.ml``)."""
+INFO_CODES = {
+    1: "ftol",
+    2: "xtol",
+    3: "ftol+xtol",
+    4: "gtol",
+    5: "max_nfev",
+    6: "ftol",
+    7: "xtol",
+    8: "gtol",
+}
+"""MINPACK's ``info`` as the tolerance met (6-8: the tolerance is below the rounding, met all
+the same) or the evaluation cap."""
+
+TERMINATION_MESSAGES = {
+    "max_nfev": "The maximum number of function evaluations is exceeded.",
+    "gtol": "`gtol` termination condition is satisfied.",
+    "ftol": "`ftol` termination condition is satisfied.",
+    "xtol": "`xtol` termination condition is satisfied.",
+    "ftol+xtol": "Both `ftol` and `xtol` termination conditions are satisfied.",
+}
+"""How each ending is told (``least_squares``'s wording, kept for the estimates' messages)."""
 
 
-def ordered_sum(values: FloatArray) -> FloatArray:
-    """The sum over the first axis in order, ``s = 0; s += v[i]``, as MINPACK's loops add.
-
-    For a C-contiguous ``(m, k)`` array with ``k ≥ 2`` numpy's reduction over the first axis
-    adds row after row into the ``k`` totals, which is this order (checked against the loop in
-    ``tests/estimators/test_ml_batch.py``); a single column or another layout would be
-    summed pairwise, so those take the loop."""
-    values = np.asarray(values)
-    if values.ndim == 2 and values.shape[1] > 1 and values.flags.c_contiguous:
-        return np.add.reduce(values, axis=0, initial=0.0)
-    total = np.add(0.0, values[0]) if len(values) else np.zeros(np.shape(values)[1:])
-    for value in values[1:]:
-        total += value
-    return total
+def column_sums(values: FloatArray) -> FloatArray:
+    """``Σ_i values[i, j]`` for each column of an ``(m, k)`` array, adding row after row: a
+    column's sum is then the same bits whatever columns stand beside it (a trial's answer does
+    not depend on its batch; one trial is the batch of one). numpy reduces a C-contiguous
+    ``(m, k ≥ 2)`` array over its first axis row after row; a single column would be summed
+    pairwise, so it is summed beside a copy of itself."""
+    values = np.ascontiguousarray(values)
+    if values.ndim == 2 and values.shape[1] == 1:
+        return np.add.reduce(np.repeat(values, 2, axis=1), axis=0)[:1]
+    return np.add.reduce(values, axis=0)
 
 
 def enorm_rows(values: FloatArray) -> tuple[FloatArray, BoolArray]:
-    """MINPACK's ``enorm`` of each column ``(m, k)``, and where its scaled branches (or a
-    non-finite value) would be needed: a component ``0 < |v| ≤ RDWARF`` or not below
-    ``RGIANT / m``. Screened on the squares (two reductions, no full-size test) with a margin
-    for their rounding, and only the columns the screen flags tested component by component."""
-    squares = values * values
-    limit = RGIANT / len(values)
-    screen = (np.min(squares, axis=0) <= 2.0 * RDWARF * RDWARF) | ~(
-        np.max(squares, axis=0) < 0.5 * limit * limit
-    )
-    odd = np.zeros(screen.shape, dtype=bool)
-    flagged = np.flatnonzero(screen)
-    if flagged.size:
-        size = np.abs(values.take(flagged, axis=-1))
-        odd[flagged] = np.any(((size <= RDWARF) & (size != 0.0)) | ~(size < limit), axis=0)
-    return np.sqrt(ordered_sum(squares)), odd
+    """The Euclidean norm of each column ``(m, k)``, and where it is not finite."""
+    norm = np.sqrt(column_sums(values * values))
+    return norm, ~np.isfinite(norm)
 
 
 def enorm2(a: FloatArray, b: FloatArray) -> tuple[FloatArray, BoolArray]:
-    """``enorm`` of the 2-vectors ``(a, b)``: ``√(a² + b²)`` with the same checks."""
-    size_a, size_b = np.abs(a), np.abs(b)
-    limit = RGIANT / 2.0
-    odd = ((size_a <= RDWARF) & (size_a != 0.0)) | ~(size_a < limit)
-    odd |= ((size_b <= RDWARF) & (size_b != 0.0)) | ~(size_b < limit)
-    return np.sqrt(a * a + b * b), odd
+    """The norm of the 2-vectors ``(a, b)``, and where it is not finite."""
+    norm = np.sqrt(a * a + b * b)
+    return norm, ~np.isfinite(norm)
+
+
+def column_dot(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``Σ_i a[i, j] b[i, j]`` for each column ``j`` of two ``(m, k)`` arrays."""
+    return column_sums(a * b)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -107,7 +105,7 @@ class LmderBatch:
     nfev : (P,)
         Residual evaluations.
     odd : (P,)
-        The problem needed a part of MINPACK not reproduced here (module text).
+        The residuals or the Jacobian turned non-finite (module text).
     """
 
     x: FloatArray
@@ -135,12 +133,12 @@ class _Factor:
         a0 = _pick(pivot, c1, c0)
         a1 = _pick(pivot, c0, c1)
         ajnorm = _pick(pivot, norm1, norm0)
-        self.odd = odd0 | odd1 | (ajnorm == 0.0)
+        self.odd = odd0 | odd1
         safe = np.where(ajnorm == 0.0, 1.0, ajnorm)
         safe = np.where(a0[0] < 0.0, -safe, safe)
         a0 = a0 / safe
         a0[0] = a0[0] + 1.0
-        temp = ordered_sum(a0 * a1) / a0[0]
+        temp = column_dot(a0, a1) / a0[0]
         a1 = a1 - temp * a0
         self.r00 = -safe
         self.r01 = a1[0].copy()
@@ -154,11 +152,11 @@ class _Factor:
         tail[0] = tail[0] + 1.0
         self.r11 = np.where(full, -signed, -ajnorm1)
         # Qᵀf with the Householder vectors, as lmder forms qtf
-        temp = -ordered_sum(a0 * fvec) / a0[0]
+        temp = -column_dot(a0, fvec) / a0[0]
         work = fvec + a0 * temp
         self.q0 = work[0].copy()
         rest = work[1:]
-        temp = -ordered_sum(tail * rest) / tail[0]
+        temp = -column_dot(tail, rest) / tail[0]
         rest = rest + tail * temp
         self.q1 = np.where(full, rest[0], work[1])
 
@@ -247,7 +245,7 @@ def _qrsolv(
     last = last + sn * dp1
     wa1 = cs * wa1 + sn * zero
     sdiag1 = last
-    odd = (sdiag0 == 0.0) | (sdiag1 == 0.0) | (dp0 == 0.0) | (dp1 == 0.0)
+    odd = ~np.isfinite(sdiag0) | ~np.isfinite(sdiag1)
     with np.errstate(divide="ignore", invalid="ignore"):
         wa1 = (wa1 - 0.0) / sdiag1
         wa0 = (wa0 - (0.0 + r10 * wa1)) / sdiag0
@@ -368,8 +366,10 @@ def lmder_batch(
     gtol: float,
     max_nfev: int,
 ) -> LmderBatch:
-    """``least_squares(fun, x0[i], jac=jac, method="lm", ftol, xtol, gtol, max_nfev)`` for
-    every problem ``i`` (module text); ``residuals`` and ``jacobian`` evaluate any subset."""
+    """``lmder`` from ``x0[i]`` for every problem ``i`` with the tolerances ``ftol``, ``xtol``,
+    ``gtol`` and at most ``max_nfev`` residual evaluations (module text; what
+    ``least_squares(fun, x0[i], jac=jac, method="lm", ...)`` computes, to rounding);
+    ``residuals`` and ``jacobian`` evaluate any subset."""
     n = len(x0)
     x = np.array(x0, dtype=float).reshape(n, 2)
     everyone = np.arange(n)
