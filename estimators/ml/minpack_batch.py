@@ -193,14 +193,13 @@ class _LatestResiduals:
 
 def _givens(rkk: FloatArray, sk: FloatArray) -> tuple[FloatArray, FloatArray]:
     """``qrsolv``'s rotation eliminating ``sk`` against ``rkk``: ``(cos, sin)``."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        use_cot = np.abs(rkk) < np.abs(sk)
-        cot = rkk / sk
-        sin_a = 0.5 / np.sqrt(0.25 + 0.25 * (cot * cot))
-        cos_a = sin_a * cot
-        tan = sk / rkk
-        cos_b = 0.5 / np.sqrt(0.25 + 0.25 * (tan * tan))
-        sin_b = cos_b * tan
+    use_cot = np.abs(rkk) < np.abs(sk)
+    cot = rkk / sk
+    sin_a = 0.5 / np.sqrt(0.25 + 0.25 * (cot * cot))
+    cos_a = sin_a * cot
+    tan = sk / rkk
+    cos_b = 0.5 / np.sqrt(0.25 + 0.25 * (tan * tan))
+    sin_b = cos_b * tan
     return _pick(use_cot, cos_a, cos_b), _pick(use_cot, sin_a, sin_b)
 
 
@@ -246,9 +245,8 @@ def _qrsolv(
     wa1 = cs * wa1 + sn * zero
     sdiag1 = last
     odd = ~np.isfinite(sdiag0) | ~np.isfinite(sdiag1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        wa1 = (wa1 - 0.0) / sdiag1
-        wa0 = (wa0 - (0.0 + r10 * wa1)) / sdiag0
+    wa1 = (wa1 - 0.0) / sdiag1
+    wa0 = (wa0 - (0.0 + r10 * wa1)) / sdiag0
     return _pick(pivot, wa1, wa0), _pick(pivot, wa0, wa1), sdiag0, sdiag1, r10, odd
 
 
@@ -266,9 +264,8 @@ def _lmpar(
     dp0 = _pick(pivot, d1, d0)
     dp1 = _pick(pivot, d0, d1)
     full = r11 != 0.0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        w1 = np.where(full, q1 / r11, 0.0)
-        w0 = np.where(full, (q0 - r01 * w1) / r00, q0 / r00)
+    w1 = np.where(full, q1 / r11, 0.0)
+    w0 = np.where(full, (q0 - r01 * w1) / r00, q0 / r00)
     x0 = _pick(pivot, w1, w0)
     x1 = _pick(pivot, w0, w1)
     e0, e1 = d0 * x0, d1 * x1
@@ -286,20 +283,19 @@ def _lmpar(
     dx, fpi, dl = dxnorm[idx], fp[idx], delta[idx]
     ep0 = _pick(pv, e1[idx], e0[idx])
     ep1 = _pick(pv, e0[idx], e1[idx])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        v0 = dp0i * (ep0 / dx)
-        v1 = dp1i * (ep1 / dx)
-        v0 = (v0 - 0.0) / r00
-        v1 = (v1 - (0.0 + r01 * v0)) / r11
-        temp, odd_t = enorm2(v0, v1)
-        parl = np.where(full_i, ((fpi / dl) / temp) / temp, 0.0)
-        g0 = (0.0 + r00 * q0) / dp0i
-        g1 = ((0.0 + r01 * q0) + r11 * q1) / dp1i
-        gnorm, odd_g = enorm2(g0, g1)
-        paru = gnorm / dl
-        paru = np.where(paru == 0.0, DWARF / np.fmin(dl, 0.1), paru)
-        p = np.fmin(np.fmax(par[idx], parl), paru)
-        p = np.where(p == 0.0, gnorm / dx, p)
+    v0 = dp0i * (ep0 / dx)
+    v1 = dp1i * (ep1 / dx)
+    v0 = (v0 - 0.0) / r00
+    v1 = (v1 - (0.0 + r01 * v0)) / r11
+    temp, odd_t = enorm2(v0, v1)
+    parl = np.where(full_i, ((fpi / dl) / temp) / temp, 0.0)
+    g0 = (0.0 + r00 * q0) / dp0i
+    g1 = ((0.0 + r01 * q0) + r11 * q1) / dp1i
+    gnorm, odd_g = enorm2(g0, g1)
+    paru = gnorm / dl
+    paru = np.where(paru == 0.0, DWARF / np.fmin(dl, 0.1), paru)
+    p = np.fmin(np.fmax(par[idx], parl), paru)
+    p = np.where(p == 0.0, gnorm / dx, p)
     bad = (odd_t & full_i) | odd_g
     out0, out1, outp = x0[idx].copy(), x1[idx].copy(), p.copy()
     # Newton's iteration on ‖D x(par)‖ = Δ, each problem until its own exit
@@ -337,14 +333,13 @@ def _lmpar(
         pv_l = pv[live]
         e0l, e1l, dxl = e0l[keep], e1l[keep], dxl[keep]
         s0, s1, r10 = s0[keep], s1[keep], r10[keep]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u0 = dp0i[live] * (_pick(pv_l, e1l, e0l) / dxl)
-            u1 = dp1i[live] * (_pick(pv_l, e0l, e1l) / dxl)
-            u0 = u0 / s0
-            u1 = u1 - r10 * u0
-            u1 = u1 / s1
-            temp, odd_u = enorm2(u0, u1)
-            parc = ((fpl / dl[live]) / temp) / temp
+        u0 = dp0i[live] * (_pick(pv_l, e1l, e0l) / dxl)
+        u1 = dp1i[live] * (_pick(pv_l, e0l, e1l) / dxl)
+        u0 = u0 / s0
+        u1 = u1 - r10 * u0
+        u1 = u1 / s1
+        temp, odd_u = enorm2(u0, u1)
+        parc = ((fpl / dl[live]) / temp) / temp
         bad[live] |= odd_u
         pl = parl[live]
         pu = paru[live]
@@ -369,13 +364,28 @@ def lmder_batch(
     """``lmder`` from ``x0[i]`` for every problem ``i`` with the tolerances ``ftol``, ``xtol``,
     ``gtol`` and at most ``max_nfev`` residual evaluations (module text; what
     ``least_squares(fun, x0[i], jac=jac, method="lm", ...)`` computes, to rounding);
-    ``residuals`` and ``jacobian`` evaluate any subset."""
+    ``residuals`` and ``jacobian`` evaluate any subset. Divisions by zero and overflows are
+    the arithmetic's (a problem turned non-finite stops with ``info`` 0), not warnings."""
+    with np.errstate(all="ignore"):
+        return _lmder(residuals, jacobian, x0, ftol=ftol, xtol=xtol, gtol=gtol, max_nfev=max_nfev)
+
+
+def _lmder(
+    residuals: Residuals,
+    jacobian: Jacobian,
+    x0: FloatArray,
+    *,
+    ftol: float,
+    xtol: float,
+    gtol: float,
+    max_nfev: int,
+) -> LmderBatch:
+    """:func:`lmder_batch`, under its ``np.errstate``."""
     n = len(x0)
     x = np.array(x0, dtype=float).reshape(n, 2)
     everyone = np.arange(n)
-    with np.errstate(all="ignore"):
-        fvec = np.array(residuals(everyone, x))
-        fnorm, odd = enorm_rows(fvec)
+    fvec = np.array(residuals(everyone, x))
+    fnorm, odd = enorm_rows(fvec)
     latest = _LatestResiduals(fvec)
     nfev = np.ones(n, dtype=np.int64)
     info = np.zeros(n, dtype=np.int64)
@@ -392,104 +402,102 @@ def lmder_batch(
     while True:
         idx = np.flatnonzero(active & need_jacobian)
         if idx.size:
-            with np.errstate(all="ignore"):
-                factor = _Factor(*jacobian(idx, x[idx]), latest.take(idx))
-                for name in names:
-                    stored[name][idx] = getattr(factor, name)
-                acn0, acn1 = factor.acnorm
-                odd[idx] |= factor.odd
-                init = idx[first[idx]]
-                pos = np.searchsorted(idx, init)
-                d_init = np.column_stack(
-                    [
-                        np.where(acn0[pos] == 0.0, 1.0, acn0[pos]),
-                        np.where(acn1[pos] == 0.0, 1.0, acn1[pos]),
-                    ]
-                )
-                diag[init] = d_init
-                xn, odd_x = enorm2(d_init[:, 0] * x[init, 0], d_init[:, 1] * x[init, 1])
-                odd[init] |= odd_x
-                xnorm[init] = xn
-                dl = FACTOR * xn
-                delta[init] = np.where(dl == 0.0, FACTOR, dl)
-                fn = fnorm[idx]
-                g = np.zeros(idx.size)
-                r00, r01, r11 = factor.r00, factor.r01, factor.r11
-                q0, q1, pivot = factor.q0, factor.q1, factor.pivot
-                l0 = _pick(pivot, acn1, acn0)
-                l1 = _pick(pivot, acn0, acn1)
-                s0 = 0.0 + r00 * (q0 / fn)
-                s1 = (0.0 + r01 * (q0 / fn)) + r11 * (q1 / fn)
-                g = np.where((fn != 0.0) & (l0 != 0.0), np.fmax(g, np.abs(s0 / l0)), g)
-                g = np.where((fn != 0.0) & (l1 != 0.0), np.fmax(g, np.abs(s1 / l1)), g)
-                gnorm[idx] = g
-                info[idx] = np.where(g <= gtol, 4, info[idx])
-                diag[idx, 0] = np.fmax(diag[idx, 0], acn0)
-                diag[idx, 1] = np.fmax(diag[idx, 1], acn1)
+            factor = _Factor(*jacobian(idx, x[idx]), latest.take(idx))
+            for name in names:
+                stored[name][idx] = getattr(factor, name)
+            acn0, acn1 = factor.acnorm
+            odd[idx] |= factor.odd
+            init = idx[first[idx]]
+            pos = np.searchsorted(idx, init)
+            d_init = np.column_stack(
+                [
+                    np.where(acn0[pos] == 0.0, 1.0, acn0[pos]),
+                    np.where(acn1[pos] == 0.0, 1.0, acn1[pos]),
+                ]
+            )
+            diag[init] = d_init
+            xn, odd_x = enorm2(d_init[:, 0] * x[init, 0], d_init[:, 1] * x[init, 1])
+            odd[init] |= odd_x
+            xnorm[init] = xn
+            dl = FACTOR * xn
+            delta[init] = np.where(dl == 0.0, FACTOR, dl)
+            fn = fnorm[idx]
+            g = np.zeros(idx.size)
+            r00, r01, r11 = factor.r00, factor.r01, factor.r11
+            q0, q1, pivot = factor.q0, factor.q1, factor.pivot
+            l0 = _pick(pivot, acn1, acn0)
+            l1 = _pick(pivot, acn0, acn1)
+            s0 = 0.0 + r00 * (q0 / fn)
+            s1 = (0.0 + r01 * (q0 / fn)) + r11 * (q1 / fn)
+            g = np.where((fn != 0.0) & (l0 != 0.0), np.fmax(g, np.abs(s0 / l0)), g)
+            g = np.where((fn != 0.0) & (l1 != 0.0), np.fmax(g, np.abs(s1 / l1)), g)
+            gnorm[idx] = g
+            info[idx] = np.where(g <= gtol, 4, info[idx])
+            diag[idx, 0] = np.fmax(diag[idx, 0], acn0)
+            diag[idx, 1] = np.fmax(diag[idx, 1], acn1)
             need_jacobian[idx] = False
             active &= (info == 0) & ~odd
         idx = np.flatnonzero(active)
         if idx.size == 0:
             break
-        with np.errstate(all="ignore"):
-            factors = {name: stored[name][idx] for name in names}
-            sx0, sx1, p, odd_p = _lmpar(factors, diag[idx], delta[idx], par[idx])
-            odd[idx] |= odd_p
-            w0, w1 = -sx0, -sx1
-            xt = np.column_stack([x[idx, 0] + w0, x[idx, 1] + w1])
-            pnorm, odd_n = enorm2(diag[idx, 0] * w0, diag[idx, 1] * w1)
-            odd[idx] |= odd_n
-            dl = np.where(first[idx], np.fmin(delta[idx], pnorm), delta[idx])
-            ft = residuals(idx, xt)
-            nfev[idx] += 1
-            fnorm1, odd_f = enorm_rows(ft)
-            odd[idx] |= odd_f
-            fn = fnorm[idx]
-            quotient = fnorm1 / fn
-            actred = np.where(0.1 * fnorm1 < fn, 1.0 - quotient * quotient, -1.0)
-            pivot = factors["pivot"]
-            t0 = _pick(pivot, w1, w0)
-            t1 = _pick(pivot, w0, w1)
-            wa30 = (0.0 + factors["r00"] * t0) + factors["r01"] * t1
-            wa31 = 0.0 + factors["r11"] * t1
-            norm3, odd_3 = enorm2(wa30, wa31)
-            odd[idx] |= odd_3
-            temp1 = norm3 / fn
-            temp2 = (np.sqrt(p) * pnorm) / fn
-            prered = temp1 * temp1 + temp2 * temp2 / 0.5
-            dirder = -(temp1 * temp1 + temp2 * temp2)
-            ratio = np.where(prered != 0.0, actred / prered, 0.0)
-            low = ratio <= 0.25
-            temp = np.where(actred < 0.0, (0.5 * dirder) / (dirder + 0.5 * actred), 0.5)
-            temp = np.where((0.1 * fnorm1 >= fn) | (temp < 0.1), 0.1, temp)
-            high = ~low & ((p == 0.0) | (ratio >= 0.75))
-            dl = np.where(low, temp * np.fmin(dl, pnorm / 0.1), dl)
-            p = np.where(low, p / temp, p)
-            dl = np.where(high, pnorm / 0.5, dl)
-            p = np.where(high, p * 0.5, p)
-            delta[idx], par[idx] = dl, p
-            accept = ratio >= 0.0001
-            moved = idx[accept]
-            x[moved] = xt[accept]
-            latest.accept(moved, ft.take(np.flatnonzero(accept), axis=1))
-            xn, odd_x = enorm2(diag[moved, 0] * x[moved, 0], diag[moved, 1] * x[moved, 1])
-            odd[moved] |= odd_x
-            xnorm[moved] = xn
-            fnorm[moved] = fnorm1[accept]
-            first[moved] = False
-            need_jacobian[moved] = True
-            xn = xnorm[idx]
-            small = (np.abs(actred) <= ftol) & (prered <= ftol) & (0.5 * ratio <= 1.0)
-            code = np.where(small, 1, 0)
-            code = np.where(dl <= xtol * xn, 2, code)
-            code = np.where(small & (code == 2), 3, code)
-            later = code == 0
-            code = np.where(later & (nfev[idx] >= max_nfev), 5, code)
-            tiny = (np.abs(actred) <= EPSMCH) & (prered <= EPSMCH) & (0.5 * ratio <= 1.0)
-            code = np.where(later & tiny, 6, code)
-            code = np.where(later & (dl <= EPSMCH * xn), 7, code)
-            code = np.where(later & (gnorm[idx] <= EPSMCH), 8, code)
-            info[idx] = code
+        factors = {name: stored[name][idx] for name in names}
+        sx0, sx1, p, odd_p = _lmpar(factors, diag[idx], delta[idx], par[idx])
+        odd[idx] |= odd_p
+        w0, w1 = -sx0, -sx1
+        xt = np.column_stack([x[idx, 0] + w0, x[idx, 1] + w1])
+        pnorm, odd_n = enorm2(diag[idx, 0] * w0, diag[idx, 1] * w1)
+        odd[idx] |= odd_n
+        dl = np.where(first[idx], np.fmin(delta[idx], pnorm), delta[idx])
+        ft = residuals(idx, xt)
+        nfev[idx] += 1
+        fnorm1, odd_f = enorm_rows(ft)
+        odd[idx] |= odd_f
+        fn = fnorm[idx]
+        quotient = fnorm1 / fn
+        actred = np.where(0.1 * fnorm1 < fn, 1.0 - quotient * quotient, -1.0)
+        pivot = factors["pivot"]
+        t0 = _pick(pivot, w1, w0)
+        t1 = _pick(pivot, w0, w1)
+        wa30 = (0.0 + factors["r00"] * t0) + factors["r01"] * t1
+        wa31 = 0.0 + factors["r11"] * t1
+        norm3, odd_3 = enorm2(wa30, wa31)
+        odd[idx] |= odd_3
+        temp1 = norm3 / fn
+        temp2 = (np.sqrt(p) * pnorm) / fn
+        prered = temp1 * temp1 + temp2 * temp2 / 0.5
+        dirder = -(temp1 * temp1 + temp2 * temp2)
+        ratio = np.where(prered != 0.0, actred / prered, 0.0)
+        low = ratio <= 0.25
+        temp = np.where(actred < 0.0, (0.5 * dirder) / (dirder + 0.5 * actred), 0.5)
+        temp = np.where((0.1 * fnorm1 >= fn) | (temp < 0.1), 0.1, temp)
+        high = ~low & ((p == 0.0) | (ratio >= 0.75))
+        dl = np.where(low, temp * np.fmin(dl, pnorm / 0.1), dl)
+        p = np.where(low, p / temp, p)
+        dl = np.where(high, pnorm / 0.5, dl)
+        p = np.where(high, p * 0.5, p)
+        delta[idx], par[idx] = dl, p
+        accept = ratio >= 0.0001
+        moved = idx[accept]
+        x[moved] = xt[accept]
+        latest.accept(moved, ft.take(np.flatnonzero(accept), axis=1))
+        xn, odd_x = enorm2(diag[moved, 0] * x[moved, 0], diag[moved, 1] * x[moved, 1])
+        odd[moved] |= odd_x
+        xnorm[moved] = xn
+        fnorm[moved] = fnorm1[accept]
+        first[moved] = False
+        need_jacobian[moved] = True
+        xn = xnorm[idx]
+        small = (np.abs(actred) <= ftol) & (prered <= ftol) & (0.5 * ratio <= 1.0)
+        code = np.where(small, 1, 0)
+        code = np.where(dl <= xtol * xn, 2, code)
+        code = np.where(small & (code == 2), 3, code)
+        later = code == 0
+        code = np.where(later & (nfev[idx] >= max_nfev), 5, code)
+        tiny = (np.abs(actred) <= EPSMCH) & (prered <= EPSMCH) & (0.5 * ratio <= 1.0)
+        code = np.where(later & tiny, 6, code)
+        code = np.where(later & (dl <= EPSMCH * xn), 7, code)
+        code = np.where(later & (gnorm[idx] <= EPSMCH), 8, code)
+        info[idx] = code
         active &= (info == 0) & ~odd
     info = np.where(odd, 0, info)
     fvec = latest.all().take(latest.column, axis=1)
