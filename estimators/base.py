@@ -377,6 +377,22 @@ def check_rng(rng: Any) -> np.random.Generator | None:
     )
 
 
+MERGE_RTOL = 1e-9
+"""Candidates closer than this times the scale of the points are one (the mirror rule,
+:func:`finalize_from_track`)."""
+
+COST_TIE_ULPS = 64.0
+"""Costs within this many rounding units of ``max(|best|, 1)`` above the best tie, on top of
+``cost_rtol``: a sum of a few hundred squares carries that much rounding."""
+
+
+def cost_tie_level(best: ArrayLike, cost_rtol: float) -> Any:
+    """The highest cost that ties ``best`` (a number or an array of them): ``cost_rtol``
+    relative, plus rounding (``COST_TIE_ULPS``). The one tie level of MATH §7."""
+    size = np.abs(best)
+    return best + cost_rtol * size + np.finfo(float).eps * COST_TIE_ULPS * np.maximum(size, 1.0)
+
+
 def choose_candidate(
     candidates_m: ArrayLike,
     costs: ArrayLike,
@@ -399,9 +415,7 @@ def choose_candidate(
     points = np.asarray(candidates_m, dtype=float).reshape(-1, 2)
     cost = np.asarray(costs, dtype=float).reshape(-1)
     order = np.argsort(cost, kind="stable")
-    best = cost[order[0]]
-    floor = np.finfo(float).eps * 64 * max(abs(best), 1.0)
-    kept = order[cost[order] <= best + cost_rtol * abs(best) + floor]
+    kept = order[cost[order] <= cost_tie_level(cost[order[0]], cost_rtol)]
     if side_prior_m is not None:
         prior = np.asarray(side_prior_m, dtype=float).reshape(2)
         index = int(np.argmin(np.linalg.norm(points[kept] - prior, axis=1)))
@@ -505,8 +519,8 @@ def finalize_from_track(
 
     1. on a straight track (``track.straight`` not None) each candidate's mirror image across
        it is added, at the same cost, and the answer is ambiguous;
-    2. candidates closer than ``1e-9`` of their largest distance from ``track.centre_m`` are
-       one point (the cheaper, or the first given, is kept);
+    2. candidates closer than ``MERGE_RTOL`` (1e-9) of their largest distance from
+       ``track.centre_m`` are one point (the cheaper, or the first given, is kept);
     3. the candidates within ``cost_rtol`` of the best cost are kept, best first, and the
        returned one is picked by :func:`choose_candidate` (``side_prior_m``, else a fair coin
        from ``rng`` on a tie, else the best).
@@ -524,7 +538,7 @@ def finalize_from_track(
     scale = max(float(np.max(np.abs(points - track.centre_m))), 1e-300)
     keep: list[int] = []
     for index in np.argsort(cost, kind="stable"):
-        if all(np.linalg.norm(points[index] - points[j]) > 1e-9 * scale for j in keep):
+        if all(np.linalg.norm(points[index] - points[j]) > MERGE_RTOL * scale for j in keep):
             keep.append(int(index))
     position, kept, tied = choose_position(
         points[keep], cost[keep], rng=rng, side_prior_m=side_prior_m, cost_rtol=cost_rtol

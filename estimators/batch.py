@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from estimators.base import Estimate, check_rng
+from estimators.base import COST_TIE_ULPS, MERGE_RTOL, Estimate, check_rng, cost_tie_level
 from estimators.validity import (
     invalid_estimates,
     numeric_array,
@@ -35,9 +35,6 @@ from estimators.validity import (
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 IntArray = NDArray[np.int64]
-
-MERGE_RTOL = 1e-9
-"""Candidates closer than this times the scale of the points are one (``finalize_estimate``)."""
 
 DOUBT_FACTOR = 2.0
 """A distance within this factor of the merge threshold is too close to call."""
@@ -450,9 +447,10 @@ def finalize_columns(
     # choose_position: the kept points are in cost order; those above the tolerance go. A
     # cost equal to the best stays whatever the rounding; another near the limit is in doubt
     best = cost[0]
-    floor = np.finfo(float).eps * 64 * np.maximum(np.abs(best), 1.0)
-    limit = best + cost_rtol * np.abs(best) + floor
-    band = 1e-9 * np.abs(limit) + floor
+    limit = cost_tie_level(best, cost_rtol)
+    band = 1e-9 * np.abs(limit) + np.finfo(float).eps * COST_TIE_ULPS * np.maximum(
+        np.abs(best), 1.0
+    )
     out = np.full((n, width, 2), np.nan)
     n_final = np.zeros(n, dtype=np.int64)
     rows = np.arange(n)

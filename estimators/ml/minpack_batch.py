@@ -1,22 +1,17 @@
 r"""MINPACK's Levenberg-Marquardt for many two-unknown least-squares problems at once.
 
-``scipy.optimize.least_squares(method="lm")`` calls MINPACK's ``lmder`` (More 1978; scipy's C
-translation, ``x_scale="jac"``, ``factor=100``): QR with column pivoting of the Jacobian
-(``qrfac``), the Levenberg-Marquardt parameter by Newton's method on the trust-region
-equation (``lmpar``, at most 10 iterations), the damped system by Givens rotations
-(``qrsolv``), and the step bound, acceptance and the ``ftol``/``xtol``/``gtol`` tests. This
-module performs the same floating-point operations in the same order, with the problems
-along the first axis of every array: two unknowns make every matrix 2 × 2 and every loop of
-``lmpar`` and ``qrsolv`` a fixed sequence of elementwise operations, and the sums over the
-``m`` residuals are evaluated in order (:func:`ordered_sum`) as ``enorm`` and the inner
-products of ``qrfac`` evaluate them. Residuals are kept rows first, ``(m, P)``. Given residuals and
-Jacobians equal bit for bit to those the one-problem call sees, every iterate, the evaluation count
-and the termination code are those of ``least_squares`` bit for bit, including the final step whose
-reduction is below the rounding of the cost (where no tolerance-based reproduction can agree).
-
-Two parts of MINPACK are not reproduced; a problem that reaches them is flagged ``odd`` and
-left to the one-problem call: ``enorm``'s scaled sums for components below ``3.8e-20`` or above
-``1.3e19 / m`` (and non-finite values), and a Jacobian whose pivot column is zero.
+``lmder`` of MINPACK (More 1978; ``x_scale="jac"``, ``factor=100``, the method
+``scipy.optimize.least_squares(method="lm")`` calls): QR with column pivoting of the Jacobian
+(``qrfac``), the Levenberg-Marquardt parameter by Newton's method on the trust-region equation
+(``lmpar``, at most 10 iterations), the damped system by Givens rotations (``qrsolv``), and the
+step bound, acceptance and the ``ftol``/``xtol``/``gtol`` tests, with the problems along the
+first axis of every array: two unknowns make every matrix 2 × 2 and every loop of ``lmpar`` and
+``qrsolv`` a fixed sequence of elementwise operations. Residuals are kept rows first,
+``(m, P)``. This is the reference solver of ``ml`` (one trial is a batch of one); scipy's
+``least_squares`` is its cross-check in the tests, at a tolerance. Norms are plain
+``√Σ v²`` (MINPACK's ``enorm`` scales only components below ``3.8e-20`` or above
+``1.3e19 / m``, which no whitened residual reaches); a problem whose residuals or Jacobian turn
+non-finite stops there (``info`` 0).
 """
 
 from __future__ import annotations
@@ -38,57 +33,60 @@ Jacobian = Callable[[IntArray, FloatArray], tuple[FloatArray, FloatArray]]
 
 EPSMCH = 2.220446049250313e-16
 DWARF = 2.2250738585072014e-308
-RGIANT = 2.0**63.5
-RDWARF = 0.5 / RGIANT
 FACTOR = 100.0
 """MINPACK's initial step bound factor, as ``least_squares`` passes it."""
 LMPAR_ITERATIONS = 10
 
-INFO_CODES = {1: "ftol", 2: "xtol", 3: "ftol+xtol", 4: "gtol", 5: "max_nfev"}
-"""MINPACK's ``info`` as the tolerance ``least_squares`` reports (``estimators.ml.ml``)."""
+INFO_CODES = {
+    1: "ftol",
+    2: "xtol",
+    3: "ftol+xtol",
+    4: "gtol",
+    5: "max_nfev",
+    6: "ftol",
+    7: "xtol",
+    8: "gtol",
+}
+"""MINPACK's ``info`` as the tolerance met (6-8: the tolerance is below the rounding, met all
+the same) or the evaluation cap."""
+
+TERMINATION_MESSAGES = {
+    "max_nfev": "The maximum number of function evaluations is exceeded.",
+    "gtol": "`gtol` termination condition is satisfied.",
+    "ftol": "`ftol` termination condition is satisfied.",
+    "xtol": "`xtol` termination condition is satisfied.",
+    "ftol+xtol": "Both `ftol` and `xtol` termination conditions are satisfied.",
+}
+"""How each ending is told (``least_squares``'s wording, kept for the estimates' messages)."""
 
 
-def ordered_sum(values: FloatArray) -> FloatArray:
-    """The sum over the first axis in order, ``s = 0; s += v[i]``, as MINPACK's loops add.
-
-    For a C-contiguous ``(m, k)`` array with ``k ≥ 2`` numpy's reduction over the first axis
-    adds row after row into the ``k`` totals, which is this order (checked against the loop in
-    ``tests/estimators/test_ml_batch.py``); a single column or another layout would be
-    summed pairwise, so those take the loop."""
-    values = np.asarray(values)
-    if values.ndim == 2 and values.shape[1] > 1 and values.flags.c_contiguous:
-        return np.add.reduce(values, axis=0, initial=0.0)
-    total = np.add(0.0, values[0]) if len(values) else np.zeros(np.shape(values)[1:])
-    for value in values[1:]:
-        total += value
-    return total
+def column_sums(values: FloatArray) -> FloatArray:
+    """``Σ_i values[i, j]`` for each column of an ``(m, k)`` array, adding row after row: a
+    column's sum is then the same bits whatever columns stand beside it (a trial's answer does
+    not depend on its batch; one trial is the batch of one). numpy reduces a C-contiguous
+    ``(m, k ≥ 2)`` array over its first axis row after row; a single column would be summed
+    pairwise, so it is summed beside a copy of itself."""
+    values = np.ascontiguousarray(values)
+    if values.ndim == 2 and values.shape[1] == 1:
+        return np.add.reduce(np.repeat(values, 2, axis=1), axis=0)[:1]
+    return np.add.reduce(values, axis=0)
 
 
 def enorm_rows(values: FloatArray) -> tuple[FloatArray, BoolArray]:
-    """MINPACK's ``enorm`` of each column ``(m, k)``, and where its scaled branches (or a
-    non-finite value) would be needed: a component ``0 < |v| ≤ RDWARF`` or not below
-    ``RGIANT / m``. Screened on the squares (two reductions, no full-size test) with a margin
-    for their rounding, and only the columns the screen flags tested component by component."""
-    squares = values * values
-    limit = RGIANT / len(values)
-    screen = (np.min(squares, axis=0) <= 2.0 * RDWARF * RDWARF) | ~(
-        np.max(squares, axis=0) < 0.5 * limit * limit
-    )
-    odd = np.zeros(screen.shape, dtype=bool)
-    flagged = np.flatnonzero(screen)
-    if flagged.size:
-        size = np.abs(values.take(flagged, axis=-1))
-        odd[flagged] = np.any(((size <= RDWARF) & (size != 0.0)) | ~(size < limit), axis=0)
-    return np.sqrt(ordered_sum(squares)), odd
+    """The Euclidean norm of each column ``(m, k)``, and where it is not finite."""
+    norm = np.sqrt(column_sums(values * values))
+    return norm, ~np.isfinite(norm)
 
 
 def enorm2(a: FloatArray, b: FloatArray) -> tuple[FloatArray, BoolArray]:
-    """``enorm`` of the 2-vectors ``(a, b)``: ``√(a² + b²)`` with the same checks."""
-    size_a, size_b = np.abs(a), np.abs(b)
-    limit = RGIANT / 2.0
-    odd = ((size_a <= RDWARF) & (size_a != 0.0)) | ~(size_a < limit)
-    odd |= ((size_b <= RDWARF) & (size_b != 0.0)) | ~(size_b < limit)
-    return np.sqrt(a * a + b * b), odd
+    """The norm of the 2-vectors ``(a, b)``, and where it is not finite."""
+    norm = np.sqrt(a * a + b * b)
+    return norm, ~np.isfinite(norm)
+
+
+def column_dot(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``Σ_i a[i, j] b[i, j]`` for each column ``j`` of two ``(m, k)`` arrays."""
+    return column_sums(a * b)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -107,7 +105,7 @@ class LmderBatch:
     nfev : (P,)
         Residual evaluations.
     odd : (P,)
-        The problem needed a part of MINPACK not reproduced here (module text).
+        The residuals or the Jacobian turned non-finite (module text).
     """
 
     x: FloatArray
@@ -135,12 +133,12 @@ class _Factor:
         a0 = _pick(pivot, c1, c0)
         a1 = _pick(pivot, c0, c1)
         ajnorm = _pick(pivot, norm1, norm0)
-        self.odd = odd0 | odd1 | (ajnorm == 0.0)
+        self.odd = odd0 | odd1
         safe = np.where(ajnorm == 0.0, 1.0, ajnorm)
         safe = np.where(a0[0] < 0.0, -safe, safe)
         a0 = a0 / safe
         a0[0] = a0[0] + 1.0
-        temp = ordered_sum(a0 * a1) / a0[0]
+        temp = column_dot(a0, a1) / a0[0]
         a1 = a1 - temp * a0
         self.r00 = -safe
         self.r01 = a1[0].copy()
@@ -154,11 +152,11 @@ class _Factor:
         tail[0] = tail[0] + 1.0
         self.r11 = np.where(full, -signed, -ajnorm1)
         # Qᵀf with the Householder vectors, as lmder forms qtf
-        temp = -ordered_sum(a0 * fvec) / a0[0]
+        temp = -column_dot(a0, fvec) / a0[0]
         work = fvec + a0 * temp
         self.q0 = work[0].copy()
         rest = work[1:]
-        temp = -ordered_sum(tail * rest) / tail[0]
+        temp = -column_dot(tail, rest) / tail[0]
         rest = rest + tail * temp
         self.q1 = np.where(full, rest[0], work[1])
 
@@ -195,14 +193,13 @@ class _LatestResiduals:
 
 def _givens(rkk: FloatArray, sk: FloatArray) -> tuple[FloatArray, FloatArray]:
     """``qrsolv``'s rotation eliminating ``sk`` against ``rkk``: ``(cos, sin)``."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        use_cot = np.abs(rkk) < np.abs(sk)
-        cot = rkk / sk
-        sin_a = 0.5 / np.sqrt(0.25 + 0.25 * (cot * cot))
-        cos_a = sin_a * cot
-        tan = sk / rkk
-        cos_b = 0.5 / np.sqrt(0.25 + 0.25 * (tan * tan))
-        sin_b = cos_b * tan
+    use_cot = np.abs(rkk) < np.abs(sk)
+    cot = rkk / sk
+    sin_a = 0.5 / np.sqrt(0.25 + 0.25 * (cot * cot))
+    cos_a = sin_a * cot
+    tan = sk / rkk
+    cos_b = 0.5 / np.sqrt(0.25 + 0.25 * (tan * tan))
+    sin_b = cos_b * tan
     return _pick(use_cot, cos_a, cos_b), _pick(use_cot, sin_a, sin_b)
 
 
@@ -247,10 +244,9 @@ def _qrsolv(
     last = last + sn * dp1
     wa1 = cs * wa1 + sn * zero
     sdiag1 = last
-    odd = (sdiag0 == 0.0) | (sdiag1 == 0.0) | (dp0 == 0.0) | (dp1 == 0.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        wa1 = (wa1 - 0.0) / sdiag1
-        wa0 = (wa0 - (0.0 + r10 * wa1)) / sdiag0
+    odd = ~np.isfinite(sdiag0) | ~np.isfinite(sdiag1)
+    wa1 = (wa1 - 0.0) / sdiag1
+    wa0 = (wa0 - (0.0 + r10 * wa1)) / sdiag0
     return _pick(pivot, wa1, wa0), _pick(pivot, wa0, wa1), sdiag0, sdiag1, r10, odd
 
 
@@ -268,9 +264,8 @@ def _lmpar(
     dp0 = _pick(pivot, d1, d0)
     dp1 = _pick(pivot, d0, d1)
     full = r11 != 0.0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        w1 = np.where(full, q1 / r11, 0.0)
-        w0 = np.where(full, (q0 - r01 * w1) / r00, q0 / r00)
+    w1 = np.where(full, q1 / r11, 0.0)
+    w0 = np.where(full, (q0 - r01 * w1) / r00, q0 / r00)
     x0 = _pick(pivot, w1, w0)
     x1 = _pick(pivot, w0, w1)
     e0, e1 = d0 * x0, d1 * x1
@@ -288,20 +283,19 @@ def _lmpar(
     dx, fpi, dl = dxnorm[idx], fp[idx], delta[idx]
     ep0 = _pick(pv, e1[idx], e0[idx])
     ep1 = _pick(pv, e0[idx], e1[idx])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        v0 = dp0i * (ep0 / dx)
-        v1 = dp1i * (ep1 / dx)
-        v0 = (v0 - 0.0) / r00
-        v1 = (v1 - (0.0 + r01 * v0)) / r11
-        temp, odd_t = enorm2(v0, v1)
-        parl = np.where(full_i, ((fpi / dl) / temp) / temp, 0.0)
-        g0 = (0.0 + r00 * q0) / dp0i
-        g1 = ((0.0 + r01 * q0) + r11 * q1) / dp1i
-        gnorm, odd_g = enorm2(g0, g1)
-        paru = gnorm / dl
-        paru = np.where(paru == 0.0, DWARF / np.fmin(dl, 0.1), paru)
-        p = np.fmin(np.fmax(par[idx], parl), paru)
-        p = np.where(p == 0.0, gnorm / dx, p)
+    v0 = dp0i * (ep0 / dx)
+    v1 = dp1i * (ep1 / dx)
+    v0 = (v0 - 0.0) / r00
+    v1 = (v1 - (0.0 + r01 * v0)) / r11
+    temp, odd_t = enorm2(v0, v1)
+    parl = np.where(full_i, ((fpi / dl) / temp) / temp, 0.0)
+    g0 = (0.0 + r00 * q0) / dp0i
+    g1 = ((0.0 + r01 * q0) + r11 * q1) / dp1i
+    gnorm, odd_g = enorm2(g0, g1)
+    paru = gnorm / dl
+    paru = np.where(paru == 0.0, DWARF / np.fmin(dl, 0.1), paru)
+    p = np.fmin(np.fmax(par[idx], parl), paru)
+    p = np.where(p == 0.0, gnorm / dx, p)
     bad = (odd_t & full_i) | odd_g
     out0, out1, outp = x0[idx].copy(), x1[idx].copy(), p.copy()
     # Newton's iteration on ‖D x(par)‖ = Δ, each problem until its own exit
@@ -339,14 +333,13 @@ def _lmpar(
         pv_l = pv[live]
         e0l, e1l, dxl = e0l[keep], e1l[keep], dxl[keep]
         s0, s1, r10 = s0[keep], s1[keep], r10[keep]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u0 = dp0i[live] * (_pick(pv_l, e1l, e0l) / dxl)
-            u1 = dp1i[live] * (_pick(pv_l, e0l, e1l) / dxl)
-            u0 = u0 / s0
-            u1 = u1 - r10 * u0
-            u1 = u1 / s1
-            temp, odd_u = enorm2(u0, u1)
-            parc = ((fpl / dl[live]) / temp) / temp
+        u0 = dp0i[live] * (_pick(pv_l, e1l, e0l) / dxl)
+        u1 = dp1i[live] * (_pick(pv_l, e0l, e1l) / dxl)
+        u0 = u0 / s0
+        u1 = u1 - r10 * u0
+        u1 = u1 / s1
+        temp, odd_u = enorm2(u0, u1)
+        parc = ((fpl / dl[live]) / temp) / temp
         bad[live] |= odd_u
         pl = parl[live]
         pu = paru[live]
@@ -368,14 +361,31 @@ def lmder_batch(
     gtol: float,
     max_nfev: int,
 ) -> LmderBatch:
-    """``least_squares(fun, x0[i], jac=jac, method="lm", ftol, xtol, gtol, max_nfev)`` for
-    every problem ``i`` (module text); ``residuals`` and ``jacobian`` evaluate any subset."""
+    """``lmder`` from ``x0[i]`` for every problem ``i`` with the tolerances ``ftol``, ``xtol``,
+    ``gtol`` and at most ``max_nfev`` residual evaluations (module text; what
+    ``least_squares(fun, x0[i], jac=jac, method="lm", ...)`` computes, to rounding);
+    ``residuals`` and ``jacobian`` evaluate any subset. Divisions by zero and overflows are
+    the arithmetic's (a problem turned non-finite stops with ``info`` 0), not warnings."""
+    with np.errstate(all="ignore"):
+        return _lmder(residuals, jacobian, x0, ftol=ftol, xtol=xtol, gtol=gtol, max_nfev=max_nfev)
+
+
+def _lmder(
+    residuals: Residuals,
+    jacobian: Jacobian,
+    x0: FloatArray,
+    *,
+    ftol: float,
+    xtol: float,
+    gtol: float,
+    max_nfev: int,
+) -> LmderBatch:
+    """:func:`lmder_batch`, under its ``np.errstate``."""
     n = len(x0)
     x = np.array(x0, dtype=float).reshape(n, 2)
     everyone = np.arange(n)
-    with np.errstate(all="ignore"):
-        fvec = np.array(residuals(everyone, x))
-        fnorm, odd = enorm_rows(fvec)
+    fvec = np.array(residuals(everyone, x))
+    fnorm, odd = enorm_rows(fvec)
     latest = _LatestResiduals(fvec)
     nfev = np.ones(n, dtype=np.int64)
     info = np.zeros(n, dtype=np.int64)
@@ -392,104 +402,102 @@ def lmder_batch(
     while True:
         idx = np.flatnonzero(active & need_jacobian)
         if idx.size:
-            with np.errstate(all="ignore"):
-                factor = _Factor(*jacobian(idx, x[idx]), latest.take(idx))
-                for name in names:
-                    stored[name][idx] = getattr(factor, name)
-                acn0, acn1 = factor.acnorm
-                odd[idx] |= factor.odd
-                init = idx[first[idx]]
-                pos = np.searchsorted(idx, init)
-                d_init = np.column_stack(
-                    [
-                        np.where(acn0[pos] == 0.0, 1.0, acn0[pos]),
-                        np.where(acn1[pos] == 0.0, 1.0, acn1[pos]),
-                    ]
-                )
-                diag[init] = d_init
-                xn, odd_x = enorm2(d_init[:, 0] * x[init, 0], d_init[:, 1] * x[init, 1])
-                odd[init] |= odd_x
-                xnorm[init] = xn
-                dl = FACTOR * xn
-                delta[init] = np.where(dl == 0.0, FACTOR, dl)
-                fn = fnorm[idx]
-                g = np.zeros(idx.size)
-                r00, r01, r11 = factor.r00, factor.r01, factor.r11
-                q0, q1, pivot = factor.q0, factor.q1, factor.pivot
-                l0 = _pick(pivot, acn1, acn0)
-                l1 = _pick(pivot, acn0, acn1)
-                s0 = 0.0 + r00 * (q0 / fn)
-                s1 = (0.0 + r01 * (q0 / fn)) + r11 * (q1 / fn)
-                g = np.where((fn != 0.0) & (l0 != 0.0), np.fmax(g, np.abs(s0 / l0)), g)
-                g = np.where((fn != 0.0) & (l1 != 0.0), np.fmax(g, np.abs(s1 / l1)), g)
-                gnorm[idx] = g
-                info[idx] = np.where(g <= gtol, 4, info[idx])
-                diag[idx, 0] = np.fmax(diag[idx, 0], acn0)
-                diag[idx, 1] = np.fmax(diag[idx, 1], acn1)
+            factor = _Factor(*jacobian(idx, x[idx]), latest.take(idx))
+            for name in names:
+                stored[name][idx] = getattr(factor, name)
+            acn0, acn1 = factor.acnorm
+            odd[idx] |= factor.odd
+            init = idx[first[idx]]
+            pos = np.searchsorted(idx, init)
+            d_init = np.column_stack(
+                [
+                    np.where(acn0[pos] == 0.0, 1.0, acn0[pos]),
+                    np.where(acn1[pos] == 0.0, 1.0, acn1[pos]),
+                ]
+            )
+            diag[init] = d_init
+            xn, odd_x = enorm2(d_init[:, 0] * x[init, 0], d_init[:, 1] * x[init, 1])
+            odd[init] |= odd_x
+            xnorm[init] = xn
+            dl = FACTOR * xn
+            delta[init] = np.where(dl == 0.0, FACTOR, dl)
+            fn = fnorm[idx]
+            g = np.zeros(idx.size)
+            r00, r01, r11 = factor.r00, factor.r01, factor.r11
+            q0, q1, pivot = factor.q0, factor.q1, factor.pivot
+            l0 = _pick(pivot, acn1, acn0)
+            l1 = _pick(pivot, acn0, acn1)
+            s0 = 0.0 + r00 * (q0 / fn)
+            s1 = (0.0 + r01 * (q0 / fn)) + r11 * (q1 / fn)
+            g = np.where((fn != 0.0) & (l0 != 0.0), np.fmax(g, np.abs(s0 / l0)), g)
+            g = np.where((fn != 0.0) & (l1 != 0.0), np.fmax(g, np.abs(s1 / l1)), g)
+            gnorm[idx] = g
+            info[idx] = np.where(g <= gtol, 4, info[idx])
+            diag[idx, 0] = np.fmax(diag[idx, 0], acn0)
+            diag[idx, 1] = np.fmax(diag[idx, 1], acn1)
             need_jacobian[idx] = False
             active &= (info == 0) & ~odd
         idx = np.flatnonzero(active)
         if idx.size == 0:
             break
-        with np.errstate(all="ignore"):
-            factors = {name: stored[name][idx] for name in names}
-            sx0, sx1, p, odd_p = _lmpar(factors, diag[idx], delta[idx], par[idx])
-            odd[idx] |= odd_p
-            w0, w1 = -sx0, -sx1
-            xt = np.column_stack([x[idx, 0] + w0, x[idx, 1] + w1])
-            pnorm, odd_n = enorm2(diag[idx, 0] * w0, diag[idx, 1] * w1)
-            odd[idx] |= odd_n
-            dl = np.where(first[idx], np.fmin(delta[idx], pnorm), delta[idx])
-            ft = residuals(idx, xt)
-            nfev[idx] += 1
-            fnorm1, odd_f = enorm_rows(ft)
-            odd[idx] |= odd_f
-            fn = fnorm[idx]
-            quotient = fnorm1 / fn
-            actred = np.where(0.1 * fnorm1 < fn, 1.0 - quotient * quotient, -1.0)
-            pivot = factors["pivot"]
-            t0 = _pick(pivot, w1, w0)
-            t1 = _pick(pivot, w0, w1)
-            wa30 = (0.0 + factors["r00"] * t0) + factors["r01"] * t1
-            wa31 = 0.0 + factors["r11"] * t1
-            norm3, odd_3 = enorm2(wa30, wa31)
-            odd[idx] |= odd_3
-            temp1 = norm3 / fn
-            temp2 = (np.sqrt(p) * pnorm) / fn
-            prered = temp1 * temp1 + temp2 * temp2 / 0.5
-            dirder = -(temp1 * temp1 + temp2 * temp2)
-            ratio = np.where(prered != 0.0, actred / prered, 0.0)
-            low = ratio <= 0.25
-            temp = np.where(actred < 0.0, (0.5 * dirder) / (dirder + 0.5 * actred), 0.5)
-            temp = np.where((0.1 * fnorm1 >= fn) | (temp < 0.1), 0.1, temp)
-            high = ~low & ((p == 0.0) | (ratio >= 0.75))
-            dl = np.where(low, temp * np.fmin(dl, pnorm / 0.1), dl)
-            p = np.where(low, p / temp, p)
-            dl = np.where(high, pnorm / 0.5, dl)
-            p = np.where(high, p * 0.5, p)
-            delta[idx], par[idx] = dl, p
-            accept = ratio >= 0.0001
-            moved = idx[accept]
-            x[moved] = xt[accept]
-            latest.accept(moved, ft.take(np.flatnonzero(accept), axis=1))
-            xn, odd_x = enorm2(diag[moved, 0] * x[moved, 0], diag[moved, 1] * x[moved, 1])
-            odd[moved] |= odd_x
-            xnorm[moved] = xn
-            fnorm[moved] = fnorm1[accept]
-            first[moved] = False
-            need_jacobian[moved] = True
-            xn = xnorm[idx]
-            small = (np.abs(actred) <= ftol) & (prered <= ftol) & (0.5 * ratio <= 1.0)
-            code = np.where(small, 1, 0)
-            code = np.where(dl <= xtol * xn, 2, code)
-            code = np.where(small & (code == 2), 3, code)
-            later = code == 0
-            code = np.where(later & (nfev[idx] >= max_nfev), 5, code)
-            tiny = (np.abs(actred) <= EPSMCH) & (prered <= EPSMCH) & (0.5 * ratio <= 1.0)
-            code = np.where(later & tiny, 6, code)
-            code = np.where(later & (dl <= EPSMCH * xn), 7, code)
-            code = np.where(later & (gnorm[idx] <= EPSMCH), 8, code)
-            info[idx] = code
+        factors = {name: stored[name][idx] for name in names}
+        sx0, sx1, p, odd_p = _lmpar(factors, diag[idx], delta[idx], par[idx])
+        odd[idx] |= odd_p
+        w0, w1 = -sx0, -sx1
+        xt = np.column_stack([x[idx, 0] + w0, x[idx, 1] + w1])
+        pnorm, odd_n = enorm2(diag[idx, 0] * w0, diag[idx, 1] * w1)
+        odd[idx] |= odd_n
+        dl = np.where(first[idx], np.fmin(delta[idx], pnorm), delta[idx])
+        ft = residuals(idx, xt)
+        nfev[idx] += 1
+        fnorm1, odd_f = enorm_rows(ft)
+        odd[idx] |= odd_f
+        fn = fnorm[idx]
+        quotient = fnorm1 / fn
+        actred = np.where(0.1 * fnorm1 < fn, 1.0 - quotient * quotient, -1.0)
+        pivot = factors["pivot"]
+        t0 = _pick(pivot, w1, w0)
+        t1 = _pick(pivot, w0, w1)
+        wa30 = (0.0 + factors["r00"] * t0) + factors["r01"] * t1
+        wa31 = 0.0 + factors["r11"] * t1
+        norm3, odd_3 = enorm2(wa30, wa31)
+        odd[idx] |= odd_3
+        temp1 = norm3 / fn
+        temp2 = (np.sqrt(p) * pnorm) / fn
+        prered = temp1 * temp1 + temp2 * temp2 / 0.5
+        dirder = -(temp1 * temp1 + temp2 * temp2)
+        ratio = np.where(prered != 0.0, actred / prered, 0.0)
+        low = ratio <= 0.25
+        temp = np.where(actred < 0.0, (0.5 * dirder) / (dirder + 0.5 * actred), 0.5)
+        temp = np.where((0.1 * fnorm1 >= fn) | (temp < 0.1), 0.1, temp)
+        high = ~low & ((p == 0.0) | (ratio >= 0.75))
+        dl = np.where(low, temp * np.fmin(dl, pnorm / 0.1), dl)
+        p = np.where(low, p / temp, p)
+        dl = np.where(high, pnorm / 0.5, dl)
+        p = np.where(high, p * 0.5, p)
+        delta[idx], par[idx] = dl, p
+        accept = ratio >= 0.0001
+        moved = idx[accept]
+        x[moved] = xt[accept]
+        latest.accept(moved, ft.take(np.flatnonzero(accept), axis=1))
+        xn, odd_x = enorm2(diag[moved, 0] * x[moved, 0], diag[moved, 1] * x[moved, 1])
+        odd[moved] |= odd_x
+        xnorm[moved] = xn
+        fnorm[moved] = fnorm1[accept]
+        first[moved] = False
+        need_jacobian[moved] = True
+        xn = xnorm[idx]
+        small = (np.abs(actred) <= ftol) & (prered <= ftol) & (0.5 * ratio <= 1.0)
+        code = np.where(small, 1, 0)
+        code = np.where(dl <= xtol * xn, 2, code)
+        code = np.where(small & (code == 2), 3, code)
+        later = code == 0
+        code = np.where(later & (nfev[idx] >= max_nfev), 5, code)
+        tiny = (np.abs(actred) <= EPSMCH) & (prered <= EPSMCH) & (0.5 * ratio <= 1.0)
+        code = np.where(later & tiny, 6, code)
+        code = np.where(later & (dl <= EPSMCH * xn), 7, code)
+        code = np.where(later & (gnorm[idx] <= EPSMCH), 8, code)
+        info[idx] = code
         active &= (info == 0) & ~odd
     info = np.where(odd, 0, info)
     fvec = latest.all().take(latest.column, axis=1)

@@ -1,10 +1,13 @@
-"""The convergence audit of :mod:`estimators.ml.ml_batch`: which searches converged for certain.
+"""The convergence audit of ``ml`` (MATH §10): the decrement at the end of each search.
 
-:func:`~estimators.ml.ml.ml_decrement` of the one-trial path is ``min(‖P_J e‖², gᵀH⁻¹g)`` and
-its search converged when that is below ``DECREMENT_TOL``. The batch evaluates the same two
-decrements for every search at once, each with a margin its rounding cannot close
-(``DECREMENT_MARGIN``, ``HESSIAN_MARGIN``); a search it cannot certify is left to the
-one-trial path.
+A search converged when MINPACK met a tolerance *and* the point is stationary: its decrement
+``min(‖P_J e‖², gᵀH⁻¹g)`` (χ² units) is at most ``DECREMENT_TOL``
+(:mod:`estimators.convergence`). ``‖P_J e‖²`` is the Gauss-Newton decrement (``P_J`` the
+projection on the range of the whitened Jacobian ``J``, finite even where ``JᵀJ`` is singular);
+``gᵀH⁻¹g`` the Newton decrement with the exact Hessian ``H`` (central differences of the
+analytic gradient ``g = Jᵀe``, step ``HESSIAN_STEP_RTOL`` of the length scale: truncation and
+rounding both ~1e−11 relative), only where ``H`` is positive definite. Both are evaluated for
+every search at once.
 """
 
 from __future__ import annotations
@@ -15,113 +18,96 @@ import numpy as np
 from numpy.typing import NDArray
 
 from estimators.convergence import DECREMENT_TOL
-from estimators.ml.ml import HESSIAN_STEP_RTOL
+from estimators.ml.minpack_batch import column_dot
 
 if TYPE_CHECKING:
     from estimators.ml.ml_batch import SharedContext
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
-DECREMENT_MARGIN = 8.0
-"""A start is converged for certain when its Gauss-Newton decrement is below
-``DECREMENT_TOL / DECREMENT_MARGIN`` (the one-trial decrement is never larger)."""
-HESSIAN_MARGIN = 1e-6
-"""A Hessian is positive definite for certain when ``det H > HESSIAN_MARGIN · H₁₁ H₂₂`` (its
-central differences carry ~1e-11 relative rounding)."""
+HESSIAN_STEP_RTOL = 1e-6
+"""Central-difference step of the exact Hessian (module text), relative to the length scale."""
 WELL_CONDITIONED = 1e-6
 """``JᵀJ`` with ``det > WELL_CONDITIONED · J₁₁ J₂₂`` (condition number below ~4e6) gives the
 Gauss-Newton decrement from its normal equations."""
 RANK_RTOL = 1e-10
-"""A Jacobian whose second column, orthogonalised, is below this fraction of the first (but
-not zero) leaves the decrement to the one-trial path."""
+"""A Jacobian whose second column, orthogonalised, is below this fraction of the first has
+rank one."""
 
 
-def converged_for_certain(
+def decrements(
     context: SharedContext,
     trial: IntArray,
     world: FloatArray,
     scale: FloatArray,
     jacobian: tuple[FloatArray, FloatArray],
     residual: FloatArray,
-    fine: BoolArray,
-) -> BoolArray:
-    """Whether each search's end point ``world`` (trials ``trial``, frame scales ``scale``)
-    passes the one-trial convergence test for certain, from the residuals' ``jacobian``
-    columns and ``residual`` there (``(m, P)``); the Newton decrement is evaluated only for
-    the ``fine`` searches the Gauss-Newton one leaves undecided."""
-    decrement, unsure = _gauss_newton_decrement(jacobian, residual)
-    small = ~unsure & (decrement <= DECREMENT_TOL / DECREMENT_MARGIN)
+) -> FloatArray:
+    """The decrement (module text) at each search's end point ``world`` (trials ``trial``,
+    frame scales ``scale``), from the residuals' ``jacobian`` columns and ``residual`` there
+    (``(m, P)``); inf where it is not finite. The Newton decrement is evaluated only where
+    the Gauss-Newton one is above ``DECREMENT_TOL`` (the smaller is taken)."""
+    decrement = _gauss_newton_decrement(jacobian, residual)
     # near a track's plane the Gauss-Newton decrement can stay large where the Newton
-    # decrement (the one-trial path takes the smaller) is tiny: evaluate it there
-    rest = np.flatnonzero(fine & ~small)
+    # decrement is tiny: evaluate it there
+    rest = np.flatnonzero(~(decrement <= DECREMENT_TOL) & np.isfinite(world).all(axis=1))
     if rest.size:
-        newton, sure = _newton_decrement(context, trial[rest], world[rest], scale[rest])
-        small[rest] = sure & (newton <= DECREMENT_TOL / DECREMENT_MARGIN)
-    return small
+        newton = _newton_decrement(context, trial[rest], world[rest], scale[rest])
+        decrement[rest] = np.fmin(decrement[rest], newton)
+    return np.where(np.isnan(decrement), np.inf, decrement)
 
 
-def _gauss_newton_decrement(
-    jac: tuple[FloatArray, FloatArray], residual: FloatArray
-) -> tuple[FloatArray, BoolArray]:
-    """``‖P_J e‖²`` per problem (:func:`~estimators.ml.ml.ml_decrement`'s Gauss-Newton part), and
-    where the rank of ``J`` is too close to call for the one-trial ``lstsq`` to agree. ``J``'s
-    columns and ``e`` are ``(m, k)``.
+def _gauss_newton_decrement(jac: tuple[FloatArray, FloatArray], residual: FloatArray) -> FloatArray:
+    """``‖P_J e‖²`` per problem; ``J``'s columns and ``e`` are ``(m, k)``.
 
     From the normal equations, ``gᵀ(JᵀJ)⁻¹g`` with ``g = Jᵀe`` (five sums), where ``JᵀJ`` is
-    well conditioned (its rounding then moves the value by ~1e-8 relative, far inside
-    ``DECREMENT_MARGIN``); the rest by orthogonalising the columns (:func:`_orthogonal_decrement`).
+    well conditioned (its rounding then moves the value by ~1e-8 relative); the rest by
+    orthogonalising the columns (:func:`_orthogonal_decrement`).
     """
     c0, c1 = jac
-    a, b, d = np.sum(c0 * c0, axis=0), np.sum(c0 * c1, axis=0), np.sum(c1 * c1, axis=0)
-    g0, g1 = np.sum(c0 * residual, axis=0), np.sum(c1 * residual, axis=0)
+    a, b, d = column_dot(c0, c0), column_dot(c0, c1), column_dot(c1, c1)
+    g0, g1 = column_dot(c0, residual), column_dot(c1, residual)
     with np.errstate(all="ignore"):
         det = a * d - b * b
         value = (d * g0 * g0 - 2.0 * b * g0 * g1 + a * g1 * g1) / det
     well = (det > WELL_CONDITIONED * a * d) & np.isfinite(value)
     rest = np.flatnonzero(~well)
-    unsure = np.zeros(len(value), dtype=bool)
     if rest.size:
-        value[rest], unsure[rest] = _orthogonal_decrement(
+        value[rest] = _orthogonal_decrement(
             c0.take(rest, axis=1), c1.take(rest, axis=1), residual.take(rest, axis=1)
         )
-    return value, unsure
+    return value
 
 
-def _orthogonal_decrement(
-    c0: FloatArray, c1: FloatArray, residual: FloatArray
-) -> tuple[FloatArray, BoolArray]:
+def _orthogonal_decrement(c0: FloatArray, c1: FloatArray, residual: FloatArray) -> FloatArray:
     """:func:`_gauss_newton_decrement` by Gram-Schmidt on the two columns (twice), for a
     Jacobian of rank one or close to it."""
-    n0, n1 = np.sqrt(np.sum(c0 * c0, axis=0)), np.sqrt(np.sum(c1 * c1, axis=0))
+    n0, n1 = np.sqrt(column_dot(c0, c0)), np.sqrt(column_dot(c1, c1))
     swap = n1 > n0
     a = np.where(swap, c1, c0)
     b = np.where(swap, c0, c1)
     norm = np.maximum(n0, n1)
     with np.errstate(all="ignore"):
         unit = a / norm
-        v = b - np.sum(unit * b, axis=0) * unit
-        v = v - np.sum(unit * v, axis=0) * unit
-        r22 = np.sqrt(np.sum(v * v, axis=0))
-        first = np.sum(unit * residual, axis=0)
-        second = np.sum(v * residual, axis=0) / r22
+        v = b - column_dot(unit, b) * unit
+        v = v - column_dot(unit, v) * unit
+        r22 = np.sqrt(column_dot(v, v))
+        first = column_dot(unit, residual)
+        second = column_dot(v, residual) / r22
     rank_two = r22 > RANK_RTOL * norm
-    zero_column = ~np.any(b != 0.0, axis=0)
-    value = np.where(norm > 0.0, first * first, 0.0) + np.where(rank_two, second * second, 0.0)
-    unsure = ~(rank_two | zero_column) | ~np.isfinite(value)
-    return value, unsure
+    return np.where(norm > 0.0, first * first, 0.0) + np.where(rank_two, second * second, 0.0)
 
 
 def _newton_decrement(
     context: SharedContext, trial: IntArray, world: FloatArray, scale: FloatArray
-) -> tuple[FloatArray, BoolArray]:
-    """``gᵀH⁻¹g`` with :func:`~estimators.ml.ml.ml_decrement`'s central-difference Hessian, and
-    where ``H`` is positive definite by a margin the one-trial rounding cannot close."""
+) -> FloatArray:
+    """``gᵀH⁻¹g`` with the central-difference Hessian (module text); inf where ``H`` is not
+    positive definite."""
 
     def gradient(at: FloatArray) -> FloatArray:
         e = context.residuals(trial, at)
-        return np.column_stack([np.sum(column * e, axis=0) for column in context.jacobian(at)])
+        return np.column_stack([column_dot(column, e) for column in context.jacobian(at)])
 
     step = HESSIAN_STEP_RTOL * scale
     columns = []
@@ -132,8 +118,7 @@ def _newton_decrement(
     hessian = 0.5 * (hessian + np.swapaxes(hessian, -1, -2))
     g = gradient(world)
     a, b, d = hessian[:, 0, 0], hessian[:, 0, 1], hessian[:, 1, 1]
-    det = a * d - b * b
     with np.errstate(all="ignore"):
+        det = a * d - b * b
         value = (d * g[:, 0] ** 2 - 2.0 * b * g[:, 0] * g[:, 1] + a * g[:, 1] ** 2) / det
-    sure = (a > 0.0) & (det > HESSIAN_MARGIN * np.abs(a * d)) & np.isfinite(value)
-    return value, sure
+    return np.where((a > 0.0) & (det > 0.0) & np.isfinite(value), value, np.inf)

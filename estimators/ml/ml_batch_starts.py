@@ -1,15 +1,21 @@
-r"""The starts of ``ml`` (MATH §10) for a batch of trials, with the bound of their error.
+r"""The starts of ``ml`` (MATH §10) for a batch of trials.
 
-:meth:`MaximumLikelihood._starts <estimators.ml.ml.MaximumLikelihood>`,
-:func:`~estimators.ml.ml_starts.doppler_frame_starts` and
-:func:`~estimators.ml.ml.straight_track_starts` for every trial of a chunk at once
-(:mod:`estimators.ml.ml_batch`). The batch computes the CLS candidates and the Doppler-only fit
-differently from the one-trial path (``cls_batch``'s solver, a closed-form least-squares fit), so
-each start carries a bound on its distance from the one-trial start (metres); every choice the
-starts go through (the side a start is folded to, which of two starts is merged into the other and
-their order, on the track's plane or off it) is *in doubt* where that bound could reverse it. The
-caller then rounds the starts to the grid of :func:`~estimators.ml.ml.on_start_grid`, where the
-bound decides the last doubt, and finds the starts of the trials in doubt with the one-trial code.
+Every candidate of the corrected CLS (MATH §5-§6) is a start: for the whole chunk at once
+(:func:`estimators.closed_form.cls_batch.solve_chunk`), and for a trial that solver leaves
+undecided, or any trial with a nuisance parameter unknown, from the closed form's own one-trial
+code (:func:`closed_form_starts`: the pseudo-range CLS with an unknown emission time, LLS-ToA
+when the CLS cannot start, e.g. a hovering sample, and from Doppler alone the local minima of
+the profiled Doppler cost on a grid, MATH §15). Optionally also the Doppler-only fit of the
+last frame (:func:`doppler_frame_starts`), useful when the ranges are useless.
+
+On a straight track the likelihood is mirror-symmetric, so starts are folded to one side (the
+mirror minima are added by the mirror rule); a start on the track's vertical plane, where the
+cross-track gradient vanishes, gets a second start off it, so that both the off-track mirror
+pair and the on-track minimum of MATH §5 are reachable (:func:`fold_to_one_side`).
+
+Each start is then rounded to a grid of ``START_GRID`` local units (:func:`on_start_grid`,
+~1e−6 of the length scale, far below any start's own error): the search's path is a function
+of the data, not of the last bits of the closed-form solve.
 """
 
 from __future__ import annotations
@@ -17,11 +23,14 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
+from estimators.baselines.lls import solve_lls_toa
+from estimators.closed_form.cls import solve_doppler_toa_cls
 from estimators.closed_form.cls_batch import solve_chunk
-from estimators.closed_form.gtrs_batch import POSITION_RTOL
-from estimators.ml.ml import MERGE_RTOL, ON_TRACK_RTOL
+from estimators.closed_form.pseudorange_cls import solve_pseudorange_cls
+from estimators.ml.ml_starts import doppler_grid_starts
+from scenarios.types import MeasurementSet
 
 if TYPE_CHECKING:
     from estimators.ml.ml_batch import SharedContext
@@ -30,64 +39,103 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
-START_ERROR_FACTOR = 4.0
-"""The batch CLS answer is within ``POSITION_RTOL (1 + |u|)`` of the one-trial one (local
-units); starts are trusted to this multiple of that."""
-FIT_ERROR_RTOL = 1e-12
-"""Relative error allowed for the closed-form Doppler fit, times its condition number."""
-DISTANCE_RTOL = 1e-12
-"""A distance within this (relative) of a merge threshold is in doubt."""
+COINCIDENT_RTOL = 1e-6
+"""Two starts, or two minima, closer than this times the local length scale are one point
+(Levenberg-Marquardt stops within ``xtol = 1e-10`` relative of a minimum; a flat valley
+across a track's plane spreads its end points wider)."""
+ON_TRACK_RTOL = 1e-6
+"""A start this close (relative) to a straight track's vertical plane gets a second start off it."""
+START_GRID = 2.0**-16
+"""Starts are rounded to this grid in local units (module text)."""
 
 
-def batch_starts(
-    context: SharedContext, trials: IntArray, ranges: FloatArray, scale: FloatArray
-) -> tuple[FloatArray, IntArray, FloatArray, BoolArray]:
-    """Each trial's starts in world coordinates, in ``estimate``'s order: ``(starts (n, S, 2),
-    count, error bound (n, S) in metres, doubt)``."""
+def on_start_grid(local_xy: ArrayLike) -> FloatArray:
+    """Starts in local units rounded to ``START_GRID`` (module text)."""
+    return np.round(np.asarray(local_xy, dtype=float) / START_GRID) * START_GRID
+
+
+def closed_form_starts(data: MeasurementSet, fallback_lls: bool) -> tuple[FloatArray, str, str]:
+    """One trial's closed-form starts ``(k, 2)`` (``k = 0``: none), how they were found and a
+    note: the CLS candidates, or the LLS-ToA solution when the CLS fails and ``fallback_lls``;
+    with an unknown emission time the pseudo-range closed form's; from Doppler alone the local
+    minima of the profiled cost on a grid (MATH §15)."""
+    none = np.empty((0, 2))
+    if data.toa_s is None:
+        return doppler_grid_starts(data).reshape(-1, 2), "doppler-grid", ""
+    try:
+        if "emission_time_s" in data.unknowns:
+            unknown_offset = "carrier_offset_hz" in data.unknowns
+            solution = solve_pseudorange_cls(data, carrier_offset_unknown=unknown_offset)
+            candidates = solution.candidates_m
+        else:
+            candidates = solve_doppler_toa_cls(data).candidates_m
+        if np.all(np.isfinite(candidates)) and len(candidates):
+            return np.asarray(candidates, dtype=float).reshape(-1, 2), "cls", ""
+        reason = "CLS returned no finite candidate"
+    except (ValueError, np.linalg.LinAlgError) as error:
+        reason = f"CLS failed ({error})"
+    if not fallback_lls or "emission_time_s" in data.unknowns:
+        return none, "none", reason
+    lls = solve_lls_toa(data.position_m, data.range_m, data.emitter_height_m)
+    if not np.all(np.isfinite(lls.position_m)):
+        return none, "none", f"{reason}; LLS-ToA returned a non-finite solution"
+    return lls.position_m[None, :], "lls-toa", f"{reason}; started from LLS-ToA"
+
+
+def find_starts(
+    context: SharedContext, trials: IntArray, scale: FloatArray
+) -> tuple[FloatArray, IntArray, NDArray[np.object_], NDArray[np.object_]]:
+    """Each trial's starts in world coordinates (module text): ``(starts (n, S, 2), count,
+    start method (n,), note (n,))``, the first ``count[i]`` slots of trial ``i`` valid."""
     n = len(trials)
-    r = np.ascontiguousarray(ranges.T)
-    f = np.ascontiguousarray(context.doppler[trials].T)
-    single = n == 1
-    if single:  # as cls_batch: the sums of one column run in another order
-        r, f = np.repeat(r, 2, axis=1), np.repeat(f, 2, axis=1)
-    world, solution, doubt = solve_chunk(context.shared, "weighted", r, f)
-    if single:
-        world, doubt, solution = world[:1], doubt[:1], solution.first()
-    doubt = doubt | solution.uncertain
-    slots = [world[:, 0], world[:, 1]]
-    valid = [np.ones(n, dtype=bool), solution.count > 1]
-    local = (world - context.origin) / scale[:, None, None]
-    bound = START_ERROR_FACTOR * POSITION_RTOL * (1.0 + np.hypot(local[..., 0], local[..., 1]))
-    error = [bound[:, 0] * scale, bound[:, 1] * scale]
-    for j in range(2):
-        doubt |= valid[j] & ~np.all(np.isfinite(slots[j]), axis=1)
+    method = np.full(n, "cls", dtype=object)
+    note = np.full(n, "", dtype=object)
+    points = np.full((n, 2, 2), np.nan)
+    valid = np.zeros((n, 2), dtype=bool)
+    redo = np.ones(n, dtype=bool)
+    if context.cls_geometry is not None:
+        r = context.used.speed_of_light_mps * np.ascontiguousarray(context.toa[trials].T)
+        f = np.ascontiguousarray(context.doppler[trials].T)
+        world, solution, doubt = solve_chunk(context.cls_geometry, "weighted", r, f)
+        points[:] = world
+        valid[:, 0], valid[:, 1] = True, solution.count > 1
+        # where the batch CLS is undecided, its one-trial code decides
+        redo = doubt | solution.uncertain | np.any(valid & ~np.isfinite(world).all(-1), axis=1)
+    found = {}
+    for i in np.flatnonzero(redo).tolist():
+        found[i], method[i], note[i] = closed_form_starts(
+            context.trial_data(int(trials[i])), context.estimator.fallback_lls
+        )
+    width = max([2, *(len(p) for p in found.values())])
+    if width > 2:
+        points = np.concatenate([points, np.full((n, width - 2, 2), np.nan)], axis=1)
+        valid = np.concatenate([valid, np.zeros((n, width - 2), dtype=bool)], axis=1)
+    for i, p in found.items():
+        points[i], valid[i] = np.nan, False
+        points[i, : len(p)], valid[i, : len(p)] = p, True
+    if not context.uses_toa:
+        return points, valid.sum(axis=1), method, note
     if context.doppler_start:
-        pair, present, fit_error, fit_doubt = _doppler_starts(context, trials)
-        slots += [pair[:, 0], pair[:, 1]]
-        valid += [present, present]
-        error += [fit_error, fit_error]
-        doubt |= fit_doubt
-    points = np.stack(slots, axis=1)
-    valid_a = np.column_stack(valid)
-    error_a = np.column_stack(error)
-    if context.line is None:
-        order = np.argsort(~valid_a, axis=1, kind="stable")
-        points = np.take_along_axis(points, order[..., None], axis=1)
-        error_a = np.take_along_axis(error_a, order, axis=1)
-        return points, valid_a.sum(axis=1), error_a, doubt
-    return _straight_track_starts(context, trials, points, valid_a, error_a, scale, doubt)
+        pair, present = doppler_frame_starts(context, trials)
+        present &= valid.any(axis=1)
+        points = np.concatenate([points, pair], axis=1)
+        valid = np.concatenate([valid, present[:, None], present[:, None]], axis=1)
+    if context.line is not None:
+        return (*fold_to_one_side(context, trials, points, valid, scale), method, note)
+    order = np.argsort(~valid, axis=1, kind="stable")
+    points = np.take_along_axis(points, order[..., None], axis=1)
+    return points, valid.sum(axis=1), method, note
 
 
-def _straight_track_starts(
+def fold_to_one_side(
     context: SharedContext,
     trials: IntArray,
     points: FloatArray,
     valid: BoolArray,
-    error: FloatArray,
     scale: FloatArray,
-    doubt: BoolArray,
-) -> tuple[FloatArray, IntArray, FloatArray, BoolArray]:
-    """:func:`~estimators.ml.ml.straight_track_starts` for every trial, with error bounds."""
+) -> tuple[FloatArray, IntArray]:
+    """Starts folded to the left of a straight track, one of each coincident pair kept, by
+    distance from the track's plane, with a second start for those on it (module text)."""
     assert context.line is not None
     (ox, oy), (dx, dy) = context.line
     n, width, _ = points.shape
@@ -97,72 +145,45 @@ def _straight_track_starts(
     mirrored = np.stack(
         [ox + 2.0 * along * dx - offset_x, oy + 2.0 * along * dy - offset_y], axis=-1
     )
-    eps = np.finfo(float).eps
-    rounding = 8.0 * eps * (np.abs(points).max(-1) + np.hypot(ox, oy))
-    error = error + rounding
-    unsure_side = np.abs(cross) <= error
-    error = error + np.where(unsure_side, 2.0 * np.abs(cross), 0.0)
     points = np.where((cross < 0.0)[..., None], mirrored, points)
     size = np.where(valid, np.abs(cross), np.inf)
     order = np.argsort(size, axis=1, kind="stable")
     points = np.take_along_axis(points, order[..., None], axis=1)
     size = np.take_along_axis(size, order, axis=1)
     valid = np.take_along_axis(valid, order, axis=1)
-    error = np.take_along_axis(error, order, axis=1)
-    threshold = MERGE_RTOL * scale
+    threshold = COINCIDENT_RTOL * scale
     kept: list[BoolArray] = []
     for i in range(width):
         keep = valid[:, i].copy()
         for j in range(i):
             ddx, ddy = points[:, i, 0] - points[:, j, 0], points[:, i, 1] - points[:, j, 1]
-            distance = np.sqrt(ddx * ddx + ddy * ddy)
-            together = error[:, i] + error[:, j]
-            # which of two starts comes first is the rounding's choice: harmless only for
-            # two starts that are one within their errors (either is then the kept one)
-            swap = valid[:, i] & valid[:, j] & (np.abs(size[:, i] - size[:, j]) <= together)
-            same = distance <= together
-            doubt |= swap & ~same
-            grown = np.maximum(error[:, j], together + distance)
-            error[:, j] = np.where(swap & same & kept[j], grown, error[:, j])
-            compared = valid[:, i] & kept[j]
-            limit = together + DISTANCE_RTOL * threshold
-            doubt |= compared & (np.abs(distance - threshold) <= limit)
-            keep &= ~(compared & (distance <= threshold))
+            keep &= ~(kept[j] & (np.sqrt(ddx * ddx + ddy * ddy) <= threshold))
         kept.append(keep)
     keep = np.column_stack(kept)
     order = np.argsort(~keep, axis=1, kind="stable")
     points = np.take_along_axis(points, order[..., None], axis=1)
     size = np.take_along_axis(size, order, axis=1)
-    error = np.take_along_axis(error, order, axis=1)
     keep = np.take_along_axis(keep, order, axis=1)
-    on_limit = ON_TRACK_RTOL * scale[:, None]
-    doubt |= np.any(keep & (np.abs(size - on_limit) <= error), axis=1)
-    on_track = keep & (size <= on_limit)
-    extra, extra_error = _off_plane_copies(context, trials, points, error, scale)
+    on_track = keep & (size <= ON_TRACK_RTOL * scale[:, None])
     count = keep.sum(axis=1)
     out = np.full((n, 2 * width, 2), np.nan)
-    out_error = np.zeros((n, 2 * width))
-    out[:, :width] = points
-    out_error[:, :width] = error
-    rows = np.arange(n)
-    filled = count.copy()
-    for j in range(width):
-        at = rows[on_track[:, j]]
-        out[at, filled[at]] = extra[at, j]
-        out_error[at, filled[at]] = extra_error[at, j]
-        filled[at] += 1
-    return out, filled, out_error, doubt
+    out[:, :width] = np.where(keep[..., None], points, np.nan)
+    if on_track.any():
+        extra = _off_plane_copies(context, trials, points, scale)
+        rows = np.arange(n)
+        for j in range(width):
+            at = rows[on_track[:, j]]
+            out[at, count[at]] = extra[at, j]
+            count[at] += 1
+    return out, count
 
 
 def _off_plane_copies(
-    context: SharedContext,
-    trials: IntArray,
-    points: FloatArray,
-    error: FloatArray,
-    scale: FloatArray,
-) -> tuple[FloatArray, FloatArray]:
-    """Each start moved off the track's plane by the cross-track distance the ranges imply
-    (``straight_track_starts``), and the error bound of the copy (metres)."""
+    context: SharedContext, trials: IntArray, points: FloatArray, scale: FloatArray
+) -> FloatArray:
+    """Each start moved off the track's plane by the cross-track distance the ranges imply,
+    ``√mean(r_k² − (z_k − z_s)² − a_k²)`` with ``a_k`` the along-track offset (at least
+    ``0.1`` of the length scale)."""
     assert context.line is not None
     _, (dx, dy) = context.line
     used = context.used
@@ -172,26 +193,28 @@ def _off_plane_copies(
     along = (position[None, None, :, 0] - points[..., 0, None]) * dx + (
         position[None, None, :, 1] - points[..., 1, None]
     ) * dy  # (n, S, K)
-    terms = horizontal_sq[:, None, :] - along**2
-    offset_sq = np.mean(terms, axis=-1)
-    floor = (0.1 * scale[:, None]) ** 2
-    offset = np.sqrt(np.maximum(offset_sq, floor))
-    normal = np.array([-dy, dx])
-    copies = points + offset[..., None] * normal
-    eps = np.finfo(float).eps
-    mean_along = np.abs(np.mean(along, axis=-1))
-    spread = np.mean(np.abs(horizontal_sq)[:, None, :] + along**2, axis=-1)
-    change = (2.0 * mean_along * error + 64.0 * eps * spread) / (2.0 * offset)
-    return copies, error + change + 8.0 * eps * np.abs(copies).max(-1)
+    offset_sq = np.mean(horizontal_sq[:, None, :] - along**2, axis=-1)
+    offset = np.sqrt(np.maximum(offset_sq, (0.1 * scale[:, None]) ** 2))
+    return points + offset[..., None] * np.array([-dy, dx])
 
 
-def _doppler_starts(
-    context: SharedContext, trials: IntArray
-) -> tuple[FloatArray, BoolArray, FloatArray, BoolArray]:
-    """:func:`~estimators.ml.ml_starts.doppler_frame_starts` of every trial's last frame: the pair
-    ``(n, 2, 2)``, where it exists, its error bound (metres) and doubt."""
+def doppler_frame_starts(context: SharedContext, trials: IntArray) -> tuple[FloatArray, BoolArray]:
+    """Doppler-only starting points from each trial's last frame, when it is straight and
+    level: a mirror pair ``(n, 2, 2)``, and where it exists.
+
+    With ``g_k = f_k/(γ|v|) = −v̂ᵀu_k = −a_k/ρ_k`` (physical sign, MATH §1), ``a_k`` the
+    along-track offset ``v̂ᵀ(p_k − s)`` and ``ρ_0`` the distance from the emitter to the line of
+    flight, ``ρ_k² = a_k² + ρ_0²`` gives ``a_k = −ρ_0 g_k/√(1 − g_k²)``, so
+
+    ``v̂ᵀp_k = v̂ᵀs − ρ_0 g_k/√(1 − g_k²)``
+
+    is linear in ``(v̂ᵀs, ρ_0)``: least squares over the frame's samples with ``|g_k| < 0.999``
+    (at least two), then the cross-track distance ``√(ρ_0² − (z − z_s)²)`` on both sides.
+    Independent of the ToA, so it still starts the search near the emitter when the ranges
+    are useless (the paper's ``c σ_τ = 300 km``).
+    """
     n = len(trials)
-    none = (np.full((n, 2, 2), np.nan), np.zeros(n, dtype=bool), np.zeros(n), np.zeros(n, bool))
+    none = (np.full((n, 2, 2), np.nan), np.zeros(n, dtype=bool))
     used = context.used
     columns = np.flatnonzero(used.frame == used.frame[-1])
     velocity, position = used.velocity_mps[columns], used.position_m[columns]
@@ -213,34 +236,15 @@ def _doppler_starts(
         mean_along = (weight * along).sum(axis=1) / total
         ds = weight * (slope - mean_slope[:, None])
         da = weight * (along - mean_along[:, None])
-        variance = np.sum(ds * ds, axis=1)
-        closest = np.sum(ds * da, axis=1) / variance
+        closest = np.sum(ds * da, axis=1) / np.sum(ds * ds, axis=1)
         along_s = mean_along - closest * mean_slope
-        # the condition of [1, slope] in least squares, for the error bound
-        gram = np.stack(
-            [total, (weight * slope).sum(axis=1), (weight * slope**2).sum(axis=1)], axis=1
-        )
-        half_trace = 0.5 * (gram[:, 0] + gram[:, 2])
-        radius = np.hypot(0.5 * (gram[:, 0] - gram[:, 2]), gram[:, 1])
-        condition = (half_trace + radius) / (half_trace - radius)
-        size = np.abs(along_s) + np.abs(closest) * (1.0 + np.max(np.abs(slope), axis=1))
-        size = size + np.max(np.abs(along))
-        fit_error = FIT_ERROR_RTOL * condition * size
         height = float(np.mean(position[:, 2])) - used.emitter_height_m
-        excess = closest**2 - height**2
-        cross = np.sqrt(np.maximum(excess, 0.0))
-        excess_error = 2.0 * np.abs(closest) * fit_error + 4.0 * np.finfo(float).eps * closest**2
-        doubt = present & (np.abs(excess) <= excess_error)
-        cross_error = np.where(excess > 0.0, excess_error / (2.0 * np.maximum(cross, 1e-300)), 0.0)
+        cross = np.sqrt(np.maximum(closest**2 - height**2, 0.0))
         origin = position[0, :2]
         on_line = origin + (along_s - origin @ direction)[:, None] * direction
         normal = np.array([-direction[1], direction[0]])
         pair = np.stack(
             [on_line + cross[:, None] * normal, on_line - cross[:, None] * normal], axis=1
         )
-    finite = np.isfinite(along_s) & np.isfinite(closest)
-    doubt |= present & ~(np.isfinite(condition) & (condition > 0.0))
-    present &= finite
-    error = fit_error * (1.0 + np.abs(mean_slope)) + cross_error
-    error = error + 8.0 * np.finfo(float).eps * np.abs(pair).max(axis=(1, 2))
-    return pair, present, np.where(present, error, 0.0), doubt & present
+    present &= np.isfinite(along_s) & np.isfinite(closest)
+    return pair, present

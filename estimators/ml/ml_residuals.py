@@ -3,19 +3,19 @@
 :class:`ResidualModel` evaluates the forward model of :mod:`scenarios.measurement_model`
 (MATH §1, §8) for the maximum-likelihood search: the residuals ``e`` of
 :func:`estimators.ml.ml.whitened_residuals` and ``∂e/∂(x_s, y_s)``, one pass over per-sample
-constants with no reduction and no layout-dependent kernel. A value therefore depends on its
-inputs alone: the one-trial search (constants ``(N,)``, residuals last) and the batch
-(:meth:`ResidualModel.by_sample`, constants ``(N, 1)``, residuals first, one trial per column)
-compute the same bits, which :mod:`estimators.ml.ml_batch` relies on.
+constants with no layout-dependent kernel. A value therefore depends on its inputs alone:
+residuals last (constants ``(N,)``, :func:`~estimators.ml.ml.whitened_residuals`) and rows
+first (:meth:`ResidualModel.by_sample`, constants ``(N, 1)``, one trial per column, the search
+of :mod:`estimators.ml.ml_batch`) compute the same values, and a trial's column the same bits
+whatever its batch.
 
 With an unknown carrier offset or emission time (MATH §15) the likelihood is profiled over it:
 for a given emitter the best δ (or b) is the mean of the affected block's residual, so the
 residual left is that block *centred* over the samples, and its Jacobian is the centred
 Jacobian (the centring is linear and does not depend on the emitter). The search over
 ``(x_s, y_s)`` is then the search over ``(x_s, y_s, δ, b)`` (variable projection), and the
-Gram matrix of the centred Jacobian is the nuisance Fisher information of MATH §15. Centring is
-a reduction over samples, so the batch (:mod:`estimators.ml.ml_batch`) leaves such data to the
-one-trial path.
+Gram matrix of the centred Jacobian is the nuisance Fisher information of MATH §15. Rows first,
+the centring sums each column in order (:func:`~estimators.ml.minpack_batch.column_sums`).
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from estimators.ml.minpack_batch import column_sums
 from scenarios.types import MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -38,8 +39,8 @@ class ResidualModel:
 
     The forward model of :mod:`scenarios.measurement_model` (MATH §1, §8) written as one fixed
     sequence of elementwise operations on per-sample constants: a row's value depends on its
-    inputs alone, whatever the layout, so the one-trial search and :mod:`estimators.ml.ml_batch`
-    (which keeps rows first, :meth:`by_sample`) evaluate it bit for bit alike. The constants
+    inputs alone, whatever the layout (:mod:`estimators.ml.ml_batch` keeps rows first,
+    :meth:`by_sample`). The constants
     have shape ``(N,)``; emitter coordinates ``x, y`` broadcast against them.
     """
 
@@ -98,7 +99,10 @@ class ResidualModel:
         centred = [self.centred[0], *([self.centred[1]] if self.toa else [])]
         for index, block in enumerate(blocks[: len(centred)]):
             if centred[index]:
-                block -= block.mean(axis=self.sample_axis, keepdims=True)
+                if self.sample_axis == 0:  # rows first: a trial's mean whatever its batch
+                    block -= column_sums(block) / len(block)
+                else:
+                    block -= block.mean(axis=self.sample_axis, keepdims=True)
         return blocks
 
     def _geometry(self, x: ArrayLike, y: ArrayLike) -> tuple[FloatArray, ...]:

@@ -1,11 +1,11 @@
 """Starting points of the maximum-likelihood search that need no closed form (MATH §10).
 
-:func:`doppler_frame_starts` fits one straight, level frame's Doppler alone, for when the ranges
-carry nothing (:func:`ranges_uninformative`: the paper's ``c σ_τ = 300 km``);
-:func:`doppler_grid_starts` starts a search from Doppler alone, where the cost with an unknown
-carrier offset has several minima (MATH §15). The closed-form
-starts (MATH §5, §15) and the folding of starts on a straight track are in
-:mod:`estimators.ml.ml`.
+:func:`ranges_uninformative` says when the ranges carry nothing (the paper's
+``c σ_τ = 300 km``: the Doppler fit of the last frame then starts the search too,
+:func:`estimators.ml.ml_batch_starts.doppler_frame_starts`); :func:`doppler_grid_starts` starts a
+search from Doppler alone, where the cost with an unknown carrier offset has several minima
+(MATH §15). The closed-form starts (MATH §5, §15) and the folding of starts on a straight track
+are in :mod:`estimators.ml.ml_batch_starts`.
 """
 
 from __future__ import annotations
@@ -30,45 +30,6 @@ def ranges_uninformative(data: MeasurementSet) -> bool:
     spread_sq = np.mean(np.sum((position[:, :2] - position[:, :2].mean(axis=0)) ** 2, axis=1))
     height_sq = np.mean((position[:, 2] - data.emitter_height_m) ** 2)
     return bool(data.noise.toa_s * data.speed_of_light_mps > np.sqrt(spread_sq + height_sq))
-
-
-def doppler_frame_starts(frame_data: MeasurementSet) -> FloatArray:
-    """Doppler-only starting points from one straight, level frame: a mirror pair, (2, 2).
-
-    With ``g_k = f_k/(γ|v|) = −v̂ᵀu_k = −a_k/ρ_k`` (physical sign, MATH §1), ``a_k`` the
-    along-track offset ``v̂ᵀ(p_k − s)`` and ``ρ_0`` the distance from the emitter to the line of
-    flight, ``ρ_k² = a_k² + ρ_0²`` gives ``a_k = −ρ_0 g_k/√(1 − g_k²)``, so
-
-    ``v̂ᵀp_k = v̂ᵀs − ρ_0 g_k/√(1 − g_k²)``
-
-    is linear in ``(v̂ᵀs, ρ_0)``: least squares over the frame, then the cross-track distance
-    ``√(ρ_0² − (z − z_s)²)`` on both sides. Independent of the ToA, so it still starts the
-    search near the emitter when the ranges are useless (the paper's ``c σ_τ = 300 km``).
-    Returns an empty (0, 2) array when the frame is not straight and level or the fit fails.
-    """
-    velocity = frame_data.velocity_mps
-    if frame_data.n_samples < 2 or np.ptp(velocity, axis=0).any() or velocity[0, 2] != 0.0:
-        return np.empty((0, 2))
-    speed = float(np.linalg.norm(velocity[0]))
-    if not speed > 0.0:
-        return np.empty((0, 2))
-    direction = velocity[0, :2] / speed
-    g = frame_data.doppler_hz / (frame_data.gamma_per_m * speed)
-    usable = np.abs(g) < 0.999
-    if np.count_nonzero(usable) < 2:
-        return np.empty((0, 2))
-    along = frame_data.position_m[usable, :2] @ direction
-    slope = -g[usable] / np.sqrt(1.0 - g[usable] ** 2)
-    A = np.column_stack([np.ones_like(slope), slope])
-    (along_s, closest_m), *_ = np.linalg.lstsq(A, along, rcond=None)
-    height_m = float(np.mean(frame_data.position_m[:, 2])) - frame_data.emitter_height_m
-    if not (np.isfinite(along_s) and np.isfinite(closest_m)):
-        return np.empty((0, 2))
-    cross = np.sqrt(max(closest_m**2 - height_m**2, 0.0))
-    origin = frame_data.position_m[0, :2]
-    on_line = origin + (along_s - origin @ direction) * direction
-    normal = np.array([-direction[1], direction[0]])
-    return np.vstack([on_line + cross * normal, on_line - cross * normal])
 
 
 GRID_POINTS = 25

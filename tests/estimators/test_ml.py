@@ -4,22 +4,22 @@ efficiency."""
 from __future__ import annotations
 
 import dataclasses
+import types
 
 import numpy as np
 import pytest
 from scipy.optimize import minimize
 
 from comparison.crlb import crlb_m2, fisher_information
-from estimators.ml.ml import (
-    MaximumLikelihood,
-    _distinct_minima,
-    whitened_residual_jacobian,
-    whitened_residuals,
-)
-from estimators.ml.ml_starts import doppler_frame_starts, ranges_uninformative
+from estimators.ml.minpack_batch import LmderBatch
+from estimators.ml.ml import MaximumLikelihood, whitened_residual_jacobian, whitened_residuals
+from estimators.ml.ml_batch import SharedContext, distinct_minima
+from estimators.ml.ml_batch_starts import doppler_frame_starts
+from estimators.ml.ml_starts import ranges_uninformative
 from estimators.registry import make_estimator
 from scenarios.catalog import get_scenario
 from scenarios.simulate import noise_free, simulate, simulate_trials, trial_seeds
+from scenarios.types import MeasurementBatch
 
 MIRROR_M = np.array([35.0, -15.0])
 
@@ -104,8 +104,10 @@ def test_ml_covariance_is_the_inverse_fisher_information(use_rss):
 
 def test_doppler_frame_starts_are_exact_on_noise_free_data():
     data = noise_free(get_scenario("paper"))  # c σ_τ = 300 km: the starts ignore the ranges
-    starts = doppler_frame_starts(data)
-    np.testing.assert_allclose(starts, [[35.0, 15.0], [35.0, -15.0]], atol=1e-9)
+    context = SharedContext.of(MaximumLikelihood(), MeasurementBatch.of_one(data))
+    starts, present = doppler_frame_starts(context, np.arange(1))
+    assert present[0]
+    np.testing.assert_allclose(starts[0], [[35.0, 15.0], [35.0, -15.0]], atol=1e-9)
     estimate = MaximumLikelihood(doppler_start=True).estimate(data)
     np.testing.assert_allclose(_nearest(estimate.candidates_m, [35.0, 15.0]), [35, 15], atol=1e-6)
 
@@ -210,12 +212,18 @@ def test_one_minimum_from_two_starts_keeps_the_earlier_start_at_a_tie():
     assert estimate.diagnostics["n_starts"] == 2 and estimate.diagnostics["n_minima"] == 1
     assert len(estimate.candidates_m) == 1 and estimate.ambiguous
     assert estimate.position_m[1] == 0.0  # the track is the x axis
-    points = np.array([[0.0, 0.0], [1e-7, 0.0], [5.0, 0.0]])
-    tied = _distinct_minima(points, np.array([2.0 + 1e-12, 2.0, 1.0]), 1.0, 1e-10)
-    np.testing.assert_array_equal(tied[0], [[5.0, 0.0], [0.0, 0.0]])
-    np.testing.assert_array_equal(tied[1], [1.0, 2.0 + 1e-12])
-    apart = _distinct_minima(points, np.array([2.0 + 1e-9, 2.0, 1.0]), 1.0, 1e-10)
-    np.testing.assert_array_equal(apart[0], [[5.0, 0.0], [1e-7, 0.0]])
+    points = np.array([[[0.0, 0.0], [1e-7, 0.0], [5.0, 0.0]]])
+    context = types.SimpleNamespace(estimator=MaximumLikelihood())  # no flat tie to test
+    valid, scale, trials = np.ones((1, 3), dtype=bool), np.ones(1), np.zeros(1, dtype=np.int64)
+    tied = np.array([[2.0 + 1e-12, 2.0, 1.0]])
+    found = distinct_minima(context, trials, points.copy(), tied, valid, scale)
+    assert found[2][0] == 2
+    np.testing.assert_array_equal(found[0][0, :2], [[5.0, 0.0], [0.0, 0.0]])
+    np.testing.assert_array_equal(found[1][0, :2], [1.0, 2.0 + 1e-12])
+    apart = np.array([[2.0 + 1e-9, 2.0, 1.0]])
+    found = distinct_minima(context, trials, points.copy(), apart, valid, scale)
+    assert found[2][0] == 2
+    np.testing.assert_array_equal(found[0][0, :2], [[5.0, 0.0], [1e-7, 0.0]])
 
 
 # --------------------------------------------------------------------------------------------
@@ -296,17 +304,18 @@ def test_ml_at_its_iteration_cap_is_a_failed_estimate(max_nfev):
 def test_ml_stalled_away_from_a_minimum_is_not_converged(monkeypatch):
     """A tolerance met where the gradient is not zero (a collapsed trust region) is a stall:
     the decrement at the point exceeds ``DECREMENT_TOL`` and the start gives no minimum."""
-    import estimators.ml.ml as ml_module
+    import estimators.ml.ml_batch as ml_batch
 
-    real = ml_module.least_squares
+    def stalls_at_the_start(residuals, jacobian, x0, **kwargs):
+        everyone = np.arange(len(x0))
+        fvec = residuals(everyone, np.asarray(x0, dtype=float))
+        info = np.full(len(x0), 2)  # xtol
+        ones = np.ones(len(x0), dtype=np.int64)
+        return LmderBatch(
+            x=np.array(x0, dtype=float), fvec=fvec, info=info, nfev=ones, odd=info < 0
+        )
 
-    def stalls_at_the_start(fun, x0, **kwargs):
-        result = real(fun, x0, **kwargs)
-        result.x, result.status = np.array(x0, dtype=float), 3
-        result.cost = 0.5 * float(np.sum(fun(result.x) ** 2))
-        return result
-
-    monkeypatch.setattr(ml_module, "least_squares", stalls_at_the_start)
+    monkeypatch.setattr(ml_batch, "lmder_batch", stalls_at_the_start)
     estimate = MaximumLikelihood().estimate(_low_snr_turn())
     assert not estimate.success
     assert estimate.diagnostics["lm_status"][0].startswith("stalled (xtol, decrement")
@@ -316,23 +325,20 @@ def test_ml_stalled_away_from_a_minimum_is_not_converged(monkeypatch):
 def test_ml_fails_when_an_unconverged_start_ends_below_the_minima(monkeypatch):
     """If a start that hit its cap ended lower than every converged minimum, the reported
     optimum is not the best the data allow: a failure, not a success."""
-    import estimators.ml.ml as ml_module
+    import estimators.ml.ml_batch as ml_batch
 
-    real = ml_module.least_squares
-    calls = []
+    real = ml_batch.lmder_batch
 
-    def second_start_capped_lower(fun, x0, **kwargs):
-        result = real(fun, x0, **kwargs)
-        calls.append(1)
-        if len(calls) == 2:
-            result.status, result.cost = 0, 0.0
-        return result
+    def second_start_capped_lower(residuals, jacobian, x0, **kwargs):
+        result = real(residuals, jacobian, x0, **kwargs)
+        fvec, info = result.fvec.copy(), result.info.copy()
+        fvec[:, 1], info[1] = 0.0, 5
+        return dataclasses.replace(result, fvec=fvec, info=info)
 
-    monkeypatch.setattr(ml_module, "least_squares", second_start_capped_lower)
     data = simulate(get_scenario("turn"), snr_db=0.0, seed=4)
     estimator = MaximumLikelihood(doppler_start=True)  # the CLS start plus the Doppler pair
     assert estimator.estimate(data).diagnostics["n_starts"] >= 2
-    calls.clear()
+    monkeypatch.setattr(ml_batch, "lmder_batch", second_start_capped_lower)
     estimate = estimator.estimate(data)
     assert not estimate.success
     assert "a start that did not converge ended below every converged minimum" in estimate.message
