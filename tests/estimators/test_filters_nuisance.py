@@ -20,6 +20,7 @@ gtsam = pytest.importorskip("gtsam")
 from gtsam.symbol_shorthand import N, X  # noqa: E402
 
 from estimators.base import require_modalities  # noqa: E402
+from estimators.convergence import EstimationFailure  # noqa: E402
 from estimators.sequential import smoother_nuisance  # noqa: E402
 from estimators.sequential.ekf import Ekf  # noqa: E402
 from estimators.sequential.gtsam_smoother import GtsamSmoother  # noqa: E402
@@ -382,6 +383,26 @@ def test_streaming_smoother_updates_isam2_instead_of_re_solving(monkeypatch) -> 
     assert warm.diagnostics["fallbacks"] == again.diagnostics["fallbacks"] == 0
     bound = rmse_bound_m(fisher_information(data, data.truth_emitter_m))
     np.testing.assert_allclose(again.position_m, warm.position_m, atol=1e-6 * bound)
+
+
+def test_a_failed_isam2_update_falls_back_to_the_whole_graph(monkeypatch) -> None:
+    """An ISAM2 update that fails its checks is re-solved by Levenberg-Marquardt on the whole
+    graph: the streamed optimum is still the batch one, and the estimate says so
+    (``fallback="batch"``, the reason, the count, a note in the message)."""
+    data = simulate(noncooperative("paper-1m-turn", BOTH, frames=6), snr_db=20.0, seed=5)
+
+    def failing(*args):
+        raise EstimationFailure("not converged (decrement 1)")
+
+    monkeypatch.setattr(smoother_nuisance, "isam2_update", failing)
+    _, stream = streamed(GtsamSmoother(), data)
+    batch = GtsamSmoother().estimate(data)
+    bound = rmse_bound_m(fisher_information(data, data.truth_emitter_m))
+    np.testing.assert_allclose(stream.position_m, batch.position_m, atol=1e-6 * bound)
+    assert stream.diagnostics["fallback"] == "batch"
+    assert stream.diagnostics["fallback_reason"].startswith("ISAM2: not converged")
+    assert stream.diagnostics["fallbacks"] == 5  # every frame after the first
+    assert "fell back to Levenberg-Marquardt on the whole graph" in stream.message
 
 
 def test_a_misfit_optimum_is_restarted_from_a_later_frame() -> None:

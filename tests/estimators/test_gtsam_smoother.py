@@ -12,11 +12,11 @@ from scipy.stats import chi2
 gtsam = pytest.importorskip("gtsam")
 
 from comparison.crlb import fisher_information, rmse_bound_m  # noqa: E402
-from estimators import gtsam_smoother, smoother_batch, smoother_hypotheses  # noqa: E402
 from estimators.base import SequentialEstimator  # noqa: E402
 from estimators.convergence import DECREMENT_TOL  # noqa: E402
 from estimators.frame_model import FrameModel  # noqa: E402
 from estimators.registry import make_estimator  # noqa: E402
+from estimators.sequential import gtsam_smoother, smoother_batch, smoother_hypotheses  # noqa: E402
 from estimators.sequential.gtsam_smoother import GtsamSmoother  # noqa: E402
 from scenarios.catalog import get_scenario  # noqa: E402
 from scenarios.simulate import noise_free, simulate, simulate_trials, trial_seeds  # noqa: E402
