@@ -157,6 +157,12 @@ class FrameModel:
         assert jacobian is not None
         return jacobian
 
+    def predicted_and_jacobian(self, emitter_m: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """``(h(s), ∂h/∂(x_s, y_s))`` in one pass (:meth:`predicted`, :meth:`jacobian`)."""
+        predicted, jacobian = self._evaluate(emitter_m, with_jacobian=True)
+        assert jacobian is not None
+        return predicted, jacobian
+
     def whitened_error(self, emitter_m: ArrayLike) -> FloatArray:
         """``e(s) = (h(s) − z)/σ`` (MATH §10, predicted minus measured), shape ``(..., 2K)``."""
         return (self.predicted(emitter_m) - self.measured) / self.sigma

@@ -295,8 +295,7 @@ def ekf_update(
     small_step = stalled = False
     while iterations < max_iterations:
         iterations += 1
-        H = frame.jacobian(point)
-        h_at_point = frame.predicted(point)
+        h_at_point, H = frame.predicted_and_jacobian(point)
         linearised_at = point
         kf.x = prior_mean_m.copy()  # 1-D x: a (2, 1) x would broadcast (DEPENDENCIES §2)
         kf.P = prior_covariance_m2.copy()

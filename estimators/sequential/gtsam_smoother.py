@@ -83,8 +83,10 @@ emission time b unknown, everything above is replaced by
 :mod:`estimators.sequential.smoother_nuisance`: the same graph with one more variable holding them
 (δ in Hz, ``c b`` in metres; the frame factors' Jacobians gain the constant columns ``∂f_k/∂δ = 1``,
 ``∂r_k/∂(c b) = 1``), started by :mod:`estimators.sequential.nuisance_starts`, solved by checked
-Levenberg-Marquardt, in batch and (as re-solves, without ISAM2) when streaming; their values are
-reported in ``diagnostics``.
+Levenberg-Marquardt in batch and, when streaming, by ISAM2 with the nuisance one of its variables
+(each update adds the new frame's factor; Newton's method on the whole graph's fit finishes it,
+Levenberg-Marquardt on the whole graph is the checked fallback); their values are reported in
+``diagnostics``.
 """
 
 from __future__ import annotations
@@ -284,8 +286,8 @@ class GtsamSmoother:
     ) -> SmootherState | smoother_nuisance.NuisanceSmootherState:
         """The state after one more frame: each hypothesis's ISAM2 extended, re-optimised and
         checked; a hypothesis whose update did not converge falls back to the batch solve.
-        With unknown nuisance parameters (MATH §15) every hypothesis's graph, with them as a
-        variable, is re-solved instead (:func:`estimators.sequential.smoother_nuisance.update`)."""
+        With unknown nuisance parameters (MATH §15) they are one more ISAM2 variable
+        (:func:`estimators.sequential.smoother_nuisance.update`)."""
         require_modalities(self, frame)
         if isinstance(state, smoother_nuisance.NuisanceSmootherState):
             check_same_unknowns(state.frames[0].names, frame)

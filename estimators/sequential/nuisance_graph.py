@@ -60,25 +60,28 @@ def nuisance_graph(
     steps: FloatArray,
     *,
     random_walk: bool,
+    first: int = 0,
 ) -> Any:
-    """The whole graph (module text): diffuse priors on ``X(0)`` and ``N(0)``, one factor per
-    frame, random-walk links."""
+    """The graph of ``frames[first:]`` (module text): one factor per frame and the random-walk
+    links into them, with the diffuse priors on ``X(0)`` and ``N(0)`` when ``first == 0`` (the
+    whole graph; a later ``first`` gives the factors a streaming update adds)."""
     import gtsam
     from gtsam.symbol_shorthand import N, X
 
     graph = gtsam.NonlinearFactorGraph()
-    graph.add(
-        gtsam.PriorFactorPoint2(
-            X(0), np.array(prior_state[:2]), gtsam.noiseModel.Diagonal.Sigmas(prior_sigmas[:2])
+    if first == 0:
+        graph.add(
+            gtsam.PriorFactorPoint2(
+                X(0), np.array(prior_state[:2]), gtsam.noiseModel.Diagonal.Sigmas(prior_sigmas[:2])
+            )
         )
-    )
-    graph.add(
-        gtsam.PriorFactorVector(
-            N(0), np.array(prior_state[2:]), gtsam.noiseModel.Diagonal.Sigmas(prior_sigmas[2:])
+        graph.add(
+            gtsam.PriorFactorVector(
+                N(0), np.array(prior_state[2:]), gtsam.noiseModel.Diagonal.Sigmas(prior_sigmas[2:])
+            )
         )
-    )
-    for t, frame in enumerate(frames):
-        graph.add(nuisance_factor(frame, X(t if random_walk else 0), N(0)))
+    for t in range(first, len(frames)):
+        graph.add(nuisance_factor(frames[t], X(t if random_walk else 0), N(0)))
         if random_walk and t > 0:
             noise = gtsam.noiseModel.Isotropic.Sigma(2, float(steps[t - 1]))
             graph.add(gtsam.BetweenFactorPoint2(X(t - 1), X(t), np.zeros(2), noise))

@@ -107,8 +107,8 @@ def profiled_errors(frame: NuisanceFrame, points_m: ArrayLike) -> tuple[FloatArr
     their derivative in ``(x, y)``, projected off the nuisance columns (centred per affected
     modality: one σ each), shapes ``(M, 2K)`` and ``(M, 2K, 2)``."""
     points = np.asarray(points_m, dtype=float)
-    residual = frame.base.predicted(points) - frame.measured
-    jacobian = frame.base.jacobian(points)
+    predicted, jacobian = frame.base.predicted_and_jacobian(points)
+    residual = predicted - frame.measured
     k = frame.n_samples
     for name in frame.names:
         rows = slice(0, k) if name == "carrier_offset_hz" else slice(k, 2 * k)

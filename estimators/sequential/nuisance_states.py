@@ -230,15 +230,26 @@ class NuisanceFrame:
         shift = theta[..., 2:] - self.offsets(position)
         return self.base.predicted(position) + shift @ self.columns().T
 
+    def predicted_and_jacobian(self, state: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """``(h(θ), ∂h/∂θ)`` (:meth:`predicted`, :meth:`jacobian`) in one pass over the samples
+        and one over the reference."""
+        theta = np.asarray(state, dtype=float)
+        position = theta[..., :2]
+        predicted, jacobian = self.base.predicted_and_jacobian(position)
+        columns = self.columns()
+        if self.reference is None:
+            shift = theta[..., 2:]
+        else:
+            offsets, offsets_jacobian = self.reference.predicted_and_jacobian(position)
+            rows = self._rows()
+            shift = theta[..., 2:] - offsets[..., rows]
+            jacobian = jacobian - columns @ offsets_jacobian[..., rows, :]
+        wide = np.broadcast_to(columns, (*jacobian.shape[:-1], len(self.names)))
+        return predicted + shift @ columns.T, np.concatenate([jacobian, wide], axis=-1)
+
     def jacobian(self, state: ArrayLike) -> FloatArray:
         """``∂h/∂θ = [∇h_k − A ∂g/∂s | A]`` (MATH §8, §15), shape ``(..., 2K, n)``."""
-        theta = np.asarray(state, dtype=float)
-        position = self.base.jacobian(theta[..., :2])
-        columns = self.columns()
-        if self.reference is not None:
-            position = position - columns @ self.offsets_jacobian(theta[..., :2])
-        columns = np.broadcast_to(columns, (*position.shape[:-1], len(self.names)))
-        return np.concatenate([position, columns], axis=-1)
+        return self.predicted_and_jacobian(state)[1]
 
     def whitened_error(self, state: ArrayLike) -> FloatArray:
         """``e(θ) = (h(θ) − z)/σ`` (predicted minus measured), shape ``(..., 2K)``."""
@@ -249,8 +260,9 @@ class NuisanceFrame:
         return self.jacobian(state) / self.sigma[:, None]
 
     def whitened_error_and_jacobian(self, state: ArrayLike) -> tuple[FloatArray, FloatArray]:
-        """``(e(θ), E(θ))``."""
-        return self.whitened_error(state), self.whitened_jacobian(state)
+        """``(e(θ), E(θ))`` in one pass (:meth:`predicted_and_jacobian`)."""
+        predicted, jacobian = self.predicted_and_jacobian(state)
+        return (predicted - self.measured) / self.sigma, jacobian / self.sigma[:, None]
 
     def hessian(self, state: ArrayLike) -> FloatArray:
         """``∂²h/∂θ²`` of every row, shape ``(2K, n, n)``: MATH §8's (minus the reference's,

@@ -26,13 +26,20 @@ fit finishes it; a saddle (negative curvature of the Hessian for one shift of ev
 variable and of the nuisance) is left along the negative curvature. The reported covariance is
 GTSAM's marginal of the last emitter variable, the ``(x, y)`` block of the inverse information.
 
-**Streaming** (:func:`update`). The cooperative smoother streams through ISAM2 with a
-third-order expansion of the old factors; this one does not (left undone). Each update re-solves
-every hypothesis's whole graph by Levenberg-Marquardt from its previous optimum (the new
-variable at the last one), checked as above; if that fails, from the hypothesis's start. So an
-update costs one factor evaluation per frame and iteration, growing with the frames, and the
-streamed optimum is the batch one. Mirror hypotheses (MATH §7), their Laplace weights, merging
-and pruning are as without nuisance.
+**Streaming** (:func:`update`). Each hypothesis keeps an ISAM2 holding its graph, the nuisance
+``N(0)`` one of its variables, in the per-process cache of
+:mod:`estimators.sequential.smoother_hypotheses` (a missing one is seeded at the hypothesis's
+optimum on the earlier frames, so the state stays a picklable value). An update adds only the new
+frame's factor (and link) and steps ISAM2 until no variable needs relinearising
+(:func:`isam2_update`): old factors stay linearised where they were. Newton's method on the numpy
+fit of the whole graph then finishes ISAM2's estimate (one or two steps: ISAM2's Gauss-Newton
+estimate from a stale linearisation is off by a fraction of its step), and the checks above
+decide: converged, the cost not above the previous optimum's plus the new frame's residuals
+there, no saddle. So the streamed optimum is the batch one, at a cost per update that does not
+re-solve the graph. An update that fails its checks (or where GTSAM raised) falls back to
+Levenberg-Marquardt on the whole graph from the previous optimum and from the hypothesis's start
+(:func:`streamed_solve`), reported (``fallback="batch"``, ``fallback_reason``, ``fallbacks``).
+Mirror hypotheses (MATH §7), their Laplace weights, merging and pruning are as without nuisance.
 
 **Starts from later frames** (:func:`rescued`). The first frame fixes the emitter only weakly
 once an offset is unknown, so at low SNR both of its starts can lead to a wrong local minimum
@@ -86,7 +93,18 @@ from estimators.sequential.nuisance_states import (
 )
 from estimators.sequential.smoother_batch import COST_RISE_RTOL, gtsam_levenberg_marquardt
 from estimators.sequential.smoother_graph import newton_descent, step_sigmas_m
-from estimators.sequential.smoother_hypotheses import SmootherState
+from estimators.sequential.smoother_hypotheses import (
+    ANCHOR_KEY,
+    MAX_ISAM2_STEPS,
+    POLISH_HALVINGS,
+    POLISH_RTOL,
+    RELINEARIZE_RTOL,
+    SmootherState,
+    checkin,
+    checkout,
+    discard,
+    isam2_params,
+)
 from scenarios.geometry import StraightTrack
 from scenarios.types import MeasurementSet
 
@@ -113,6 +131,7 @@ class NuisanceHypothesis:
     prior_state: FloatArray
     chi2: float
     decrement: float
+    token: str = ""
 
     @property
     def estimates_m(self) -> FloatArray:
@@ -133,6 +152,7 @@ class NuisanceHypothesis:
             covariance_m2=track.mirror_covariance(self.covariance_m2),
             data_information=track.mirror_covariance(self.data_information),
             prior_state=prior,
+            token="",
         )
 
     def extended(self, random_walk: bool) -> FloatArray:
@@ -288,6 +308,159 @@ def best_solve(
 
 
 # --------------------------------------------------------------------------------------------
+# streaming: the nuisance as ISAM2 variables
+# --------------------------------------------------------------------------------------------
+
+NUISANCE_ANCHOR_KEYS = (ANCHOR_KEY, ANCHOR_KEY + 1)
+"""``gtsam.symbol('z', 0)`` and ``('z', 1)``: two disconnected anchor variables with unit priors
+that keep a static graph's updates incremental (``X(0)`` and ``N(0)`` are then half of the
+variables, below the 65 % at which ISAM2 re-eliminates in batch;
+:mod:`estimators.sequential.smoother_hypotheses`)."""
+
+
+def seeded_isam2(
+    problem: Problem, theta: FloatArray, prior_state: FloatArray, length_scale_m: float
+) -> Any:
+    """A new ISAM2 holding every frame of ``problem``, linearised at ``θ`` (one bare update, no
+    step taken), with the anchors of :data:`NUISANCE_ANCHOR_KEYS`."""
+    import gtsam
+
+    graph = nuisance_graph(
+        problem.frames,
+        prior_state,
+        problem.prior_sigmas,
+        problem.steps,
+        random_walk=problem.random_walk,
+    )
+    values = nuisance_values(theta, problem.n_variables)
+    for key in NUISANCE_ANCHOR_KEYS:
+        graph.add(gtsam.PriorFactorPoint2(key, np.zeros(2), gtsam.noiseModel.Unit.Create(2)))
+        values.insert(key, np.zeros(2))
+    isam = gtsam.ISAM2(isam2_params(length_scale_m))
+    isam.update(graph, values)
+    return isam
+
+
+def isam2_update(
+    problem: Problem, hypothesis: NuisanceHypothesis, length_scale_m: float
+) -> tuple[NuisanceHypothesis, int]:
+    """One streaming update of a hypothesis (module text, "Streaming"): its ISAM2 (from the
+    per-process cache, or seeded at its optimum on the earlier frames) gets the last frame's
+    factor (and link), steps until no variable needs relinearising, and Newton's method on the
+    exact fit finishes ISAM2's estimate. Returns ``(hypothesis, iterations)`` (ISAM2 steps plus
+    Newton iterations); raises :class:`EstimationFailure` when the result fails its checks (not
+    converged, the cost rose from the previous optimum's, a saddle) or GTSAM raised."""
+    import gtsam
+    from gtsam.symbol_shorthand import X
+
+    n_frames, n_var, t = len(problem.frames), problem.n_variables, len(problem.frames) - 1
+    prior_state = hypothesis.prior_state
+    threshold = RELINEARIZE_RTOL * length_scale_m
+    start = hypothesis.extended(problem.random_walk)
+    new_frame = problem.frames[-1]
+    residual = new_frame.whitened_error(
+        np.concatenate([start[2 * n_var - 2 : 2 * n_var], start[2 * n_var :]])
+    )
+    start_chi2 = hypothesis.chi2 + float(residual @ residual)  # the new variable adds no step
+    try:
+        isam = checkout(hypothesis.token, n_frames - 1)
+        if isam is None:
+            earlier = replace(
+                problem,
+                frames=problem.frames[:-1],
+                steps=problem.steps[: max(n_frames - 2, 0)],
+            )
+            isam = seeded_isam2(earlier, hypothesis.theta, prior_state, length_scale_m)
+        graph = nuisance_graph(
+            problem.frames,
+            prior_state,
+            problem.prior_sigmas,
+            problem.steps,
+            random_walk=problem.random_walk,
+            first=t,
+        )
+        values = gtsam.Values()
+        if problem.random_walk:
+            values.insert(X(t), np.array(start[2 * t : 2 * t + 2]))
+        isam.update(graph, values)
+        steps = 1
+        while np.max(np.abs(np.asarray(isam.getDelta().vector()))) >= threshold:
+            if steps >= MAX_ISAM2_STEPS:
+                break
+            isam.update()
+            steps += 1
+        estimate = read_values(isam.calculateEstimate(), n_var)
+    except RuntimeError as error:
+        raise EstimationFailure(f"ISAM2 failed: {error}") from None
+    fit_of = partial(problem.fit, prior_state=prior_state)
+    fit = None
+    if np.all(np.isfinite(estimate)):
+        try:
+            fit = fit_of(estimate)
+        except EstimationFailure:
+            fit = None
+    if fit is None or not fit.chi2 <= start_chi2:
+        # ISAM2's undamped steps went uphill (the flat valley of a straight pass): Newton's
+        # method starts from the previous optimum instead, and the ISAM2 is seeded anew
+        estimate, fit, isam = start, fit_of(start), None
+    theta, fit, n_newton, _ = newton_descent(
+        fit_of,
+        estimate,
+        fit,
+        step_tolerance_m=POLISH_RTOL * length_scale_m,
+        halvings=POLISH_HALVINGS,
+    )
+    problems = []
+    if not _converged(fit):
+        problems.append(f"not converged (decrement {fit.decrement:.3g})")
+    if not fit.chi2 <= start_chi2 + COST_RISE_RTOL * max(start_chi2, 1.0):
+        problems.append(f"the cost rose from {start_chi2:.6g} to {fit.chi2:.6g}")
+    if fit.saddle_direction() is not None:
+        problems.append("it ended at a saddle point of the cost (negative curvature)")
+    if problems:
+        raise EstimationFailure("; ".join(problems))
+    last = slice(2 * n_var - 2, 2 * n_var)
+    covariance = fit.covariance[last, last]
+    return (
+        NuisanceHypothesis(
+            theta=np.array(theta, dtype=float),
+            n_variables=n_var,
+            covariance_m2=covariance,
+            nuisance_covariance=fit.covariance[2 * n_var :, 2 * n_var :],
+            log_weight=fit.log_evidence,
+            data_information=fit.data_information,
+            prior_state=np.array(prior_state, dtype=float),
+            chi2=fit.chi2,
+            decrement=fit.decrement,
+            token="" if isam is None else checkin(isam, n_frames),
+        ),
+        steps + n_newton,
+    )
+
+
+def streamed_solve(
+    problem: Problem, hypothesis: NuisanceHypothesis, length_scale_m: float
+) -> tuple[NuisanceHypothesis, int, str]:
+    """:func:`isam2_update`; when it fails, the fallback: :func:`best_solve` of the whole graph
+    from the previous optimum and from the hypothesis's start. Returns ``(hypothesis,
+    iterations, fallback_reason)`` (empty when ISAM2's update passed its checks)."""
+    try:
+        updated, iterations = isam2_update(problem, hypothesis, length_scale_m)
+        return updated, iterations, ""
+    except EstimationFailure as error:
+        reason = f"ISAM2: {error}"
+    restart = _flat_start(hypothesis.prior_state, problem.n_variables)
+    starts = [hypothesis.extended(problem.random_walk), restart]
+    try:
+        solved, iterations, more = best_solve(problem, starts, hypothesis.prior_state)
+    except EstimationFailure as error:
+        raise EstimationFailure(
+            f"{reason}; the re-solve of the whole graph failed too: {error}"
+        ) from None
+    return solved, iterations, f"{reason}; {more}" if more else reason
+
+
+# --------------------------------------------------------------------------------------------
 # the estimator's state, batch and streaming
 # --------------------------------------------------------------------------------------------
 
@@ -404,9 +577,9 @@ def estimate(
 def update(
     state: NuisanceSmootherState, frame: MeasurementSet, options: dict[str, Any]
 ) -> NuisanceSmootherState:
-    """The state after one more frame: every hypothesis re-solved from its previous optimum
-    (module text, "Streaming"); a hypothesis whose warm start fails its checks is solved from
-    its start (a fallback, reported)."""
+    """The state after one more frame: every hypothesis's ISAM2 extended by it
+    (:func:`streamed_solve`, module text "Streaming"); a hypothesis whose update fails its
+    checks is re-solved whole by Levenberg-Marquardt (a fallback, reported)."""
     names = state.frames[0].names if state.frames else nuisance_names(frame)
     model = frame_model(frame, names)
     assert isinstance(model, NuisanceFrame)
@@ -425,24 +598,18 @@ def update(
             )
             problem = _problem(frames, state.prior_sigmas, options)
             chosen = hypothesis_starts(starts, track, track)
-            work = [(s, [_flat_start(s, 1)]) for s in chosen]
+            solved = [best_solve(problem, [_flat_start(s, 1)], s) for s in chosen]
         else:
             track = None if state.track is None else state.track.extended(model)
             problem = _problem(frames, state.prior_sigmas, options)
-            work = []
-            for h in state.hypotheses:
-                restart = _flat_start(h.prior_state, problem.n_variables)
-                work.append((h.prior_state, [h.extended(problem.random_walk), restart]))
+            previous = list(state.hypotheses)
             if state.track is not None and track is None:  # off the line: fork the mirror
                 first = state.hypotheses[0]
                 mirror = first.mirrored(state.track)
                 distance = np.linalg.norm(mirror.estimates_m[-1] - first.estimates_m[-1])
                 if distance > MERGE_RTOL * state.length_scale_m:
-                    restart = _flat_start(mirror.prior_state, problem.n_variables)
-                    work.append(
-                        (mirror.prior_state, [mirror.extended(problem.random_walk), restart])
-                    )
-        solved = [best_solve(problem, starts, prior) for prior, starts in work]
+                    previous.append(mirror)
+            solved = [streamed_solve(problem, h, state.length_scale_m) for h in previous]
     except EstimationFailure as error:
         return replace(state, frames=frames, failure=str(error))
     updated = [hypothesis for hypothesis, _, _ in solved]
@@ -455,6 +622,9 @@ def update(
             state.length_scale_m,
             [h.covariance_m2 for h in updated],
         )
+        for index, hypothesis in enumerate(updated):
+            if index not in kept:
+                discard(hypothesis.token)
         updated = [updated[i] for i in kept]
     reasons = [reason for _, _, reason in solved if reason]
     return replace(
@@ -488,14 +658,14 @@ def estimate_state(
     notes = [diagnostics["misfit_restart"]] if diagnostics.get("misfit_restart") else []
     if diagnostics["mode"] == "streaming":
         diagnostics.update(
-            fallback="restart" if state.fallback_reason else "none",
+            fallback="batch" if state.fallback_reason else "none",
             fallback_reason=state.fallback_reason,
             fallbacks=state.fallbacks,
         )
         if state.fallback_reason:
             notes.append(
-                f"the update of frame {state.n_frames - 1} failed from the previous optimum "
-                f"({state.fallback_reason}); solved again from the hypothesis's start"
+                f"ISAM2's update of frame {state.n_frames - 1} failed its checks "
+                f"({state.fallback_reason}); fell back to Levenberg-Marquardt on the whole graph"
             )
     result = smoother_estimate(
         name,
