@@ -22,8 +22,6 @@ MATH = ROOT / "docs" / "math.md"
 PAGE = MATH.read_text(encoding="utf-8")
 CITING_DIRECTORIES = ("scenarios", "estimators", "comparison", "docs", "tests", "examples")
 CITATION = re.compile(r"§ ?(\d+)")
-OTHER_DOCUMENT = re.compile(r"\b([A-Z][A-Z_]+)(?:\.md)? ?$")
-"""A citation right after another document's upper-case name (``DEPENDENCIES §2``) is not ours."""
 SECTION_HEADING = re.compile(r"^## §(\d+) \S.*$", re.MULTILINE)
 SNIPPET = re.compile(r"^```python\n(.*?)^```\n\n```text\n(.*?)^```$", re.DOTALL | re.MULTILINE)
 
@@ -37,15 +35,12 @@ def citing_files() -> list[Path]:
 
 
 def cited_sections() -> dict[int, str]:
-    """Every section number cited as a MATH section, with one place that cites it."""
+    """Every section number cited, with one place that cites it: the project has one document
+    with numbered sections, docs/math.md, so every ``§N`` anywhere is one of its sections."""
     cited: dict[int, str] = {}
     for path in citing_files():
         text = path.read_text(encoding="utf-8")
         for match in CITATION.finditer(text):
-            before = text[max(0, match.start() - 40) : match.start()]
-            other = OTHER_DOCUMENT.search(before)
-            if other and other.group(1) != "MATH":
-                continue
             line = text.count("\n", 0, match.start()) + 1
             cited.setdefault(int(match.group(1)), f"{path.relative_to(ROOT)}:{line}")
     return cited

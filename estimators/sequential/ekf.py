@@ -1,6 +1,6 @@
 r"""Frame-by-frame Kalman filtering of the emitter position with the mirror pair (MATH §1, §7, §8).
 
-State ``s = (x_s, y_s)`` (a 1-D array, DEPENDENCIES §2), a random walk between frames
+State ``s = (x_s, y_s)`` (a 1-D array: filterpy broadcasts a (2, 1) one), a random walk between frames
 
 .. math::
 
@@ -297,7 +297,7 @@ def ekf_update(
         iterations += 1
         h_at_point, H = frame.predicted_and_jacobian(point)
         linearised_at = point
-        kf.x = prior_mean_m.copy()  # 1-D x: a (2, 1) x would broadcast (DEPENDENCIES §2)
+        kf.x = prior_mean_m.copy()  # 1-D x: filterpy would broadcast a (2, 1) x
         kf.P = prior_covariance_m2.copy()
         kf.update(
             frame.measured,

@@ -9,7 +9,7 @@ starting candidate keeps every linear system regular (it moves a well-determined
 relative ``~1e−10``); that the data themselves determine the emitter is checked separately, from
 the rank of the accumulated Fisher information (MATH §8), because GTSAM's Levenberg-Marquardt
 returns garbage on an underdetermined graph without raising and ISAM2/Marginals raise a bare
-``RuntimeError`` (DEPENDENCIES §1).
+``RuntimeError`` (traps of GTSAM 4.3's Python bindings).
 
 With a static emitter the optimum is the maximum likelihood over all frames (MATH §10). The
 reported covariance is the marginal covariance of the last variable at the estimate (the inverse

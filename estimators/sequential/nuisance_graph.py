@@ -37,7 +37,7 @@ def nuisance_factor(frame: NuisanceFrame, position_key: int, nuisance_key: int) 
     """ONE ``CustomFactor`` on ``[position_key, nuisance_key]`` for a frame's stacked whitened
     residuals (unit noise). Both Jacobian blocks are set as 2-D arrays, ``(2K, 2)`` and
     ``(2K, n_u)``: GTSAM 4.3 segfaults on a 1-D one and accepts a wrong width silently
-    (DEPENDENCIES §1)."""
+    (a trap of GTSAM 4.3's Python bindings)."""
     import gtsam
 
     def error(this: Any, values: Any, jacobians: Any) -> FloatArray:

@@ -57,7 +57,7 @@ def frame_factor(
     """ONE ``CustomFactor`` for a frame's stacked whitened residuals ``e(s)`` (unit noise).
 
     The Jacobian is set as a 2-D ``(2K, 2)`` array: GTSAM 4.3 segfaults on a 1-D one and
-    accepts a wrong width silently (DEPENDENCIES §1). ``linearised[index]``, if given and not
+    accepts a wrong width silently (GTSAM 4.3's Python bindings). ``linearised[index]``, if given and not
     None, holds ``(point, e, E)`` already evaluated (the streaming smoother evaluates every
     frame of a relinearised variable in one vectorised pass, :func:`expansion_terms`); it is
     used when GTSAM asks for exactly that point, and the frame is evaluated otherwise.

@@ -153,7 +153,7 @@ def test_referenced_state_is_the_same_model(unknowns) -> None:
 @pytest.mark.parametrize("unknowns", UNKNOWNS, ids=str)
 def test_custom_factor_jacobian_matches_central_differences(unknowns) -> None:
     """GTSAM's ``linearize(values).jacobian()`` of :func:`nuisance_factor` on ``[X, N]``
-    against central differences of its whitened error (DEPENDENCIES §1: a 1-D or wrong-width
+    against central differences of its whitened error (GTSAM 4.3: a 1-D or wrong-width
     block would segfault or pass silently)."""
     data = simulate(noncooperative("paper-1m-turn", unknowns), seed=2)
     model = models(data)[5]

@@ -1,4 +1,4 @@
-"""The GTSAM factor-graph smoother with mirror hypotheses (MATH §7, §8, §10; DEPENDENCIES §1)."""
+"""The GTSAM factor-graph smoother with mirror hypotheses (MATH §7, §8, §10)."""
 
 from __future__ import annotations
 

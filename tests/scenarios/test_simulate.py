@@ -40,7 +40,7 @@ def test_same_seed_gives_identical_arrays_and_another_seed_does_not() -> None:
 
 
 def test_trial_i_is_independent_of_the_batch_size() -> None:
-    """Trial i is driven by child i of ``SeedSequence(seed)`` whatever the batch (STYLE §10)."""
+    """Trial i is driven by child i of ``SeedSequence(seed)`` whatever the batch."""
     scenario = get_scenario("orbit")
     small = simulate_trials(scenario, snr_db=0.0, seeds=trial_seeds(9, 3))
     large = simulate_trials(scenario, snr_db=0.0, seeds=trial_seeds(9, 8))
