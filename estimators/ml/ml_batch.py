@@ -200,6 +200,12 @@ class SharedContext:
         return out
 
     @property
+    def pseudo_ranges(self) -> bool:
+        """Whether the ranges are pseudo-ranges (the emission time unknown, MATH §15) that the
+        starts use."""
+        return self.uses_toa and "emission_time_s" in self.used.unknowns
+
+    @property
     def n_rows(self) -> int:
         """Rows of the residual: Doppler (and ToA, and RSS) blocks of every sample."""
         return self.doppler_t.shape[0] * (1 + self.uses_toa + (self.rss_t is not None))

@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from estimators.baselines.lls import solve_lls_toa
 from estimators.closed_form.cls import solve_doppler_toa_cls
 from estimators.closed_form.cls_batch import solve_chunk
-from estimators.closed_form.pseudorange_cls import solve_pseudorange_cls
+from estimators.closed_form.pseudorange_cls import solve_pseudorange_batch, solve_pseudorange_cls
 from estimators.ml.ml_starts import doppler_grid_starts
 from scenarios.types import MeasurementSet
 
@@ -82,6 +82,37 @@ def closed_form_starts(data: MeasurementSet, fallback_lls: bool) -> tuple[FloatA
     return lls.position_m[None, :], "lls-toa", f"{reason}; started from LLS-ToA"
 
 
+def pseudorange_starts(
+    context: SharedContext,
+    trials: IntArray,
+    method: NDArray[np.object_],
+    note: NDArray[np.object_],
+) -> dict[int, FloatArray]:
+    """With an unknown emission time, every trial's starts from the pseudo-range closed form
+    solved for all of them at once (:func:`solve_pseudorange_batch`, whose trial ``i`` is what
+    :func:`closed_form_starts` gets from it alone): ``{i: (k, 2)}``, ``method`` and ``note``
+    filled in. Empty when the batch refuses the geometry: each trial then says why alone."""
+    speed_of_light = context.used.speed_of_light_mps
+    try:
+        solution = solve_pseudorange_batch(
+            context.used,
+            speed_of_light * context.toa[trials],
+            context.doppler[trials],
+            carrier_offset_unknown="carrier_offset_hz" in context.used.unknowns,
+        )
+    except (ValueError, np.linalg.LinAlgError):
+        return {}
+    found = {}
+    for i, count in enumerate(solution.count.tolist()):
+        candidates = solution.candidates_m[i, :count]
+        if count and np.all(np.isfinite(candidates)):
+            found[i], method[i], note[i] = candidates, "cls", ""
+        else:
+            found[i], method[i] = np.empty((0, 2)), "none"
+            note[i] = "CLS returned no finite candidate"
+    return found
+
+
 def find_starts(
     context: SharedContext, trials: IntArray, scale: FloatArray
 ) -> tuple[FloatArray, IntArray, NDArray[np.object_], NDArray[np.object_]]:
@@ -101,8 +132,10 @@ def find_starts(
         valid[:, 0], valid[:, 1] = True, solution.count > 1
         # where the batch CLS is undecided, its one-trial code decides
         redo = doubt | solution.uncertain | np.any(valid & ~np.isfinite(world).all(-1), axis=1)
-    found = {}
+    found = pseudorange_starts(context, trials, method, note) if context.pseudo_ranges else {}
     for i in np.flatnonzero(redo).tolist():
+        if i in found:
+            continue
         found[i], method[i], note[i] = closed_form_starts(
             context.trial_data(int(trials[i])), context.estimator.fallback_lls
         )
