@@ -399,10 +399,7 @@ class Experiment:
         check_limit(self.trials, "trials", "trials per point", _TRIALS, "ask for fewer")
         set_(self, "seed", _count(self.seed, "seed", minimum=0))
         if self.chunk_size != AUTO_CHUNK_SIZE:
-            try:
-                set_(self, "chunk_size", _count(self.chunk_size, "chunk_size", minimum=1))
-            except ValueError as error:
-                raise ValueError(f'{error}, or "{AUTO_CHUNK_SIZE}"') from None
+            set_(self, "chunk_size", _count(self.chunk_size, "chunk_size", minimum=1))
             check_limit(self.chunk_size, "chunk_size", "trials per task", _TRIALS, "use fewer")
         set_(self, "time_limit_s", fields.number(self.time_limit_s, "time_limit_s"))
         if self.time_limit_s <= 0:

@@ -81,9 +81,7 @@ def test_auto_is_the_default_and_survives_json():
     )
     assert experiment.chunk_size == AUTO_CHUNK_SIZE
     assert Experiment.from_json(experiment.to_json()) == experiment
-    with pytest.raises(
-        ValueError, match=r'^chunk_size: expected a whole number >= 1, got .big., or "auto"'
-    ):
+    with pytest.raises(ValueError, match=r"^chunk_size: expected a whole number >= 1, got 'big'"):
         smoke(chunk_size="big")
     infos = infos_of(experiment)
     with pytest.raises(ValueError, match="chunk_size: 'auto' must be resolved"):
