@@ -13,7 +13,9 @@
 
 Each is run ``--repeats`` times (default 3), each time into a new folder, and the best wall
 time is printed with the machine's load average (1 min) before and after: on a shared
-machine the times are only comparable at similar loads. The rows of the repeats are checked
+machine the times are only comparable at similar loads. Beside each wall time, the CPU time
+of this process and of the worker processes it ended meanwhile (``RUSAGE_CHILDREN``): the
+work done, which other processes on the machine change less. The rows of the repeats are checked
 to be equal (``runtime_s`` and the diagnostics' timings aside).
 
 Run: ``python benchmarks/bench_speed.py [--workers 2] [--repeats 3] [--chunk-size N]
@@ -25,6 +27,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
+import resource
 import shutil
 import tempfile
 import time
@@ -42,14 +45,23 @@ TIMED_KEYS = ("runtime_s", "diagnostics_json")
 """Columns that hold timings (the diagnostics carry solver times), left out of the check."""
 
 
-def timed_rows(experiment, folder: Path, workers: int) -> float:
-    start = time.perf_counter()
+def cpu_s() -> float:
+    """CPU time of this process and of its ended children (user and system), s."""
+    mine = resource.getrusage(resource.RUSAGE_SELF)
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return mine.ru_utime + mine.ru_stime + children.ru_utime + children.ru_stime
+
+
+def timed_rows(experiment, folder: Path, workers: int) -> tuple[float, float]:
+    """The rows' wall time and CPU time (the workers end with the run)."""
+    start, cpu = time.perf_counter(), cpu_s()
     run_experiment(experiment, folder, workers=workers, progress=False)
-    return time.perf_counter() - start
+    return time.perf_counter() - start, cpu_s() - cpu
 
 
-def timed_report(folder: Path) -> tuple[float, float]:
-    """The report's wall time, and that of its figures (trials.csv meanwhile included)."""
+def timed_report(folder: Path) -> tuple[float, float, float]:
+    """The report's wall time, its CPU time, and the wall time of its figures (trials.csv
+    meanwhile included)."""
     spent = []
     write_figures = report_figures.write_figures
 
@@ -62,9 +74,9 @@ def timed_report(folder: Path) -> tuple[float, float]:
 
     report_figures.write_figures = watched
     try:
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), cpu_s()
         write_report(folder)
-        return time.perf_counter() - start, sum(spent)
+        return time.perf_counter() - start, cpu_s() - cpu, sum(spent)
     finally:
         report_figures.write_figures = write_figures
 
@@ -82,14 +94,14 @@ def main() -> None:
     if options.serial_figures:
         report_figures.figure_processes = lambda n_figures: 1
     scratch = Path(tempfile.mkdtemp(prefix="bench_speed_"))
-    best = {"rows": float("inf"), "report": float("inf"), "figures": float("inf")}
+    best = dict.fromkeys(("rows", "rows cpu", "report", "report cpu", "figures"), float("inf"))
     reference = None
     load_before = os.getloadavg()[0]
     try:
         for repeat in range(options.repeats):
             folder = scratch / f"run{repeat}"
-            rows_s = timed_rows(experiment, folder, options.workers)
-            report_s, figures_s = timed_report(folder)
+            rows_s, rows_cpu_s = timed_rows(experiment, folder, options.workers)
+            report_s, report_cpu_s, figures_s = timed_report(folder)
             rows = read_trials(folder).drop(columns=list(TIMED_KEYS))
             if reference is None:
                 reference = rows
@@ -97,11 +109,14 @@ def main() -> None:
             else:
                 pd.testing.assert_frame_equal(rows, reference)
             print(
-                f"repeat {repeat + 1}: rows {rows_s:6.2f} s, report {report_s:5.2f} s "
-                f"(figures {figures_s:5.2f} s), load {os.getloadavg()[0]:.2f}",
+                f"repeat {repeat + 1}: rows {rows_s:6.2f} s (CPU {rows_cpu_s:6.2f} s), report "
+                f"{report_s:5.2f} s (CPU {report_cpu_s:5.2f} s, figures {figures_s:5.2f} s), "
+                f"load {os.getloadavg()[0]:.2f}",
                 flush=True,
             )
-            for key, seconds in (("rows", rows_s), ("report", report_s), ("figures", figures_s)):
+            for key, seconds in zip(
+                best, (rows_s, rows_cpu_s, report_s, report_cpu_s, figures_s), strict=True
+            ):
                 best[key] = min(best[key], seconds)
             shutil.rmtree(folder)
     finally:
@@ -112,8 +127,9 @@ def main() -> None:
         f"{'here' if options.serial_figures else 'in worker processes'}; best of "
         f"{options.repeats} (load average {load_before:.2f} before, "
         f"{os.getloadavg()[0]:.2f} after):\n"
-        f"  rows       {best['rows']:6.2f} s\n"
-        f"  report     {best['report']:6.2f} s   (figures and trials.csv {best['figures']:.2f} s)\n"
+        f"  rows       {best['rows']:6.2f} s   (CPU {best['rows cpu']:6.2f} s)\n"
+        f"  report     {best['report']:6.2f} s   (CPU {best['report cpu']:6.2f} s; figures and "
+        f"trials.csv {best['figures']:.2f} s)\n"
         f"  end to end {best['rows'] + best['report']:6.2f} s"
     )
 

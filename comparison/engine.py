@@ -7,8 +7,11 @@ trials into tasks (:mod:`comparison.tasks`), runs them here, in local processes 
 cluster (:mod:`comparison.execution`), and stores each task's rows as it finishes
 (:mod:`comparison.store`). The rows follow the contract of :mod:`comparison.trial_rows`;
 ``runtime_s`` is the only column that is not a function of the experiment, and no row depends
-on the number of workers, their order, the chunking, or the number of trials asked (the seed
-tree is in :mod:`comparison.tasks`).
+on the number of workers, their order, or the number of trials asked (the seed tree is in
+:mod:`comparison.tasks`); a batch estimator's rows depend on the chunking only to rounding (a
+batch of other trials is other arrays). ``chunk_size = "auto"`` is sized for the workers when
+a run starts (:func:`comparison.tasks.auto_chunk_size`) and recorded in ``experiment.json``;
+a resume keeps it, so its rows are those of an uninterrupted run, whatever its workers.
 
 The pieces:
 

@@ -4,8 +4,8 @@ Seeds
     The data of (scenario index ``i``, point ``p``, trial ``t``) come from
     ``SeedSequence(seed, spawn_key=(i, p, t))`` (:func:`trial_seed`): every estimator sees the
     same data there (common random numbers), and no row depends on the number of workers,
-    their order, the chunking, or the number of trials asked (more trials extend a run, never
-    change it). Estimator ``L`` breaks ties (MATH §7) with
+    their order, or the number of trials asked (more trials extend a run, never change it),
+    nor on the chunking but to rounding (a batch of other trials is other arrays). Estimator ``L`` breaks ties (MATH §7) with
     ``default_rng(SeedSequence(seed, spawn_key=(i, p, t, 1 + crc32(L))))`` (:func:`tie_rng`), a
     fresh generator for every estimate (so with ``per_frame`` the last frame's row equals the
     row of a run without it). In a closed loop the noise block of the trial is drawn the same

@@ -120,3 +120,20 @@ def test_a_resume_on_other_workers_keeps_the_run_s_chunks(tmp_path):
     assert read_experiment(out).chunk_size == 4
     whole = run_experiment(smoke(chunk_size=4), tmp_path / "four", workers=1, progress=False)
     pd.testing.assert_frame_equal(rows(out), rows(whole))
+
+
+@pytest.mark.slow
+def test_a_dask_run_sizes_its_tasks_for_the_cluster_s_threads(tmp_path):
+    """Two dask workers of one thread each are two slots: smoke's 2 points need 4 chunks
+    each, of 5 trials (one worker's run takes 10)."""
+    distributed = pytest.importorskip(
+        "dask.distributed", reason="dask.distributed is not installed (emitterbench[cluster])"
+    )
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
+    ) as cluster:
+        out = run_experiment(
+            auto(), tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False
+        )
+    assert read_experiment(out).chunk_size == 5
+    assert len(read_trials(out)) == 2 * 20 * 2
