@@ -229,10 +229,10 @@ def run_experiment(
 def _stored_chunk_size(experiment: Experiment, out: Path) -> Experiment:
     """``experiment`` with the chunk size of the run it resumes when its own is ``"auto"``:
     the remaining trials fall in the chunks of an uninterrupted run, whatever the workers."""
-    if experiment.chunk_size != AUTO_CHUNK_SIZE or not (out / EXPERIMENT_FILE).is_file():
+    stored = out / EXPERIMENT_FILE  # not a link, which check_folder refuses
+    if experiment.chunk_size != AUTO_CHUNK_SIZE or stored.is_symlink() or not stored.is_file():
         return experiment
-    stored = read_experiment(out).chunk_size
-    return dataclasses.replace(experiment, chunk_size=stored)
+    return dataclasses.replace(experiment, chunk_size=read_experiment(out).chunk_size)
 
 
 def _cluster_slots() -> int:
