@@ -182,7 +182,7 @@ trials allow): a worker that draws the slowest tasks still finishes with the oth
 AUTO_TASK_ESTIMATES = 2000
 """Most estimates in one task of ``chunk_size = "auto"`` (trials × estimators × planners ×
 evaluated frames): the work a kill loses per task in flight. paper-fig2's estimates take
-about 0.3 ms each in chunks of 250, simulation and scoring included, so such a task is about
+about 0.23 ms each in chunks of 250, simulation and scoring included, so such a task is about
 half a second of work; at 20 ms an estimate (a filter with unknown nuisance parameters, one
 trial at a time) it is 40 s."""
 
@@ -222,8 +222,8 @@ def chunk_size_for(trials: int, *, points: int, workers: int, most_trials: int) 
 
     The chunks of a point are made even: 500 trials in chunks of at most 300 are two of 250,
     not 300 and 200. A batch estimator's cost per trial falls with its chunk (paper-fig2's
-    rows in one process: 48 s of CPU in chunks of 25, 26 s in chunks of 250), which is why
-    the chunks are as large as the bounds allow.
+    rows in one process: 40 s of CPU in chunks of 25, 22 s in chunks of 250, 21 s in chunks
+    of 500), which is why the chunks are as large as the bounds allow.
     """
     per_point = -(-AUTO_TASKS_PER_WORKER * workers // points)  # chunks each point needs
     size = max(1, min(-(-trials // per_point), most_trials))
