@@ -11,7 +11,8 @@ The stages, in the order ``write_report`` meets them:
 - ``other``: what ``write_report`` spends outside the stages above.
 
 A stage called inside another (the verdict table computes the thresholds again) counts in
-the outer one. Each stage is timed by wrapping the function ``write_report`` calls, so the
+the outer one. The figures are drawn in this process, one after another, so that each is
+timed (the report draws them in worker processes: ``benchmarks/bench_speed.py``). Each stage is timed by wrapping the function ``write_report`` calls, so the
 report written is the ordinary one. The runs are the built-ins ``paper-fig2`` (500 trials per
 point, 7 estimators, 27 points) and ``geometry-map-dense`` (10,000 points, 2 estimators,
 100 trials), run once into ``--fig2`` and ``--dense`` (2 workers) unless those folders
@@ -38,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 import comparison.report as report
+import comparison.report_figures as report_figures
 from comparison import figures, metrics, verdict_table
 from comparison.engine import run_experiment
 from comparison.experiment import load_experiment
@@ -85,6 +87,7 @@ def patched(clock: StageClock) -> Iterator[None]:
     import comparison.intervals as intervals
 
     replacements: list[tuple[Any, str, Any]] = [
+        (report_figures, "figure_processes", lambda n_figures: 1),
         (report, "_load", clock.wrap(report._load, "read store")),
         (report, "summarize", clock.wrap(report.summarize, "summarize")),
         (

@@ -6,7 +6,8 @@ already holds a finished run (about 45 s per 100,000 trials on an idle core pair
 is then written in a fresh process, which prints the process's resident set before and after
 each stage and its peak so far (``ru_maxrss``): reading the points, the summary (the trial rows
 read a few points at a time), summary.csv, thresholds.csv, trials.csv (a batch at a time),
-drawing and saving the figures, the page.
+drawing and saving the figures (here, one after another: the report draws them in worker
+processes, whose memory is their own), the page.
 
 Run: ``python benchmarks/bench_report_memory.py [--trials N] [--folder DIR]``.
 """
@@ -90,8 +91,10 @@ def report_by_stage(folder: Path) -> None:
         import comparison.report_figures as report_figures
         from comparison import figures
 
-        watched(report_figures, "report_figures", "draw figures")
-        watched(figures, "save_figure", lambda _figure, _folder, stem: f"save {stem}")
+        # drawn here, one after another, so that each is seen (the report forks workers)
+        report_figures.figure_processes = lambda n_figures: 1
+        watched(report_figures, "figure_plans", "plan figures")
+        watched(figures, "save_figure", lambda _figure, _folder, stem, **_: f"save {stem}")
 
     watched(report, "_summary", "summary", then=watch_figures)
     watched(report, "write_csv", lambda path, *_: Path(path).name)

@@ -7,8 +7,11 @@ trials into tasks (:mod:`comparison.tasks`), runs them here, in local processes 
 cluster (:mod:`comparison.execution`), and stores each task's rows as it finishes
 (:mod:`comparison.store`). The rows follow the contract of :mod:`comparison.trial_rows`;
 ``runtime_s`` is the only column that is not a function of the experiment, and no row depends
-on the number of workers, their order, the chunking, or the number of trials asked (the seed
-tree is in :mod:`comparison.tasks`).
+on the number of workers, their order, or the number of trials asked (the seed tree is in
+:mod:`comparison.tasks`); a batch estimator's rows depend on the chunking only to rounding (a
+batch of other trials is other arrays). ``chunk_size = "auto"`` is sized for the workers when
+a run starts (:func:`comparison.tasks.auto_chunk_size`) and recorded in ``experiment.json``;
+a resume keeps it, so its rows are those of an uninterrupted run, whatever its workers.
 
 The pieces:
 
@@ -29,6 +32,7 @@ re-exported here from :mod:`comparison.store` and :mod:`comparison.run_folder`.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 import warnings
@@ -41,9 +45,10 @@ import numpy as np
 
 from comparison.bounds import CrlbKey, PointInfo, crlb_key, point_infos, point_rows
 from comparison.execution import WORKER_WAIT_S, connect_scheduler, execute
-from comparison.experiment import Experiment
+from comparison.experiment import AUTO_CHUNK_SIZE, Experiment
 from comparison.progress import progress_reporter
 from comparison.run_folder import (
+    EXPERIMENT_FILE,
     RESULTS_FILE,
     check_code_change,
     check_folder,
@@ -66,7 +71,7 @@ from comparison.store import (
     write_points,
     write_task,
 )
-from comparison.tasks import estimator_of, plan_tasks, planner_of
+from comparison.tasks import auto_chunk_size, estimator_of, plan_tasks, planner_of
 from scenarios.simulate import noise_free
 
 __all__ = ["read_experiment", "read_flights", "read_points", "read_trials", "run_experiment"]
@@ -104,8 +109,9 @@ def run_experiment(
         ``"tcp://HOST:PORT"`` of a dask scheduler: run the tasks on its cluster.
     resume : bool
         Continue the run in ``out_dir``: its ``experiment.json`` must match ``experiment``
-        (except ``trials``, which may grow); only missing trials run, and the run ends with
-        exactly the rows of an uninterrupted run.
+        (except ``trials``, which may grow, and a ``chunk_size`` of ``"auto"``, which takes
+        the run's); only missing trials run, and the run ends with exactly the rows of an
+        uninterrupted run.
     trials : int, optional
         Trials per point instead of ``experiment.trials``.
     progress : bool
@@ -162,11 +168,17 @@ def run_experiment(
     out = Path(out_dir)
     # everything that can fail from the experiment alone, before the folder is touched
     crlb_keys, infos, points = _worked_out(experiment)
+    if resume:
+        experiment = _stored_chunk_size(experiment, out)
     check_folder(out, experiment, resume)
     database = out / RESULTS_FILE
     with ExitStack() as stack:
         if scheduler is not None:
             connect_scheduler(scheduler, stack, worker_wait_s)
+        if experiment.chunk_size == AUTO_CHUNK_SIZE:  # a new run: sized for these workers
+            slots = workers if scheduler is None else _cluster_slots()
+            chunk_size = auto_chunk_size(experiment, infos, slots)
+            experiment = dataclasses.replace(experiment, chunk_size=chunk_size)
         folder = stack.enter_context(folder_session(out, experiment, resume))
         check_store(database)  # a damaged store stops a resume before anything is written
         session = session_info(experiment, workers, scheduler, resume)
@@ -212,6 +224,23 @@ def run_experiment(
         if write_report is not None:
             write_report(out)
     return out
+
+
+def _stored_chunk_size(experiment: Experiment, out: Path) -> Experiment:
+    """``experiment`` with the chunk size of the run it resumes when its own is ``"auto"``:
+    the remaining trials fall in the chunks of an uninterrupted run, whatever the workers."""
+    stored = out / EXPERIMENT_FILE  # not a link, which check_folder refuses
+    if experiment.chunk_size != AUTO_CHUNK_SIZE or stored.is_symlink() or not stored.is_file():
+        return experiment
+    return dataclasses.replace(experiment, chunk_size=read_experiment(out).chunk_size)
+
+
+def _cluster_slots() -> int:
+    """The threads of the connected dask cluster's workers when the run starts (at least 1)."""
+    from distributed import get_client
+
+    workers = get_client().scheduler_info().get("workers", {})
+    return max(1, sum(int(worker.get("nthreads", 1)) for worker in workers.values()))
 
 
 def _worked_out(

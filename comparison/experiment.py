@@ -20,7 +20,7 @@ A complete example (every key; the optional ones show their defaults)::
     frames = 1                              # optional; frames flown in every scenario
     per_frame = false                       # optional; estimate after every frame
     metrics = ["rmse_m", "efficiency"]      # optional; comparison.metrics.METRIC_NAMES
-    chunk_size = 25                         # optional; trials per parallel task
+    chunk_size = "auto"                     # optional; trials per parallel task, or "auto"
     time_limit_s = 60.0                     # optional; seconds one estimate may take
 
     [sweep]                                 # optional; without it: one point at 0 dB
@@ -120,6 +120,9 @@ MAX_ESTIMATES = 100_000_000
 """Most estimates, i.e. result rows, of a run (``EMITTERBENCH_MAX_ESTIMATES``): some 30 GB."""
 MAX_CHUNK_SAMPLES = 5_000_000
 """Most samples one task simulates at once, ``chunk_size`` × samples per trial (about 400 MB)."""
+
+AUTO_CHUNK_SIZE = "auto"
+"""The ``chunk_size`` that sizes the tasks from the work (:func:`comparison.tasks.auto_chunk_size`)."""
 
 _TRIALS = (MAX_TRIALS, "EMITTERBENCH_MAX_TRIALS")
 _POINTS = (MAX_POINTS, "EMITTERBENCH_MAX_POINTS")
@@ -352,8 +355,11 @@ class Experiment:
         Estimate after every frame (on the data up to it) instead of once at the end.
     metrics : sequence of str or None
         Metric columns the report shows (:data:`comparison.metrics.METRIC_NAMES`); None: all.
-    chunk_size : int
-        Trials per parallel task (>= 1); results never depend on it.
+    chunk_size : int or "auto"
+        Trials per parallel task (>= 1), or ``"auto"`` (:data:`AUTO_CHUNK_SIZE`, the default):
+        sized from the trials, points and workers when the run starts
+        (:func:`comparison.tasks.auto_chunk_size`), the number then recorded in the run
+        folder's ``experiment.json``. Results depend on it only to rounding.
     time_limit_s : float
         Seconds one estimator call may take (> 0); a longer one fails its row
         (:mod:`comparison.estimator_calls`).
@@ -380,7 +386,7 @@ class Experiment:
     frames: int | None = None
     per_frame: bool = False
     metrics: tuple[str, ...] | None = None
-    chunk_size: int = 25
+    chunk_size: int | str = AUTO_CHUNK_SIZE
     time_limit_s: float = 60.0
     planners: tuple[PlannerSpec, ...] = ()
     steering_estimator: str | None = None
@@ -392,8 +398,9 @@ class Experiment:
         set_(self, "trials", _count(self.trials, "trials", minimum=1))
         check_limit(self.trials, "trials", "trials per point", _TRIALS, "ask for fewer")
         set_(self, "seed", _count(self.seed, "seed", minimum=0))
-        set_(self, "chunk_size", _count(self.chunk_size, "chunk_size", minimum=1))
-        check_limit(self.chunk_size, "chunk_size", "trials per task", _TRIALS, "use fewer")
+        if self.chunk_size != AUTO_CHUNK_SIZE:
+            set_(self, "chunk_size", _count(self.chunk_size, "chunk_size", minimum=1))
+            check_limit(self.chunk_size, "chunk_size", "trials per task", _TRIALS, "use fewer")
         set_(self, "time_limit_s", fields.number(self.time_limit_s, "time_limit_s"))
         if self.time_limit_s <= 0:
             raise ValueError(f"time_limit_s: must be > 0 seconds, got {self.time_limit_s:g}")
@@ -482,6 +489,8 @@ class Experiment:
         )
         fix = "ask for fewer trials, points, estimators or frames"
         check_limit(math.prod(counts), "trials", f"estimates ({product})", _ESTIMATES, fix)
+        if self.chunk_size == AUTO_CHUNK_SIZE:  # sized within the limit when the run starts
+            return
         chunk = min(self.chunk_size, self.trials) * most_samples
         if chunk > MAX_CHUNK_SAMPLES:
             raise ValueError(
@@ -648,7 +657,7 @@ class Experiment:
             frames=raw.get("frames"),
             per_frame=raw.get("per_frame", False),
             metrics=raw.get("metrics"),
-            chunk_size=raw.get("chunk_size", 25),
+            chunk_size=raw.get("chunk_size", AUTO_CHUNK_SIZE),
             time_limit_s=raw.get("time_limit_s", 60.0),
             planners=planners,
             steering_estimator=raw.get("steering_estimator"),

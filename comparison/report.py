@@ -11,8 +11,8 @@
 - ``flights.csv`` (closed loop): every frame flown, per planner and trial
   (:func:`comparison.engine.read_flights`);
 - ``figures/<name>.png`` (150 dpi) and ``figures/<name>.svg`` for every figure of
-  :mod:`comparison.figures` that applies to the sweep, chosen and captioned by
-  :mod:`comparison.report_figures`;
+  :mod:`comparison.figures` that applies to the sweep, chosen, captioned and drawn by
+  :mod:`comparison.report_figures` (in worker processes, while trials.csv is written);
 - ``thresholds.csv``: per scenario and estimator of an SNR sweep, the threshold SNR from
   which every higher point attains the CRLB (:mod:`comparison.verdict_table`);
 - ``report.html``: one self-contained file (figures embedded as base64 PNG, styles inline, no
@@ -591,20 +591,21 @@ def write_report(
         configured_limit(_TRIALS_CSV_LIMIT) if max_trials_csv_rows is None else max_trials_csv_rows
     )
     file_notes = []
-    if n_rows <= limit:  # the rows as text, a batch at a time from results.sqlite
-        write_csv(folder / "trials.csv", trials if trials is not None else _trial_batches(folder))
-    else:
-        (folder / "trials.csv").unlink(missing_ok=True)  # an earlier report's, now stale
-        file_notes.append(trials_csv_note(n_rows, limit))
     # matplotlib only now: the summary's peak memory does not carry it (about 30 MB)
     from comparison import figures
-    from comparison.report_figures import FIGURE_STEMS, figure_trial_columns, report_figures
+    from comparison.report_figures import (
+        FIGURE_STEMS,
+        figure_plans,
+        figure_trial_columns,
+        write_figures,
+    )
 
-    if trials is None:  # the figures' columns only
+    figure_trials = trials
+    if figure_trials is None:  # the figures' columns only
         from comparison import store
 
         closed = "planner" in summary.columns
-        trials = store.read_trials(folder, figure_trial_columns(closed_loop=closed))
+        figure_trials = store.read_trials(folder, figure_trial_columns(closed_loop=closed))
     steering = None
     if "planner" in summary.columns:
         if flights is None and (folder / "results.sqlite").is_file():
@@ -622,12 +623,24 @@ def write_report(
                 steering = str(first)
     if tracks_m is None and figures.is_geometry_sweep(summary):
         tracks_m = scenario_tracks_m(experiment)
+
+    def write_trials_csv() -> None:
+        """The rows as text, a batch at a time from results.sqlite (or none, said on the page)."""
+        if n_rows <= limit:
+            write_csv(
+                folder / "trials.csv", trials if trials is not None else _trial_batches(folder)
+            )
+        else:
+            (folder / "trials.csv").unlink(missing_ok=True)  # an earlier report's, now stale
+            file_notes.append(trials_csv_note(n_rows, limit))
+
     figure_dir = folder / "figures"
-    entries = []
-    made = report_figures(summary, trials, points, tracks_m, flights, steering_estimator=steering)
-    for stem, caption, figure in made:  # each file replaced whole, the old one kept till then
-        png_path, _ = figures.save_figure(figure, figure_dir, stem, dpi=dpi)
-        entries.append((stem, caption, _png_data_uri(png_path)))
+    plans = figure_plans(
+        summary, figure_trials, points, tracks_m, flights, steering_estimator=steering
+    )
+    # each file replaced whole, the old one kept till then; trials.csv written meanwhile
+    made = write_figures(plans, figure_dir, dpi=dpi, meanwhile=write_trials_csv)
+    entries = [(stem, caption, _png_data_uri(png_path)) for stem, caption, png_path in made]
     drawn = {stem for stem, _, _ in made}
     for stale in set(FIGURE_STEMS) - drawn:  # an earlier report's, once the new ones are in
         for suffix in (".png", ".svg"):

@@ -1,13 +1,31 @@
 """The figures of a report: which apply to a run, in what order, each with its caption.
 
-:func:`report_figures` picks them from the summary (an SNR or other sweep, an emitter grid,
-per-frame rows, a closed loop) and draws them with :mod:`comparison.figures`; the report
-writes each as ``figures/<stem>.png`` and ``.svg`` and shows it with its caption.
+:func:`figure_plans` picks them from the summary (an SNR or other sweep, an emitter grid,
+per-frame rows, a closed loop), each with the call of :mod:`comparison.figures` that draws
+it; :func:`report_figures` draws them. :func:`write_figures` draws and writes each as
+``figures/<stem>.png`` and ``.svg`` (:func:`comparison.figures.save_figure`), one process per
+CPU when there are several figures (:func:`figure_processes`); the report shows each with its
+caption.
+
+Parallel figures
+    Matplotlib draws a report's figures in Python, mostly their axes, ticks and text
+    (paper-fig2's ten files took 5-9 s in one process), so :func:`write_figures` forks worker
+    processes, which inherit the data, and each draws and writes whole figures; only the
+    figure's index goes to a worker and its paths come back. The files are those of one
+    process, byte for byte (the same calls, the SVG's salt and no date), each written whole.
+    Forking needs ``os.fork`` and a process that runs no other thread (a dask client's, for
+    instance): elsewhere the figures are drawn here, one after another.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import functools
+import os
+import threading
+from collections.abc import Callable, Mapping
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -60,14 +78,18 @@ OVERLAP_CAPTION = (
 )
 
 
+FigurePlan = tuple[str, str, Callable[[], Figure]]
+"""``(stem, caption, draw)``: a figure of the report, drawn by calling ``draw()``."""
+
+
 def closed_loop_figures(
     summary: pd.DataFrame,
     trials: pd.DataFrame,
     flights: pd.DataFrame | None,
     *,
     estimator: str | None = None,
-) -> list[tuple[str, str, Figure]]:
-    """``(stem, caption, figure)`` of the closed-loop figures (planners against the frame)."""
+) -> list[FigurePlan]:
+    """``(stem, caption, draw)`` of the closed-loop figures (planners against the frame)."""
     colors = figures.planner_colors(summary["planner"].unique())
     made = [
         (
@@ -76,13 +98,15 @@ def closed_loop_figures(
             "scenario and estimator; shaded: 95% studentized-bootstrap interval; dashed, same "
             "colour: the root mean square over trials of √CRLB of each trial's flown "
             f"trajectory (MATH §8). {OVERLAP_CAPTION}",
-            figures.planner_rmse_vs_frame_figure(summary, colors=colors),
+            functools.partial(figures.planner_rmse_vs_frame_figure, summary, colors=colors),
         ),
         (
             "planner_rmse_side_resolved_vs_frame",
             "Side-resolved RMSE (nearest candidate to the truth, MATH §7) per planner; same "
             "layout. It shows what the estimates are worth once the mirror side is known.",
-            figures.planner_rmse_vs_frame_figure(summary, side_resolved=True, colors=colors),
+            functools.partial(
+                figures.planner_rmse_vs_frame_figure, summary, side_resolved=True, colors=colors
+            ),
         ),
         (
             "planner_wrong_side_vs_frame",
@@ -91,7 +115,7 @@ def closed_loop_figures(
             "first track the estimator uses (frame 0 for a cumulative estimator, the current "
             "frame for a per-frame one); 0.5 is a coin toss, and a turn should drive it to 0 "
             f"(MATH §7). {COUNT_CAPTION}",
-            figures.planner_wrong_side_vs_frame_figure(summary, colors=colors),
+            functools.partial(figures.planner_wrong_side_vs_frame_figure, summary, colors=colors),
         ),
     ]
     if flights is not None and not flights.empty:
@@ -104,7 +128,7 @@ def closed_loop_figures(
                 "the estimate after every frame of the estimator the figure names (dots); below "
                 "each, a zoom on the truth with every trial's last estimate (grey) and, for the drawn trials, the last "
                 "estimate (cross) with its 2σ covariance ellipse and the wrong-side count.",
-                figures.trajectory_figure(flights, trials, estimator=label),
+                functools.partial(figures.trajectory_figure, flights, trials, estimator=label),
             )
         )
     return made
@@ -181,7 +205,23 @@ def report_figures(
     *,
     steering_estimator: str | None = None,
 ) -> list[tuple[str, str, Figure]]:
-    """``(stem, caption, figure)`` of every figure that applies to this sweep.
+    """``(stem, caption, figure)`` of every figure of :func:`figure_plans`, drawn here."""
+    plans = figure_plans(
+        summary, trials, points, tracks_m, flights, steering_estimator=steering_estimator
+    )
+    return [(stem, caption, draw()) for stem, caption, draw in plans]
+
+
+def figure_plans(
+    summary: pd.DataFrame,
+    trials: pd.DataFrame,
+    points: pd.DataFrame | None,
+    tracks_m: Mapping[str, np.ndarray] | None,
+    flights: pd.DataFrame | None = None,
+    *,
+    steering_estimator: str | None = None,
+) -> list[FigurePlan]:
+    """``(stem, caption, draw)`` of every figure that applies to this sweep, undrawn.
 
     A closed-loop run (a ``planner`` column in the summary) gets :func:`closed_loop_figures`
     and the run-time figure: the open-loop figures would mix the planners. Labels are drawn
@@ -199,13 +239,13 @@ def report_figures(
                 "runtime",
                 "Wall time of one estimate per estimator over the whole run, every planner and "
                 "frame (median and 5th to 95th percentiles; log axis).",
-                figures.runtime_figure(trials, colors=colors),
+                functools.partial(figures.runtime_figure, trials, colors=colors),
             )
         )
         return made
     colors = figures.estimator_colors(summary["estimator"].unique())
     x = figures.sweep_axis(summary)
-    made: list[tuple[str, str, Figure]] = []
+    made: list[FigurePlan] = []
     along = x if x is not None and summary[x].nunique() > 1 else None
     if along is None and x is not None and figures.is_per_frame(summary):
         along = "frame"  # one sweep point flown over frames: the efficiency as they accumulate
@@ -214,7 +254,7 @@ def report_figures(
             (
                 "efficiency",
                 efficiency_caption(along),
-                figures.efficiency_figure(summary, x=along, colors=colors),
+                functools.partial(figures.efficiency_figure, summary, x=along, colors=colors),
             )
         )
     if x is not None and summary[x].nunique() > 1:  # a one-point sweep has no curve to draw
@@ -226,7 +266,7 @@ def report_figures(
                 "shaded: 95% studentized-bootstrap interval; solid black: √CRLB for "
                 "ToA+Doppler; dashed: the bound of an estimator that uses other modalities. "
                 f"{OVERLAP_CAPTION}",
-                figures.rmse_figure(summary, points=points, x=x, colors=colors),
+                functools.partial(figures.rmse_figure, summary, points=points, x=x, colors=colors),
             )
         )
         if not np.allclose(
@@ -237,7 +277,13 @@ def report_figures(
                     "rmse_side_resolved",
                     f"Side-resolved RMSE (nearest candidate to the truth, MATH §7) against "
                     f"{what}; same layout as the RMSE figure.",
-                    figures.side_resolved_rmse_figure(summary, points=points, x=x, colors=colors),
+                    functools.partial(
+                        figures.side_resolved_rmse_figure,
+                        summary,
+                        points=points,
+                        x=x,
+                        colors=colors,
+                    ),
                 )
             )
         made.append(
@@ -246,7 +292,7 @@ def report_figures(
                 f"Wrong-side rate against {what}: the fraction of the successful estimates off "
                 "the track plane that lie on the other side of the last frame's track from the "
                 f"truth; 0.5 is a coin toss. {COUNT_CAPTION}",
-                figures.wrong_side_figure(summary, x=x, colors=colors),
+                functools.partial(figures.wrong_side_figure, summary, x=x, colors=colors),
             )
         )
     if figures.is_geometry_sweep(summary):
@@ -254,7 +300,9 @@ def report_figures(
             (
                 "geometry",
                 geometry_caption(summary),
-                figures.geometry_heatmap_figure(summary, points=points, tracks_m=tracks_m),
+                functools.partial(
+                    figures.geometry_heatmap_figure, summary, points=points, tracks_m=tracks_m
+                ),
             )
         )
     made.append(
@@ -262,7 +310,7 @@ def report_figures(
             "error_cdf",
             "Empirical CDF of the distance error at the lowest, middle and highest sweep "
             "points; failed estimates count as infinite errors. Dashed: side-resolved error.",
-            figures.error_cdf_figure(trials, x=x, colors=colors),
+            functools.partial(figures.error_cdf_figure, trials, x=x, colors=colors),
         )
     )
     made.append(
@@ -270,7 +318,7 @@ def report_figures(
             "runtime",
             "Wall time of one estimate per estimator over the whole run (median and 5th to "
             "95th percentiles; log axis). Timings depend on the machine in the run section.",
-            figures.runtime_figure(trials, colors=colors),
+            functools.partial(figures.runtime_figure, trials, colors=colors),
         )
     )
     if figures.is_per_frame(summary):
@@ -279,7 +327,9 @@ def report_figures(
                 "rmse_vs_frame",
                 "RMSE as frames accumulate, with the √CRLB accumulated over the same frames "
                 f"(MATH §8); dotted: side-resolved RMSE where it differs. {OVERLAP_CAPTION}",
-                figures.rmse_vs_frame_figure(summary, points=points, colors=colors),
+                functools.partial(
+                    figures.rmse_vs_frame_figure, summary, points=points, colors=colors
+                ),
             )
         )
         made.append(
@@ -289,7 +339,7 @@ def report_figures(
                 "off the track plane that lie on the other side of the last frame's track from "
                 "the truth; 0.5 is a coin toss, and a turn should drive it to 0 (MATH §7). "
                 f"{COUNT_CAPTION}",
-                figures.wrong_side_vs_frame_figure(summary, colors=colors),
+                functools.partial(figures.wrong_side_vs_frame_figure, summary, colors=colors),
             )
         )
         if (summary["n_nees"] > 0).any():
@@ -300,7 +350,73 @@ def report_figures(
                     "covariance (each trial's nearest candidate against its own, mirrored "
                     "covariance); grey: the 95% chi-square band of the mean of n consistent "
                     f"2-dof NEES values. {_count_caption(figures.NEES_COUNT_NOTE)}",
-                    figures.nees_vs_frame_figure(summary, colors=colors),
+                    functools.partial(figures.nees_vs_frame_figure, summary, colors=colors),
                 )
             )
     return made
+
+
+# --------------------------------------------------------------------------------------------
+# drawn and written, in parallel when it pays
+# --------------------------------------------------------------------------------------------
+
+_PLANS: list[FigurePlan] = []
+"""The plans a forked worker of :func:`write_figures` draws from, by index (set before the
+workers are forked, so that they inherit it and no data is pickled)."""
+
+
+def figure_processes(n_figures: int) -> int:
+    """Worker processes for ``n_figures`` figures: one per CPU this process may use, at most
+    one per figure; 1 (draw here) for a single figure, a single CPU, no ``os.fork``, or a
+    process running other threads, which a fork would copy in whatever state they are."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cpus = os.cpu_count() or 1
+    if not hasattr(os, "fork") or threading.active_count() > 1:
+        return 1
+    return max(1, min(n_figures, cpus))
+
+
+def _draw_and_save(index: int, directory: Path, dpi: int) -> Path:
+    """Draw plan ``index`` of :data:`_PLANS` and write its files; the PNG's path."""
+    stem, _, draw = _PLANS[index]
+    png_path, _ = figures.save_figure(draw(), directory, stem, dpi=dpi)
+    return png_path
+
+
+def write_figures(
+    plans: list[FigurePlan],
+    directory: str | Path,
+    *,
+    dpi: int = 150,
+    meanwhile: Callable[[], object] | None = None,
+) -> list[tuple[str, str, Path]]:
+    """Draw every plan and write it as ``<stem>.png`` and ``<stem>.svg`` in ``directory``
+    (:func:`comparison.figures.save_figure`); ``(stem, caption, PNG path)`` in the plans' order.
+
+    With :func:`figure_processes` above 1 the figures are drawn in forked worker processes
+    (module docstring) while this process calls ``meanwhile`` (the report writes trials.csv
+    then); else ``meanwhile`` is called first and the figures drawn here. An error in a
+    figure is raised here once the figures under way are done (the others are dropped).
+    """
+    directory = Path(directory)
+    processes = figure_processes(len(plans))
+    if processes == 1:
+        if meanwhile is not None:
+            meanwhile()
+        return [
+            (stem, caption, figures.save_figure(draw(), directory, stem, dpi=dpi)[0])
+            for stem, caption, draw in plans
+        ]
+    _PLANS[:] = plans
+    pool = ProcessPoolExecutor(processes, mp_context=get_context("fork"))
+    try:
+        futures = [pool.submit(_draw_and_save, i, directory, dpi) for i in range(len(plans))]
+        if meanwhile is not None:
+            meanwhile()
+        paths = [future.result() for future in futures]
+    finally:  # on an error or Ctrl-C the figures not started are dropped
+        pool.shutdown(wait=True, cancel_futures=True)
+        _PLANS.clear()
+    return [(stem, caption, path) for (stem, caption, _), path in zip(plans, paths, strict=True)]

@@ -4,8 +4,8 @@ Seeds
     The data of (scenario index ``i``, point ``p``, trial ``t``) come from
     ``SeedSequence(seed, spawn_key=(i, p, t))`` (:func:`trial_seed`): every estimator sees the
     same data there (common random numbers), and no row depends on the number of workers,
-    their order, the chunking, or the number of trials asked (more trials extend a run, never
-    change it). Estimator ``L`` breaks ties (MATH §7) with
+    their order, or the number of trials asked (more trials extend a run, never change it),
+    nor on the chunking but to rounding (a batch of other trials is other arrays). Estimator ``L`` breaks ties (MATH §7) with
     ``default_rng(SeedSequence(seed, spawn_key=(i, p, t, 1 + crc32(L))))`` (:func:`tie_rng`), a
     fresh generator for every estimate (so with ``per_frame`` the last frame's row equals the
     row of a run without it). In a closed loop the noise block of the trial is drawn the same
@@ -13,7 +13,13 @@ Seeds
     and planner ``P`` gets the generator of the label ``"planner:" + P``.
 
 Tasks
-    A task is a chunk of ``chunk_size`` trials of one (scenario, point) (:func:`plan_tasks`).
+    A task is a chunk of ``chunk_size`` trials of one (scenario, point) (:func:`plan_tasks`),
+    the unit a worker runs and the store keeps (a killed run loses the tasks in flight).
+    ``chunk_size = "auto"`` (the default) is resolved once per run by :func:`auto_chunk_size`
+    from the work: the largest chunks that still give every worker
+    :data:`AUTO_TASKS_PER_WORKER` tasks, at most :data:`AUTO_TASK_ESTIMATES` estimates and
+    :data:`~comparison.experiment.MAX_CHUNK_SAMPLES` samples each; the run folder's
+    ``experiment.json`` records the number, which ``--resume`` reuses whatever its workers.
     It simulates the chunk once (:func:`scenarios.simulate.simulate_trials`) and runs every
     estimator on every trial; a batch estimator gets the whole chunk, through
     ``estimate_columns`` when it has one (its results stay columns, no object per trial),
@@ -169,14 +175,72 @@ def planner_of(spec: PlannerSpec) -> Planner:
     return spec.build()
 
 
+AUTO_TASKS_PER_WORKER = 4
+"""Tasks per worker, at least, that ``chunk_size = "auto"`` leaves for the balance (when the
+trials allow): a worker that draws the slowest tasks still finishes with the others."""
+
+AUTO_TASK_ESTIMATES = 2000
+"""Most estimates in one task of ``chunk_size = "auto"`` (trials × estimators × planners ×
+evaluated frames): the work a kill loses per task in flight. paper-fig2's estimates take
+about 0.23 ms each in chunks of 250, simulation and scoring included, so such a task is about
+half a second of work; at 20 ms an estimate (a filter with unknown nuisance parameters, one
+trial at a time) it is 40 s."""
+
+
+def estimates_per_trial(experiment: Experiment, n_frames: int) -> int:
+    """The rows one trial gives: estimators × planners (1 in open loop) × evaluated frames
+    (``n_frames`` with ``per_frame``, else 1)."""
+    frames = n_frames if experiment.per_frame else 1
+    return len(experiment.estimators) * max(1, len(experiment.planners)) * frames
+
+
+def auto_chunk_size(
+    experiment: Experiment, infos: Mapping[tuple[int, int], PointInfo], workers: int
+) -> int:
+    """Trials per task for ``chunk_size = "auto"``: :func:`chunk_size_for` of the run's
+    trials, (scenario, point) pairs, estimates and samples per trial (the most of any point),
+    and ``workers``. Used when a run starts; a resume reuses the number its run recorded."""
+    from comparison.experiment import MAX_CHUNK_SAMPLES  # main process only
+
+    n_frames = max(info.n_frames for info in infos.values())
+    n_samples = max(info.scenario.flight.n_samples for info in infos.values())
+    return chunk_size_for(
+        experiment.trials,
+        points=len(infos),
+        workers=workers,
+        most_trials=min(
+            AUTO_TASK_ESTIMATES // estimates_per_trial(experiment, n_frames),
+            MAX_CHUNK_SAMPLES // n_samples,
+        ),
+    )
+
+
+def chunk_size_for(trials: int, *, points: int, workers: int, most_trials: int) -> int:
+    """The largest even chunk of a point's ``trials`` that leaves every one of ``workers``
+    :data:`AUTO_TASKS_PER_WORKER` tasks of the ``points`` points (when there are trials
+    enough) and holds at most ``most_trials`` (at least one).
+
+    The chunks of a point are made even: 500 trials in chunks of at most 300 are two of 250,
+    not 300 and 200. A batch estimator's cost per trial falls with its chunk (paper-fig2's
+    rows in one process: 40 s of CPU in chunks of 25, 22 s in chunks of 250, 21 s in chunks
+    of 500), which is why the chunks are as large as the bounds allow.
+    """
+    per_point = -(-AUTO_TASKS_PER_WORKER * workers // points)  # chunks each point needs
+    size = max(1, min(-(-trials // per_point), most_trials))
+    return -(-trials // -(-trials // size))  # ceil(trials / ceil(trials / size))
+
+
 def plan_tasks(
     experiment: Experiment,
     infos: Mapping[tuple[int, int], PointInfo],
     complete: Mapping[tuple[int, int], set[int]],
 ) -> list[Task]:
-    """Chunks of ``chunk_size`` trials per (scenario, point), without the ``complete`` ones."""
+    """Chunks of ``chunk_size`` trials per (scenario, point), without the ``complete`` ones
+    (``chunk_size`` a number: :func:`auto_chunk_size` resolves ``"auto"`` first)."""
     tasks = []
     size = experiment.chunk_size
+    if not isinstance(size, int):
+        raise ValueError(f"chunk_size: {size!r} must be resolved to a number before planning")
     steering = tuple(experiment.steering_label(k) for k in range(len(experiment.planners)))
     for (i, p), info in infos.items():
         done = complete.get((i, p), set())

@@ -113,7 +113,8 @@ def doc_claims() -> dict[str, dict[str, object]]:
     """``{page: {pattern: the code's numbers}}`` for every count and constant the docs state."""
     import tomllib
 
-    from comparison.experiment import Experiment
+    from comparison.experiment import AUTO_CHUNK_SIZE, MAX_CHUNK_SAMPLES, Experiment
+    from comparison.tasks import AUTO_TASK_ESTIMATES, AUTO_TASKS_PER_WORKER
     from comparison.verdicts import VERDICTS
     from estimators.checks import (
         CRLB_FACTOR,
@@ -133,6 +134,7 @@ def doc_claims() -> dict[str, dict[str, object]]:
     root = DOCS.parent
     packages = re.search(r"include = \[(.*?)\]", (root / "pyproject.toml").read_text()).group(1)
     chunk = {f.name: f.default for f in dataclasses.fields(Experiment)}["chunk_size"]
+    assert chunk == AUTO_CHUNK_SIZE
     experiment_page = (DOCS / "writing-an-experiment.md").read_text(encoding="utf-8")
     small = re.search(r'```toml\n(name = "frames-small".*?)```', experiment_page, re.DOTALL)
     turning = get_scenario("paper-1m-turn").flight.frame_velocities_mps
@@ -162,13 +164,21 @@ def doc_claims() -> dict[str, dict[str, object]]:
             rf"and {NUMBER} drawn anew on every run": len(RANDOM_PROBLEMS),
             rf"the first frame's ranges {NUMBER} m short": ON_TRACK_START_SHORTFALL_M,
             rf"{NUMBER} times its tolerance from the emitter": times_its_tolerance_unweighted,
-            rf"\(`chunk_size`, {NUMBER} by default\)": chunk,
+            rf'\(`chunk_size`, "auto" by default: up to {NUMBER} estimates a task\)': (
+                AUTO_TASK_ESTIMATES
+            ),
         },
         "writing-an-experiment.md": {
-            rf"\| `chunk_size` \| no \| `{NUMBER}` \|": chunk,
+            rf'\| `chunk_size` \| no \| `"auto"` \| .* every worker gets at least {NUMBER} '
+            rf"tasks and a task holds at most {NUMBER} estimates .* and {NUMBER} simulated "
+            "samples": (AUTO_TASKS_PER_WORKER, AUTO_TASK_ESTIMATES, MAX_CHUNK_SAMPLES),
             rf"Per-frame estimates over {NUMBER} frames": tomllib.loads(small.group(1))["frames"],
         },
-        "dask-cluster.md": {rf"chunks of `chunk_size` trials \({NUMBER} by default": chunk},
+        "dask-cluster.md": {
+            rf'chunks of `chunk_size` trials \("auto" by default.* at least {NUMBER} tasks each': (
+                AUTO_TASKS_PER_WORKER
+            ),
+        },
         "measurement-model.md": {
             rf"`paper-1m-turn` \|[^|]*\|[^|]*\|[^|]*\| {NUMBER} frames east, then {NUMBER} north": (
                 int(np.sum(np.abs(turning[:, 1]) < 1e-9 * np.abs(turning[:, 0]))),  # east

@@ -117,7 +117,7 @@ def test_docstring_example_loads_from_a_toml_file(tmp_path):
     assert experiment.estimators[1].options == {"use_rss": True}
     assert experiment.metrics == ("rmse_m", "efficiency")
     assert experiment.frames == 1
-    assert experiment.chunk_size == 25
+    assert experiment.chunk_size == "auto"
     assert Experiment.from_json(experiment.to_json()) == experiment
     # a fixed range_sigma_m reaches the point's scenario: c σ_τ = 1 m with c = 3e8
     scenario, _ = experiment.point_scenario(1, 0)
