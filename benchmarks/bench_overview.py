@@ -34,7 +34,8 @@ SCRIPTS: tuple[tuple[str, tuple[str, ...], tuple[str, ...]], ...] = (
     ("bench_single_trial_ml.py", (), ("--quick",)),
     ("bench_unknowns_batch.py", (), ("--trials", "500")),
     ("bench_sequential_unknowns.py", (), ()),
-    ("bench_speed.py", ("--experiments", "noncooperative", "paper-fig2"), ("--repeats", "1")),
+    ("bench_speed.py", ("--experiment", "noncooperative"), ("--repeats", "1")),
+    ("bench_speed.py", ("--experiment", "paper-fig2"), ("--repeats", "1")),
 )
 """Each script, its arguments, and what ``--quick`` adds."""
 

@@ -1,4 +1,5 @@
-"""paper-fig2 end to end: the wall time of its rows and of its report, apart.
+"""An experiment end to end (``paper-fig2`` unless ``--experiment``): the wall time of its
+rows and of its report, apart.
 
 - ``rows``: :func:`comparison.engine.run_experiment` of the built-in ``paper-fig2`` (3
   scenarios × 9 SNR points × 500 trials, 7 estimators: 94,500 estimates) on ``--workers``
@@ -19,8 +20,9 @@ time, of this process and of the figure processes it ended (``RUSAGE_CHILDREN``)
 done, which other processes on the machine change less. The rows of the repeats are checked
 to be equal (``runtime_s`` and the diagnostics' timings aside).
 
-Run: ``python benchmarks/bench_speed.py [--workers 2] [--repeats 3] [--chunk-size N]
-[--serial-figures]``.
+Run: ``python benchmarks/bench_speed.py [--experiment paper-fig2] [--workers 2] [--repeats 3]
+[--chunk-size N] [--serial-figures]`` (``--experiment noncooperative``: the non-cooperative
+emitters, where the filters with unknowns dominate).
 """
 
 from __future__ import annotations
@@ -86,12 +88,13 @@ def timed_report(folder: Path) -> tuple[float, float, float]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--experiment", default="paper-fig2", help="a built-in experiment")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--chunk-size", type=int, help="trials per task instead of auto")
     parser.add_argument("--serial-figures", action="store_true")
     options = parser.parse_args()
-    experiment = builtin_experiment("paper-fig2")
+    experiment = builtin_experiment(options.experiment)
     if options.chunk_size is not None:
         experiment = dataclasses.replace(experiment, chunk_size=options.chunk_size)
     if options.serial_figures:
@@ -125,7 +128,7 @@ def main() -> None:
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     print(
-        f"\npaper-fig2 on {options.workers} workers, chunk_size {chunk_size} "
+        f"\n{options.experiment} on {options.workers} workers, chunk_size {chunk_size} "
         f"({'set' if options.chunk_size else 'auto'}), figures "
         f"{'here' if options.serial_figures else 'in worker processes'}; best of "
         f"{options.repeats} (load average {load_before:.2f} before, "
