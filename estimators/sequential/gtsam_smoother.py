@@ -110,7 +110,6 @@ from estimators.sequential.mirror_hypotheses import (
     first_frame_candidates,
     hypothesis_starts,
     smoother_estimate,
-    surviving_hypotheses,
 )
 from estimators.sequential.nuisance_states import (
     NUISANCE_UNKNOWNS,
@@ -129,6 +128,7 @@ from estimators.sequential.smoother_hypotheses import (
     checkout,
     discard,
     new_live,
+    pruned_hypotheses,
     replay_live,
 )
 from scenarios.geometry import StraightTrack
@@ -416,16 +416,7 @@ class GtsamSmoother:
         and the update's solver figures."""
         updated = [outcome.hypothesis for outcome in outcomes]
         if track is None:
-            kept, _ = surviving_hypotheses(
-                [h.estimates_m[-1] for h in updated],
-                [h.log_weight for h in updated],
-                state.length_scale_m,
-                [h.covariance_m2 for h in updated],
-            )
-            for index, hypothesis in enumerate(updated):
-                if index not in kept:
-                    discard(hypothesis.token)
-            updated = [updated[i] for i in kept]
+            updated = pruned_hypotheses(updated, state.length_scale_m)
         reasons = [outcome.fallback_reason for outcome in outcomes if outcome.fallback_reason]
         return replace(
             state,

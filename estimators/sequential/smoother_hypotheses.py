@@ -55,7 +55,12 @@ from numpy.typing import NDArray
 
 from estimators.convergence import EstimationFailure
 from estimators.frame_model import FrameModel, read_only
-from estimators.sequential.mirror_hypotheses import DIFFUSE_PRIOR_SCALE, fisher_rank, with_mirror
+from estimators.sequential.mirror_hypotheses import (
+    DIFFUSE_PRIOR_SCALE,
+    fisher_rank,
+    surviving_hypotheses,
+    with_mirror,
+)
 from estimators.sequential.smoother_graph import (
     N_TERMS,
     ChainFit,
@@ -594,3 +599,19 @@ def checkin(isam: Any, n_frames: int) -> str:
 def discard(token: str) -> None:
     """Drop the live ISAM2 filed under ``token``, if any."""
     _LIVE_ISAM2.pop(token, None)
+
+
+def pruned_hypotheses(hypotheses: Sequence[Any], length_scale_m: float) -> list[Any]:
+    """The hypotheses that survive (:func:`~estimators.sequential.mirror_hypotheses.
+    surviving_hypotheses`, merged and pruned by their last estimate, weight and covariance),
+    the live ISAM2 of each pruned one dropped from the cache."""
+    kept, _ = surviving_hypotheses(
+        [h.estimates_m[-1] for h in hypotheses],
+        [h.log_weight for h in hypotheses],
+        length_scale_m,
+        [h.covariance_m2 for h in hypotheses],
+    )
+    for index, hypothesis in enumerate(hypotheses):
+        if index not in kept:
+            discard(hypothesis.token)
+    return [hypotheses[i] for i in kept]

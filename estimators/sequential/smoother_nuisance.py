@@ -73,7 +73,6 @@ from estimators.sequential.mirror_hypotheses import (
     MERGE_RTOL,
     hypothesis_starts,
     smoother_estimate,
-    surviving_hypotheses,
 )
 from estimators.sequential.nuisance_graph import (
     NuisanceFit,
@@ -102,8 +101,8 @@ from estimators.sequential.smoother_hypotheses import (
     SmootherState,
     checkin,
     checkout,
-    discard,
     isam2_params,
+    pruned_hypotheses,
 )
 from scenarios.geometry import StraightTrack
 from scenarios.types import MeasurementSet
@@ -616,16 +615,7 @@ def update(
     restart = ""
     if track is None:
         updated, restart = rescued(problem, updated, frames[-1:])
-        kept, _ = surviving_hypotheses(
-            [h.estimates_m[-1] for h in updated],
-            [h.log_weight for h in updated],
-            state.length_scale_m,
-            [h.covariance_m2 for h in updated],
-        )
-        for index, hypothesis in enumerate(updated):
-            if index not in kept:
-                discard(hypothesis.token)
-        updated = [updated[i] for i in kept]
+        updated = pruned_hypotheses(updated, state.length_scale_m)
     reasons = [reason for _, _, reason in solved if reason]
     return replace(
         state,
