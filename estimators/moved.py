@@ -1,7 +1,7 @@
 """Module paths from before the estimators were grouped into a folder per family.
 
-Until version 0.x every estimator module sat directly in ``estimators/``; plug-ins and notebooks
-written then import, for example, ``estimators.cls_rows`` or ``estimators.ekf``. Those paths
+Every estimator module used to sit directly in ``estimators/``; plug-ins and notebooks written
+then import, for example, ``estimators.cls_rows`` or ``estimators.ekf``. Those paths
 keep working: importing one gives the module at its new home (the same module object, so
 ``isinstance`` and patches agree) and a :class:`DeprecationWarning` naming that home.
 :data:`MOVED_MODULES` is the whole table; nothing else depends on it.
