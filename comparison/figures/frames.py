@@ -165,8 +165,9 @@ def nees_vs_frame_figure(
 
     Each trial's nearest candidate is scored against its own covariance (mirrored with the
     candidate, MATH §7): for an unambiguous estimate that is the returned position, so the
-    curve shows covariance consistency rather than the mirror ambiguity. A consistent covariance gives a mean NEES of 2 (two dof), inside the 95% band of
-    :func:`comparison.metrics.nees_band` (shaded grey: the widest band among the estimators
+    curve shows covariance consistency rather than the mirror ambiguity. A consistent
+    covariance gives a mean NEES of 2 (two dof), inside the 95% band of
+    :func:`comparison.intervals.nees_band` (shaded grey: the widest band among the estimators
     of the panel, from their smallest count). A mean of fewer than :data:`MIN_COUNT_FOR_RATE`
     NEES values (``n_nees``) is not drawn (:data:`NEES_COUNT_NOTE`), and gives no band.
     """

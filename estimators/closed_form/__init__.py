@@ -6,6 +6,9 @@ Estimators: ``cls`` (:class:`Cls`), ``cls-paper`` (:class:`ClsPaper`), ``cls-as-
 the GTRS solved exactly in :mod:`~estimators.closed_form.gtrs` (§5), weighted in
 :mod:`~estimators.closed_form.cls` (§6), and vectorised over trials in
 :mod:`~estimators.closed_form.cls_batch` and :mod:`~estimators.closed_form.gtrs_batch`.
+With an unknown emission time (§15) the pseudo-range form,
+:mod:`~estimators.closed_form.pseudorange_cls`, and its indefinite GTRS,
+:mod:`~estimators.closed_form.gtrs_indefinite`, are likewise vectorised over trials.
 The reference path is the batch: ``Cls.estimate`` is the batch of one trial.
 """
 
@@ -13,6 +16,8 @@ from estimators.closed_form.cls import Cls, ClsAsPrinted, ClsPaper, solve_dopple
 from estimators.closed_form.cls_rows import LocalFrame, doppler_rows, toa_rows
 from estimators.closed_form.constrained_ls import ConstrainedLS
 from estimators.closed_form.gtrs import solve_gtrs
+from estimators.closed_form.gtrs_indefinite import solve_gtrs_indefinite_batch
+from estimators.closed_form.pseudorange_cls import solve_pseudorange_batch, solve_pseudorange_cls
 
 __all__ = [
     "Cls",
@@ -23,5 +28,8 @@ __all__ = [
     "doppler_rows",
     "solve_doppler_toa_cls",
     "solve_gtrs",
+    "solve_gtrs_indefinite_batch",
+    "solve_pseudorange_batch",
+    "solve_pseudorange_cls",
     "toa_rows",
 ]
