@@ -3,7 +3,7 @@
 The stages, in the order ``write_report`` meets them:
 
 - ``read store``: experiment.json, the trial and point rows of results.sqlite, run.json;
-- ``summarize``: :func:`comparison.metrics.summarize`, the two bootstrap intervals included
+- ``summarize``: :func:`comparison.metrics.summarize`, the bootstrap intervals (``comparison.metric_groups``) included
   (``  bootstrap`` below it is their share);
 - ``thresholds``, ``summary.csv``, ``thresholds.csv``, ``trials.csv``;
 - ``draw <figure>`` and ``save <figure>`` (PNG and SVG) for every figure of the report;
@@ -40,7 +40,7 @@ from typing import Any
 
 import comparison.report as report
 import comparison.report_figures as report_figures
-from comparison import figures, metrics, verdict_table
+from comparison import figures, metric_groups, verdict_table
 from comparison.engine import run_experiment
 from comparison.experiment import load_experiment
 
@@ -91,7 +91,7 @@ def patched(clock: StageClock) -> Iterator[None]:
         (report, "_load", clock.wrap(report._load, "read store")),
         (report, "summarize", clock.wrap(report.summarize, "summarize")),
         (
-            metrics,
+            metric_groups,
             "studentized_bootstrap_interval",
             clock.wrap(intervals.studentized_bootstrap_interval, "  bootstrap", nested=True),
         ),
