@@ -3,8 +3,8 @@
 The stages, in the order ``write_report`` meets them:
 
 - ``read store``: experiment.json, the trial and point rows of results.sqlite, run.json;
-- ``summarize``: :func:`comparison.metrics.summarize`, the bootstrap intervals (``comparison.metric_groups``) included
-  (``  bootstrap`` below it is their share);
+- ``summarize``: :func:`comparison.metrics.summarize`, the bootstrap intervals
+  (``comparison.metric_groups``) included (``  bootstrap`` below it is their share);
 - ``thresholds``, ``summary.csv``, ``thresholds.csv``, ``trials.csv``;
 - ``draw <figure>`` and ``save <figure>`` (PNG and SVG) for every figure of the report;
 - ``notes`` (the first screen's sentences), ``html`` (the page) and ``write report.html``;
