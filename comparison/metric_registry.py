@@ -111,6 +111,26 @@ def _fit_rejected_rate(g: Groups) -> FloatArray:
         return np.where(n_judged > 0, n_rejected / n_judged, np.nan)
 
 
+def _axis_metrics(axis: str, index: int, description: str) -> tuple[Metric, ...]:
+    """The efficiency along one principal axis of the CRLB and its 95% interval (MATH §16)."""
+    name = f"efficiency_{axis}_axis"
+    return (
+        Metric(name, "1", description, rule=lambda g: g.axes.efficiency[:, index]),
+        Metric(
+            f"{name}_ci_low",
+            "1",
+            "lower end of its 95% interval",
+            rule=lambda g: g.axes.low[:, index],
+        ),
+        Metric(
+            f"{name}_ci_high",
+            "1",
+            "upper end of its 95% interval",
+            rule=lambda g: g.axes.high[:, index],
+        ),
+    )
+
+
 CONTRACT_METRICS: tuple[Metric, ...] = (
     Metric("n_trials", "count", "trials run (successful or not)", aggregate=("success", "size")),
     Metric(
@@ -356,43 +376,13 @@ EXTRA_METRICS: tuple[Metric, ...] = (
         "upper end of its 95% interval",
         rule=lambda g: g.bias.high,
     ),
-    Metric(
-        "efficiency_major_axis",
-        "1",
+    *_axis_metrics(
+        "major",
+        0,
         "RMSE/√CRLB along the CRLB's major principal axis (the judged error); an unbiased "
         "estimator is at or above 1 along every axis",
-        rule=lambda g: g.axes.efficiency[:, 0],
     ),
-    Metric(
-        "efficiency_major_axis_ci_low",
-        "1",
-        "lower end of its 95% interval",
-        rule=lambda g: g.axes.low[:, 0],
-    ),
-    Metric(
-        "efficiency_major_axis_ci_high",
-        "1",
-        "upper end of its 95% interval",
-        rule=lambda g: g.axes.high[:, 0],
-    ),
-    Metric(
-        "efficiency_minor_axis",
-        "1",
-        "RMSE/√CRLB along the CRLB's minor principal axis",
-        rule=lambda g: g.axes.efficiency[:, 1],
-    ),
-    Metric(
-        "efficiency_minor_axis_ci_low",
-        "1",
-        "lower end of its 95% interval",
-        rule=lambda g: g.axes.low[:, 1],
-    ),
-    Metric(
-        "efficiency_minor_axis_ci_high",
-        "1",
-        "upper end of its 95% interval",
-        rule=lambda g: g.axes.high[:, 1],
-    ),
+    *_axis_metrics("minor", 1, "RMSE/√CRLB along the CRLB's minor principal axis"),
     Metric(
         "tail_share",
         "1",

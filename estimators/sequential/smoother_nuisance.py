@@ -177,6 +177,17 @@ class Problem:
     def n_variables(self) -> int:
         return len(self.frames) if self.random_walk else 1
 
+    def graph(self, prior_state: FloatArray, first: int = 0) -> Any:
+        """The factor graph of ``frames[first:]`` (:func:`nuisance_graph`)."""
+        return nuisance_graph(
+            self.frames,
+            prior_state,
+            self.prior_sigmas,
+            self.steps,
+            random_walk=self.random_walk,
+            first=first,
+        )
+
     def fit(self, theta: FloatArray, prior_state: FloatArray) -> NuisanceFit:
         return nuisance_fit(
             self.frames,
@@ -199,13 +210,7 @@ def lm_solve(
     text). Returns ``(hypothesis, iterations, fallback)`` (``""``, ``"newton"`` or
     ``"saddle-escape"``); raises :class:`EstimationFailure` when it did not converge."""
     n_var = problem.n_variables
-    graph = nuisance_graph(
-        problem.frames,
-        prior_state,
-        problem.prior_sigmas,
-        problem.steps,
-        random_walk=problem.random_walk,
-    )
+    graph = problem.graph(prior_state)
     result, start_error, end_error, iterations = gtsam_levenberg_marquardt(
         graph, nuisance_values(start, n_var), problem.max_iterations
     )
@@ -324,13 +329,7 @@ def seeded_isam2(
     step taken), with the anchors of :data:`NUISANCE_ANCHOR_KEYS`."""
     import gtsam
 
-    graph = nuisance_graph(
-        problem.frames,
-        prior_state,
-        problem.prior_sigmas,
-        problem.steps,
-        random_walk=problem.random_walk,
-    )
+    graph = problem.graph(prior_state)
     values = nuisance_values(theta, problem.n_variables)
     for key in NUISANCE_ANCHOR_KEYS:
         graph.add(gtsam.PriorFactorPoint2(key, np.zeros(2), gtsam.noiseModel.Unit.Create(2)))
@@ -370,14 +369,7 @@ def isam2_update(
                 steps=problem.steps[: max(n_frames - 2, 0)],
             )
             isam = seeded_isam2(earlier, hypothesis.theta, prior_state, length_scale_m)
-        graph = nuisance_graph(
-            problem.frames,
-            prior_state,
-            problem.prior_sigmas,
-            problem.steps,
-            random_walk=problem.random_walk,
-            first=t,
-        )
+        graph = problem.graph(prior_state, first=t)
         values = gtsam.Values()
         if problem.random_walk:
             values.insert(X(t), np.array(start[2 * t : 2 * t + 2]))
