@@ -7,8 +7,6 @@ on ``turn`` (two headings), with N = 1,000 and 10,000 trials:
 - ``one-at-a-time``: ``estimate(batch.trial(i), rng=rngs[i])``, the path a run takes without a
   batch capability (for the closed forms the batch of one, so that its answer is the batch's
   to the bit);
-- ``one-trial solver``: ``estimate_one_trial``, the eigen-decomposition solver the batch
-  leaves its undecided trials to (the same answer to 1e-9);
 - ``numpy``: a plain per-trial numpy transcription of the same mathematics written here, with
   no project code: the rows and whitening (MATH §3, §4, §6), the GTRS with its hard case and
   Newton on the secular equation (§5), the rank of the rows, and the answer of §7 (mirror
@@ -18,14 +16,13 @@ on ``turn`` (two headings), with N = 1,000 and 10,000 trials:
 - ``list``: ``estimate_batch(batch, rngs=rngs)``, the same as one ``Estimate`` per trial.
 
 Times are CPU seconds of this process (``time.process_time``) with BLAS held to one thread, so
-that other work on the machine does not count; the four paths are timed in turn, three times,
+that other work on the machine does not count; the paths are timed in turn, three times,
 and the best of each is kept. The per-trial paths run on the first ``min(N, 400)`` trials
 (their cost per trial does not depend on N); the batch paths on all N. The transcription gets
 plain arrays taken out of the project's types beforehand, and the generators are made before
 the clock starts. Printed: microseconds per estimate and the ratios ``numpy / columns`` and
-``one-at-a-time / columns``, with the trials the batch left to the one-trial path
-(``recomputed``) and a check that the transcription returns ``estimate``'s position,
-candidates and rank.
+``one-at-a-time / columns``, with a check that the transcription returns ``estimate``'s
+position, candidates and rank.
 
 ml. For ``ml`` (MATH §10; ``bench_ml``) on ``paper-1m``, ``turn`` and ``paper-1m-turn``
 (ten frames, 100 samples: the batch's work grows with the samples, the per-trial paths' far
@@ -426,22 +423,20 @@ def bench(scenario: str, n: int) -> None:
         best = _best_times(
             {
                 "single": (_one_by_one(estimator.estimate, trials), m),
-                "solver": (_one_by_one(estimator.estimate_one_trial, trials), m),
                 "numpy": (_one_by_one(transcription, arrays, keyword=False), m),
                 "columns": (lambda g, e=estimator: e.estimate_columns(batch, rngs=g), n),
                 "list": (lambda g, e=estimator: e.estimate_batch(batch, rngs=g), n),
             },
             n,
         )
-        recomputed = int(estimator.estimate_columns(batch, rngs=_generators(n)).recomputed.sum())
         single, plain, columns_us = best["single"], best["numpy"], best["columns"]
         print(
             f"{scenario:9s} {estimator.name:9s} N={n:6d} | one-at-a-time {single:7.1f} us"
-            f" | one-trial solver {best['solver']:6.1f} us | numpy {plain:6.1f} us"
+            f" | numpy {plain:6.1f} us"
             f" | columns {columns_us:5.2f} us"
             f" | list {best['list']:5.2f} us | numpy/columns {plain / columns_us:5.1f}x"
             f" | one-at-a-time/columns {single / columns_us:5.1f}x"
-            f" | recomputed {recomputed}/{n} | transcription agrees {agree}/{m}",
+            f" | transcription agrees {agree}/{m}",
             flush=True,
         )
 

@@ -37,7 +37,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from cpu_time import best_cpu_us  # noqa: E402
 
-from estimators.closed_form.cls import solve_doppler_toa_cls  # noqa: E402
+from estimators.closed_form.cls_batch import candidates_of_trial  # noqa: E402
 from estimators.ml.ml import MaximumLikelihood  # noqa: E402
 from scenarios.catalog import get_scenario  # noqa: E402
 from scenarios.simulate import simulate_trials, trial_seeds  # noqa: E402
@@ -114,7 +114,7 @@ def bench(scenario: str, n: int) -> None:
                 t.noise.toa_s * t.speed_of_light_mps,
                 t.emitter_height_m,
             ),
-            solve_doppler_toa_cls(t).candidates_m[0],
+            candidates_of_trial(t)[0],
         )
         for t in trials
     ]

@@ -24,7 +24,6 @@ _ROOMS = {
         "constrained_ls",
         "gtrs",
         "gtrs_batch",
-        "gtrs_rounding",
         "gtrs_indefinite",
         "pseudorange_cls",
     ),

@@ -117,7 +117,6 @@ ENTRY_POINTS = frozenset(
         "estimate",
         "estimate_batch",
         "estimate_columns",
-        "estimate_one_trial",
         "estimate_state",
         "least_squares",
         "lmder_batch",

@@ -136,15 +136,21 @@ def test_the_printed_doppler_line_vanishes_flying_north() -> None:
 
 def test_one_straight_frame_is_the_hard_case_with_two_minimisers() -> None:
     """§5: rank B⁺ = 2, λ* = 0 and the emitter and its mirror at equal cost."""
-    from estimators.closed_form.cls import solve_doppler_toa_cls
+    from estimators.closed_form.gtrs import solve_gtrs
+    from estimators.registry import make_estimator
     from scenarios import get_scenario, noise_free, simulate
 
     scenario = get_scenario("paper-1m")
-    exact = solve_doppler_toa_cls(noise_free(scenario), rows="per-frame")
-    assert exact.gtrs.rank == 2 and exact.gtrs.hard_case and exact.gtrs.multiplier == 0.0
-    assert np.allclose(exact.candidates_m, [[35.0, 15.0], [35.0, -15.0]], atol=1e-6)
-    noisy = solve_doppler_toa_cls(simulate(scenario, seed=0), rows="per-frame")
-    assert noisy.gtrs.hard_case and len(noisy.candidates_m) == 2
+    paper = make_estimator("cls-paper")
+    exact = paper.estimate(noise_free(scenario))
+    info = exact.diagnostics
+    assert info["rank"] == 2 and info["hard_case"] and info["multiplier"] == 0.0
+    assert np.allclose(
+        sorted(exact.candidates_m.tolist()), [[35.0, -15.0], [35.0, 15.0]], atol=1e-6
+    )
+    system = paper.constrained_ls(simulate(scenario, seed=0))
+    noisy = solve_gtrs(system.A, system.b)
+    assert noisy.hard_case and len(noisy.points) == 2
     assert noisy.costs[0] == pytest.approx(noisy.costs[1], rel=1e-12)
     assert "rank 2, hard case True, lambda* = 0" in PAGE
 

@@ -2,17 +2,17 @@
 for non-cooperative emitters (§15).
 
 Estimators: ``cls`` (:class:`Cls`), ``cls-paper`` (:class:`ClsPaper`), ``cls-as-printed``
-(:class:`ClsAsPrinted`). The rows are built in :mod:`~estimators.closed_form.cls_rows` (§3-§4),
-the GTRS solved exactly in :mod:`~estimators.closed_form.gtrs` (§5), weighted in
-:mod:`~estimators.closed_form.cls` (§6), and vectorised over trials in
-:mod:`~estimators.closed_form.cls_batch` and :mod:`~estimators.closed_form.gtrs_batch`.
+(:class:`ClsAsPrinted`). The rows (§3-§4) and their weighting (§6) are built for every trial
+at once in :mod:`~estimators.closed_form.cls_batch`, and the GTRS (§5) solved exactly for every
+trial at once in :mod:`~estimators.closed_form.gtrs_batch`; :func:`solve_gtrs` is its batch of
+one for a given system, :func:`cls_rows` one trial's rows.
 With an unknown emission time (§15) the pseudo-range form,
 :mod:`~estimators.closed_form.pseudorange_cls`, and its indefinite GTRS,
 :mod:`~estimators.closed_form.gtrs_indefinite`, are likewise vectorised over trials.
 The reference path is the batch: ``Cls.estimate`` is the batch of one trial.
 """
 
-from estimators.closed_form.cls import Cls, ClsAsPrinted, ClsPaper, solve_doppler_toa_cls
+from estimators.closed_form.cls import Cls, ClsAsPrinted, ClsPaper, cls_rows
 from estimators.closed_form.cls_rows import LocalFrame, doppler_rows, toa_rows
 from estimators.closed_form.constrained_ls import ConstrainedLS
 from estimators.closed_form.gtrs import solve_gtrs
@@ -25,8 +25,8 @@ __all__ = [
     "ClsPaper",
     "ConstrainedLS",
     "LocalFrame",
+    "cls_rows",
     "doppler_rows",
-    "solve_doppler_toa_cls",
     "solve_gtrs",
     "solve_gtrs_indefinite_batch",
     "solve_pseudorange_batch",

@@ -1,6 +1,6 @@
 r"""The closed-form Doppler-ToA constrained least squares (MATH §3-§6) and the paper's versions.
 
-Three estimators share one pipeline, :func:`solve_doppler_toa_cls`:
+Three estimators share one pipeline, the vectorised solve of :mod:`estimators.closed_form.cls_batch`:
 
 ``cls`` (:class:`Cls`)
     The corrected method: one Doppler·range row per sample (§3), squared-range rows with the
@@ -56,55 +56,25 @@ from estimators.base import (
     require_batch,
     require_modalities,
 )
-from estimators.batch import BatchEstimates, check_rngs
-from estimators.closed_form.cls_batch import estimate_columns, estimate_trial
+from estimators.batch import BatchEstimates
+from estimators.closed_form.cls_batch import estimate_columns, estimate_trial, system_of_trial
 from estimators.closed_form.cls_rows import (
     LocalFrame,
-    carrier_offset_column,
-    doppler_rows,
-    doppler_rows_as_printed,
-    frame_mean_rows,
-    horizontal_speed_mps,
-    paper_row_scale_m2ps2,
     project_out,
-    sample_pair_covariance,
-    toa_rows,
-    whiten_sample_pairs,
 )
 from estimators.closed_form.constrained_ls import ConstrainedLS
-from estimators.closed_form.gtrs import GtrsSolution, solve_gtrs
 from estimators.closed_form.pseudorange_cls import (
     OffsetMethod,
     estimate_pseudorange_columns,
     solve_pseudorange_cls,
 )
 from estimators.goodness_of_fit import FIT_KEYS, fit_of, with_fit, with_fit_columns
-from scenarios import measurement_model as model
 from scenarios.geometry import straight_track_line
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
 Rows = Literal["weighted", "per-sample", "per-frame", "as-printed"]
 Frames = Literal["all", "last"]
-
-
-@dataclass(frozen=True, slots=True, eq=False)
-class ClsSolution:
-    """Minimisers in world coordinates with the GTRS diagnostics of the last stage.
-
-    ``A``, ``b`` are the rows of the last stage in ``frame``: the system ``gtrs`` solves. With
-    an unknown carrier offset (MATH §15) they are the rows with δ projected out, and
-    ``carrier_offset_hz`` holds δ's least-squares value at each candidate.
-    """
-
-    candidates_m: FloatArray
-    costs: FloatArray
-    gtrs: GtrsSolution
-    frame: LocalFrame
-    stages: int
-    A: FloatArray
-    b: FloatArray
-    carrier_offset_hz: FloatArray | None = None
 
 
 def cls_rows(
@@ -114,173 +84,24 @@ def cls_rows(
     *,
     weights_at_local_xy: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray]:
-    """The stacked system ``B⁺ r = p⁺`` of MATH §5 in the local frame, for one row variant.
+    """The stacked system ``B⁺ r = p⁺`` of MATH §5 in ``frame``, for one row variant: the rows
+    the solver sums (:func:`~estimators.closed_form.cls_batch.system_of_trial`).
 
-    ``weighted``: per-sample Doppler and ToA rows, whitened per sample with
-    the MATH §6 covariances evaluated at the measured ``(r_k, f_k)`` or, when
-    ``weights_at_local_xy`` is given, at that estimate. The unweighted variants rescale the
-    Doppler rows so the objective is the SI-unit one of the paper. With an unknown carrier
-    offset in ``data.unknowns`` the system has a fourth column, δ's (MATH §15), which
-    :func:`solve_doppler_toa_cls` projects out.
+    ``weighted``: per-sample Doppler and ToA rows, whitened per sample with the MATH §6
+    covariances evaluated at the measured ``(r_k, f_k)`` or, when ``weights_at_local_xy`` is
+    given, at that estimate. The unweighted variants keep the SI-unit objective of the paper
+    (MATH §3, "Row scale in the unweighted system"). With an unknown carrier offset in
+    ``data.unknowns`` (``weighted`` and ``per-sample`` rows) δ's column is projected out
+    (MATH §15).
     """
-    position = frame.positions(data.position_m)
-    range_local = data.range_m / frame.scale_m
-    height = data.emitter_height_m / frame.scale_m
-    gamma = data.gamma_per_m
-    if rows == "as-printed":
-        A_d, b_d = doppler_rows_as_printed(
-            data.frame, position, data.velocity_mps, range_local, data.doppler_hz, gamma
-        )
-        A_t, b_t = toa_rows(position, range_local, height, height_term=False)
-    else:
-        A_d, b_d = doppler_rows(
-            position, data.velocity_mps, range_local, data.doppler_hz, gamma, height
-        )
-        A_t, b_t = toa_rows(position, range_local, height)
-        if "carrier_offset_hz" in data.unknowns and rows != "per-frame":
-            # δ's column, eliminated by the caller (MATH §15)
-            offset = carrier_offset_column(range_local, data.velocity_mps, gamma)
-            A_d, A_t = np.column_stack([A_d, offset]), np.column_stack([A_t, 0.0 * offset])
-        range_sigma = data.noise.toa_s * data.speed_of_light_mps / frame.scale_m
-        if rows == "weighted":
-            if weights_at_local_xy is None:
-                rho, doppler = range_local, data.doppler_hz
-            else:
-                rho = model.slant_range_m(position, weights_at_local_xy, height)
-                doppler = model.doppler_hz(
-                    position, data.velocity_mps, weights_at_local_xy, gamma, height
-                )
-            covariance = sample_pair_covariance(
-                rho,
-                doppler,
-                horizontal_speed_mps(data.velocity_mps),
-                gamma,
-                data.noise.doppler_hz,
-                range_sigma,
-            )
-            return whiten_sample_pairs(A_d, b_d, A_t, b_t, *covariance)
-        if rows == "per-frame":
-            A_d, b_d = frame_mean_rows(data.frame, A_d, b_d)
-    # Unweighted in SI units, a ToA residual in m². In the local frame lengths shrink by L, so a
-    # ToA residual shrinks by L² and a unit-row Doppler residual (metres) by L: the Doppler rows
-    # get the factor 1/L (L in metres), times the row's own SI scale. The per-sample rows keep
-    # the unit scale (a residual in metres); the paper's per-frame row has the scale K|v|², a
-    # residual in m³/s² (MATH §3, "Row scale in the unweighted system").
-    doppler_weight = np.full(len(b_d), 1.0 / frame.scale_m)
-    if rows == "per-frame":
-        doppler_weight *= paper_row_scale_m2ps2(data.frame, data.velocity_mps)
-    return (
-        np.vstack([A_d * doppler_weight[:, None], A_t]),
-        np.concatenate([b_d * doppler_weight, b_t]),
+    A, b, offset, _ = system_of_trial(
+        data,
+        rows,
+        origin_m=frame.origin_m,
+        scale_m=frame.scale_m,
+        weights_at_local_xy=weights_at_local_xy,
     )
-
-
-def solve_doppler_toa_cls(
-    data: MeasurementSet,
-    rows: Rows = "weighted",
-    *,
-    stages: int = 2,
-    hard_case_rtol: float = 1e-10,
-) -> ClsSolution:
-    """Every global minimiser of the Doppler-ToA CLS (MATH §3-§6), in world coordinates.
-
-    ``stages`` applies to ``weighted`` rows: stage 1 weights from the data, stage 2 from the
-    stage-1 estimate (both mirror candidates give the same weights, MATH §6).
-    """
-    frame = LocalFrame.fit(data.position_m, data.range_m)
-
-    def solve(weights_at: FloatArray | None) -> tuple[GtrsSolution, FloatArray, FloatArray, Any]:
-        A, b = cls_rows(data, frame, rows, weights_at_local_xy=weights_at)
-        offset = None
-        if A.shape[1] == 4:  # an unknown carrier offset: eliminate its column (MATH §15)
-            offset = (A[:, :3], b, A[:, 3])
-            A, b = project_out(*offset)
-        return solve_gtrs(A, b, hard_case_rtol=hard_case_rtol), A, b, offset
-
-    solution, A, b, offset = solve(None)
-    n_stages = 1
-    if rows == "weighted":
-        for _ in range(stages - 1):
-            solution, A, b, offset = solve(solution.points[0, :2])
-            n_stages += 1
-    carrier_offset = None
-    if offset is not None:
-        A_full, b_full, column = offset  # δ = cᵀ(b − A r)/‖c‖² at each candidate r
-        carrier_offset = (b_full - solution.points @ A_full.T) @ column / (column @ column)
-    return ClsSolution(
-        candidates_m=frame.to_world(solution.points[:, :2]),
-        costs=solution.costs,
-        gtrs=solution,
-        frame=frame,
-        stages=n_stages,
-        A=A,
-        b=b,
-        carrier_offset_hz=carrier_offset,
-    )
-
-
-def ordered_candidates(
-    candidates: FloatArray, costs: FloatArray, hard_case: bool, data: MeasurementSet
-) -> tuple[FloatArray, FloatArray]:
-    """The candidates and costs handed to :func:`~estimators.base.finalize_estimate`.
-
-    The hard case's two minimisers have equal cost (MATH §5); their computed costs differ only
-    by rounding, so ordering them by cost would let the rounding decide which comes first, and
-    with it which one a tie-break by ``rng`` returns. Instead the point to the left of the last
-    sample's heading comes first, at the smaller cost: the answer is then a function of the
-    data and the generator alone. On a straight track the other point is that one's mirror
-    image (MATH §7), which ``finalize_estimate`` adds; elsewhere both go, at one cost.
-    """
-    if not hard_case or len(candidates) != 2:
-        return candidates, costs
-    velocity = data.velocity_mps[-1]
-    left = np.array([-velocity[1], velocity[0]])
-    if (candidates[0] - candidates[1]) @ left < 0.0:
-        candidates = candidates[::-1]
-    best = np.full(2, np.min(costs))
-    if straight_track_line(data.position_m, data.velocity_mps) is not None:
-        return candidates[:1], best[:1]
-    return candidates, best
-
-
-def _estimate(
-    name: str,
-    rows: Rows,
-    frames: Frames,
-    data: MeasurementSet,
-    rng: np.random.Generator | None,
-    side_prior_m: tuple[float, float] | None,
-    **solve_options,
-) -> Estimate:
-    used = data.select_frames(frames)
-    if "emission_time_s" in used.unknowns:
-        return _estimate_pseudorange(name, used, rng, side_prior_m, **solve_options)
-    solution = solve_doppler_toa_cls(used, rows, **solve_options)
-    gtrs = solution.gtrs
-    candidates, costs = ordered_candidates(
-        solution.candidates_m, solution.costs, gtrs.hard_case, used
-    )
-    return finalize_estimate(
-        name,
-        candidates,
-        costs,
-        used,
-        rng=rng,
-        side_prior_m=side_prior_m,
-        message="hard case: mirror pair (MATH §5)" if gtrs.hard_case else "",
-        diagnostics={
-            "multiplier": gtrs.multiplier,
-            "hard_case": gtrs.hard_case,
-            "rank": gtrs.rank,
-            "stages": solution.stages,
-            "n_samples": used.n_samples,
-            **(
-                {}
-                if solution.carrier_offset_hz is None
-                else {"carrier_offset_hz": float(solution.carrier_offset_hz[0])}
-            ),
-        },
-    )
+    return (A, b) if offset is None else project_out(A, b, offset)
 
 
 def _estimate_pseudorange(
@@ -290,8 +111,9 @@ def _estimate_pseudorange(
     side_prior_m: tuple[float, float] | None,
     offset_method: OffsetMethod = "relaxed",
 ) -> Estimate:
-    """:func:`_estimate` with an unknown emission time: the pseudo-range closed form, an
-    indefinite GTRS (MATH §15, :mod:`estimators.closed_form.pseudorange_cls`)."""
+    """One trial with an unknown emission time: the pseudo-range closed form, an indefinite
+    GTRS (MATH §15, :mod:`estimators.closed_form.pseudorange_cls`), finished by the mirror
+    rule of :func:`~estimators.base.finalize_estimate`."""
     offset_unknown = "carrier_offset_hz" in data.unknowns
     solution = solve_pseudorange_cls(
         data, carrier_offset_unknown=offset_unknown, offset_method=offset_method
@@ -307,7 +129,7 @@ def _estimate_pseudorange(
         return Estimate.failed(
             name, f"pseudo-range closed form: {info['status']} (MATH §15)", **diagnostics
         )
-    candidates, costs = ordered_candidates(
+    candidates, costs = _ordered_candidates(
         solution.candidates_m, solution.costs, bool(info["hard_case"]), data
     )
     notes = ["hard case: mirror pair (MATH §15)"] if info["hard_case"] else []
@@ -328,15 +150,43 @@ def _estimate_pseudorange(
     )
 
 
+def _ordered_candidates(
+    candidates: FloatArray, costs: FloatArray, hard_case: bool, data: MeasurementSet
+) -> tuple[FloatArray, FloatArray]:
+    """The pseudo-range form's candidates and costs handed to the mirror rule.
+
+    The hard case's two minimisers have equal cost (MATH §5); their computed costs differ only
+    by rounding, so ordering them by cost would let the rounding decide which comes first, and
+    with it which one a tie-break by ``rng`` returns. Instead the point to the left of the last
+    sample's heading comes first, at the smaller cost. On a straight track the other point is
+    that one's mirror image (MATH §7), which ``finalize_estimate`` adds; elsewhere both go.
+    """
+    if not hard_case or len(candidates) != 2:
+        return candidates, costs
+    velocity = data.velocity_mps[-1]
+    left = np.array([-velocity[1], velocity[0]])
+    if (candidates[0] - candidates[1]) @ left < 0.0:
+        candidates = candidates[::-1]
+    best = np.full(2, np.min(costs))
+    if straight_track_line(data.position_m, data.velocity_mps) is not None:
+        return candidates[:1], best[:1]
+    return candidates, best
+
+
 def _constrained_ls(rows: Rows, frames: Frames, data: MeasurementSet) -> ConstrainedLS:
-    """The rows whose minimisers :func:`_estimate` returns: the last stage's, frames used."""
+    """The rows whose minimisers ``estimate`` returns: the last stage's, frames used, δ
+    projected out."""
     if "emission_time_s" in data.unknowns:
         raise ValueError(
             "unknowns: with an unknown emission time the CLS is an indefinite GTRS over "
             "(x, y, ρ_j) (MATH §15), not the paraboloid GTRS of §5 that constrained_ls describes"
         )
-    solution = solve_doppler_toa_cls(data.select_frames(frames), rows)
-    return ConstrainedLS.in_frame(solution.A, solution.b, solution.frame)
+    used = data.select_frames(frames)
+    A, b, offset, scale = system_of_trial(used, rows, last_stage=True)
+    if offset is not None:
+        A, b = project_out(A, b, offset)
+    frame = LocalFrame(origin_m=used.position_m[:, :2].mean(axis=0), scale_m=scale)
+    return ConstrainedLS.in_frame(A, b, frame)
 
 
 def _check_options(frames: str, side_prior_m: object) -> None:
@@ -360,14 +210,11 @@ class _Batches:
     (:func:`estimators.closed_form.cls_batch.solve_trials`) with one trial, finished as one
     :class:`Estimate` instead of columns (:func:`~estimators.closed_form.cls_batch.estimate_trial`),
     so a run's row, a batch's column and ``estimate`` of the same trial are the same bits however
-    the trials were chunked or called. :meth:`estimate_one_trial` is the one-trial solver (the
-    eigen-decomposition of MATH §5), to which the batch leaves the trials its rounding bounds
-    cannot decide; the two agree to 1e-9 of the problem's length scale
-    (``tests/estimators/test_cls_batch.py``). With an unknown emission time (MATH §15) the
-    columns are the pseudo-range closed form's, every trial at once
+    the trials were chunked or called; an unknown carrier offset is a column of the same rows,
+    projected out. With an unknown emission time (MATH §15) the columns are the pseudo-range
+    closed form's, every trial at once
     (:func:`~estimators.closed_form.pseudorange_cls.estimate_pseudorange_columns`), and
-    ``estimate`` runs the same solver on a batch of one; with the carrier offset alone every
-    path is the one-trial solver.
+    ``estimate`` runs the same solver on a batch of one.
     """
 
     name: ClassVar[str]
@@ -394,8 +241,8 @@ class _Batches:
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)
         check_rng(rng)
-        if data.unknowns:
-            return self.estimate_one_trial(data, rng=rng)
+        if "emission_time_s" in data.unknowns:
+            return with_fit(self, self._solve_one(data, rng), data)
         return estimate_trial(
             self.name,
             self._rows(),
@@ -403,7 +250,6 @@ class _Batches:
             data,
             rng,
             self.side_prior_m,
-            self._solve_one,
             lambda position: self._fit(data, position),
         )
 
@@ -413,19 +259,11 @@ class _Batches:
         value, dof = fit_of(self, data, position_m)
         return dict(zip(FIT_KEYS, (float(value[0]), int(dof)), strict=True))
 
-    def estimate_one_trial(
-        self, data: MeasurementSet, *, rng: np.random.Generator | None = None
-    ) -> Estimate:
-        """The one-trial solver on ``data`` (class text): ``estimate`` to 1e-9, not to the bit."""
-        require_modalities(self, data)
-        return with_fit(self, self._solve_one(data, rng), data)
-
     def _solve_one(self, data: MeasurementSet, rng: np.random.Generator | None) -> Estimate:
-        return _estimate(
+        """One trial with an unknown emission time (the pseudo-range form, MATH §15)."""
+        return _estimate_pseudorange(
             self.name,
-            self._rows(),
-            self.frames,
-            data,
+            data.select_frames(self.frames),
             rng,
             self.side_prior_m,
             **self._options(data),
@@ -459,12 +297,6 @@ class _Batches:
                 **self._options(batch.geometry),
             )
             return with_fit_columns(self, columns, batch)
-        if batch.geometry.unknowns:  # not vectorised (MATH §15): one trial at a time
-            rngs = check_rngs(rngs, batch.n_trials)
-            return BatchEstimates.from_estimates(
-                self.name,
-                [self.estimate_one_trial(batch.trial(i), rng=rng) for i, rng in enumerate(rngs)],
-            )
         return self._columns(batch, rngs)
 
     def _columns(
@@ -479,7 +311,6 @@ class _Batches:
             batch,
             rngs,
             self.side_prior_m,
-            self._solve_one,
         )
         return with_fit_columns(self, columns, batch)
 

@@ -2,7 +2,7 @@ r"""The closed-form CLS of MATH §3-§6 for a whole :class:`~scenarios.types.Mea
 
 The rows of :mod:`estimators.closed_form.cls_rows`, the two-stage whitening of MATH §6 and the GTRS
 of MATH §5 (:mod:`estimators.closed_form.gtrs_batch`) evaluated for every trial at once, then the
-candidate order of :func:`estimators.closed_form.cls.ordered_candidates` and the mirror rule of
+hard-case pair left of the last heading first (:func:`solve_chunk`) and the mirror rule of
 :func:`~estimators.base.finalize_estimate` (:func:`estimators.batch.finalize_columns`).
 
 Layout: the trials share one geometry, so every per-sample quantity is an array of shape
@@ -18,20 +18,23 @@ frame's origin in metres, ``r`` the ToA ranges, ``f`` the Doppler shifts):
 - ToA (MATH §4): ``[−2X/L, −2Y/L, 1] r = Q/L²`` with ``Q = r² − |X|² − (z − z_s)²``;
 - whitening (MATH §6) with ``λ₁₁ = √N/(γ|v|)``, ``λ₂₁ = 2 r f σ_r²/√N``,
   ``λ₂₂ = √(4r²σ_r² + 2σ_r⁴ − λ₂₁²)`` and ``N = r²σ_f² + f²σ_r² + σ_f²σ_r²`` (metres; the
-  ``l``'s of :func:`~estimators.closed_form.cls_rows.whiten_sample_pairs` are ``λ₁₁/L`` and
+  per-sample 2×2 Cholesky factor of the pair's covariance, in the local frame ``λ₁₁/L`` and
   ``λ/L²``): Doppler ``L[v̂ᵀ, 0]/λ₁₁ · r = P/λ₁₁``, ToA
   ``[−L(2X + c v̂)/λ₂₂, L²/λ₂₂] r = (Q − λ₂₁ P/λ₁₁)/λ₂₂`` with ``c = λ₂₁/λ₁₁``.
 
-Trials whose choices the batch cannot certify (``GtrsBatch.uncertain``, the flags of
-:func:`~estimators.batch.finalize_columns`) are solved one at a time by the caller's
-``solve_one``, with their own generator; every other trial draws ``rng.integers`` exactly
-when and as the one-trial path does, in trial order.
+With an unknown carrier offset δ (MATH §15) the Doppler rows get δ's column
+``r/(γ|v_xy|)`` (whitened with them, so the ToA rows get ``−c·r/(γ|v_xy|)/λ₂₂``), which the GTRS
+projects out (:class:`~estimators.closed_form.gtrs_batch.NormalEquations`).
+
+This is the only implementation of the closed forms: one trial is the batch of one
+(:func:`estimate_trial`). A trial whose GTRS has no finite minimiser is a failed estimate; a
+tie with no side prior draws ``rng.integers`` from the trial's own generator, in trial order.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
 
@@ -47,7 +50,8 @@ from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
 SolveOne = Callable[[MeasurementSet, np.random.Generator | None], Estimate]
-"""The one-trial path: ``estimate(data, rng=rng)`` after the checks the batch made once."""
+"""A one-trial finish: ``estimate(data, rng=rng)`` after the checks the batch made once (the
+pseudo-range form's trials that :func:`~estimators.batch.finalize_columns` cannot decide)."""
 
 CHUNK_ELEMENTS = 131_072
 """Samples × trials per chunk of the vectorised solve: large enough that numpy's per-call
@@ -56,9 +60,7 @@ MAX_CHUNK = 16_384
 """Trials per chunk at most."""
 
 HARD_CASE_MESSAGE = "hard case: mirror pair (MATH §5)"
-SIDE_RTOL = 1e-6
-"""A hard-case pair is ordered by side only when its points differ across the last heading by
-more than this times the frame's scale."""
+FAILED_MESSAGE = "CLS: the GTRS has no finite minimiser (MATH §5); check the data for NaN"
 
 COLLINEAR_RTOL = 1e-13
 """Samples on one line and flying along it to this relative precision: every row of the CLS
@@ -84,10 +86,18 @@ class SharedGeometry:
     collinear: bool
     mean_xy: FloatArray
     column: dict[str, FloatArray]
+    offset_unknown: bool
 
     @classmethod
-    def of(cls, batch: MeasurementBatch | MeasurementSet, frames: str) -> SharedGeometry:
-        """The samples of ``frames`` of a batch's geometry, or of one trial's."""
+    def of(
+        cls,
+        batch: MeasurementBatch | MeasurementSet,
+        frames: str,
+        *,
+        origin_m: FloatArray | None = None,
+    ) -> SharedGeometry:
+        """The samples of ``frames`` of a batch's geometry, or of one trial's; the local
+        frame's origin is their mean horizontal position unless ``origin_m`` is given."""
         geometry = batch.geometry if isinstance(batch, MeasurementBatch) else batch
         used = geometry.select_frames(frames)
         if frames == "last":
@@ -95,7 +105,7 @@ class SharedGeometry:
         else:
             columns = np.arange(geometry.n_samples)
         position = used.position_m
-        origin = position[:, :2].mean(axis=0)
+        origin = position[:, :2].mean(axis=0) if origin_m is None else np.asarray(origin_m)
         offset = position[:, :2] - origin
         spread_sq = float(np.mean(np.sum(offset**2, axis=1)))
         velocity = used.velocity_mps
@@ -141,6 +151,7 @@ class SharedGeometry:
             column=dict(
                 zip(per_sample, np.stack(list(per_sample.values()))[..., None], strict=True)
             ),
+            offset_unknown="carrier_offset_hz" in used.unknowns,
         )
 
     def frame_sums(self, values: FloatArray) -> FloatArray:
@@ -154,8 +165,8 @@ class SolvedTrials:
 
     ``candidates`` (n, 4, 2) holds trial ``i``'s kept candidates in its first
     ``n_candidates[i]`` slots; ``chosen`` is the returned one unless ``draw`` (a tie with no
-    prior: ``rng.integers(n_candidates)`` decides); ``uncertain`` trials are left to the
-    one-trial path (module docstring).
+    prior: ``rng.integers(n_candidates)`` decides); ``failed`` trials have no finite answer.
+    ``carrier_offset_hz`` is δ at the first candidate when it is unknown (MATH §15).
     """
 
     candidates: FloatArray
@@ -163,10 +174,11 @@ class SolvedTrials:
     chosen: NDArray[np.int64]
     draw: NDArray[np.bool_]
     ambiguous: NDArray[np.bool_]
-    uncertain: NDArray[np.bool_]
+    failed: NDArray[np.bool_]
     hard_case: NDArray[np.bool_]
     multiplier: FloatArray
     rank: NDArray[np.int64]
+    carrier_offset_hz: FloatArray | None
 
 
 def solve_trials(
@@ -185,10 +197,11 @@ def solve_trials(
     chosen = np.zeros(n, dtype=np.int64)
     draw = np.zeros(n, dtype=bool)
     ambiguous = np.zeros(n, dtype=bool)
-    uncertain = np.zeros(n, dtype=bool)
+    failed = np.zeros(n, dtype=bool)
     hard = np.zeros(n, dtype=bool)
     multiplier = np.full(n, np.nan)
     rank = np.zeros(n, dtype=np.int64)
+    offset = np.full(n, np.nan) if shared.offset_unknown else None
     chunk = n if n == 1 else int(np.clip(CHUNK_ELEMENTS // max(k, 1), 256, MAX_CHUNK))
     for start in range(0, n, chunk):
         part = slice(start, min(start + chunk, n))
@@ -198,10 +211,9 @@ def solve_trials(
         if single:  # numpy sums one column in another order: solve it as two, keep one
             r, f = np.repeat(r, 2, axis=1), np.repeat(f, 2, axis=1)
         with np.errstate(all="ignore"):
-            world, solution, doubt = solve_chunk(shared, rows, r, f)
+            world, solution = solve_chunk(shared, rows, r, f)
             if single:
-                world, doubt = world[:1], doubt[:1]
-                solution = solution.first()
+                world, solution = world[:1], solution.first()
             # on a straight track the hard case hands over its left point only: the other is
             # that one's mirror image, which the mirror rule adds (cls.ordered_candidates)
             count = solution.count
@@ -221,26 +233,33 @@ def solve_trials(
         chosen[part] = final.chosen
         draw[part] = final.draw
         ambiguous[part] = final.ambiguous
-        uncertain[part] = solution.uncertain | doubt | final.uncertain
+        failed[part] = solution.failed
         hard[part] = solution.hard_case
         multiplier[part] = solution.multiplier
         rank[part] = solution.rank
-    return SolvedTrials(kept, n_kept, chosen, draw, ambiguous, uncertain, hard, multiplier, rank)
+        if offset is not None:
+            offset[part] = solution.nuisance[:, 0]
+    return SolvedTrials(
+        kept, n_kept, chosen, draw, ambiguous, failed, hard, multiplier, rank, offset
+    )
 
 
 def _diagnostics(
     solved: SolvedTrials, rows: str, shared: SharedGeometry
 ) -> dict[str, NDArray[np.generic]]:
-    """The diagnostics columns, in the one-trial path's key order."""
+    """The diagnostics columns."""
     n = len(solved.rank)
-    return {
+    columns: dict[str, NDArray[np.generic]] = {
         "multiplier": solved.multiplier,
         "hard_case": solved.hard_case,
         "rank": solved.rank,
         "stages": np.full(n, 2 if rows == "weighted" else 1, dtype=np.int64),
         "n_samples": np.full(n, shared.used.n_samples, dtype=np.int64),
-        "straight_track": np.full(n, shared.line is not None),
     }
+    if solved.carrier_offset_hz is not None:
+        columns["carrier_offset_hz"] = solved.carrier_offset_hz
+    columns["straight_track"] = np.full(n, shared.line is not None)
+    return columns
 
 
 def estimate_columns(
@@ -250,7 +269,6 @@ def estimate_columns(
     batch: MeasurementBatch,
     rngs: Sequence[np.random.Generator | None] | None,
     side_prior_m: tuple[float, float] | None,
-    solve_one: SolveOne,
 ) -> BatchEstimates:
     """The CLS estimates of every trial of ``batch``, as columns (see module docstring)."""
     n = batch.n_trials
@@ -260,24 +278,21 @@ def estimate_columns(
     ranges = speed_of_light * batch.toa_s[:, shared.columns]
     doppler = batch.doppler_hz[:, shared.columns]
     solved = solve_trials(shared, rows, ranges, doppler, side_prior_m)
-    chosen, uncertain = solved.chosen, solved.uncertain
-    redo, recomputed = draw_and_redo(
-        name, solve_one, batch, generators, uncertain, solved.draw, solved.n_candidates, chosen
-    )
+    chosen = solved.chosen
+    draw_tie_breaks(generators, solved.draw & ~solved.failed, solved.n_candidates, chosen)
     position = solved.candidates[np.arange(n), np.minimum(chosen, 3)]
-    ok = ~uncertain
-    columns = BatchEstimates(
+    ok = ~solved.failed
+    return BatchEstimates(
         estimator=name,
         position_m=np.where(ok[:, None], position, np.nan),
-        candidates_m=solved.candidates,
+        candidates_m=np.where(ok[:, None, None], solved.candidates, np.nan),
         n_candidates=np.where(ok, solved.n_candidates, 0),
         ambiguous=solved.ambiguous & ok,
         success=ok.copy(),
-        message_code=np.where(solved.hard_case & ok, 1, 0).astype(np.int64),
-        messages=("", HARD_CASE_MESSAGE),
+        message_code=np.where(ok, np.where(solved.hard_case, 1, 0), 2).astype(np.int64),
+        messages=("", HARD_CASE_MESSAGE, FAILED_MESSAGE),
         diagnostics=_diagnostics(solved, rows, shared),
     )
-    return columns.with_trials(redo, recomputed)
 
 
 def estimate_trial(
@@ -287,7 +302,6 @@ def estimate_trial(
     data: MeasurementSet,
     rng: np.random.Generator | None,
     side_prior_m: tuple[float, float] | None,
-    solve_one: SolveOne,
     fit: Callable[[FloatArray], dict[str, Any]],
 ) -> Estimate:
     """:func:`estimate_columns` of one trial, ``data``, as its :class:`Estimate`: the same
@@ -296,22 +310,17 @@ def estimate_trial(
     shared = SharedGeometry.of(data, frames)
     ranges = shared.used.speed_of_light_mps * data.toa_s[shared.columns][None]
     solved = solve_trials(shared, rows, ranges, data.doppler_hz[shared.columns][None], side_prior_m)
-    if solved.uncertain[0]:
-        estimate = _solve_one_safely(name, solve_one, data, rng)
-        if not estimate.success:
-            return estimate
-        return replace(
-            estimate, diagnostics={**estimate.diagnostics, **fit(estimate.position_m[None])}
-        )
+    diagnostics = {
+        key: value[0].item() for key, value in _diagnostics(solved, rows, shared).items()
+    }
+    if solved.failed[0]:
+        return Estimate.failed(name, FAILED_MESSAGE, **diagnostics)
     count = int(solved.n_candidates[0])
     chosen = int(solved.chosen[0])
     if solved.draw[0] and rng is not None:
         chosen = int(rng.integers(count))
     position = solved.candidates[:1, min(chosen, 3)]
     hard = bool(solved.hard_case[0])
-    diagnostics = {
-        key: value[0].item() for key, value in _diagnostics(solved, rows, shared).items()
-    }
     return Estimate(
         estimator=name,
         position_m=position[0],
@@ -320,6 +329,20 @@ def estimate_trial(
         message=HARD_CASE_MESSAGE if hard else "",
         diagnostics={**diagnostics, **fit(position)},
     )
+
+
+def draw_tie_breaks(
+    generators: list[np.random.Generator | None],
+    draw: NDArray[np.bool_],
+    n_kept: NDArray[np.int64],
+    chosen: NDArray[np.int64],
+) -> None:
+    """``chosen[i] = generators[i].integers(n_kept[i])`` for every trial ``i`` that ``draw``s
+    and has a generator, in trial order (``chosen`` updated in place). Trial order matters only
+    when trials share a generator; it is kept all the same."""
+    index = [i for i in np.flatnonzero(draw).tolist() if generators[i] is not None]
+    counts = n_kept[index].tolist()
+    chosen[index] = [generators[i].integers(c) for i, c in zip(index, counts, strict=True)]
 
 
 def draw_and_redo(
@@ -332,26 +355,17 @@ def draw_and_redo(
     n_kept: NDArray[np.int64],
     chosen: NDArray[np.int64],
 ) -> tuple[NDArray[np.int64], list[Estimate]]:
-    """In trial order: solve the uncertain trials one at a time, and draw the tie-break of the
-    others that need one (``chosen`` is updated in place). Trial order matters only when
-    trials share a generator; it is kept all the same."""
-    absent = generators.count(None)
-    if absent in (0, len(generators)):
-        has_generator = np.full(len(generators), absent == 0)
-    else:
-        has_generator = np.array([g is not None for g in generators], dtype=bool)
-    drawing = draw & has_generator & ~uncertain
+    """In trial order: finish the ``uncertain`` trials one at a time with ``solve_one``, and
+    draw the tie-break of the others that need one (``chosen`` is updated in place)."""
     redo = np.flatnonzero(uncertain)
     if redo.size == 0:
-        index = np.flatnonzero(drawing).tolist()
-        counts = n_kept[index].tolist()
-        chosen[index] = [generators[i].integers(c) for i, c in zip(index, counts, strict=True)]
+        draw_tie_breaks(generators, draw, n_kept, chosen)
         return redo, []
     recomputed = []
-    for i in np.flatnonzero(uncertain | drawing).tolist():
+    for i in np.flatnonzero(uncertain | draw).tolist():
         if uncertain[i]:
             recomputed.append(_solve_one_safely(name, solve_one, batch.trial(i), generators[i]))
-        else:
+        elif generators[i] is not None:
             chosen[i] = generators[i].integers(n_kept[i])
     return redo, recomputed
 
@@ -359,11 +373,67 @@ def draw_and_redo(
 def _solve_one_safely(
     name: str, solve_one: SolveOne, data: MeasurementSet, rng: np.random.Generator | None
 ) -> Estimate:
-    """The one-trial path; an exception becomes a failed estimate, as a run records it."""
+    """``solve_one``; an exception becomes a failed estimate, as a run records it."""
     try:
         return solve_one(data, rng)
     except Exception as error:
         return Estimate.failed(name, f"{type(error).__name__}: {error}")
+
+
+def system_of_trial(
+    data: MeasurementSet,
+    rows: str,
+    *,
+    origin_m: FloatArray | None = None,
+    scale_m: float | None = None,
+    weights_at_local_xy: FloatArray | None = None,
+    last_stage: bool = False,
+) -> tuple[FloatArray, FloatArray, FloatArray | None, float]:
+    """The stacked rows ``A`` (m, 3), ``b`` (m,) of one trial (``data``, every sample) in its
+    local frame, as the solver sums them, δ's column (m,) or None, and the frame's scale.
+
+    The frame is the solver's (centred on the samples, scaled by the RMS of their spread and
+    ranges) unless ``origin_m`` and ``scale_m`` are given. ``weighted`` rows are whitened at the
+    measurements, at ``weights_at_local_xy``, or (``last_stage``) at the stage-1 estimate: the
+    system whose minimisers ``estimate`` returns.
+    """
+    shared = SharedGeometry.of(data, "all", origin_m=origin_m)
+    r = (shared.used.speed_of_light_mps * data.toa_s)[:, None]
+    f = data.doppler_hz[:, None]
+    if scale_m is None:
+        scale = np.sqrt(shared.spread_sq + np.mean(r * r, axis=0))
+        scale = np.where(scale > 0.0, scale, 1.0)
+    else:
+        scale = np.array([float(scale_m)])
+    rows_of = RowsOfChunk(shared, r, f, scale)
+    weights_at = None
+    if weights_at_local_xy is not None:
+        weights_at = tuple(np.asarray(weights_at_local_xy, dtype=float).reshape(2, 1))
+    elif last_stage and rows == "weighted":
+        with np.errstate(all="ignore"):
+            first = solve_gtrs_batch(rows_of.blocks(rows), 1)
+        pick = _left_first(shared, first)
+        weights_at = (first.x[:1, pick[0]], first.y[:1, pick[0]])
+    blocks = rows_of.blocks(rows, weights_at=weights_at)
+
+    def column(values: FloatArray | None, n_rows: int) -> FloatArray:
+        if values is None:
+            return np.zeros(n_rows)
+        return np.broadcast_to(values, (n_rows, 1))[:, 0]
+
+    A = np.concatenate(
+        [
+            np.column_stack(
+                [column(b.ax, b.n_rows), column(b.ay, b.n_rows), column(b.az, b.n_rows)]
+            )
+            for b in blocks
+        ]
+    )
+    b = np.concatenate([block.b[:, 0] for block in blocks])
+    offset = None
+    if any(block.ac is not None for block in blocks):
+        offset = np.concatenate([column(block.ac, block.n_rows) for block in blocks])
+    return A, b, offset, float(scale[0])
 
 
 def _ordered_costs(solution: GtrsBatch) -> FloatArray:
@@ -374,32 +444,33 @@ def _ordered_costs(solution: GtrsBatch) -> FloatArray:
 
 def solve_chunk(
     shared: SharedGeometry, rows: str, r: FloatArray, f: FloatArray
-) -> tuple[FloatArray, GtrsBatch, NDArray[np.bool_]]:
-    """World candidates (n, 2, 2) in the one-trial path's order, the solution and doubts."""
-    used = shared.used
-    n = r.shape[1]
+) -> tuple[FloatArray, GtrsBatch]:
+    """World candidates (n, 2, 2), a hard-case pair left of the last heading first, and the
+    solution of the last stage (its ``x, y`` and ``nuisance`` in the same order)."""
     scale = np.sqrt(shared.spread_sq + np.mean(r * r, axis=0))
     scale = np.where(scale > 0.0, scale, 1.0)
     rows_of = RowsOfChunk(shared, r, f, scale)
     deficient = shared.collinear
+    n = r.shape[1]
     solution = solve_gtrs_batch(
         rows_of.blocks(rows), n, rank=rows != "weighted", rank_deficient=deficient
     )
-    doubt = solution.uncertain.copy()
     if rows == "weighted":
-        # stage 2: weights at the stage-1 estimate, ``points[0]`` (MATH §6). On a straight
-        # track both mirror candidates give the same weights; elsewhere which of the pair is
-        # first is the one-trial path's eigenvector sign, so a pair is left to it
-        if not shared.collinear:
-            doubt |= solution.hard_case
-        local_x, local_y = solution.x[:, 0], solution.y[:, 0]
+        # stage 2: weights at the stage-1 estimate (MATH §6); of a hard-case pair, at the point
+        # left of the last heading (on a straight track both give the same weights)
+        first = _left_first(shared, solution)
+        local_x, local_y = solution.x[np.arange(n), first], solution.y[np.arange(n), first]
         solution = solve_gtrs_batch(
             rows_of.blocks(rows, weights_at=(local_x, local_y)),
             n,
             rank=True,
             rank_deficient=deficient,
         )
-        doubt |= solution.uncertain
+    swap = _left_first(shared, solution) == 1
+    for name in ("x", "y", "costs", "nuisance"):
+        values = getattr(solution, name)
+        if values is not None:
+            values[swap] = values[swap, ::-1]
     world = np.stack(
         [
             solution.x * scale[:, None] + shared.origin[0],
@@ -407,14 +478,33 @@ def solve_chunk(
         ],
         axis=-1,
     )
-    # the hard-case pair left of the last heading first (cls.ordered_candidates)
-    velocity = used.velocity_mps[-1]
-    left = np.array([-velocity[1], velocity[0]])
-    across = (world[:, 0] - world[:, 1]) @ left
-    swap = solution.hard_case & (across < 0.0)
-    world[swap] = world[swap, ::-1]
-    doubt |= solution.hard_case & (np.abs(across) <= SIDE_RTOL * scale * np.linalg.norm(left))
-    return world, solution, doubt
+    return world, solution
+
+
+def candidates_of_trial(data: MeasurementSet) -> FloatArray:
+    """The weighted CLS's minimisers of one trial (every sample), before the mirror rule:
+    (1, 2) or, in the hard case, the pair (2, 2), the point left of the last heading first;
+    (0, 2) when the GTRS has no finite minimiser. The same solve as a batch's
+    (:func:`solve_chunk`), for the starts of another estimator."""
+    shared = SharedGeometry.of(data, "all")
+    r = np.repeat((shared.used.speed_of_light_mps * data.toa_s)[:, None], 2, axis=1)
+    f = np.repeat(data.doppler_hz[:, None], 2, axis=1)  # two columns: a batch's sums
+    with np.errstate(all="ignore"):
+        world, solution = solve_chunk(shared, "weighted", r, f)
+    if solution.failed[0]:
+        return np.empty((0, 2))
+    return world[0, : int(solution.count[0])]
+
+
+def _left_first(shared: SharedGeometry, solution: GtrsBatch) -> NDArray[np.int64]:
+    """Which of each hard-case pair lies left of the last heading (0 or 1; 0 off the hard case):
+    the order handed to the mirror rule, so that which point a tie-break returns does not
+    depend on the rounding of the two costs."""
+    velocity = shared.used.velocity_mps[-1]
+    across = (solution.x[:, 0] - solution.x[:, 1]) * -velocity[1] + (
+        solution.y[:, 0] - solution.y[:, 1]
+    ) * velocity[0]
+    return (solution.hard_case & (across < 0.0)).astype(np.int64)
 
 
 class RowsOfChunk:
@@ -435,6 +525,8 @@ class RowsOfChunk:
             + velocity[:, 2] * shared.z
         )
         self.g_sq = shared.offset[:, 0] ** 2 + shared.offset[:, 1] ** 2
+        # δ's column in the Doppler rows, r/(γ|v_xy|) in metres per hertz (MATH §15)
+        self.offset = r / (self.gamma * shared.speed[:, None]) if shared.offset_unknown else None
 
     # -- right-hand sides in metres ---------------------------------------------------------
 
@@ -450,8 +542,9 @@ class RowsOfChunk:
         constant = self.g_sq + ((shared.z - self.height) ** 2 if height_term else 0.0)
         return self.r * self.r - constant[:, None]
 
-    def toa_block(self, *, height_term: bool = True) -> RowBlock:
-        """Unweighted squared-range rows in the local frame (MATH §4)."""
+    def toa_block(self, *, height_term: bool = True, zero_offset: bool = False) -> RowBlock:
+        """Unweighted squared-range rows in the local frame (MATH §4); with ``zero_offset``,
+        δ's column in them (zero: the ranges do not depend on δ)."""
         inv = 1.0 / self.scale
         offset = self.shared.offset
         return RowBlock(
@@ -459,6 +552,7 @@ class RowsOfChunk:
             ay=(-2.0 * offset[:, 1:]) * inv,
             az=np.ones((len(offset), 1)),
             b=self.toa_rhs(height_term=height_term) * (inv * inv),
+            ac=np.zeros((len(offset), 1)) if zero_offset else None,
         )
 
     def blocks(
@@ -475,8 +569,9 @@ class RowsOfChunk:
                     ay=shared.unit[:, 1:] * inv,
                     az=None,
                     b=self.doppler_rhs() * (inv * inv),
+                    ac=None if self.offset is None else self.offset * (inv * inv),
                 ),
-                self.toa_block(),
+                self.toa_block(zero_offset=self.offset is not None),
             ]
         if rows == "per-frame":
             counts = shared.frame_counts[:, None]
@@ -555,6 +650,10 @@ class RowsOfChunk:
         np.divide(1.0, inv22, out=inv22)  # 1/λ₂₂
         beta = self._doppler_rhs_cached * inv11  # whitened Doppler right side
         ratio = np.multiply(l21, inv11, out=root)  # c = λ₂₁/λ₁₁
+        offset_d = offset_t = None
+        if self.offset is not None:  # δ's column, whitened with the Doppler rows (MATH §15)
+            offset_d = self.offset * inv11
+            offset_t = -(l21 * offset_d) * inv22
         weight = np.multiply(inv11, scale, out=inv11)
         toa_b = np.multiply(l21, beta, out=l21)
         np.subtract(self._toa_rhs_cached, toa_b, out=toa_b)
@@ -567,8 +666,10 @@ class RowsOfChunk:
         toa_y += column["-2y"]
         toa_y *= toa_weight
         return [
-            RowBlock(ax=column["ux"] * weight, ay=column["uy"] * weight, az=None, b=beta),
-            RowBlock(ax=toa_x, ay=toa_y, az=toa_weight * scale, b=toa_b),
+            RowBlock(
+                ax=column["ux"] * weight, ay=column["uy"] * weight, az=None, b=beta, ac=offset_d
+            ),
+            RowBlock(ax=toa_x, ay=toa_y, az=toa_weight * scale, b=toa_b, ac=offset_t),
         ]
 
     @cached_property

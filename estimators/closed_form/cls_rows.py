@@ -1,9 +1,12 @@
-r"""The rows of the Doppler-ToA constrained least squares (MATH §3, §4, §6).
+r"""The rows of the Doppler-ToA constrained least squares (MATH §3, §4), one trial written plainly.
 
 Unknown ``r = (x_s, y_s, x_s² + y_s²)``. Every function here is pure numpy, vectorised over
-samples, and works in whatever length unit its inputs use: the estimators call them in a local
-frame centred on the track and scaled to order one (:class:`LocalFrame`), which is what makes
-the weighted CLS unit-invariant and keeps the solve well conditioned.
+samples, and works in whatever length unit its inputs use, usually a local frame centred on the
+track and scaled to order one (:class:`LocalFrame`), which keeps the solve well conditioned.
+The closed-form estimators build the same rows for every trial at once, whitened (MATH §6), in
+:mod:`estimators.closed_form.cls_batch`; these one-trial forms are what docs/math.md prints and
+checks step by step, what the LLS baselines solve, and the tests' independent account of the
+rows.
 
 - Doppler·range rows (MATH §3, paper eqs ``gls``-``lineq`` corrected): multiplying the Doppler
   model by the ToA range removes the square root; with the physical sign and known ``z_s``,
@@ -11,10 +14,9 @@ the weighted CLS unit-invariant and keeps the solve well conditioned.
   ``[v̂ᵀ, 0] r`` with ``v̂`` the unit horizontal direction.
 - Squared-range rows (MATH §4, paper eq ``Beq`` with the height term the paper omits):
   ``[−2x_k, −2y_k, 1] r = r_k² − x_k² − y_k² − (z_k − z_s)²``.
-- Exact second moments of the right-hand sides and per-sample whitening (MATH §6).
-- An unknown carrier offset δ (MATH §15) adds the column ``r_k/(γ|v_xy|)`` to the Doppler rows
-  (:func:`carrier_offset_column`); a free linear unknown, it is eliminated exactly by projecting
-  the system onto the orthogonal complement of its column (:func:`project_out`).
+- A free linear unknown (an unknown carrier offset δ, whose column in the Doppler rows is
+  ``r_k/(γ|v_xy|)``, MATH §15) is eliminated exactly by projecting the system onto the
+  orthogonal complement of its column (:func:`project_out`).
 """
 
 from __future__ import annotations
@@ -176,65 +178,6 @@ def doppler_rows_as_printed(
     np.add.at(A, index, rows)
     np.add.at(b, index, rhs)
     return A, b
-
-
-def sample_pair_covariance(
-    range_m: ArrayLike,
-    doppler_hz: ArrayLike,
-    speed_mps: ArrayLike,
-    gamma_per_m: float,
-    doppler_sigma_hz: float,
-    range_sigma_m: float,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Exact second moments of one sample's Doppler and ToA right-hand sides (MATH §6).
-
-    ``var(D) = (ρ²σ_f² + f²σ_r² + σ_f²σ_r²)/(γ|v|)²``, ``var(T) = 4ρ²σ_r² + 2σ_r⁴``,
-    ``cov(D, T) = 2ρ f σ_r²/(γ|v|)`` (physical sign of f). Returns ``(var_D, var_T, cov_DT)``.
-    """
-    rho = np.asarray(range_m, dtype=float)
-    f = np.asarray(doppler_hz, dtype=float)
-    gv = gamma_per_m * np.asarray(speed_mps, dtype=float)
-    sf2, sr2 = doppler_sigma_hz**2, range_sigma_m**2
-    var_d = (rho**2 * sf2 + f**2 * sr2 + sf2 * sr2) / gv**2
-    var_t = 4.0 * rho**2 * sr2 + 2.0 * sr2**2
-    cov_dt = 2.0 * rho * f * sr2 / gv
-    return var_d, var_t, cov_dt
-
-
-def whiten_sample_pairs(
-    A_doppler: FloatArray,
-    b_doppler: FloatArray,
-    A_toa: FloatArray,
-    b_toa: FloatArray,
-    var_d: FloatArray,
-    var_t: FloatArray,
-    cov_dt: FloatArray,
-) -> tuple[FloatArray, FloatArray]:
-    """Whiten each sample's (Doppler, ToA) row pair with its 2×2 Cholesky factor (MATH §6).
-
-    With ``C = L Lᵀ``, ``L = [[l11, 0], [l21, l22]]``, the whitened pair is ``L⁻¹ [D; T]``.
-    Returns ``A`` (2N, 3) and ``b`` (2N,), the Doppler rows first.
-    """
-    l11 = np.sqrt(var_d)
-    l21 = cov_dt / l11
-    l22 = np.sqrt(var_t - l21**2)
-    A_d = A_doppler / l11[:, None]
-    b_d = b_doppler / l11
-    A_t = (A_toa - l21[:, None] * A_d) / l22[:, None]
-    b_t = (b_toa - l21 * b_d) / l22
-    return np.vstack([A_d, A_t]), np.concatenate([b_d, b_t])
-
-
-def carrier_offset_column(
-    range_m: ArrayLike, velocity_mps: ArrayLike, gamma_per_m: float
-) -> FloatArray:
-    """The coefficient of δ in each Doppler row of :func:`doppler_rows` (MATH §15).
-
-    With ``f_k = −γ v_kᵀu_k + δ``, the Doppler·range row becomes
-    ``[v̂_kᵀ, 0] r + (r_k/(γ|v_xy|)) δ = (v_kᵀp_k + r_k f_k/γ − v_z z_s)/|v_xy|``. Returns (N,).
-    """
-    speed = horizontal_speed_mps(velocity_mps)
-    return np.asarray(range_m, dtype=float) / (gamma_per_m * speed)
 
 
 def project_out(A: FloatArray, b: FloatArray, columns: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -1,28 +1,35 @@
-r"""The GTRS of MATH §5 solved for many independent systems at once (one per Monte Carlo trial).
+r"""The GTRS of MATH §5 (paper eq ``finalest``, corrected), solved for many systems at once.
 
-The same mathematics as :func:`estimators.closed_form.gtrs.solve_gtrs`, written over arrays: every
-per-trial scalar is an array of shape ``(n,)`` and the rows of the stacked systems are given
-as :class:`RowBlock` columns of shape ``(R, n)`` (row × trial), so that every operation is
-one numpy call over the whole batch.
+.. math::
 
-- ``M = AᵀA`` and ``q = Aᵀb`` are summed over the rows; the Schur complement
-  ``S = M_xy − m mᵀ/M₃₃`` and its 2×2 eigen-decomposition are closed forms.
-- The hard case (MATH §5) is screened and confirmed as in
-:func:`~estimators.closed_form.gtrs.solve_gtrs`:
-  ``φ(−μ₁) < 0`` without the ``e₁`` term, ``|e₁| ≤ rtol·μ₂·√(−φ(−μ₁))``, and the two points'
-  costs equal to rounding (:func:`equal_to_rounding`, the one rule both solvers use).
+    \min_r \lVert A r - b\rVert^2 \quad\text{s.t.}\quad r_x^2 + r_y^2 - r_z = 0,
+    \qquad r = (x_s, y_s, x_s^2 + y_s^2)
+
+a generalized trust-region subproblem. With ``M = AᵀA``, ``q = Aᵀb``, ``D = diag(1,1,0)`` and
+``g = (0, 0, −½)`` the stationarity condition is ``(M + λD) r = q − λg`` (the paper drops the
+transpose), and the global minimiser is the stationary point with ``M + λD ⪰ 0`` (Moré 1993;
+Beck, Stoica & Li 2008). This is the one implementation: one system
+(:func:`estimators.closed_form.gtrs.solve_gtrs`) is a batch of one.
+
+Every per-system scalar is an array of shape ``(n,)`` and the rows of the stacked systems are
+given as :class:`RowBlock` columns of shape ``(R, n)`` (row × system), so that every operation
+is one numpy call over the whole batch.
+
+- ``M`` and ``q`` are summed over the rows (:func:`~estimators.closed_form.gtrs_rank.row_dot`,
+  whose order does not depend on the batch); eliminating ``r_z`` with the Schur complement
+  ``S = M_xy − m mᵀ/M₃₃`` (``m = M[:2, 2]``), ``S = U diag(μ₁ ≤ μ₂) Uᵀ`` in closed form,
+  ``a = q_xy − m q₃/M₃₃``, ``h = m/(2M₃₃)``, ``ã = Uᵀa``, ``h̃ = Uᵀh``, ``e = ã + μ h̃``:
+  ``ỹ_i(λ) + h̃_i = e_i/(μ_i + λ)`` and
+  ``φ(λ) = Σ e_i²/(μ_i + λ)² − ‖h̃‖² − (q₃ + λ/2)/M₃₃``, strictly decreasing on ``λ > −μ₁``.
+- Hard case, the normal case here (MATH §5): when ``e₁ = 0`` (every single straight frame:
+  ``A`` has rank 2) the pole at ``−μ₁`` disappears. If ``φ(−μ₁)`` without the ``e₁`` term is
+  negative and ``|e₁| ≤ rtol·μ₂·√(−φ(−μ₁))``, ``λ* = −μ₁`` and the minimisers are
+  ``ỹ₁ = −h̃₁ ± √(−φ(−μ₁))``: the emitter and its mirror image across the track, kept as a pair
+  when their costs are equal to rounding (:func:`equal_to_rounding`).
 - Otherwise the root of the secular equation ``φ(−μ₁ + s) = 0`` is found by Newton's method
   from a lower bound of the root. ``φ`` is convex and strictly decreasing in ``s > 0``, so
   every Newton iterate stays below the root and the iterates increase monotonically to it:
-  no bracketing is needed, and only the trials that have not converged are iterated.
-
-Rounding makes a few of these choices undecidable from the batch's own arithmetic: a
-threshold met to within the rounding of the quantities compared (the hard-case screen, the
-equal-cost test, the numerical rank), or a point whose coordinates the rounding of ``φ``
-moves by more than :data:`POSITION_RTOL`. The one-trial solver decides those cases by its own
-rounding, which no other sequence of operations reproduces, so such trials are flagged in
-``uncertain`` and the caller solves them one at a time. Elsewhere the answers agree with the
-one-trial solver's to about ``1e-12`` of the frame's scale.
+  no bracketing is needed, and only the systems that have not converged are iterated.
 """
 
 from __future__ import annotations
@@ -32,14 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from estimators.closed_form.gtrs_rounding import (
-    RANK_RTOL,
-    Magnitudes,
-    RoundingBounds,
-    numerical_rank,
-    root_point_error,
-    row_dot,
-)
+from estimators.closed_form.gtrs_rank import RANK_RTOL, numerical_rank, row_dot
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -48,14 +48,6 @@ IntArray = NDArray[np.int64]
 EPS = float(np.finfo(float).eps)
 TINY = float(np.finfo(float).tiny)
 
-POSITION_RTOL = 1e-10
-"""Largest rounding error of a point, relative to the local frame's unit length, that the
-batch accepts; a trial whose error bound is larger is ``uncertain``."""
-
-DECISION_MARGIN = 8.0
-"""A quantity must clear its threshold by this factor (or by this many rounding errors) for
-the batch to take the same branch as the one-trial solver without solving it again."""
-
 NEWTON_ITERATIONS = 100
 
 
@@ -63,13 +55,16 @@ NEWTON_ITERATIONS = 100
 class RowBlock:
     """Rows ``[ax, ay, az] r = b`` of many systems: arrays of shape (R, n) or (R, 1).
 
-    ``az=None`` is a zero third column (the Doppler rows of MATH §3).
+    ``az=None`` is a zero third column (the Doppler rows of MATH §3). ``ac`` is the column of
+    a free linear unknown ``t`` (an unknown carrier offset, MATH §15), ``[ax, ay, az] r + ac t
+    = b``, which the solver projects out: ``None`` when there is none.
     """
 
     ax: FloatArray
     ay: FloatArray
     az: FloatArray | None
     b: FloatArray
+    ac: FloatArray | None = None
 
     @property
     def n_rows(self) -> int:
@@ -83,7 +78,7 @@ class RowBlock:
                 return column
             return np.ascontiguousarray(column[:, index])  # (fancy indexing gives F order)
 
-        return RowBlock(pick(self.ax), pick(self.ay), pick(self.az), pick(self.b))
+        return RowBlock(pick(self.ax), pick(self.ay), pick(self.az), pick(self.b), pick(self.ac))
 
     def residual(self, x: FloatArray, y: FloatArray) -> FloatArray:
         """``A r − b`` at ``r = (x, y, x² + y²)`` for each system, shape (R, n)."""
@@ -97,7 +92,13 @@ class RowBlock:
 
 @dataclass(frozen=True, slots=True, eq=False)
 class NormalEquations:
-    """``M = AᵀA`` (its six entries), ``q = Aᵀb``, ``‖b‖²`` and the row count, per system."""
+    """``M = AᵀA`` (its six entries), ``q = Aᵀb``, ``‖b‖²`` and the row count, per system.
+
+    With a free unknown's column ``c`` in the rows (:attr:`RowBlock.ac`) these are of the rows
+    projected off ``c`` (MATH §15): ``M − m_c m_cᵀ/‖c‖²``, ``q − m_c (cᵀb)/‖c‖²``,
+    ``‖b‖² − (cᵀb)²/‖c‖²`` with ``m_c = Aᵀc``; ``nuisance`` keeps ``(m_c, cᵀb, ‖c‖²)`` (the
+    sums ``c1, c2, c3, cb, cc``) for the unknown's value at a point, :meth:`nuisance_at`.
+    """
 
     m11: FloatArray
     m12: FloatArray
@@ -110,6 +111,7 @@ class NormalEquations:
     q3: FloatArray
     bb: FloatArray
     n_rows: int
+    nuisance: dict[str, FloatArray] | None = None
 
     @classmethod
     def of(cls, blocks: list[RowBlock], n: int) -> NormalEquations:
@@ -138,12 +140,35 @@ class NormalEquations:
                     ("q3", az, b),
                 ):
                     add(key, left, right)
+            if block.ac is not None:
+                for key, left in (("c1", ax), ("c2", ay), ("c3", az), ("cb", b), ("cc", block.ac)):
+                    if left is not None:
+                        add(key, left, block.ac)
         zero = np.zeros(n)
         keys = ("m11", "m12", "m13", "m22", "m23", "m33", "q1", "q2", "q3", "bb")
-        return cls(
-            **{key: sums.get(key, zero) for key in keys},
-            n_rows=sum(block.n_rows for block in blocks),
-        )
+        values = {key: sums.get(key, zero) for key in keys}
+        nuisance = None
+        if "cc" in sums:
+            nuisance = {key: sums.get(key, zero) for key in ("c1", "c2", "c3", "cb", "cc")}
+            inv = 1.0 / nuisance["cc"]
+            column = {"1": nuisance["c1"], "2": nuisance["c2"], "3": nuisance["c3"]}
+            for i, j in (("1", "1"), ("1", "2"), ("1", "3"), ("2", "2"), ("2", "3"), ("3", "3")):
+                values[f"m{i}{j}"] = values[f"m{i}{j}"] - column[i] * column[j] * inv
+            for i in ("1", "2", "3"):
+                values[f"q{i}"] = values[f"q{i}"] - column[i] * nuisance["cb"] * inv
+            values["bb"] = values["bb"] - nuisance["cb"] * nuisance["cb"] * inv
+        return cls(**values, n_rows=sum(block.n_rows for block in blocks), nuisance=nuisance)
+
+    def nuisance_at(self, x: FloatArray, y: FloatArray) -> FloatArray:
+        """The free unknown's least-squares value ``cᵀ(b − A r)/‖c‖²`` at ``r = (x, y, x² +
+        y²)`` (x, y of shape (n, k)); NaN where the point is."""
+        c = self.nuisance
+        if c is None:
+            raise ValueError("the rows have no free unknown's column")
+        z = x * x + y * y
+        return (
+            c["cb"][:, None] - c["c1"][:, None] * x - c["c2"][:, None] * y - c["c3"][:, None] * z
+        ) / c["cc"][:, None]
 
     @property
     def trace(self) -> FloatArray:
@@ -175,9 +200,12 @@ class GtrsBatch:
     hard_case : (n,)
     rank : (n,)
         Numerical rank of ``A`` (``-1`` when not asked for).
-    uncertain : (n,)
-        A choice within rounding of its threshold, or a point whose rounding error may exceed
-        :data:`POSITION_RTOL`: solve these systems one at a time.
+    failed : (n,)
+        No finite minimiser: non-finite rows, no ToA row (``M₃₃ = 0``), or a secular equation
+        whose iteration failed.
+    nuisance : (n, 2) or None
+        The free unknown's value at each point (:meth:`NormalEquations.nuisance_at`), when the
+        rows have its column.
     """
 
     x: FloatArray
@@ -187,16 +215,17 @@ class GtrsBatch:
     multiplier: FloatArray
     hard_case: BoolArray
     rank: IntArray
-    uncertain: BoolArray
+    failed: BoolArray
+    nuisance: FloatArray | None = None
 
     def first(self) -> GtrsBatch:
         """The first system alone."""
-        return GtrsBatch(**{name: getattr(self, name)[:1] for name in self.__slots__})
-
-    def replace_trials(self, index: IntArray, other: GtrsBatch) -> None:
-        """Overwrite trials ``index`` with ``other``'s (in place; the arrays are owned)."""
-        for name in ("x", "y", "count", "costs", "multiplier", "hard_case", "rank", "uncertain"):
-            getattr(self, name)[index] = getattr(other, name)
+        return GtrsBatch(
+            **{
+                name: None if getattr(self, name) is None else getattr(self, name)[:1]
+                for name in self.__slots__
+            }
+        )
 
 
 def eigen_2x2(
@@ -306,70 +335,32 @@ def solve_gtrs_batch(
 ) -> GtrsBatch:
     """Every global minimiser of ``‖A r − b‖²`` s.t. ``r_x² + r_y² = r_z`` for ``n`` systems.
 
-    The systems are the columns of ``blocks``; see :func:`estimators.closed_form.gtrs.solve_gtrs`
-    for the method and ``hard_case_rtol``. ``rank=True`` also computes the numerical rank of each
-    ``A`` (:func:`~estimators.closed_form.gtrs_rounding.numerical_rank`). The rounding bounds behind
-    ``uncertain`` are first the free Cauchy-Schwarz ones; the systems they leave in doubt are
-    solved again with the sums of magnitudes
-    (:class:`~estimators.closed_form.gtrs_rounding.Magnitudes`).
+    The systems are the columns of ``blocks`` (see the module docstring for the method).
+    ``hard_case_rtol``: the hard case is considered when the root of φ would lie within
+    ``hard_case_rtol · μ₂`` of the pole ``−μ₁``, and declared only if the two points of the
+    null line then have costs equal to rounding (:func:`equal_to_rounding`; they differ by
+    ``4|e₁|√(−φ(−μ₁))``); otherwise the unique root is returned. ``rank=True`` also computes
+    the numerical rank of each ``A`` (:func:`~estimators.closed_form.gtrs_rank.numerical_rank`);
+    ``rank_deficient=True`` states that every ``A`` has a null vector up to rounding (one
+    straight track). A system without a finite minimiser (non-finite rows, no ToA row, a
+    secular equation whose Newton iteration fails) is flagged in ``failed``.
     """
     with np.errstate(all="ignore"):
-        want_rank = "deficient" if rank and rank_deficient else rank
-        solution = _solve(blocks, n, hard_case_rtol, want_rank, tight=False)
-        doubt = np.flatnonzero(solution.uncertain & np.isfinite(solution.multiplier))
-        if doubt.size:
-            sub = take_systems(blocks, doubt, n)
-            again = _solve(sub, doubt.size, hard_case_rtol, want_rank, tight=True)
-            solution.replace_trials(doubt, again)
-        return solution
+        return _solve(blocks, n, hard_case_rtol, "deficient" if rank and rank_deficient else rank)
 
 
-def _solve(
-    blocks: list[RowBlock], n: int, rtol: float, want_rank: bool | str, tight: bool
-) -> GtrsBatch:
+def _solve(blocks: list[RowBlock], n: int, rtol: float, want_rank: bool | str) -> GtrsBatch:
     ne = NormalEquations.of(blocks, n)
     sp = Spectrum.of(ne)
-    mag = Magnitudes.of(blocks, n) if tight else Magnitudes.bound(ne)
-    err = RoundingBounds.of(ne, mag, sp)
     finite = np.isfinite(ne.trace) & np.isfinite(ne.q1 + ne.q2 + ne.q3 + ne.bb) & (ne.m33 > 0.0)
-    uncertain = ~finite
+    failed = ~finite
     mu_scale = np.maximum(np.abs(sp.mu2), TINY)
     gap_safe = np.where(sp.gap > 0.0, sp.gap, 1.0)
 
-    # hard-case screen (MATH §5): φ(−μ₁) < 0 and |e₁| ≤ rtol·μ₂·√(−φ(−μ₁)). It needs
-    # |e₂| < gap·√base and |e₁| ≤ rtol·μ₂·√base, so ‖e‖ = ‖a + S h‖, which no choice of basis
-    # changes, rules it out beyond that (an isotropic S, say, whose eigenbasis is arbitrary)
+    # hard-case screen (MATH §5): φ(−μ₁) < 0 and |e₁| ≤ rtol·μ₂·√(−φ(−μ₁))
     negative = sp.phi_pole < 0.0
     width = np.sqrt(np.where(negative, -sp.phi_pole, 0.0))
-    # the hard-case points have |ỹ₁ + h̃₁| = width and |ỹ₂ + h̃₂| = |e₂|/gap, both ≤ √base
-    reach_y = np.sqrt(np.maximum(sp.base, 0.0))
-    pole_y1 = np.abs(sp.h_t1) + width
-    pole_y2 = np.abs(sp.h_t2) + np.minimum(np.abs(sp.e2) / gap_safe, reach_y)
-    err_e1, err_e2 = err.rotated(sp, *err.e(sp, pole_y1, pole_y2))
-    root_e2 = np.sqrt(sp.second_at_pole)
-    err_gap = err.s11 + err.s22
-    err_phi_pole = (
-        err.base
-        + 2.0 * root_e2 * (err_e2 + root_e2 * err_gap) / gap_safe
-        + 4.0 * EPS * sp.second_at_pole
-    )
-    err_width = err_phi_pole / (2.0 * np.maximum(width, TINY))
-    threshold = rtol * mu_scale * width
-    err_threshold = rtol * (mu_scale * err_width + err.s22 * width)
-    screen = negative & (np.abs(sp.e1) <= threshold) & finite
-    margin = DECISION_MARGIN
-    reach_e = np.sqrt(np.maximum(sp.base + margin * err.base, 0.0)) * (
-        sp.gap + margin * err_gap + rtol * (mu_scale + margin * err.s22)
-    )
-    point_e1, point_e2 = err.e(sp, pole_y1, pole_y2)
-    possibly_hard = finite & (np.hypot(sp.e1, sp.e2) - margin * (point_e1 + point_e2) <= reach_e)
-    uncertain |= possibly_hard & ~(sp.gap > 0.0)
-    uncertain |= possibly_hard & (np.abs(sp.phi_pole) <= margin * err_phi_pole)
-    uncertain |= (
-        possibly_hard
-        & negative
-        & (np.abs(np.abs(sp.e1) - threshold) <= margin * (err_e1 + err_threshold))
-    )
+    screen = negative & (np.abs(sp.e1) <= rtol * mu_scale * width) & finite
 
     x = np.full((n, 2), np.nan)
     y = np.full((n, 2), np.nan)
@@ -381,8 +372,7 @@ def _solve(
     idx = np.flatnonzero(screen)
     if idx.size:
         sub = sp.take(idx)
-        g = gap_safe[idx]
-        y2 = sub.e2 / g - sub.h_t2
+        y2 = sub.e2 / gap_safe[idx] - sub.h_t2
         w = width[idx]
         px = np.empty((idx.size, 2))
         py = np.empty((idx.size, 2))
@@ -391,19 +381,11 @@ def _solve(
         rows = take_systems(blocks, idx, n)
         pair_costs = np.column_stack([_cost(rows, px[:, j], py[:, j]) for j in range(2)])
         norms = np.sqrt(px**2 + py**2 + (px**2 + py**2) ** 2).max(axis=1)
-        equal, doubt = equal_to_rounding(
+        # a small but real e₁ (two headings a few millidegrees apart) passes the screen, yet
+        # the pair's costs then differ by 4|e₁|√(−φ(−μ₁)): the pair only when they are equal
+        equal = equal_to_rounding(
             pair_costs, norms, np.sqrt(ne.trace[idx]), np.sqrt(ne.bb[idx]), ne.n_rows
         )
-        error = (
-            err_width[idx]
-            + point_e2[idx] / g
-            + np.abs(sub.e2) * err_gap[idx] / g**2
-            + err.h1[idx]
-            + err.h2[idx]
-            + err.turn[idx] * (w + np.abs(y2) + np.abs(sub.h_t1))
-        )
-        reach = 1.0 + np.sqrt(np.max(px**2 + py**2, axis=1))
-        uncertain[idx] |= doubt | (error > POSITION_RTOL * reach)
         keep = idx[equal]
         hard[keep] = True
         x[keep], y[keep], costs[keep] = px[equal], py[equal], pair_costs[equal]
@@ -413,43 +395,23 @@ def _solve(
     idx = np.flatnonzero(finite & ~hard)
     if idx.size:
         sub = sp.take(idx)
-        shift, failed = _secular_root(sub, sp.phi_pole[idx])
+        shift, diverged = _secular_root(sub, sp.phi_pole[idx])
         ratio1 = np.where(shift > 0.0, sub.e1 / np.where(shift > 0.0, shift, 1.0), 0.0)
         den2 = sub.gap + shift
         ratio2 = np.where(den2 > 0.0, sub.e2 / np.where(den2 > 0.0, den2, 1.0), 0.0)
-        y1, y2 = ratio1 - sub.h_t1, ratio2 - sub.h_t2
-        px, py = sub.to_rows(y1, y2)
+        px, py = sub.to_rows(ratio1 - sub.h_t1, ratio2 - sub.h_t2)
         x[idx, 0], y[idx, 0] = px, py
         costs[idx, 0] = _cost(take_systems(blocks, idx, n), px, py)
         multiplier[idx] = shift - sub.mu1
-        sub_err = err.take(idx)
-        e1_err, e2_err = sub_err.e(sub, y1, y2)
-        base_err = sub_err.base + 4.0 * EPS * (
-            ratio1**2 + ratio2**2 + np.abs(sub.base) + shift / sub.m33
-        )
-        move1, move2 = root_point_error(
-            ratio1, ratio2, shift, den2, 0.5 / sub.m33, e1_err, e2_err, base_err
-        )
-        error = move1 + move2 + sub_err.h1 + sub_err.h2
-        # near the pole the first coordinate is ±√(−φ) with the sign of e₁: where e₁ is
-        # rounding, the side (a move of 2|e₁/s|) is the rounding's choice
-        reach = POSITION_RTOL * (1.0 + np.hypot(px, py))
-        sign_in_doubt = (np.abs(sub.e1) <= margin * e1_err) & (2.0 * np.abs(ratio1) > reach)
-        uncertain[idx] |= failed | sign_in_doubt | (error > reach)
+        failed[idx] |= diverged
+    nuisance = None if ne.nuisance is None else ne.nuisance_at(x, y)
 
     ranks = np.full(n, -1, dtype=np.int64)
     if want_rank:
         ranks = numerical_rank(
-            blocks,
-            ne,
-            sp.mu1,
-            sp.mu2,
-            err_gap,
-            _svd_rank,
-            take_systems,
-            deficient=want_rank == "deficient",
+            blocks, ne, sp.mu1, sp.mu2, _svd_rank, take_systems, deficient=want_rank == "deficient"
         )
-    uncertain |= ~np.isfinite(x[:, 0]) | ~np.isfinite(y[:, 0])
+    failed |= ~np.isfinite(x[:, 0]) | ~np.isfinite(y[:, 0]) | ~np.isfinite(costs[:, 0])
     return GtrsBatch(
         x=x,
         y=y,
@@ -458,15 +420,31 @@ def _solve(
         multiplier=multiplier,
         hard_case=hard,
         rank=ranks,
-        uncertain=uncertain,
+        failed=failed,
+        nuisance=nuisance,
     )
 
 
 def _cost(blocks: list[RowBlock], x: FloatArray, y: FloatArray) -> FloatArray:
-    """``‖A r − b‖²`` at ``r = (x, y, x² + y²)``, summed row by row as the one-trial solver."""
+    """``‖A r − b‖²`` at ``r = (x, y, x² + y²)``, summed row by row (:func:`row_dot`); with a
+    free unknown's column ``c``, at its best value ``t = cᵀ(b − A r)/‖c‖²``: the residual
+    ``A r + c t − b`` is formed before it is squared (subtracting ``(cᵀ(A r − b))²/‖c‖²`` from
+    the unprojected cost would lose the digits of a small cost to a large one)."""
+    residuals = [block.residual(x, y) for block in blocks]
+    if any(block.ac is not None for block in blocks):
+        along = np.zeros(x.shape)
+        norm = np.zeros(x.shape)
+        for block, residual in zip(blocks, residuals, strict=True):
+            if block.ac is not None:
+                along += row_dot(block.ac, residual, x.size)
+                norm += row_dot(block.ac, block.ac, x.size)
+        step = along / norm
+        residuals = [
+            residual if block.ac is None else residual - block.ac * step
+            for block, residual in zip(blocks, residuals, strict=True)
+        ]
     total = np.zeros(x.shape)
-    for block in blocks:
-        residual = block.residual(x, y)
+    for residual in residuals:
         total += row_dot(residual, residual, x.size)
     return total
 
@@ -477,24 +455,19 @@ def equal_to_rounding(
     a_norm: FloatArray,
     b_norm: FloatArray,
     n_rows: int,
-) -> tuple[BoolArray, BoolArray]:
-    """Whether each pair's two hard-case costs are equal to the rounding of their evaluation,
-    and whether that answer is in doubt (MATH §5; ``gtrs.solve_gtrs`` uses the same rule).
+) -> BoolArray:
+    """Whether each pair's two hard-case costs are equal to the rounding of their evaluation
+    (MATH §5).
 
     The residual ``A r − b`` is computed with an error up to ``δ = ε √m (‖A‖_F ‖r‖ + ‖b‖)``,
     so a cost ``C`` is known to about ``2 √C δ + δ²``; the pair is equal when its costs differ
     by at most 16 times that plus a relative ``1e-12``. On exactly straight frames the gap stays
-    below that rounding term. The gap ``max − min`` is itself rounding (or a real difference);
-    the answer is in doubt when the gap is within a factor :data:`DECISION_MARGIN` of the
-    tolerance, where another order of the same operations may decide either way.
+    below that rounding term.
     """
     delta = EPS * np.sqrt(n_rows) * (a_norm * point_norms + b_norm)
     best = np.min(costs, axis=1)
     tolerance = 1e-12 * best + 16.0 * (2.0 * np.sqrt(best) * delta + delta**2)
-    spread = np.max(costs, axis=1) - best
-    equal = spread <= tolerance
-    doubt = (spread > tolerance / DECISION_MARGIN) & (spread < tolerance * DECISION_MARGIN)
-    return equal, doubt | ~np.isfinite(spread)
+    return np.max(costs, axis=1) - best <= tolerance
 
 
 def _secular_root(sp: Spectrum, phi_pole: FloatArray) -> tuple[FloatArray, BoolArray]:
@@ -503,8 +476,8 @@ def _secular_root(sp: Spectrum, phi_pole: FloatArray) -> tuple[FloatArray, BoolA
     ``φ(s) = e₁²/s² + R(s)`` with ``R`` convex and decreasing. Two lower bounds of the root:
     the zero of ``R``'s tangent at 0 (when ``R(0) > 0``), and the point where ``e₁²/s²``
     still outweighs ``−R(0) − R'(0)s`` (when ``e₁ ≠ 0``). From their maximum every Newton
-    step stays left of the root. Returns the root and whether it was not found (or is 0, the
-    one-trial solver's answer when ``φ(0⁺) ≤ 0``: those trials are left to it).
+    step stays left of the root. Returns the root, 0 when ``φ(0⁺) ≤ 0`` (``e₁ = 0`` and φ
+    touches zero on the pole) or when it is below ``1e-250``, and whether the iteration failed.
     """
     e1_sq, e2_sq, gap, base = sp.e1 * sp.e1, sp.e2 * sp.e2, sp.gap, sp.base
     slope_linear = 0.5 / sp.m33
@@ -520,8 +493,8 @@ def _secular_root(sp: Spectrum, phi_pole: FloatArray) -> tuple[FloatArray, BoolA
     pole_bound = np.where((sp.e1 != 0.0) & np.isfinite(pole_bound), pole_bound, 0.0)
     shift = np.maximum(tangent_root, pole_bound)
 
-    failed = shift <= 0.0  # e₁ = 0 and R(0) ≤ 0: the root sits on the pole
-    active = np.flatnonzero(~failed)
+    failed = np.zeros(shift.shape, dtype=bool)
+    active = np.flatnonzero(shift > 0.0)  # else e₁ = 0 and R(0) ≤ 0: the root is on the pole
     for _ in range(NEWTON_ITERATIONS):
         if active.size == 0:
             break
@@ -538,9 +511,7 @@ def _secular_root(sp: Spectrum, phi_pole: FloatArray) -> tuple[FloatArray, BoolA
         failed[active[~np.isfinite(step) & (value > 0.0)]] = True
         active = active[~done]
     failed[active] = True
-    # the one-trial solver returns 0 for a root below ~1e-305
-    failed |= shift < 1e-250
-    return np.where(failed, 0.0, shift), failed
+    return np.where(failed | (shift < 1e-250), 0.0, shift), failed
 
 
 def _svd_rank(blocks: list[RowBlock], n: int) -> IntArray:
@@ -553,6 +524,16 @@ def _svd_rank(blocks: list[RowBlock], n: int) -> IntArray:
             np.stack([np.broadcast_to(block.ax, shape), np.broadcast_to(block.ay, shape), az], -1)
         )
     A = np.concatenate(columns, axis=0).transpose(1, 0, 2)
+    if any(block.ac is not None for block in blocks):  # the rows projected off c (MATH §15)
+        c = np.concatenate(
+            [
+                np.zeros((block.n_rows, n))
+                if block.ac is None
+                else np.broadcast_to(block.ac, (block.n_rows, n))
+                for block in blocks
+            ]
+        ).T[:, :, None]
+        A = A - c * (np.sum(c * A, axis=1, keepdims=True) / np.sum(c * c, axis=1, keepdims=True))
     singular = np.linalg.svd(A, compute_uv=False)
     finite = np.all(np.isfinite(singular), axis=1)
     rank = np.sum(singular > singular[:, :1] * RANK_RTOL, axis=1)

@@ -59,7 +59,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from estimators.closed_form.gtrs_batch import equal_to_rounding
-from estimators.closed_form.gtrs_rounding import RANK_RTOL
+from estimators.closed_form.gtrs_rank import RANK_RTOL
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -313,7 +313,7 @@ def solve_gtrs_indefinite_batch(
             ys[:, 1, index] -= t[trying]
             pair = ys @ np.swapaxes(pencil.back[trying], -1, -2)
             pair_costs = _batch_costs(A[trying], b[trying], pair)
-            equal, _ = equal_to_rounding(
+            equal = equal_to_rounding(
                 pair_costs,
                 np.max(np.linalg.norm(pair, axis=2), axis=1),
                 np.sqrt(np.sum(A[trying] ** 2, axis=(1, 2))),

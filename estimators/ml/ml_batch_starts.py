@@ -26,8 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from estimators.baselines.lls import solve_lls_toa
-from estimators.closed_form.cls import solve_doppler_toa_cls
-from estimators.closed_form.cls_batch import solve_chunk
+from estimators.closed_form.cls_batch import candidates_of_trial, solve_chunk
 from estimators.closed_form.pseudorange_cls import solve_pseudorange_batch, solve_pseudorange_cls
 from estimators.ml.ml_starts import doppler_grid_starts
 from scenarios.types import MeasurementSet
@@ -68,7 +67,7 @@ def closed_form_starts(data: MeasurementSet, fallback_lls: bool) -> tuple[FloatA
             solution = solve_pseudorange_cls(data, carrier_offset_unknown=unknown_offset)
             candidates = solution.candidates_m
         else:
-            candidates = solve_doppler_toa_cls(data).candidates_m
+            candidates = candidates_of_trial(data)
         if np.all(np.isfinite(candidates)) and len(candidates):
             return np.asarray(candidates, dtype=float).reshape(-1, 2), "cls", ""
         reason = "CLS returned no finite candidate"
@@ -127,11 +126,11 @@ def find_starts(
     if context.cls_geometry is not None:
         r = context.used.speed_of_light_mps * np.ascontiguousarray(context.toa[trials].T)
         f = np.ascontiguousarray(context.doppler[trials].T)
-        world, solution, doubt = solve_chunk(context.cls_geometry, "weighted", r, f)
+        world, solution = solve_chunk(context.cls_geometry, "weighted", r, f)
         points[:] = world
         valid[:, 0], valid[:, 1] = True, solution.count > 1
-        # where the batch CLS is undecided, its one-trial code decides
-        redo = doubt | solution.uncertain | np.any(valid & ~np.isfinite(world).all(-1), axis=1)
+        # where the CLS has no finite answer, a trial says why alone (or starts from LLS-ToA)
+        redo = solution.failed | np.any(valid & ~np.isfinite(world).all(-1), axis=1)
     found = pseudorange_starts(context, trials, method, note) if context.pseudo_ranges else {}
     for i in np.flatnonzero(redo).tolist():
         if i in found:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from estimators.closed_form.cls import solve_doppler_toa_cls
+from estimators.closed_form.cls_batch import system_of_trial
+from estimators.closed_form.cls_rows import project_out
 from estimators.closed_form.gtrs import solve_gtrs
 from estimators.registry import make_estimator
 from scenarios import get_scenario
@@ -44,20 +45,13 @@ def test_the_projected_gtrs_minimises_the_cost_over_the_offset_too() -> None:
     """Brute force: on a grid of δ, the GTRS of the full rows with δ moved to the right-hand
     side never goes below the projected optimum, and reaches it at the returned δ."""
     data = simulate(with_offset("turn"), snr_db=10.0, seed=4)
-    solution = solve_doppler_toa_cls(data)
-    from estimators.closed_form.cls import cls_rows
-
-    frame = solution.frame
-    A, b = cls_rows(
-        data,
-        frame,
-        "weighted",
-        weights_at_local_xy=frame.to_local(solve_doppler_toa_cls(data, stages=1).candidates_m[0]),
-    )
-    assert A.shape[1] == 4
-    best = solution.gtrs.costs.min()
-    grid = solution.carrier_offset_hz[0] + np.linspace(-2.0, 2.0, 81)
-    costs = [solve_gtrs(A[:, :3], b - delta * A[:, 3]).costs.min() for delta in grid]
+    estimate = make_estimator("cls").estimate(data)
+    A, b, column, _ = system_of_trial(data, "weighted", last_stage=True)
+    assert column is not None and np.any(column != 0.0)
+    projected = solve_gtrs(*project_out(A, b, column))
+    best = projected.costs.min()
+    grid = estimate.diagnostics["carrier_offset_hz"] + np.linspace(-2.0, 2.0, 81)
+    costs = [solve_gtrs(A, b - delta * column).costs.min() for delta in grid]
     assert min(costs) >= best * (1 - 1e-9)
     assert costs[40] == pytest.approx(best, rel=1e-9)
 

@@ -15,7 +15,7 @@ import pytest
 from scipy.optimize import least_squares
 
 from estimators.base import Estimate, capabilities_of, protocol_problems
-from estimators.closed_form.cls import solve_doppler_toa_cls
+from estimators.closed_form.cls_batch import candidates_of_trial
 from estimators.closed_form.cls_rows import LocalFrame
 from estimators.ml.minpack_batch import lmder_batch
 from estimators.ml.ml import MaximumLikelihood, whitened_residual_jacobian, whitened_residuals
@@ -284,10 +284,7 @@ def problem_batch(n: int, seed: int):
     trials = [batch.trial(i) for i in range(n)]
     frames = [LocalFrame.fit(t.position_m, t.range_m) for t in trials]
     starts = np.array(
-        [
-            f.to_local(solve_doppler_toa_cls(t).candidates_m[0])
-            for t, f in zip(trials, frames, strict=True)
-        ]
+        [f.to_local(candidates_of_trial(t)[0]) for t, f in zip(trials, frames, strict=True)]
     )
     scale = np.array([f.scale_m for f in frames])
     origin = frames[0].origin_m
