@@ -1,18 +1,15 @@
 """Estimates scored against the truth: the per-estimate columns of trial rows.
 
-:func:`estimate_columns` gives the :data:`~comparison.trial_rows.ESTIMATE_COLUMNS` of one
-row: the position and its error, the error once the mirror ambiguity is resolved (MATH §7),
-the side of the track, the covariance and the two NEES (:func:`normalized_error_squared`, with
-:func:`mirrored_covariance` for a candidate across the track). The track is that of one frame
-(:func:`frame_track`); in a closed loop, that of the first frame the estimator uses
-(:func:`ambiguity_track`).
-
-:func:`score_outcomes` gives the same columns for every trial of a task at once, from an
-estimator's :class:`Outcomes` (its results as :class:`~estimators.batch.BatchEstimates`
-columns, whether the estimator returned them so or one :class:`~estimators.base.Estimate` per
-trial): array operations in the order of the one-estimate code, so that every value is the
-same to the bit, and the JSON columns written by an exact formatter (the text of
-``json.dumps``). A column-returning estimator's trials never become ``Estimate`` objects.
+:func:`score_outcomes` gives the :data:`~comparison.trial_rows.ESTIMATE_COLUMNS` of every
+trial of a task at once, from an estimator's :class:`Outcomes` (its results as
+:class:`~estimators.batch.BatchEstimates` columns, whether the estimator returned them so or
+one :class:`~estimators.base.Estimate` per trial): the position and its error, the error once
+the mirror ambiguity is resolved (MATH §7), the side of the track, the covariance and the two
+NEES (the second with the covariance reflected for a candidate across the track), and the JSON
+columns written by an exact formatter (the text of ``json.dumps``). A column-returning
+estimator's trials never become ``Estimate`` objects. :func:`estimate_columns` is the same for
+one estimate (a closed-loop frame). The track is that of one frame (:func:`frame_track`); in a
+closed loop, that of the first frame the estimator uses (:func:`ambiguity_track`).
 """
 
 from __future__ import annotations
@@ -75,95 +72,9 @@ def estimate_columns(
     runtime_s: float,
 ) -> tuple[Any, ...]:
     """The per-estimate columns of a trial row, in the order of
-    :data:`~comparison.trial_rows.ESTIMATE_COLUMNS`.
-
-    ``error_side_resolved_m`` uses the candidate nearest to the truth (MATH §7), whose
-    coordinates are ``x_side_resolved_m`` and ``y_side_resolved_m``. ``nees`` is
-    the returned position's error against the estimator's covariance; ``nees_side_resolved``
-    the nearest candidate's error against *that candidate's* covariance: the covariance
-    reflected across ``track`` when the candidate lies on the other side of it than the
-    returned position (its mirror image, MATH §7), else the covariance as given.
-    ``wrong_side`` is 1.0 when the returned position and the truth are strictly on opposite
-    sides of the vertical plane through ``track``, NaN when the position lies in that plane (on
-    neither side). Every error column is NaN for a failed estimate.
-    """
-    nan = math.nan
-    success = bool(estimate.success)
-    truth = np.asarray(truth_m, dtype=float)[:2]
-    position = np.asarray(estimate.position_m, dtype=float) if success else np.full(2, nan)
-    candidates = np.asarray(estimate.candidates_m, dtype=float).reshape(-1, 2)
-    error_m = float(np.hypot(*(position - truth)))
-    side_resolved_m, nearest, found = nan, position, False
-    if success:
-        pool = candidates if len(candidates) else position[None, :]
-        distances = np.hypot(*(pool - truth).T)
-        found = bool(np.isfinite(distances).any())
-        if found:
-            nearest = pool[int(np.nanargmin(distances))]
-            side_resolved_m = float(np.nanmin(distances))
-    side_of = _signed_cross_track(track)
-    wrong_side = nan
-    if success and track is not None and np.isfinite(position).all():
-        side_estimate, side_truth = side_of(position), side_of(truth)
-        scale = max(abs(side_truth), float(np.hypot(*(position - track[0]))))
-        on_plane = abs(side_estimate) <= 1e-9 * scale
-        # an estimate in the track's vertical plane is on neither side: NaN, not a lucky 0
-        wrong_side = nan if on_plane else (1.0 if side_estimate * side_truth < 0.0 else 0.0)
-    cov = (nan, nan, nan)
-    nees = nees_side_resolved = nan
-    if estimate.covariance_m2 is not None:
-        covariance = np.asarray(estimate.covariance_m2, dtype=float)
-        cov = (float(covariance[0, 0]), float(covariance[0, 1]), float(covariance[1, 1]))
-        nees = normalized_error_squared(position - truth, covariance)
-        if track is not None and side_of(nearest) * side_of(position) < 0.0:
-            covariance = mirrored_covariance(covariance, track[1])
-        nees_side_resolved = normalized_error_squared(nearest - truth, covariance)
-    values = {
-        "x_m": float(position[0]),
-        "y_m": float(position[1]),
-        "error_m": error_m,
-        "error_side_resolved_m": side_resolved_m,
-        "x_side_resolved_m": float(nearest[0]) if found else nan,
-        "y_side_resolved_m": float(nearest[1]) if found else nan,
-        "wrong_side": wrong_side,
-        "ambiguous": bool(estimate.ambiguous),
-        "success": success,
-        "n_candidates": len(candidates),
-        "candidates_json": json.dumps(jsonable(candidates.tolist())),
-        "cov_xx_m2": cov[0],
-        "cov_xy_m2": cov[1],
-        "cov_yy_m2": cov[2],
-        "nees": nees,
-        "nees_side_resolved": nees_side_resolved,
-        **{key: fit_value(estimate.diagnostics, key) if success else nan for key in FIT_KEYS},
-        "runtime_s": float(runtime_s),
-        "message": str(estimate.message),
-        "diagnostics_json": json.dumps(jsonable(dict(estimate.diagnostics)), sort_keys=True),
-    }
-    return tuple(values[column] for column in ESTIMATE_COLUMNS)
-
-
-def _signed_cross_track(track: Track | None) -> Any:
-    """``point ↦`` signed distance from the vertical plane through ``track`` (0 without one)."""
-    if track is None:
-        return lambda point: 0.0
-    (ox, oy), (dx, dy) = track
-    return lambda point: float(dx * (point[1] - oy) - dy * (point[0] - ox))
-
-
-def mirrored_covariance(covariance_m2: np.ndarray, direction: np.ndarray) -> np.ndarray:
-    """``R P Rᵀ`` with ``R = 2 d dᵀ − I`` the reflection across a line of unit direction ``d``:
-    the covariance of the mirror image of an estimate (MATH §7)."""
-    d = np.asarray(direction, dtype=float).reshape(2)
-    reflection = 2.0 * np.outer(d, d) - np.eye(2)
-    return reflection @ covariance_m2 @ reflection.T
-
-
-def normalized_error_squared(error_m: np.ndarray, covariance_m2: np.ndarray) -> float:
-    """``eᵀ P⁻¹ e`` (NEES, as many degrees of freedom as ``e`` has coordinates); NaN when
-    ``P`` is singular or not finite (:func:`scenarios.fisher.inverse_symmetric`)."""
-    error = np.asarray(error_m, dtype=float)
-    return float(error @ inverse_symmetric(covariance_m2) @ error)
+    :data:`~comparison.trial_rows.ESTIMATE_COLUMNS`: :func:`score_outcomes` of one estimate
+    (a closed-loop frame, which is scored as it is flown)."""
+    return score_outcomes(Outcomes.of_estimates([(estimate, runtime_s)]), truth_m, track)[0]
 
 
 def jsonable(value: Any) -> Any:
@@ -312,13 +223,21 @@ class Outcomes:
 def score_outcomes(
     outcomes: Outcomes, truth_m: ArrayLike, track: Track | None
 ) -> list[tuple[Any, ...]]:
-    """:func:`estimate_columns` of every trial of ``outcomes``, computed on columns.
+    """The per-estimate columns of every trial of ``outcomes`` (one row each, in the order of
+    :data:`~comparison.trial_rows.ESTIMATE_COLUMNS`), computed on columns.
 
-    Every value equals the one-estimate function's to the bit: the same floating-point
-    operations in the same order (``np.matmul`` for the NEES and the mirror, as ``@`` there),
-    the JSON columns in ``json.dumps``'s text. The columns are valid
-    (:mod:`estimators.validity`, applied when :class:`~estimators.batch.BatchEstimates` is
-    built): every success has a finite position among its finite candidates.
+    ``error_side_resolved_m`` uses the candidate nearest to the truth (MATH §7), whose
+    coordinates are ``x_side_resolved_m`` and ``y_side_resolved_m``. ``nees`` is the returned
+    position's error against the estimator's covariance; ``nees_side_resolved`` the nearest
+    candidate's error against *that candidate's* covariance: the covariance reflected across
+    ``track`` when the candidate lies on the other side of it than the returned position (its
+    mirror image, MATH §7), else the covariance as given. ``wrong_side`` is 1.0 when the
+    returned position and the truth are strictly on opposite sides of the vertical plane
+    through ``track``, NaN when the position lies in that plane (on neither side). Every error
+    column is NaN for a failed estimate; the JSON columns are ``json.dumps``'s text. The columns
+    are valid (:mod:`estimators.validity`, applied when
+    :class:`~estimators.batch.BatchEstimates` is built): every success has a finite position
+    among its finite candidates.
     """
     columns = outcomes.columns
     n = len(columns)
@@ -368,7 +287,7 @@ def score_outcomes(
         else:
             covariance = np.asarray(columns.covariance_m2, dtype=float)
             cov_xx, cov_xy, cov_yy = covariance[:, 0, 0], covariance[:, 0, 1], covariance[:, 1, 1]
-            nees = _nees(position - truth, covariance)
+            nees = normalized_error_squared(position - truth, covariance)
             if track is not None and mirror.any():
                 d = np.asarray(track[1], dtype=float).reshape(2)
                 reflection = 2.0 * np.outer(d, d) - np.eye(2)
@@ -376,7 +295,7 @@ def score_outcomes(
                 covariance[mirror] = np.matmul(
                     np.matmul(reflection, covariance[mirror]), reflection.T
                 )
-            nees_side_resolved = _nees(nearest - truth, covariance)
+            nees_side_resolved = normalized_error_squared(nearest - truth, covariance)
     messages = [str(message) for message in columns.messages]
     values = {
         "x_m": position[:, 0].tolist(),
@@ -423,8 +342,12 @@ def _fit_column(columns: BatchEstimates, key: str, success: NDArray[np.bool_]) -
     return np.where(success, column.astype(float), math.nan)
 
 
-def _nees(error_m: NDArray[np.float64], covariance_m2: NDArray[np.float64]) -> NDArray[Any]:
-    """:func:`normalized_error_squared` of each row: ``(e P⁻¹) e`` as ``np.matmul`` does it."""
+def normalized_error_squared(
+    error_m: NDArray[np.float64], covariance_m2: NDArray[np.float64]
+) -> NDArray[Any]:
+    """The NEES ``eᵀ P⁻¹ e`` of each row, errors (n, d) and covariances (n, d, d) (as many
+    degrees of freedom as ``e`` has coordinates); NaN where ``P`` is singular or not finite
+    (:func:`scenarios.fisher.inverse_symmetric`)."""
     left = np.matmul(error_m[:, None, :], inverse_symmetric(covariance_m2))
     return np.matmul(left, error_m[:, :, None])[:, 0, 0]
 

@@ -1,8 +1,8 @@
-"""Tests of comparison.scoring: the scoring of a whole task on columns (score_outcomes) gives
-the values of the one-estimate scoring (estimate_columns), in type, and to rounding by the
-rule of :mod:`tests.paths` (two paths: ``np.matmul`` on stacks and on single rows may take
-other BLAS kernels), the JSON texts exactly, on random estimates and columns with every case
-the rows must get right; and hand-computed values of the one-estimate scoring itself."""
+"""Tests of comparison.scoring: a trial's row does not depend on how many trials are scored
+with it (a task at once, or one estimate, ``estimate_columns``, as a closed loop scores its
+frames), in type, and to rounding by the rule of :mod:`tests.paths` (``np.matmul`` on stacks
+of different sizes may take other BLAS kernels), the JSON texts exactly, on random estimates
+and columns with every case the rows must get right; and hand-computed values."""
 
 import dataclasses
 import json

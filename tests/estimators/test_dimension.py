@@ -115,7 +115,9 @@ def test_the_inverse_of_a_symmetric_matrix_in_any_dimension() -> None:
 def test_nees_in_3d_against_its_definition_and_its_chi_square_band() -> None:
     error = np.array([1.0, -0.5, 2.0])
     expected = error @ np.linalg.solve(COVARIANCE_3D, error)
-    assert normalized_error_squared(error, COVARIANCE_3D) == pytest.approx(expected, rel=1e-13)
+    assert normalized_error_squared(error[None], COVARIANCE_3D[None])[0] == pytest.approx(
+        expected, rel=1e-13
+    )
     low, high = nees_band(10, 0.95, dof=3)
     assert low == pytest.approx(stats.chi2.ppf(0.025, 30) / 10, rel=1e-12)
     assert high == pytest.approx(stats.chi2.ppf(0.975, 30) / 10, rel=1e-12)
