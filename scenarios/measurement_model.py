@@ -30,7 +30,7 @@ _TEN_OVER_LN10 = 10.0 / np.log(10.0)
 
 
 def _offset_components(
-    position_m: ArrayLike, emitter_m: ArrayLike, emitter_height_m: float
+    position_m: ArrayLike, emitter_m: ArrayLike, emitter_height_m: ArrayLike
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """The components of ``p_k − s`` and ``ρ_k``, each ``(..., N)`` (``dz`` broadcasts): the
     functions below work on these planes rather than on a trailing axis of three (numpy
@@ -39,7 +39,7 @@ def _offset_components(
     emitter = np.asarray(emitter_m, dtype=float)
     dx = position[..., 0] - emitter[..., 0, None]
     dy = position[..., 1] - emitter[..., 1, None]
-    dz = position[..., 2] - float(emitter_height_m)
+    dz = position[..., 2] - np.asarray(emitter_height_m, dtype=float)
     distance = np.sqrt(dx * dx + dy * dy + dz * dz)
     return dx, dy, dz, distance
 
@@ -124,13 +124,116 @@ def doppler_jacobian(
     emitter_height_m: float = 0.0,
 ) -> FloatArray:
     """``∂f_k/∂(x_s, y_s) = γ (v_k − (v_kᵀu_k) u_k)_xy / ρ_k`` (MATH §8), shape ``(..., N, 2)``."""
+    return doppler_range_derivatives(
+        position_m, velocity_mps, emitter_m, gamma_per_m, emitter_height_m, order=1
+    )[0][..., 1:]
+
+
+DERIVATIVE_COMPONENTS = ("", "x", "y", "xx", "xy", "yy", "xxx", "xxy", "xyy", "yyy")
+"""The last axis of :func:`doppler_range_derivatives`: the value, then the unique partial
+derivatives in ``(x_s, y_s)`` of each order (``"xy"`` is ``∂²/∂x_s∂y_s``)."""
+
+N_COMPONENTS_TO_ORDER = (1, 3, 6, 10)
+"""How many :data:`DERIVATIVE_COMPONENTS` the derivatives up to order 0, 1, 2 and 3 fill."""
+
+
+def _derivative_planes(
+    dx: FloatArray,
+    dy: FloatArray,
+    dz: FloatArray,
+    distance: FloatArray,
+    velocity: FloatArray,
+    gamma_per_m: ArrayLike,
+    order: int,
+) -> tuple[list[FloatArray], list[FloatArray]]:
+    """The planes of :func:`doppler_range_derivatives` from the components of ``w = p_k − s``
+    and ``ρ_k`` (:func:`_offset_components`)."""
+    ux, uy, uz = dx / distance, dy / distance, dz / distance
+    vx, vy, vz = velocity[..., 0], velocity[..., 1], velocity[..., 2]
+    radial = vx * ux + vy * uy + vz * uz  # vᵀu
+    gamma = np.asarray(gamma_per_m, dtype=float)
+    doppler, ranges = [-gamma * radial], [distance]
+    if order < 1:
+        return doppler, ranges
+    tx, ty = vx - radial * ux, vy - radial * uy  # t = v − (vᵀu) u
+    doppler += [gamma * tx / distance, gamma * ty / distance]
+    ranges += [-ux, -uy]
+    if order < 2:
+        return doppler, ranges
+    pxx, pxy, pyy = 1.0 - ux * ux, -ux * uy, 1.0 - uy * uy  # P = I − u uᵀ
+    g2 = gamma / distance**2
+    doppler += [
+        g2 * (2.0 * tx * ux + radial * pxx),
+        g2 * (tx * uy + ty * ux + radial * pxy),
+        g2 * (2.0 * ty * uy + radial * pyy),
+    ]
+    ranges += [pxx / distance, pxy / distance, pyy / distance]
+    if order < 3:
+        return doppler, ranges
+    sum_pu = (3.0 * pxx * ux, pxx * uy + 2.0 * pxy * ux, 2.0 * pxy * uy + pyy * ux, 3.0 * pyy * uy)
+    sum_tuu = (
+        3.0 * tx * ux * ux,
+        2.0 * tx * ux * uy + ty * ux * ux,
+        tx * uy * uy + 2.0 * ty * ux * uy,
+        3.0 * ty * uy * uy,
+    )
+    sum_tp = (3.0 * tx * pxx, 2.0 * tx * pxy + ty * pxx, tx * pyy + 2.0 * ty * pxy, 3.0 * ty * pyy)
+    g3 = g2 / distance
+    distance_sq = distance**2
+    doppler += [
+        g3 * (2.0 * tuu + 2.0 * radial * pu - tp)
+        for tuu, pu, tp in zip(sum_tuu, sum_pu, sum_tp, strict=True)
+    ]
+    ranges += [pu / distance_sq for pu in sum_pu]
+    return doppler, ranges
+
+
+def doppler_range_derivatives(
+    position_m: ArrayLike,
+    velocity_mps: ArrayLike,
+    emitter_m: ArrayLike,
+    gamma_per_m: ArrayLike,
+    emitter_height_m: ArrayLike = 0.0,
+    *,
+    order: int = 1,
+) -> tuple[FloatArray, FloatArray]:
+    r"""The noise-free Doppler ``f_k`` (Hz) and slant range ``ρ_k = c τ_k`` (m) with their
+    partial derivatives in ``(x_s, y_s)`` up to ``order`` (0 to 3), from one pass over the
+    samples (MATH §1, §8).
+
+    Returns ``(doppler, ranges)``, each of shape ``(..., N, n)`` with ``n`` = 1, 3, 6 or 10:
+    the components :data:`DERIVATIVE_COMPONENTS` (value, ``∂x, ∂y``, ``∂xx, ∂xy, ∂yy``,
+    ``∂xxx, ∂xxy, ∂xyy, ∂yyy``). Without the nuisance terms: a carrier offset δ adds to
+    ``f_k`` and a range offset ``c b`` to ``ρ_k``, each with derivative 1 in its own parameter
+    and none in the position (MATH §15). ``gamma_per_m`` and ``emitter_height_m`` may be
+    arrays broadcasting against ``(..., N)`` (samples of several frames at once).
+
+    With ``w = p_k − s``, ``ρ = ‖w‖``, ``u = w/ρ``, ``r = vᵀu``, ``t = v − r u`` and
+    ``P = I − u uᵀ`` (xy parts, indices ``a, b, c``):
+
+    .. math::
+
+        \nabla\rho = -u,\quad \nabla^2\rho = \frac{P}{\rho},\quad
+        \nabla^3\rho_{abc} = \frac{\sum_3 P_{ab}u_c}{\rho^2},\qquad
+        \nabla f = \frac{\gamma\,t}{\rho},\quad
+        \nabla^2 f = \frac{\gamma}{\rho^2}\big(t u^\top + u t^\top + r P\big),
+
+        \nabla^3 f_{abc} = \frac{\gamma}{\rho^3}\Big(2\sum_3 t_a u_b u_c
+            + 2r\sum_3 P_{ab} u_c - \sum_3 t_a P_{bc}\Big)
+
+    (``Σ₃``: the three distinct placements of the indices). ToA's derivatives are the
+    range's divided by ``c``.
+    """
+    if order not in (0, 1, 2, 3):
+        raise ValueError(f"order: expected 0, 1, 2 or 3, got {order!r}")
     dx, dy, dz, distance = _offset_components(position_m, emitter_m, emitter_height_m)
     velocity = np.asarray(velocity_mps, dtype=float)
-    vx, vy, vz = velocity[..., 0], velocity[..., 1], velocity[..., 2]
-    ux, uy, uz = dx / distance, dy / distance, dz / distance
-    radial = vx * ux + vy * uy + vz * uz
-    scale = gamma_per_m / distance
-    return np.stack([(vx - radial * ux) * scale, (vy - radial * uy) * scale], axis=-1)
+    doppler, ranges = _derivative_planes(dx, dy, dz, distance, velocity, gamma_per_m, order)
+    shape = np.broadcast_shapes(*(np.shape(plane) for plane in doppler + ranges))
+    return (
+        np.stack([np.broadcast_to(plane, shape) for plane in doppler], axis=-1),
+        np.stack([np.broadcast_to(plane, shape) for plane in ranges], axis=-1),
+    )
 
 
 def rss_jacobian(
