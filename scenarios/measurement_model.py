@@ -1,4 +1,6 @@
-r"""The forward model of MATH §1 and its Jacobians in the emitter's ``(x_s, y_s)`` (MATH §8).
+r"""The forward model of MATH §1 and its derivatives in the emitter's ``(x_s, y_s)`` (MATH §8):
+the one home of the model the simulation, the bounds, the frame-by-frame filters and the
+maximum-likelihood search evaluate.
 
 .. math::
 
@@ -11,13 +13,20 @@ r"""The forward model of MATH §1 and its Jacobians in the emitter's ``(x_s, y_s
     P_k = P_0 - 10\,\eta\,\log_{10}(\rho_k / d_0) \quad\text{(received power, dBm)}
 
 with ``s = (x_s, y_s, z_s)`` and ``z_s`` known; the carrier offset δ and the emission time b
-are zero for a cooperative emitter and nuisance parameters otherwise (MATH §15). Pure functions, vectorised: ``position_m`` and
-``velocity_mps`` have shape ``(..., N, 3)``, ``emitter_m`` has shape ``(..., 2)``; leading axes
-broadcast, so one call evaluates many trials, many candidate emitters or many geometries.
-Noise-free values come out with shape ``(..., N)``, Jacobians with shape ``(..., N, 2)``.
+are zero for a cooperative emitter and nuisance parameters otherwise (MATH §15); they enter
+linearly, with derivative 1 in their own parameter. Pure functions, vectorised:
+``position_m`` and ``velocity_mps`` have shape ``(..., N, 3)``, ``emitter_m`` has shape
+``(..., 2)``; leading axes broadcast, so one call evaluates many trials, many candidate
+emitters or many geometries. Noise-free values come out with shape ``(..., N)``, Jacobians
+with shape ``(..., N, 2)``. :func:`doppler_range_derivatives` gives the Doppler and range with
+their derivatives to third order (the frame-by-frame filters and the smoother's expansion),
+:func:`derivatives_of_offsets` the same on per-sample components in any layout (the
+maximum-likelihood search) and :func:`rss_of_ranges` the received power from them.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -100,9 +109,7 @@ def rss_dbm(
 ) -> FloatArray:
     """Noise-free received power ``P_k = P0 − 10 η log10(ρ_k / d0)`` (MATH §1)."""
     distance = slant_range_m(position_m, emitter_m, emitter_height_m)
-    return rss_model.reference_power_dbm - 10.0 * rss_model.path_loss_exponent * np.log10(
-        distance / rss_model.reference_distance_m
-    )
+    return rss_of_ranges(distance[None], rss_model)[0]
 
 
 def toa_jacobian(
@@ -137,11 +144,6 @@ N_COMPONENTS_TO_ORDER = (1, 3, 6, 10)
 """How many :data:`DERIVATIVE_COMPONENTS` the derivatives up to order 0, 1, 2 and 3 fill."""
 
 
-def _last_first(array: FloatArray) -> FloatArray:
-    """A view with the last axis first (``np.moveaxis(array, -1, 0)`` at a tenth of its cost)."""
-    return array.transpose((array.ndim - 1, *range(array.ndim - 1)))
-
-
 def _first_last(array: FloatArray) -> FloatArray:
     """A view with the first axis last."""
     return array.transpose((*range(1, array.ndim), 0))
@@ -155,43 +157,64 @@ _TRIPLES = (np.array([0, 0, 0, 1]), np.array([0, 0, 1, 1]), np.array([0, 1, 1, 1
 
 
 def derivatives_of_offsets(
-    offset_xy_m: ArrayLike,
+    offset_x_m: ArrayLike,
+    offset_y_m: ArrayLike,
     offset_z_m: ArrayLike,
-    velocity_mps: ArrayLike,
+    velocity_mps: Sequence[ArrayLike],
     gamma_per_m: ArrayLike,
     *,
     order: int = 1,
+    values: bool = True,
 ) -> tuple[FloatArray, FloatArray]:
-    """:func:`doppler_range_derivatives` from the offsets ``w = p_k − s``, components first:
-    ``offset_xy_m`` of shape ``(2, ...)``, ``offset_z_m`` and ``gamma_per_m`` broadcasting
-    against ``(...)``, ``velocity_mps`` of shape ``(3, ...)`` (as many axes as the offsets:
-    the components first break numpy's alignment from the right). Returns ``(doppler, ranges)``,
-    each ``(n, ...)``: component ``j`` of :data:`DERIVATIVE_COMPONENTS` is a contiguous plane,
-    for callers that keep samples in their own layout (the maximum-likelihood search, rows
-    first)."""
+    """:func:`doppler_range_derivatives` from the components of ``w = p_k − s`` and of ``v_k``
+    (``velocity_mps``: three arrays), all broadcasting together like ``gamma_per_m``, in any
+    layout: for the callers that keep samples in their own (the maximum-likelihood search, rows
+    first). Returns ``(doppler, ranges)``, each ``(n, ...)``, components first: component
+    ``j`` of :data:`DERIVATIVE_COMPONENTS` is a contiguous array of the broadcast shape.
+    ``values=False`` leaves the Doppler's value ``doppler[0]`` uncomputed (a Jacobian alone)."""
     if order not in (0, 1, 2, 3):
         raise ValueError(f"order: expected 0, 1, 2 or 3, got {order!r}")
-    w, dz = np.asarray(offset_xy_m, dtype=float), np.asarray(offset_z_m, dtype=float)
-    velocity = np.asarray(velocity_mps, dtype=float)
-    gamma = np.asarray(gamma_per_m, dtype=float)
-    distance = w[0] * w[0]
-    distance += w[1] * w[1]
+    dx, dy = np.asarray(offset_x_m, dtype=float), np.asarray(offset_y_m, dtype=float)
+    dz, gamma = np.asarray(offset_z_m, dtype=float), np.asarray(gamma_per_m, dtype=float)
+    vx, vy, vz = velocity_mps
+    width = N_COMPONENTS_TO_ORDER[order]
+    shape = np.broadcast(dx, dz).shape
+    ranges = np.empty((width, *shape))
+    distance = np.multiply(dx, dx, out=ranges[0])
+    distance += dy * dy
     distance += dz * dz
     np.sqrt(distance, out=distance)
-    u = w / distance  # u_xy; u_z = dz/ρ
-    radial = velocity[0] * u[0] + velocity[1] * u[1] + velocity[2] * (dz / distance)  # vᵀu
-    value = -gamma * radial
-    width = N_COMPONENTS_TO_ORDER[order]
-    doppler, ranges = np.empty((width, *value.shape)), np.empty((width, *distance.shape))
-    doppler[0] = value
-    ranges[0] = distance
+    radial = vx * dx  # vᵀw
+    radial += vy * dy
+    along_z = vz * dz
+    if np.broadcast(radial, along_z).shape == radial.shape:
+        radial += along_z
+    else:
+        radial = radial + along_z
+    if gamma.ndim:
+        radial = radial + np.zeros_like(gamma)  # γ per sample: the shape of every result
+    doppler = np.empty((width, *radial.shape))
+    if values:
+        value = np.multiply(gamma, radial, out=doppler[0])
+        value /= distance
+        np.negative(value, out=value)  # f = −γ vᵀw/ρ
     if order < 1:
         return doppler, ranges
-    t = velocity[:2] - radial * u  # t = v − (vᵀu) u
-    np.divide(gamma * t, distance, out=doppler[1:3])
-    np.negative(u, out=ranges[1:3])
+    neg_inverse = np.divide(-1.0, distance)  # −1/ρ: multiplications from here on
+    np.multiply(dx, neg_inverse, out=ranges[1])  # ∇ρ = −u
+    np.multiply(dy, neg_inverse, out=ranges[2])
+    radial *= neg_inverse  # −vᵀu
+    # −t = −(v − (vᵀu) u) from −vᵀu and −u, in place in the Doppler's gradient at order 1
+    t = np.empty((2, *radial.shape)) if order > 1 else doppler[1:3]
+    np.subtract(np.multiply(radial, ranges[1], out=t[0]), vx, out=t[0])
+    np.subtract(np.multiply(radial, ranges[2], out=t[1]), vy, out=t[1])
+    scale = np.multiply(neg_inverse, gamma, out=None if gamma.ndim else neg_inverse)  # −γ/ρ
+    np.multiply(t, scale, out=doppler[1:3])  # γ t/ρ
     if order < 2:
         return doppler, ranges
+    u = -ranges[1:3]  # u_xy
+    np.negative(t, out=t)
+    np.negative(radial, out=radial)  # vᵀu
     a, b = _PAIRS
     p = u[a] * u[b]
     np.negative(p, out=p)
@@ -249,13 +272,14 @@ def doppler_range_derivatives(
     """
     position = np.asarray(position_m, dtype=float)
     emitter = np.asarray(emitter_m, dtype=float)
-    offset = position[..., :2] - emitter[..., None, :]
-    offset_z = position[..., 2] - np.asarray(emitter_height_m, dtype=float)
     velocity = np.asarray(velocity_mps, dtype=float)
-    leading = max(offset.ndim, offset_z.ndim + 1) - velocity.ndim  # components first: align
-    velocity = _last_first(velocity.reshape((1,) * max(leading, 0) + velocity.shape))
     doppler, ranges = derivatives_of_offsets(
-        _last_first(offset), offset_z, velocity, gamma_per_m, order=order
+        position[..., 0] - emitter[..., 0, None],
+        position[..., 1] - emitter[..., 1, None],
+        position[..., 2] - np.asarray(emitter_height_m, dtype=float),
+        (velocity[..., 0], velocity[..., 1], velocity[..., 2]),
+        gamma_per_m,
+        order=order,
     )
     return _first_last(doppler), _first_last(ranges)
 
@@ -268,5 +292,24 @@ def rss_jacobian(
 ) -> FloatArray:
     """``∂P_k/∂(x_s, y_s) = (10 η / ln 10) u_k,xy / ρ_k`` (MATH §8), shape ``(..., N, 2)``."""
     dx, dy, _, distance = _offset_components(position_m, emitter_m, emitter_height_m)
-    slope = _TEN_OVER_LN10 * rss_model.path_loss_exponent / (distance * distance)
-    return np.stack([dx * slope, dy * slope], axis=-1)
+    ranges = np.stack([distance, -(dx / distance), -(dy / distance)])
+    return _first_last(rss_of_ranges(ranges, rss_model)[1:])
+
+
+def rss_of_ranges(ranges: FloatArray, rss_model: RssModel) -> FloatArray:
+    """The received power ``P_k = P0 − 10 η log10(ρ_k / d0)`` (MATH §1) and, when ``ranges``
+    holds them, its first derivatives ``∇P_k = −(10 η / ln 10) ∇ρ_k / ρ_k`` (MATH §8), from
+    the ranges' components first (:func:`derivatives_of_offsets`): shape ``(1 or 3, ...)``."""
+    distance = ranges[0]
+    out = np.empty((min(len(ranges), 3), *distance.shape))
+    ten_eta = 10.0 * rss_model.path_loss_exponent
+    np.subtract(
+        rss_model.reference_power_dbm,
+        ten_eta * np.log10(distance / rss_model.reference_distance_m),
+        out=out[0],
+    )
+    if len(out) > 1:
+        np.multiply(
+            ranges[1:3], -_TEN_OVER_LN10 * rss_model.path_loss_exponent / distance, out=out[1:]
+        )
+    return out

@@ -234,6 +234,47 @@ def test_doppler_range_derivatives_take_per_sample_constants() -> None:
         np.testing.assert_allclose(ranges[k], one[1], rtol=1e-14)
 
 
+def test_derivatives_of_offsets_in_a_rows_first_layout() -> None:
+    """Per-sample constants as columns (K, 1) against emitters along the last axis (E,): the
+    components first, each (K, E), equal to :func:`doppler_range_derivatives` per emitter;
+    ``values=False`` gives the same derivatives."""
+    rng = np.random.default_rng(5)
+    position = rng.uniform(-300.0, 300.0, (6, 3))
+    velocity = rng.uniform(-20.0, 20.0, (6, 3))
+    emitters = rng.uniform(-50.0, 50.0, (4, 2))
+    gamma, height = 1.7, 3.0
+    columns = [position[:, i, None] for i in range(3)]
+    speeds = tuple(velocity[:, i, None] for i in range(3))
+    for order in (0, 1, 2, 3):
+        doppler, ranges = model.derivatives_of_offsets(
+            columns[0] - emitters[:, 0],
+            columns[1] - emitters[:, 1],
+            columns[2] - height,
+            speeds,
+            gamma,
+            order=order,
+        )
+        assert doppler.shape == ranges.shape == (model.N_COMPONENTS_TO_ORDER[order], 6, 4)
+        for e in range(4):
+            one = model.doppler_range_derivatives(
+                position, velocity, emitters[e], gamma, height, order=order
+            )
+            np.testing.assert_allclose(doppler[:, :, e].T, one[0], rtol=1e-14, atol=1e-300)
+            np.testing.assert_allclose(ranges[:, :, e].T, one[1], rtol=1e-14, atol=1e-300)
+        if order:
+            alone = model.derivatives_of_offsets(
+                columns[0] - emitters[:, 0],
+                columns[1] - emitters[:, 1],
+                columns[2] - height,
+                speeds,
+                gamma,
+                order=order,
+                values=False,
+            )
+            np.testing.assert_array_equal(alone[0][1:], doppler[1:])
+            np.testing.assert_array_equal(alone[1], ranges)
+
+
 def test_doppler_range_derivatives_reject_an_order_above_three() -> None:
     with pytest.raises(ValueError, match="order: expected 0, 1, 2 or 3"):
         model.doppler_range_derivatives(
