@@ -186,11 +186,10 @@ def derivatives_of_offsets(
     np.sqrt(distance, out=distance)
     radial = vx * dx  # vᵀw
     radial += vy * dy
-    along_z = vz * dz
-    if np.broadcast(radial, along_z).shape == radial.shape:
-        radial += along_z
-    else:
-        radial = radial + along_z
+    try:
+        radial += vz * dz
+    except ValueError:  # the heights or offsets broadcast wider than the plane offsets
+        radial = radial + vz * dz
     if gamma.ndim:
         radial = radial + np.zeros_like(gamma)  # γ per sample: the shape of every result
     doppler = np.empty((width, *radial.shape))
@@ -201,13 +200,14 @@ def derivatives_of_offsets(
     if order < 1:
         return doppler, ranges
     neg_inverse = np.divide(-1.0, distance)  # −1/ρ: multiplications from here on
-    np.multiply(dx, neg_inverse, out=ranges[1])  # ∇ρ = −u
-    np.multiply(dy, neg_inverse, out=ranges[2])
+    minus_ux = np.multiply(dx, neg_inverse, out=ranges[1])  # ∇ρ = −u
+    minus_uy = np.multiply(dy, neg_inverse, out=ranges[2])
     radial *= neg_inverse  # −vᵀu
     # −t = −(v − (vᵀu) u) from −vᵀu and −u, in place in the Doppler's gradient at order 1
     t = np.empty((2, *radial.shape)) if order > 1 else doppler[1:3]
-    np.subtract(np.multiply(radial, ranges[1], out=t[0]), vx, out=t[0])
-    np.subtract(np.multiply(radial, ranges[2], out=t[1]), vy, out=t[1])
+    tx, ty = t
+    np.subtract(np.multiply(radial, minus_ux, out=tx), vx, out=tx)
+    np.subtract(np.multiply(radial, minus_uy, out=ty), vy, out=ty)
     scale = np.multiply(neg_inverse, gamma, out=None if gamma.ndim else neg_inverse)  # −γ/ρ
     np.multiply(t, scale, out=doppler[1:3])  # γ t/ρ
     if order < 2:
