@@ -18,6 +18,7 @@ from estimators.ml.ml_batch_starts import doppler_frame_starts
 from estimators.ml.ml_starts import ranges_uninformative
 from estimators.registry import make_estimator
 from scenarios.catalog import get_scenario
+from scenarios.geometry import cross_track_m
 from scenarios.simulate import noise_free, simulate, simulate_trials, trial_seeds
 from scenarios.types import MeasurementBatch
 
@@ -245,6 +246,14 @@ def test_a_minimum_and_the_mirror_image_of_another_are_one_minimum():
     assert count[0] == 2
     np.testing.assert_array_equal(found[0, :2], [a, other])
     np.testing.assert_array_equal(found_costs[0, :2], [12.0, 13.0])
+    # at a cost tie the image on the left of the track (the starts' side) is kept, whichever
+    # ends cheaper by rounding: the mirror rule's candidates come in one order
+    tied = np.array([[12.0 * (1.0 + 1e-14), 12.0, 13.0]])  # a, on the right, cheaper
+    found, found_costs, count = distinct_minima(context, trials, points.copy(), tied, valid, scale)
+    assert count[0] == 2
+    np.testing.assert_array_equal(found[0, :2], [near_image, other])
+    np.testing.assert_array_equal(found_costs[0, :2], [tied[0, 0], 13.0])
+    assert cross_track_m(near_image, origin, direction) > 0.0 > cross_track_m(a, origin, direction)
     # off the mirror image by more than the tolerance: two minima of their own
     points = np.array([[image + 1e-4, a, other]])
     assert distinct_minima(context, trials, points, costs, valid, scale)[2][0] == 3
