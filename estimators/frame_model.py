@@ -122,30 +122,42 @@ class FrameModel:
             time_s=float(np.mean([frame.time_s for frame in frames])),
         )
 
-    def _evaluate(
-        self, emitter_m: ArrayLike, with_jacobian: bool, *, per_sample: bool = False
-    ) -> tuple[FloatArray, FloatArray | None]:
-        """``h(s)`` and, if asked, ``∂h/∂(x_s, y_s)``, sharing one pass over the samples.
+    def derivatives(
+        self, emitter_m: ArrayLike, order: int, *, per_sample: bool = False
+    ) -> tuple[FloatArray, FloatArray]:
+        """The Doppler and range rows with their derivatives up to ``order``, each
+        ``(..., K, n)`` (:func:`scenarios.measurement_model.doppler_range_derivatives`).
 
         ``per_sample``: ``emitter_m`` has shape (K, 2), one emitter position per sample.
         """
         if per_sample:
-            offset = model.emitter_offsets_m(
-                self.position_m[:, None, :], emitter_m, self.emitter_height_m
-            )[:, 0, :]
-        else:
-            offset = model.emitter_offsets_m(self.position_m, emitter_m, self.emitter_height_m)
-        distance = np.linalg.norm(offset, axis=-1)
-        unit = offset / distance[..., None]
-        radial_mps = np.sum(self.velocity_mps * unit, axis=-1)  # v_kᵀ u_k
-        # f_k = −γ v_kᵀu_k, ρ_k = ‖p_k − s‖ (MATH §1)
-        predicted = np.concatenate([-self.gamma_per_m * radial_mps, distance], axis=-1)
+            doppler, ranges = model.doppler_range_derivatives(
+                self.position_m[:, None, :],
+                self.velocity_mps[:, None, :],
+                emitter_m,
+                self.gamma_per_m,
+                self.emitter_height_m,
+                order=order,
+            )
+            return doppler[:, 0], ranges[:, 0]
+        return model.doppler_range_derivatives(
+            self.position_m,
+            self.velocity_mps,
+            emitter_m,
+            self.gamma_per_m,
+            self.emitter_height_m,
+            order=order,
+        )
+
+    def _evaluate(
+        self, emitter_m: ArrayLike, with_jacobian: bool, *, per_sample: bool = False
+    ) -> tuple[FloatArray, FloatArray | None]:
+        """``h(s)`` and, if asked, ``∂h/∂(x_s, y_s)`` (MATH §1, §8), one pass over the samples."""
+        doppler, ranges = self.derivatives(emitter_m, int(with_jacobian), per_sample=per_sample)
+        predicted = np.concatenate([doppler[..., 0], ranges[..., 0]], axis=-1)
         if not with_jacobian:
             return predicted, None
-        # ∇f_k = γ (v_k − (v_kᵀu_k) u_k)_xy / ρ_k and ∇ρ_k = c ∇τ_k = −u_k,xy (MATH §8)
-        tangential = self.velocity_mps - radial_mps[..., None] * unit
-        doppler = self.gamma_per_m * tangential[..., :2] / distance[..., None]
-        return predicted, np.concatenate([doppler, -unit[..., :2]], axis=-2)
+        return predicted, np.concatenate([doppler[..., 1:], ranges[..., 1:]], axis=-2)
 
     def predicted(self, emitter_m: ArrayLike) -> FloatArray:
         """``h(s) = [f_k(s); ρ_k(s)]`` (MATH §1), shape ``(..., 2K)``."""
@@ -190,41 +202,14 @@ class FrameModel:
         return (predicted - self.measured) / self.sigma, jacobian / self.sigma[:, None]
 
     def hessian(self, emitter_m: ArrayLike, *, per_sample: bool = False) -> FloatArray:
-        r"""``∂²h/∂(x_s, y_s)²`` of every row, shape ``(2K, 2, 2)`` (``per_sample``: ``emitter_m``
-        has shape (K, 2), as in :meth:`whitened_error_and_jacobian_per_sample`).
-
-        With ``w = p_k − s``, ``ρ = ‖w‖``, ``u = w/ρ`` (3-D) and xy parts only:
-
-        .. math::
-
-            \nabla^2 \rho_k = \frac{I - u u^\top}{\rho},\qquad
-            \nabla^2 f_k = \frac{\gamma}{\rho^2}\big(v u^\top + u v^\top
-                + (v^\top u)(I - 3 u u^\top)\big).
-        """
-        emitter = np.asarray(emitter_m, dtype=float)
-        if per_sample:
-            offset = model.emitter_offsets_m(
-                self.position_m[:, None, :], emitter, self.emitter_height_m
-            )[:, 0, :]
-        else:
-            offset = model.emitter_offsets_m(self.position_m, emitter, self.emitter_height_m)
-        distance = np.linalg.norm(offset, axis=-1)
-        unit = offset / distance[:, None]
-        radial = np.sum(self.velocity_mps * unit, axis=-1)  # vᵀu
-        u, v = unit[:, :2], self.velocity_mps[:, :2]
-        uu = u[:, :, None] * u[:, None, :]
-        eye = np.eye(2)
-        doppler = (
-            self.gamma_per_m
-            / distance[:, None, None] ** 2
-            * (
-                v[:, :, None] * u[:, None, :]
-                + u[:, :, None] * v[:, None, :]
-                + radial[:, None, None] * (eye - 3.0 * uu)
-            )
+        """``∂²h/∂(x_s, y_s)²`` of every row, shape ``(2K, 2, 2)`` (MATH §8, from
+        :func:`scenarios.measurement_model.doppler_range_derivatives`; ``per_sample``:
+        ``emitter_m`` has shape (K, 2), as in :meth:`whitened_error_and_jacobian_per_sample`)."""
+        doppler, ranges = self.derivatives(
+            np.asarray(emitter_m, dtype=float), 2, per_sample=per_sample
         )
-        ranges = (eye - uu) / distance[:, None, None]
-        return np.concatenate([doppler, ranges])
+        second = np.concatenate([doppler[:, 3:], ranges[:, 3:]])  # xx, xy, yy
+        return second[:, [[0, 1], [1, 2]]]
 
     def curvature_terms(
         self, emitter_m: ArrayLike, error: ArrayLike, *, per_sample: bool = False

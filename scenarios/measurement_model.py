@@ -1,4 +1,6 @@
-r"""The forward model of MATH §1 and its Jacobians in the emitter's ``(x_s, y_s)`` (MATH §8).
+r"""The forward model of MATH §1 and its derivatives in the emitter's ``(x_s, y_s)`` (MATH §8):
+the one home of the model the simulation, the bounds, the frame-by-frame filters and the
+maximum-likelihood search evaluate.
 
 .. math::
 
@@ -11,13 +13,20 @@ r"""The forward model of MATH §1 and its Jacobians in the emitter's ``(x_s, y_s
     P_k = P_0 - 10\,\eta\,\log_{10}(\rho_k / d_0) \quad\text{(received power, dBm)}
 
 with ``s = (x_s, y_s, z_s)`` and ``z_s`` known; the carrier offset δ and the emission time b
-are zero for a cooperative emitter and nuisance parameters otherwise (MATH §15). Pure functions, vectorised: ``position_m`` and
-``velocity_mps`` have shape ``(..., N, 3)``, ``emitter_m`` has shape ``(..., 2)``; leading axes
-broadcast, so one call evaluates many trials, many candidate emitters or many geometries.
-Noise-free values come out with shape ``(..., N)``, Jacobians with shape ``(..., N, 2)``.
+are zero for a cooperative emitter and nuisance parameters otherwise (MATH §15); they enter
+linearly, with derivative 1 in their own parameter. Pure functions, vectorised:
+``position_m`` and ``velocity_mps`` have shape ``(..., N, 3)``, ``emitter_m`` has shape
+``(..., 2)``; leading axes broadcast, so one call evaluates many trials, many candidate
+emitters or many geometries. Noise-free values come out with shape ``(..., N)``, Jacobians
+with shape ``(..., N, 2)``. :func:`doppler_range_derivatives` gives the Doppler and range with
+their derivatives to third order (the frame-by-frame filters and the smoother's expansion),
+:func:`derivatives_of_offsets` the same on per-sample components in any layout (the
+maximum-likelihood search) and :func:`rss_of_ranges` the received power from them.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -30,7 +39,7 @@ _TEN_OVER_LN10 = 10.0 / np.log(10.0)
 
 
 def _offset_components(
-    position_m: ArrayLike, emitter_m: ArrayLike, emitter_height_m: float
+    position_m: ArrayLike, emitter_m: ArrayLike, emitter_height_m: ArrayLike
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """The components of ``p_k − s`` and ``ρ_k``, each ``(..., N)`` (``dz`` broadcasts): the
     functions below work on these planes rather than on a trailing axis of three (numpy
@@ -39,7 +48,7 @@ def _offset_components(
     emitter = np.asarray(emitter_m, dtype=float)
     dx = position[..., 0] - emitter[..., 0, None]
     dy = position[..., 1] - emitter[..., 1, None]
-    dz = position[..., 2] - float(emitter_height_m)
+    dz = position[..., 2] - np.asarray(emitter_height_m, dtype=float)
     distance = np.sqrt(dx * dx + dy * dy + dz * dz)
     return dx, dy, dz, distance
 
@@ -100,9 +109,7 @@ def rss_dbm(
 ) -> FloatArray:
     """Noise-free received power ``P_k = P0 − 10 η log10(ρ_k / d0)`` (MATH §1)."""
     distance = slant_range_m(position_m, emitter_m, emitter_height_m)
-    return rss_model.reference_power_dbm - 10.0 * rss_model.path_loss_exponent * np.log10(
-        distance / rss_model.reference_distance_m
-    )
+    return rss_of_ranges(distance[None], rss_model)[0]
 
 
 def toa_jacobian(
@@ -124,13 +131,157 @@ def doppler_jacobian(
     emitter_height_m: float = 0.0,
 ) -> FloatArray:
     """``∂f_k/∂(x_s, y_s) = γ (v_k − (v_kᵀu_k) u_k)_xy / ρ_k`` (MATH §8), shape ``(..., N, 2)``."""
-    dx, dy, dz, distance = _offset_components(position_m, emitter_m, emitter_height_m)
+    return doppler_range_derivatives(
+        position_m, velocity_mps, emitter_m, gamma_per_m, emitter_height_m, order=1
+    )[0][..., 1:]
+
+
+DERIVATIVE_COMPONENTS = ("", "x", "y", "xx", "xy", "yy", "xxx", "xxy", "xyy", "yyy")
+"""The last axis of :func:`doppler_range_derivatives`: the value, then the unique partial
+derivatives in ``(x_s, y_s)`` of each order (``"xy"`` is ``∂²/∂x_s∂y_s``)."""
+
+N_COMPONENTS_TO_ORDER = (1, 3, 6, 10)
+"""How many :data:`DERIVATIVE_COMPONENTS` the derivatives up to order 0, 1, 2 and 3 fill."""
+
+
+def _first_last(array: FloatArray) -> FloatArray:
+    """A view with the first axis last."""
+    return array.transpose((*range(1, array.ndim), 0))
+
+
+_PAIRS = (np.array([0, 0, 1]), np.array([0, 1, 1]))
+"""``(a, b)`` of ``xx, xy, yy``; the component of a pair is ``a + b``."""
+
+_TRIPLES = (np.array([0, 0, 0, 1]), np.array([0, 0, 1, 1]), np.array([0, 1, 1, 1]))
+"""``(a, b, c)`` of ``xxx, xxy, xyy, yyy``."""
+
+
+def derivatives_of_offsets(
+    offset_x_m: ArrayLike,
+    offset_y_m: ArrayLike,
+    offset_z_m: ArrayLike,
+    velocity_mps: Sequence[ArrayLike],
+    gamma_per_m: ArrayLike,
+    *,
+    order: int = 1,
+    values: bool = True,
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`doppler_range_derivatives` from the components of ``w = p_k − s`` and of ``v_k``
+    (``velocity_mps``: three arrays), all broadcasting together like ``gamma_per_m``, in any
+    layout: for the callers that keep samples in their own (the maximum-likelihood search, rows
+    first). Returns ``(doppler, ranges)``, each ``(n, ...)``, components first: component
+    ``j`` of :data:`DERIVATIVE_COMPONENTS` is a contiguous array of the broadcast shape.
+    ``values=False`` leaves the Doppler's value ``doppler[0]`` uncomputed (a Jacobian alone)."""
+    if order not in (0, 1, 2, 3):
+        raise ValueError(f"order: expected 0, 1, 2 or 3, got {order!r}")
+    dx, dy = np.asarray(offset_x_m, dtype=float), np.asarray(offset_y_m, dtype=float)
+    dz, gamma = np.asarray(offset_z_m, dtype=float), np.asarray(gamma_per_m, dtype=float)
+    vx, vy, vz = velocity_mps
+    width = N_COMPONENTS_TO_ORDER[order]
+    shape = np.broadcast(dx, dz).shape
+    ranges = np.empty((width, *shape))
+    distance = np.multiply(dx, dx, out=ranges[0])
+    distance += dy * dy
+    distance += dz * dz
+    np.sqrt(distance, out=distance)
+    radial = vx * dx  # vᵀw
+    radial += vy * dy
+    try:
+        radial += vz * dz
+    except ValueError:  # the heights or offsets broadcast wider than the plane offsets
+        radial = radial + vz * dz
+    if gamma.ndim:
+        radial = radial + np.zeros_like(gamma)  # γ per sample: the shape of every result
+    doppler = np.empty((width, *radial.shape))
+    if values:
+        value = np.multiply(gamma, radial, out=doppler[0])
+        value /= distance
+        np.negative(value, out=value)  # f = −γ vᵀw/ρ
+    if order < 1:
+        return doppler, ranges
+    neg_inverse = np.divide(-1.0, distance)  # −1/ρ: multiplications from here on
+    minus_ux = np.multiply(dx, neg_inverse, out=ranges[1])  # ∇ρ = −u
+    minus_uy = np.multiply(dy, neg_inverse, out=ranges[2])
+    radial *= neg_inverse  # −vᵀu
+    # −t = −(v − (vᵀu) u) from −vᵀu and −u, in place in the Doppler's gradient at order 1
+    t = np.empty((2, *radial.shape)) if order > 1 else doppler[1:3]
+    tx, ty = t
+    np.subtract(np.multiply(radial, minus_ux, out=tx), vx, out=tx)
+    np.subtract(np.multiply(radial, minus_uy, out=ty), vy, out=ty)
+    scale = np.multiply(neg_inverse, gamma, out=None if gamma.ndim else neg_inverse)  # −γ/ρ
+    np.multiply(t, scale, out=doppler[1:3])  # γ t/ρ
+    if order < 2:
+        return doppler, ranges
+    u = -ranges[1:3]  # u_xy
+    np.negative(t, out=t)
+    np.negative(radial, out=radial)  # vᵀu
+    a, b = _PAIRS
+    p = u[a] * u[b]
+    np.negative(p, out=p)
+    p[0] += 1.0
+    p[2] += 1.0  # P = I − u uᵀ: xx, xy, yy
+    g2 = gamma / distance**2
+    np.multiply(g2, t[a] * u[b] + t[b] * u[a] + radial * p, out=doppler[3:6])
+    np.divide(p, distance, out=ranges[3:6])
+    if order < 3:
+        return doppler, ranges
+    a, b, c = _TRIPLES
+    sum_pu = p[a + b] * u[c] + p[a + c] * u[b] + p[b + c] * u[a]
+    sum_tuu = t[a] * u[b] * u[c] + t[b] * u[a] * u[c] + t[c] * u[a] * u[b]
+    sum_tp = t[a] * p[b + c] + t[b] * p[a + c] + t[c] * p[a + b]
+    np.multiply(g2 / distance, 2.0 * sum_tuu + 2.0 * radial * sum_pu - sum_tp, out=doppler[6:])
+    np.divide(sum_pu, distance**2, out=ranges[6:])
+    return doppler, ranges
+
+
+def doppler_range_derivatives(
+    position_m: ArrayLike,
+    velocity_mps: ArrayLike,
+    emitter_m: ArrayLike,
+    gamma_per_m: ArrayLike,
+    emitter_height_m: ArrayLike = 0.0,
+    *,
+    order: int = 1,
+) -> tuple[FloatArray, FloatArray]:
+    r"""The noise-free Doppler ``f_k`` (Hz) and slant range ``ρ_k = c τ_k`` (m) with their
+    partial derivatives in ``(x_s, y_s)`` up to ``order`` (0 to 3), from one pass over the
+    samples (MATH §1, §8).
+
+    Returns ``(doppler, ranges)``, each of shape ``(..., N, n)`` with ``n`` = 1, 3, 6 or 10:
+    the components :data:`DERIVATIVE_COMPONENTS` (value, ``∂x, ∂y``, ``∂xx, ∂xy, ∂yy``,
+    ``∂xxx, ∂xxy, ∂xyy, ∂yyy``). Without the nuisance terms: a carrier offset δ adds to
+    ``f_k`` and a range offset ``c b`` to ``ρ_k``, each with derivative 1 in its own parameter
+    and none in the position (MATH §15). ``gamma_per_m`` and ``emitter_height_m`` may be
+    arrays broadcasting against ``(..., N)`` (samples of several frames at once).
+
+    With ``w = p_k − s``, ``ρ = ‖w‖``, ``u = w/ρ``, ``r = vᵀu``, ``t = v − r u`` and
+    ``P = I − u uᵀ`` (xy parts, indices ``a, b, c``):
+
+    .. math::
+
+        \nabla\rho = -u,\quad \nabla^2\rho = \frac{P}{\rho},\quad
+        \nabla^3\rho_{abc} = \frac{\sum_3 P_{ab}u_c}{\rho^2},\qquad
+        \nabla f = \frac{\gamma\,t}{\rho},\quad
+        \nabla^2 f = \frac{\gamma}{\rho^2}\big(t u^\top + u t^\top + r P\big),
+
+        \nabla^3 f_{abc} = \frac{\gamma}{\rho^3}\Big(2\sum_3 t_a u_b u_c
+            + 2r\sum_3 P_{ab} u_c - \sum_3 t_a P_{bc}\Big)
+
+    (``Σ₃``: the three distinct placements of the indices). ToA's derivatives are the
+    range's divided by ``c``.
+    """
+    position = np.asarray(position_m, dtype=float)
+    emitter = np.asarray(emitter_m, dtype=float)
     velocity = np.asarray(velocity_mps, dtype=float)
-    vx, vy, vz = velocity[..., 0], velocity[..., 1], velocity[..., 2]
-    ux, uy, uz = dx / distance, dy / distance, dz / distance
-    radial = vx * ux + vy * uy + vz * uz
-    scale = gamma_per_m / distance
-    return np.stack([(vx - radial * ux) * scale, (vy - radial * uy) * scale], axis=-1)
+    doppler, ranges = derivatives_of_offsets(
+        position[..., 0] - emitter[..., 0, None],
+        position[..., 1] - emitter[..., 1, None],
+        position[..., 2] - np.asarray(emitter_height_m, dtype=float),
+        (velocity[..., 0], velocity[..., 1], velocity[..., 2]),
+        gamma_per_m,
+        order=order,
+    )
+    return _first_last(doppler), _first_last(ranges)
 
 
 def rss_jacobian(
@@ -141,5 +292,24 @@ def rss_jacobian(
 ) -> FloatArray:
     """``∂P_k/∂(x_s, y_s) = (10 η / ln 10) u_k,xy / ρ_k`` (MATH §8), shape ``(..., N, 2)``."""
     dx, dy, _, distance = _offset_components(position_m, emitter_m, emitter_height_m)
-    slope = _TEN_OVER_LN10 * rss_model.path_loss_exponent / (distance * distance)
-    return np.stack([dx * slope, dy * slope], axis=-1)
+    ranges = np.stack([distance, -(dx / distance), -(dy / distance)])
+    return _first_last(rss_of_ranges(ranges, rss_model)[1:])
+
+
+def rss_of_ranges(ranges: FloatArray, rss_model: RssModel) -> FloatArray:
+    """The received power ``P_k = P0 − 10 η log10(ρ_k / d0)`` (MATH §1) and, when ``ranges``
+    holds them, its first derivatives ``∇P_k = −(10 η / ln 10) ∇ρ_k / ρ_k`` (MATH §8), from
+    the ranges' components first (:func:`derivatives_of_offsets`): shape ``(1 or 3, ...)``."""
+    distance = ranges[0]
+    out = np.empty((min(len(ranges), 3), *distance.shape))
+    ten_eta = 10.0 * rss_model.path_loss_exponent
+    np.subtract(
+        rss_model.reference_power_dbm,
+        ten_eta * np.log10(distance / rss_model.reference_distance_m),
+        out=out[0],
+    )
+    if len(out) > 1:
+        np.multiply(
+            ranges[1:3], -_TEN_OVER_LN10 * rss_model.path_loss_exponent / distance, out=out[1:]
+        )
+    return out

@@ -31,9 +31,13 @@ starts:
 4. the minima (:func:`distinct_minima`): two end points closer than ``COINCIDENT_RTOL`` of the
    scale are one minimum (at costs tied within ``XTOL`` the earlier start's point is kept: an
    on-plane start stays on a straight track's plane, its off-plane copy stops a fraction of a
-   micrometre off it), and minima within ``cost_rtol`` of the best joined to a better one by a
-   flat valley (no barrier at the midpoint) are one; every minimum within ``cost_rtol`` of the
-   best is a candidate (on one straight frame the mirror pair has exactly equal cost, MATH §7);
+   micrometre off it); on a straight track so is an end point that close to the mirror image
+   of a cheaper one (a start that crossed the track reached the same minimum's image: the
+   mirror rule adds that image, at a distance the search's tolerance sets, not rounding; at
+   costs tied within ``XTOL`` the image on the left of the track is kept), and
+   minima within ``cost_rtol`` of the best joined to a better one by a flat valley (no barrier
+   at the midpoint) are one; every minimum within ``cost_rtol`` of the best is a candidate (on
+   one straight frame the mirror pair has exactly equal cost, MATH §7);
 5. the mirror rule and tie-break (:func:`~estimators.batch.finalize_columns`; one
    ``rng.integers`` per trial that draws, in trial order), the covariance, the inverse Fisher
    information ``(JᵀJ)⁻¹`` at the estimate (MATH §8: the CRLB at ``ŝ``), and the diagnostics.
@@ -68,7 +72,7 @@ from estimators.ml.ml_batch_starts import COINCIDENT_RTOL, find_starts, on_start
 from estimators.ml.ml_residuals import ResidualModel, profiled_offsets
 from estimators.ml.ml_starts import ranges_uninformative
 from scenarios.fisher import inverse_2x2, regular_2x2
-from scenarios.geometry import straight_track_line
+from scenarios.geometry import cross_track_m, mirror_across_line, straight_track_line
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 if TYPE_CHECKING:
@@ -494,6 +498,22 @@ def distinct_minima(
                 start[take, i],
             )
             merged |= close
+            if context.line is not None:  # the mirror image of a kept minimum: the same one
+                origin, direction = context.line
+                mirror = mirror_across_line(points[:, j], origin, direction)
+                dx, dy = points[:, i, 0] - mirror[:, 0], points[:, i, 1] - mirror[:, 1]
+                twin = compared & (np.sqrt(dx * dx + dy * dy) <= threshold)
+                # of two images at a tie the one on the starts' side (left) is kept: which
+                # ends cheaper is rounding, and it orders the mirror rule's candidates
+                left = cross_track_m(points[:, i], origin, direction) >= 0.0
+                right = cross_track_m(points[:, j], origin, direction) < 0.0
+                take = np.flatnonzero(twin & tie & left & right)
+                points[take, j], costs[take, j], start[take, j] = (
+                    points[take, i],
+                    costs[take, i],
+                    start[take, i],
+                )
+                merged |= twin
         kept.append(valid[:, i] & ~merged)
     points, costs, valid = _compact(points, costs, np.column_stack(kept))
     order = np.argsort(costs, axis=1, kind="stable")  # the kept points, back in cost order

@@ -28,7 +28,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from estimators.ml.minpack_batch import column_sums
-from scenarios.types import MeasurementSet
+from scenarios import measurement_model as model
+from scenarios.types import MeasurementSet, RssModel
 
 FloatArray = NDArray[np.float64]
 
@@ -37,50 +38,41 @@ FloatArray = NDArray[np.float64]
 class ResidualModel:
     """The residuals of :func:`whitened_residuals` and their Jacobian, elementwise.
 
-    The forward model of :mod:`scenarios.measurement_model` (MATH §1, §8) written as one fixed
-    sequence of elementwise operations on per-sample constants: a row's value depends on its
-    inputs alone, whatever the layout (:mod:`estimators.ml.ml_batch` keeps rows first,
-    :meth:`by_sample`). The constants
-    have shape ``(N,)``; emitter coordinates ``x, y`` broadcast against them.
+    The forward model of :func:`scenarios.measurement_model.derivatives_of_offsets` and
+    :func:`~scenarios.measurement_model.rss_of_ranges` (MATH §1, §8) on per-sample constants:
+    a row's value depends on its inputs alone, whatever the layout
+    (:mod:`estimators.ml.ml_batch` keeps rows first, :meth:`by_sample`). The constants have
+    shape ``(N,)``; emitter coordinates ``x, y`` broadcast against them.
     """
 
     px: FloatArray
     py: FloatArray
-    dz_sq: FloatArray
+    dz: FloatArray  # z_k − z_s
     vx: FloatArray
     vy: FloatArray
-    vz_dz: FloatArray
+    vz: FloatArray
     gamma: float
     light: float
     sigma: tuple[float, float, float]
-    rss: tuple[float, float, float]  # P0, 10 η, d0
+    rss_model: RssModel | None
     centred: tuple[bool, bool] = (False, False)  # Doppler, ToA blocks profiled (MATH §15)
     sample_axis: int = -1
     toa: bool = True  # a ToA block (False: Doppler alone, MATH §15)
 
     @classmethod
     def of(cls, data: MeasurementSet) -> ResidualModel:
-        position, velocity, noise, rss = data.position_m, data.velocity_mps, data.noise, None
-        dz = position[:, 2] - data.emitter_height_m
-        if data.rss_model is not None:
-            rss = data.rss_model
+        position, velocity, noise = data.position_m, data.velocity_mps, data.noise
         return cls(
             px=position[:, 0],
             py=position[:, 1],
-            dz_sq=dz * dz,
+            dz=position[:, 2] - data.emitter_height_m,
             vx=velocity[:, 0],
             vy=velocity[:, 1],
-            vz_dz=velocity[:, 2] * dz,
+            vz=velocity[:, 2],
             gamma=data.gamma_per_m,
             light=data.speed_of_light_mps,
             sigma=(noise.doppler_hz, noise.toa_s, np.nan if noise.rss_db is None else noise.rss_db),
-            rss=(np.nan,) * 3
-            if rss is None
-            else (
-                rss.reference_power_dbm,
-                10.0 * rss.path_loss_exponent,
-                rss.reference_distance_m,
-            ),
+            rss_model=data.rss_model,
             centred=(
                 "carrier_offset_hz" in data.unknowns,
                 "emission_time_s" in data.unknowns,
@@ -90,7 +82,7 @@ class ResidualModel:
 
     def by_sample(self) -> ResidualModel:
         """The same constants as columns ``(N, 1)``: rows first, emitters along the last axis."""
-        names = ("px", "py", "dz_sq", "vx", "vy", "vz_dz")
+        names = ("px", "py", "dz", "vx", "vy", "vz")
         changes = {n: getattr(self, n)[:, None] for n in names}
         return dataclasses.replace(self, **changes, sample_axis=0)
 
@@ -105,17 +97,18 @@ class ResidualModel:
                     block -= block.mean(axis=self.sample_axis, keepdims=True)
         return blocks
 
-    def _geometry(self, x: ArrayLike, y: ArrayLike) -> tuple[FloatArray, ...]:
-        """``p_k − s`` in the plane, ``ρ_k`` and ``v_kᵀ(p_k − s)`` (in-place where possible)."""
-        dx, dy = self.px - x, self.py - y
-        distance = dx * dx
-        distance += dy * dy
-        distance += self.dz_sq
-        np.sqrt(distance, out=distance)
-        radial = self.vx * dx
-        radial += self.vy * dy
-        radial += self.vz_dz
-        return dx, dy, distance, radial
+    def _model(self, x: ArrayLike, y: ArrayLike, order: int) -> tuple[FloatArray, FloatArray]:
+        """Doppler and range (order 0), or their first derivatives (order 1) with the range,
+        components first (:func:`scenarios.measurement_model.derivatives_of_offsets`)."""
+        return model.derivatives_of_offsets(
+            self.px - x,
+            self.py - y,
+            self.dz,
+            (self.vx, self.vy, self.vz),
+            self.gamma,
+            order=order,
+            values=order == 0,
+        )
 
     def _blocks(self, out: FloatArray | None, count: int, shape: tuple[int, ...]) -> list[Any]:
         """``count`` outputs of ``shape``: consecutive row slices of ``out`` (rows first,
@@ -135,24 +128,20 @@ class ResidualModel:
         *,
         out: FloatArray | None = None,
     ) -> list[FloatArray]:
-        """The Doppler, ToA and (``rss`` given) RSS blocks of ``e`` at ``(x, y)``; with
-        ``out`` (rows first) written into its consecutive row slices."""
-        _, _, distance, radial = self._geometry(x, y)
+        """The Doppler, ToA and (``rss`` given) RSS blocks of ``e`` at ``(x, y)``, measured
+        minus predicted over σ; with ``out`` (rows first) written into its consecutive row
+        slices."""
+        predicted, ranges = self._model(x, y, 0)
         sigma_f, sigma_t, sigma_p = self.sigma
         count = 1 + self.toa + (rss is not None)
-        slots = self._blocks(out, count, distance.shape)
-        predicted = np.multiply(self.gamma, radial, out=radial)
-        predicted /= distance
-        predicted = np.add(doppler, predicted, out=_same(predicted, doppler))
-        blocks = [np.divide(predicted, sigma_f, out=slots[0])]
+        slots = self._blocks(out, count, ranges.shape[1:])
+        blocks = [_whitened(doppler, predicted[0], sigma_f, slots[0])]
         if self.toa:
-            delay = np.divide(distance, self.light, out=slots[1])
-            delay = np.subtract(toa, delay, out=_same(delay, toa))
-            blocks.append(np.divide(delay, sigma_t, out=delay))
+            blocks.append(_whitened(toa, ranges[0] / self.light, sigma_t, slots[1]))
         if rss is not None:
-            p0, ten_eta, d0 = self.rss
-            power = p0 - ten_eta * np.log10(distance / d0)
-            blocks.append(np.divide(np.subtract(rss, power), sigma_p, out=slots[-1]))
+            assert self.rss_model is not None
+            power = model.rss_of_ranges(ranges, self.rss_model)[0]
+            blocks.append(_whitened(rss, power, sigma_p, slots[-1]))
         return self._profiled(blocks) if any(self.centred) else blocks
 
     def jacobian(
@@ -163,36 +152,39 @@ class ResidualModel:
         *,
         out: tuple[FloatArray, FloatArray] | None = None,
     ) -> tuple[list[FloatArray], list[FloatArray]]:
-        """``∂e/∂x_s`` and ``∂e/∂y_s``, each as the blocks of :meth:`residuals`; with ``out``
-        (two rows-first arrays) written into their consecutive row slices."""
-        dx, dy, distance, radial = self._geometry(x, y)
+        """``∂e/∂x_s`` and ``∂e/∂y_s`` (``−∇h/σ``), each as the blocks of :meth:`residuals`;
+        with ``out`` (two rows-first arrays) written into their consecutive row slices."""
+        doppler, ranges = self._model(x, y, 1)
         sigma_f, sigma_t, sigma_p = self.sigma
         count = 1 + self.toa + use_rss
-        slots_x = self._blocks(None if out is None else out[0], count, distance.shape)
-        slots_y = self._blocks(None if out is None else out[1], count, distance.shape)
-        inverse = np.divide(1.0, distance, out=distance)  # ρ is not needed after this
-        ux, uy = dx * inverse, dy * inverse
-        along = np.multiply(radial, inverse, out=radial)
-        # ∂e_f/∂s = −γ (v − (vᵀu) u)_xy / (ρ σ_f)
-        weight = np.multiply(inverse, -self.gamma / sigma_f)
-        jx, jy = [], []
-        for unit, speed, slots, into in ((ux, self.vx, slots_x, jx), (uy, self.vy, slots_y, jy)):
-            across = np.multiply(along, unit)
-            np.subtract(speed, across, out=across)
-            into.append(
-                np.multiply(across, weight, out=slots[0] if slots[0] is not None else across)
-            )
-        if self.toa:
-            jx.append(np.multiply(ux, 1.0 / (self.light * sigma_t), out=slots_x[1]))
-            jy.append(np.multiply(uy, 1.0 / (self.light * sigma_t), out=slots_y[1]))
+        shape = ranges.shape[1:]
+        slots = (
+            self._blocks(None if out is None else out[0], count, shape),
+            self._blocks(None if out is None else out[1], count, shape),
+        )
+        power = None
         if use_rss:
-            slope = np.multiply(inverse, inverse)
-            slope *= -self.rss[1] / (np.log(10.0) * sigma_p)
-            jx.append(np.multiply(dx, slope, out=slots_x[-1]))
-            jy.append(np.multiply(dy, slope, out=slots_y[-1]))
+            assert self.rss_model is not None
+            power = model.rss_of_ranges(ranges, self.rss_model)
+        columns: tuple[list[FloatArray], list[FloatArray]] = ([], [])
+        for axis, (into, slot) in enumerate(zip(columns, slots, strict=True)):
+            into.append(np.multiply(doppler[1 + axis], -1.0 / sigma_f, out=slot[0]))
+            if self.toa:
+                scale = -1.0 / (self.light * sigma_t)
+                into.append(np.multiply(ranges[1 + axis], scale, out=slot[1]))
+            if power is not None:
+                into.append(np.multiply(power[1 + axis], -1.0 / sigma_p, out=slot[-1]))
         if any(self.centred):
-            return self._profiled(jx), self._profiled(jy)
-        return jx, jy
+            return self._profiled(columns[0]), self._profiled(columns[1])
+        return columns
+
+
+def _whitened(
+    measured: ArrayLike, predicted: FloatArray, sigma: float, out: FloatArray | None
+) -> FloatArray:
+    """``(z − h)/σ`` (into ``out`` if given)."""
+    residual = np.subtract(measured, predicted, out=_same(predicted, measured))
+    return np.divide(residual, sigma, out=out if out is not None else residual)
 
 
 def _same(result: FloatArray, other: ArrayLike) -> FloatArray | None:
@@ -204,8 +196,6 @@ def profiled_offsets(data: MeasurementSet, emitter_m: ArrayLike) -> dict[str, fl
     """The least-squares values of the unknown nuisance parameters at ``emitter_m`` (MATH §15):
     ``δ = mean_k(f_k + γ v_kᵀu_k)`` and ``b = mean_k(τ_k − ρ_k/c)``, keyed by their names; empty
     for a cooperative emitter."""
-    from scenarios import measurement_model as model
-
     out = {}
     if "carrier_offset_hz" in data.unknowns and data.doppler_hz is not None:
         predicted = model.doppler_hz(

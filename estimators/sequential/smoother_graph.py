@@ -42,6 +42,7 @@ from estimators.convergence import (
     negative_curvature,
 )
 from estimators.frame_model import FrameModel
+from scenarios.measurement_model import doppler_range_derivatives
 
 FloatArray = NDArray[np.float64]
 
@@ -512,85 +513,37 @@ def _whitened_derivatives(
     frames: Sequence[FrameModel], points_m: FloatArray
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     r"""Every row of ``frames``, frame ``i`` at ``points_m[i]`` (Doppler rows of all the frames,
-    then their range rows): ``v = [e, ∇e, ∇²e, ∇³e]`` (unique components, 10 columns), and
-    ``e``, ``∇e`` as :class:`~estimators.frame_model.FrameModel` computes them (the same
-    operations, so a cached linearisation equals a fresh one).
-
-    With ``w = p − s``, ``ρ = ‖w‖``, ``u = w/ρ``, ``r = vᵀu``, ``t = v − r u`` and
-    ``P = I − u uᵀ`` (xy parts), ``∇²ρ = P/ρ``, ``∇²f = γ(t uᵀ + u tᵀ + r P)/ρ²`` and
-
-    .. math::
-
-        \nabla^3\rho_{abc} = \frac{\sum_3 P_{ab}u_c}{\rho^2},\qquad
-        \nabla^3 f_{abc} = \frac{\gamma}{\rho^3}\Big(2\sum_3 t_a u_b u_c
-            + 2r\sum_3 P_{ab} u_c - \sum_3 t_a P_{bc}\Big)
-
-    (``Σ₃``: the three distinct placements of the indices).
+    then their range rows): ``v = [e, ∇e, ∇²e, ∇³e]`` (unique components, 10 columns, from
+    :func:`scenarios.measurement_model.doppler_range_derivatives`), and ``e``, ``∇e`` as
+    :class:`~estimators.frame_model.FrameModel` computes them (the same function, so a cached
+    linearisation equals a fresh one).
     """
     points = np.asarray(points_m, dtype=float).reshape(-1, 2)
     if len(frames) == 1:  # one new frame per update: no stacking
         frame = frames[0]
-        position, velocity = frame.position_m, frame.velocity_mps
-        measured, sigma, gamma = frame.measured, frame.sigma, frame.gamma_per_m
-        emitter = np.array([points[0, 0], points[0, 1], frame.emitter_height_m])
-        gamma_column: Any = gamma
+        measured, sigma = frame.measured, frame.sigma
+        doppler, ranges = frame.derivatives(points[0], 3)
     else:
         counts = [len(frame.position_m) for frame in frames]
-        position = np.concatenate([frame.position_m for frame in frames])
-        velocity = np.concatenate([frame.velocity_mps for frame in frames])
-        height = np.repeat([frame.emitter_height_m for frame in frames], counts)
-        emitter = np.column_stack([np.repeat(points, counts, axis=0), height])
-        gamma = np.repeat([frame.gamma_per_m for frame in frames], counts)
-        gamma_column = gamma[:, None]
         pairs = list(zip(frames, counts, strict=True))
         measured = np.concatenate(
             [f.measured[:k] for f, k in pairs] + [f.measured[k:] for f, k in pairs]
         )
         sigma = np.concatenate([f.sigma[:k] for f, k in pairs] + [f.sigma[k:] for f, k in pairs])
-    offset = position - emitter
-    distance = np.linalg.norm(offset, axis=-1)
-    unit = offset / distance[:, None]
-    radial = np.sum(velocity * unit, axis=-1)
-    tangential = velocity - radial[:, None] * unit
-    e = (np.concatenate([-gamma * radial, distance]) - measured) / sigma
-    jacobian = np.concatenate([gamma_column * tangential[:, :2] / distance[:, None], -unit[:, :2]])
-    e_jacobian = jacobian / sigma[:, None]
-    ux, uy, tx, ty = unit[:, 0], unit[:, 1], tangential[:, 0], tangential[:, 1]
-    pxx, pxy, pyy = 1.0 - ux * ux, -ux * uy, 1.0 - uy * uy
-    sum_pu = (3.0 * pxx * ux, pxx * uy + 2.0 * pxy * ux, 2.0 * pxy * uy + pyy * ux, 3.0 * pyy * uy)
-    sum_tuu = (
-        3.0 * tx * ux * ux,
-        2.0 * tx * ux * uy + ty * ux * ux,
-        tx * uy * uy + 2.0 * ty * ux * uy,
-        3.0 * ty * uy * uy,
-    )
-    sum_tp = (3.0 * tx * pxx, 2.0 * tx * pxy + ty * pxx, tx * pyy + 2.0 * ty * pxy, 3.0 * ty * pyy)
-    g2 = gamma / distance**2
-    g3 = g2 / distance
-    doppler_second = (
-        2.0 * tx * ux + radial * pxx,
-        tx * uy + ty * ux + radial * pxy,
-        2.0 * ty * uy + radial * pyy,
-    )
-    second = np.concatenate(
-        [
-            g2[:, None] * np.column_stack(doppler_second),
-            np.column_stack([pxx, pxy, pyy]) / distance[:, None],
-        ]
-    )
-    third = np.concatenate(
-        [
-            g3[:, None]
-            * (
-                2.0 * np.column_stack(sum_tuu)
-                + 2.0 * radial[:, None] * np.column_stack(sum_pu)
-                - np.column_stack(sum_tp)
-            ),
-            np.column_stack(sum_pu) / (distance**2)[:, None],
-        ]
-    )
-    rows = np.column_stack([e, e_jacobian, second / sigma[:, None], third / sigma[:, None]])
-    return rows, e, e_jacobian
+        doppler, ranges = doppler_range_derivatives(  # one emitter per sample: (K, 1, ·)
+            np.concatenate([frame.position_m for frame in frames])[:, None, :],
+            np.concatenate([frame.velocity_mps for frame in frames])[:, None, :],
+            np.repeat(points, counts, axis=0),
+            np.repeat([frame.gamma_per_m for frame in frames], counts)[:, None],
+            np.repeat([frame.emitter_height_m for frame in frames], counts)[:, None],
+            order=3,
+        )
+        doppler, ranges = doppler[:, 0], ranges[:, 0]
+    derivatives = np.concatenate([doppler, ranges])
+    e = (derivatives[:, 0] - measured) / sigma
+    rows = derivatives / sigma[:, None]
+    rows[:, 0] = e
+    return rows, e, rows[:, 1:3]
 
 
 def expansion_terms(

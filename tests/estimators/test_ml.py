@@ -18,6 +18,7 @@ from estimators.ml.ml_batch_starts import doppler_frame_starts
 from estimators.ml.ml_starts import ranges_uninformative
 from estimators.registry import make_estimator
 from scenarios.catalog import get_scenario
+from scenarios.geometry import cross_track_m
 from scenarios.simulate import noise_free, simulate, simulate_trials, trial_seeds
 from scenarios.types import MeasurementBatch
 
@@ -213,7 +214,7 @@ def test_one_minimum_from_two_starts_keeps_the_earlier_start_at_a_tie():
     assert len(estimate.candidates_m) == 1 and estimate.ambiguous
     assert estimate.position_m[1] == 0.0  # the track is the x axis
     points = np.array([[[0.0, 0.0], [1e-7, 0.0], [5.0, 0.0]]])
-    context = types.SimpleNamespace(estimator=MaximumLikelihood())  # no flat tie to test
+    context = types.SimpleNamespace(estimator=MaximumLikelihood(), line=None)  # no flat tie
     valid, scale, trials = np.ones((1, 3), dtype=bool), np.ones(1), np.zeros(1, dtype=np.int64)
     tied = np.array([[2.0 + 1e-12, 2.0, 1.0]])
     found = distinct_minima(context, trials, points.copy(), tied, valid, scale)
@@ -224,6 +225,42 @@ def test_one_minimum_from_two_starts_keeps_the_earlier_start_at_a_tie():
     found = distinct_minima(context, trials, points.copy(), apart, valid, scale)
     assert found[2][0] == 2
     np.testing.assert_array_equal(found[0][0, :2], [[5.0, 0.0], [1e-7, 0.0]])
+
+
+def test_a_minimum_and_the_mirror_image_of_another_are_one_minimum():
+    """On a straight track a start that crossed it ends at the mirror image of another start's
+    minimum, 4e-8 m from it in ``paper`` (the search's tolerance, not rounding): within
+    ``COINCIDENT_RTOL`` of the scale that is one minimum, the cheaper kept, and the mirror rule
+    then gives the pair once (two candidates, not four whose count depends on rounding)."""
+    origin, direction = np.array([10.0, 2.0]), np.array([0.6, 0.8])
+    context = types.SimpleNamespace(estimator=MaximumLikelihood(), line=(origin, direction))
+    a = np.array([36.0, -21.5])
+    image = origin + 2.0 * ((a - origin) @ direction) * direction - (a - origin)
+    near_image = image + np.array([3e-8, -2.5e-8])  # 3.9e-8 m from it
+    other = np.array([5.0, 40.0])
+    points = np.array([[near_image, a, other]])
+    costs = np.array([[12.5, 12.0, 13.0]])  # apart: no flat valley to test
+    valid, trials = np.ones((1, 3), dtype=bool), np.zeros(1, dtype=np.int64)
+    scale = np.array([36.0])  # threshold 3.6e-5 m
+    found, found_costs, count = distinct_minima(context, trials, points, costs, valid, scale)
+    assert count[0] == 2
+    np.testing.assert_array_equal(found[0, :2], [a, other])
+    np.testing.assert_array_equal(found_costs[0, :2], [12.0, 13.0])
+    # at a cost tie the image on the left of the track (the starts' side) is kept, whichever
+    # ends cheaper by rounding: the mirror rule's candidates come in one order
+    tied = np.array([[12.0 * (1.0 + 1e-14), 12.0, 13.0]])  # a, on the right, cheaper
+    found, found_costs, count = distinct_minima(context, trials, points.copy(), tied, valid, scale)
+    assert count[0] == 2
+    np.testing.assert_array_equal(found[0, :2], [near_image, other])
+    np.testing.assert_array_equal(found_costs[0, :2], [tied[0, 0], 13.0])
+    assert cross_track_m(near_image, origin, direction) > 0.0 > cross_track_m(a, origin, direction)
+    # off the mirror image by more than the tolerance: two minima of their own
+    points = np.array([[image + 1e-4, a, other]])
+    assert distinct_minima(context, trials, points, costs, valid, scale)[2][0] == 3
+    # no straight track: no mirror images
+    context.line = None
+    points = np.array([[near_image, a, other]])
+    assert distinct_minima(context, trials, points, costs, valid, scale)[2][0] == 3
 
 
 # --------------------------------------------------------------------------------------------

@@ -129,6 +129,160 @@ def test_rss_jacobian_matches_finite_differences(geometry, eta, d0) -> None:
 
 
 # --------------------------------------------------------------------------------------------
+# the derivatives to third order (doppler_range_derivatives) against central differences
+# --------------------------------------------------------------------------------------------
+
+ORDER_COLUMNS = {0: [0], 1: [1, 2], 2: [3, 4, 5], 3: [6, 7, 8, 9]}
+"""Columns of each order in ``DERIVATIVE_COMPONENTS``."""
+
+
+def differenced(function, emitter: np.ndarray, step: float, order: int) -> np.ndarray:
+    """Order ``order``'s columns by central differences of order ``order − 1``'s."""
+    lower = ORDER_COLUMNS[order - 1]
+    dx, dy = central_difference(lambda s: function(s)[:, lower], emitter, step).transpose(2, 0, 1)
+    if order == 1:
+        return np.column_stack([dx[:, 0], dy[:, 0]])
+    if order == 2:  # from (f_x, f_y): f_xx = ∂x f_x, f_xy = ∂x f_y, f_yy = ∂y f_y
+        return np.column_stack([dx[:, 0], dx[:, 1], dy[:, 1]])
+    # from (f_xx, f_xy, f_yy): f_xxx = ∂x f_xx, f_xxy = ∂x f_xy, f_xyy = ∂x f_yy, f_yyy = ∂y f_yy
+    return np.column_stack([dx[:, 0], dx[:, 1], dx[:, 2], dy[:, 2]])
+
+
+@settings(max_examples=150, deadline=None, database=None)
+@given(geometries(), st.sampled_from([1, 2, 3]))
+def test_doppler_range_derivatives_match_finite_differences(geometry, order) -> None:
+    """Each order's derivatives are the central differences of the order below, to
+    ``1e-6 ×`` their scale at the nearest sample (``γ|v|/ρ^k`` for Doppler, ``1/ρ^(k−1)`` for
+    the range): truncation ``O((step/ρ)²) = 1e-8``, rounding ``O(ε ρ/step) = 2e-12``. The
+    mixed derivatives are checked both ways (``∂y f_x = f_xy``, ``∂y f_xx = f_xxy``)."""
+    position, velocity, emitter, height, gamma = geometry
+    ranges = model.slant_range_m(position, emitter, height)
+    step = 1e-4 * ranges.min()
+    doppler, distance = model.doppler_range_derivatives(
+        position, velocity, emitter, gamma, height, order=3
+    )
+    assert doppler.shape == distance.shape == (len(position), 10)
+    speed = max(np.max(np.linalg.norm(velocity, axis=1)), 1e-3)
+    for index, (analytic, scale) in enumerate(
+        [(doppler, gamma * speed / ranges.min() ** order), (distance, ranges.min() ** (1 - order))]
+    ):
+
+        def at(s, index=index):
+            return model.doppler_range_derivatives(
+                position, velocity, s, gamma, height, order=order - 1
+            )[index]
+
+        numeric = differenced(at, emitter, step, order)
+        np.testing.assert_allclose(
+            analytic[:, ORDER_COLUMNS[order]], numeric, rtol=1e-6, atol=1e-6 * scale
+        )
+        if order >= 2:  # the other mixed difference: ∂y of the first lower column
+            lower = ORDER_COLUMNS[order - 1][0]
+            mixed = central_difference(lambda s, at=at, lower=lower: at(s)[:, lower], emitter, step)
+            np.testing.assert_allclose(
+                analytic[:, ORDER_COLUMNS[order][1]], mixed[:, 1], rtol=1e-6, atol=1e-6 * scale
+            )
+
+
+def test_doppler_range_derivatives_agree_with_the_values_and_jacobians() -> None:
+    """Order 0 and 1 are :func:`doppler_hz`, :func:`slant_range_m` and the Jacobians
+    (``∇ρ = c∇τ``); the lower orders are the leading columns of the higher ones."""
+    rng = np.random.default_rng(3)
+    position = rng.uniform(-300.0, 300.0, (9, 3))
+    velocity = rng.uniform(-20.0, 20.0, (9, 3))
+    emitter, gamma, height, c = np.array([40.0, -70.0]), 2.5, 6.0, 3e8
+    doppler, ranges = model.doppler_range_derivatives(
+        position, velocity, emitter, gamma, height, order=3
+    )
+    np.testing.assert_allclose(
+        doppler[:, 0], model.doppler_hz(position, velocity, emitter, gamma, height), rtol=1e-13
+    )
+    np.testing.assert_allclose(ranges[:, 0], model.slant_range_m(position, emitter, height))
+    np.testing.assert_allclose(
+        doppler[:, 1:3], model.doppler_jacobian(position, velocity, emitter, gamma, height)
+    )
+    np.testing.assert_allclose(
+        ranges[:, 1:3], c * model.toa_jacobian(position, emitter, c, height), rtol=1e-15
+    )
+    for order in (0, 1, 2):
+        lower = model.doppler_range_derivatives(
+            position, velocity, emitter, gamma, height, order=order
+        )
+        width = model.N_COMPONENTS_TO_ORDER[order]
+        assert lower[0].shape == lower[1].shape == (9, width)
+        np.testing.assert_array_equal(lower[0], doppler[:, :width])
+        np.testing.assert_array_equal(lower[1], ranges[:, :width])
+
+
+def test_doppler_range_derivatives_take_per_sample_constants() -> None:
+    """``γ`` and the height per sample, one emitter per sample ((K, 1, 3) samples against
+    (K, 2) emitters): each row as if evaluated alone."""
+    rng = np.random.default_rng(4)
+    position = rng.uniform(-300.0, 300.0, (5, 3))
+    velocity = rng.uniform(-20.0, 20.0, (5, 3))
+    emitters = rng.uniform(-50.0, 50.0, (5, 2))
+    gammas, heights = rng.uniform(1.0, 3.0, 5), rng.uniform(0.0, 10.0, 5)
+    doppler, ranges = model.doppler_range_derivatives(
+        position[:, None], velocity[:, None], emitters, gammas[:, None], heights[:, None], order=3
+    )
+    assert doppler.shape == (5, 1, 10)
+    for k in range(5):
+        one = model.doppler_range_derivatives(
+            position[k : k + 1], velocity[k : k + 1], emitters[k], gammas[k], heights[k], order=3
+        )
+        np.testing.assert_allclose(doppler[k], one[0], rtol=1e-14)
+        np.testing.assert_allclose(ranges[k], one[1], rtol=1e-14)
+
+
+def test_derivatives_of_offsets_in_a_rows_first_layout() -> None:
+    """Per-sample constants as columns (K, 1) against emitters along the last axis (E,): the
+    components first, each (K, E), equal to :func:`doppler_range_derivatives` per emitter;
+    ``values=False`` gives the same derivatives."""
+    rng = np.random.default_rng(5)
+    position = rng.uniform(-300.0, 300.0, (6, 3))
+    velocity = rng.uniform(-20.0, 20.0, (6, 3))
+    emitters = rng.uniform(-50.0, 50.0, (4, 2))
+    gamma, height = 1.7, 3.0
+    columns = [position[:, i, None] for i in range(3)]
+    speeds = tuple(velocity[:, i, None] for i in range(3))
+    for order in (0, 1, 2, 3):
+        doppler, ranges = model.derivatives_of_offsets(
+            columns[0] - emitters[:, 0],
+            columns[1] - emitters[:, 1],
+            columns[2] - height,
+            speeds,
+            gamma,
+            order=order,
+        )
+        assert doppler.shape == ranges.shape == (model.N_COMPONENTS_TO_ORDER[order], 6, 4)
+        for e in range(4):
+            one = model.doppler_range_derivatives(
+                position, velocity, emitters[e], gamma, height, order=order
+            )
+            np.testing.assert_allclose(doppler[:, :, e].T, one[0], rtol=1e-14, atol=1e-300)
+            np.testing.assert_allclose(ranges[:, :, e].T, one[1], rtol=1e-14, atol=1e-300)
+        if order:
+            alone = model.derivatives_of_offsets(
+                columns[0] - emitters[:, 0],
+                columns[1] - emitters[:, 1],
+                columns[2] - height,
+                speeds,
+                gamma,
+                order=order,
+                values=False,
+            )
+            np.testing.assert_array_equal(alone[0][1:], doppler[1:])
+            np.testing.assert_array_equal(alone[1], ranges)
+
+
+def test_doppler_range_derivatives_reject_an_order_above_three() -> None:
+    with pytest.raises(ValueError, match="order: expected 0, 1, 2 or 3"):
+        model.doppler_range_derivatives(
+            [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]], [0.0, 0.0], 1.0, order=4
+        )
+
+
+# --------------------------------------------------------------------------------------------
 # broadcasting over leading axes
 # --------------------------------------------------------------------------------------------
 
