@@ -45,6 +45,7 @@ from estimators.base import Estimate
 from estimators.batch import BatchEstimates, check_rngs, finalize_columns
 from estimators.closed_form.cls_rows import horizontal_speed_mps
 from estimators.closed_form.gtrs_batch import GtrsBatch, RowBlock, solve_gtrs_batch
+from scenarios import measurement_model as model
 from scenarios.geometry import straight_track_line
 from scenarios.types import MeasurementBatch, MeasurementSet
 
@@ -124,8 +125,8 @@ class SharedGeometry:
             "-uy": -unit[:, 1],
             "vx": velocity[:, 0],
             "vy": velocity[:, 1],
-            "vz_dz": velocity[:, 2] * dz,
-            "dz_sq": dz * dz,
+            "vz": velocity[:, 2],
+            "dz": dz,
             "gv": used.gamma_per_m * speed,
         }
         line = straight_track_line(position, velocity)
@@ -620,18 +621,16 @@ class RowsOfChunk:
         sf2 = noise.doppler_hz**2
         if weights_at is None:
             rho, doppler = self.r, self.f
-        else:
-            dx = column["x"] - weights_at[0] * scale
-            dy = column["y"] - weights_at[1] * scale
-            doppler = dx * column["vx"]
-            doppler += np.multiply(dy, column["vy"])
-            doppler += column["vz_dz"]
-            rho = np.multiply(dx, dx, out=dx)
-            rho += np.multiply(dy, dy, out=dy)
-            rho += column["dz_sq"]
-            np.sqrt(rho, out=rho)
-            doppler /= rho
-            doppler *= -self.gamma
+        else:  # the noise-free Doppler and range at that point (MATH §1)
+            doppler, ranges = model.derivatives_of_offsets(
+                column["x"] - weights_at[0] * scale,
+                column["y"] - weights_at[1] * scale,
+                column["dz"],
+                (column["vx"], column["vy"], column["vz"]),
+                self.gamma,
+                order=0,
+            )
+            doppler, rho = doppler[0], ranges[0]
         rho_sq = rho * rho
         root = rho_sq * sf2
         spare = np.multiply(doppler, doppler)

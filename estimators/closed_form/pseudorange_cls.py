@@ -342,15 +342,17 @@ def _moments_at(
         if f is not None:
             f_bar = f - f.mean(axis=1, keepdims=True) if rows.nuisance is not None else f.copy()
         return rho, f_bar
-    offset = np.empty((n, k, 3))
-    offset[..., :2] = rows.q - theta[:, None, :2]
-    offset[..., 2] = rows.h
-    rho = np.linalg.norm(offset, axis=-1)
-    f_bar = None
-    if f is not None:
-        radial = np.sum(geometry.velocity_mps * offset, axis=-1) / rho
-        f_bar = -geometry.gamma_per_m * radial
-    return rho, f_bar
+    velocity = geometry.velocity_mps
+    doppler, ranges = model.derivatives_of_offsets(  # the noise-free model (MATH §1)
+        rows.q[..., 0] - theta[:, None, 0],
+        rows.q[..., 1] - theta[:, None, 1],
+        rows.h,
+        (velocity[:, 0], velocity[:, 1], velocity[:, 2]),
+        geometry.gamma_per_m,
+        order=0,
+        values=f is not None,
+    )
+    return ranges[0], None if f is None else doppler[0]
 
 
 def _check_options(data: MeasurementSet, carrier_offset_unknown: bool, stages: int) -> None:
