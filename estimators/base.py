@@ -54,6 +54,10 @@ from estimators.interface import Capabilities as Capabilities
 from estimators.interface import Estimator, capabilities_of
 from estimators.interface import SequentialEstimator as SequentialEstimator
 from estimators.interface import protocol_problems as protocol_problems
+from estimators.mirror_rule import COST_TIE_ULPS as COST_TIE_ULPS
+from estimators.mirror_rule import MERGE_RTOL as MERGE_RTOL
+from estimators.mirror_rule import FinalizedColumns, finalize_columns
+from estimators.mirror_rule import cost_tie_level as cost_tie_level
 from estimators.registry import estimators_handling
 from estimators.validity import (
     invalid_estimates,
@@ -377,22 +381,6 @@ def check_rng(rng: Any) -> np.random.Generator | None:
     )
 
 
-MERGE_RTOL = 1e-9
-"""Candidates closer than this times the scale of the points are one (the mirror rule,
-:func:`finalize_from_track`)."""
-
-COST_TIE_ULPS = 64.0
-"""Costs within this many rounding units of ``max(|best|, 1)`` above the best tie, on top of
-``cost_rtol``: a sum of a few hundred squares carries that much rounding."""
-
-
-def cost_tie_level(best: ArrayLike, cost_rtol: float) -> Any:
-    """The highest cost that ties ``best`` (a number or an array of them): ``cost_rtol``
-    relative, plus rounding (``COST_TIE_ULPS``). The one tie level of MATH §7."""
-    size = np.abs(best)
-    return best + cost_rtol * size + np.finfo(float).eps * COST_TIE_ULPS * np.maximum(size, 1.0)
-
-
 def choose_candidate(
     candidates_m: ArrayLike,
     costs: ArrayLike,
@@ -407,46 +395,33 @@ def choose_candidate(
     first (a stable sort: equal costs keep their order). ``chosen`` is the kept candidate
     nearest to ``side_prior_m`` when one is given; otherwise an exact tie is broken by ``rng``
     (a fair coin, ``rng.integers(len(kept))``: the data hold no side information) or, without
-    one, by the lowest cost. The one rule behind :func:`choose_position` and the filters'
-    choice among their hypotheses
+    one, by the lowest cost. :func:`~estimators.mirror_rule.finalize_columns` of one trial
+    without the merge; the filters' choice among their hypotheses
     (:func:`estimators.sequential.mirror_hypotheses.hypotheses_estimate`).
     """
     check_rng(rng)
     points = np.asarray(candidates_m, dtype=float).reshape(-1, 2)
     cost = np.asarray(costs, dtype=float).reshape(-1)
-    order = np.argsort(cost, kind="stable")
-    kept = order[cost[order] <= cost_tie_level(cost[order[0]], cost_rtol)]
-    if side_prior_m is not None:
-        prior = np.asarray(side_prior_m, dtype=float).reshape(2)
-        index = int(np.argmin(np.linalg.norm(points[kept] - prior, axis=1)))
-    elif len(kept) > 1 and rng is not None:
-        index = int(rng.integers(len(kept)))
-    else:
-        index = 0
-    return int(kept[index]), kept
-
-
-def choose_position(
-    candidates_m: ArrayLike,
-    costs: ArrayLike,
-    *,
-    rng: np.random.Generator | None,
-    side_prior_m: ArrayLike | None = None,
-    cost_rtol: float = 1e-6,
-) -> tuple[FloatArray, FloatArray, bool]:
-    """Order candidates and pick the returned position (MATH §7).
-
-    Candidates whose cost is within ``cost_rtol`` (relative) of the best are kept, best first.
-    With a ``side_prior_m`` the kept candidate nearest to it is returned; otherwise an exact tie
-    is broken by ``rng`` (a fair coin: the data hold no side information) or, without one, by
-    the lowest cost (:func:`choose_candidate`). Returns
-    ``(position, kept_candidates, ambiguous)``.
-    """
-    points = np.asarray(candidates_m, dtype=float).reshape(-1, 2)
-    chosen, kept = choose_candidate(
-        points, costs, rng=rng, side_prior_m=side_prior_m, cost_rtol=cost_rtol
+    final = finalize_columns(
+        points[None],
+        np.array([len(points)]),
+        cost[None],
+        np.zeros(2),
+        None,
+        side_prior_m=side_prior_m,
+        cost_rtol=cost_rtol,
+        merge=False,
     )
-    return points[chosen], points[kept], len(kept) > 1
+    chosen = _drawn(final, rng)
+    kept = final.source[0, : final.n_candidates[0]]
+    return int(kept[chosen]), kept
+
+
+def _drawn(final: FinalizedColumns, rng: np.random.Generator | None) -> int:
+    """The returned slot of a batch of one: ``rng.integers(n_candidates)`` when it draws."""
+    if final.draw[0] and rng is not None:
+        return int(rng.integers(final.n_candidates[0]))
+    return int(final.chosen[0])
 
 
 def params_of(estimator: Any) -> dict[str, Any]:
@@ -473,7 +448,7 @@ def finalize_estimate(
 
     On a straight track (every sample on one line, flying along it) each candidate's mirror
     image across the track has exactly the same cost, so it is added, and the answer is
-    ambiguous. Coincident candidates are merged; see :func:`choose_position` for the pick.
+    ambiguous. Coincident candidates are merged; see :func:`finalize_from_track` for the pick.
     ``data`` are the samples used: when they hover at one point (an estimator that uses only
     the last frame, and the UAV hovered in it), the estimate is failed, with the reason of
     :func:`baseline_problem`, whatever the candidates. Otherwise it is
@@ -529,25 +504,32 @@ def finalize_from_track(
     right; the comparison reflects it, ``R P Rᵀ``, for the mirror candidate, MATH §7 and §16).
     ``diagnostics`` gain ``straight_track``.
     """
+    check_rng(rng)
     points = np.asarray(candidates_m, dtype=float).reshape(-1, 2)
     cost = np.asarray(costs, dtype=float).reshape(-1)
     line = track.straight
-    if line is not None:
-        points = np.vstack([points, line.mirror_point(points)])
-        cost = np.concatenate([cost, cost])
-    scale = max(float(np.max(np.abs(points - track.centre_m))), 1e-300)
-    keep: list[int] = []
-    for index in np.argsort(cost, kind="stable"):
-        if all(np.linalg.norm(points[index] - points[j]) > MERGE_RTOL * scale for j in keep):
-            keep.append(int(index))
-    position, kept, tied = choose_position(
-        points[keep], cost[keep], rng=rng, side_prior_m=side_prior_m, cost_rtol=cost_rtol
+    final = finalize_columns(
+        points[None],
+        np.array([len(points)]),
+        cost[None],
+        track.centre_m,
+        None if line is None else (line.origin_m, line.direction),
+        side_prior_m=side_prior_m,
+        cost_rtol=cost_rtol,
     )
+    if final.invalid[0]:
+        return Estimate.failed(
+            estimator,
+            f"no finite candidate among {len(points)} (MATH §7)",
+            **dict(diagnostics or {}),
+        )
+    kept = final.candidates[0, : final.n_candidates[0]]
+    position = kept[_drawn(final, rng)]
     return Estimate(
         estimator=estimator,
         position_m=position,
         candidates_m=kept,
-        ambiguous=tied or line is not None,
+        ambiguous=bool(final.ambiguous[0]),
         covariance_m2=covariance_m2,
         success=True,
         message=message,

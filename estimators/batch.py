@@ -1,17 +1,11 @@
-"""Estimates of a whole batch of trials as columns, and the mirror rule applied to columns.
+"""Estimates of a whole batch of trials as columns.
 
 :class:`BatchEstimates` holds what a list of :class:`~estimators.base.Estimate` holds, one
 array per field with the trials along the first axis, so that a run can store a batch's
 results without building an object per trial. :meth:`BatchEstimates.estimate` builds the
 per-trial :class:`~estimators.base.Estimate` on demand; ``estimate_batch`` of a batch-capable
 estimator returns :meth:`BatchEstimates.to_estimates`.
-
-:func:`finalize_columns` is :func:`estimators.base.finalize_estimate` and
-:func:`estimators.base.choose_position` for every trial at once: the mirror images on a
-straight track, the merging of coincident candidates, ``cost_rtol``, ``side_prior_m`` and the
-tie-break (which trials draw ``rng.integers(n_candidates)``: exactly those where the one-trial
-path draws; the caller draws them, in trial order). Where rounding could decide a comparison
-either way it flags the trial, for the caller to finalize that trial one at a time.
+The mirror rule applied to columns is :func:`estimators.mirror_rule.finalize_columns`.
 """
 
 from __future__ import annotations
@@ -21,9 +15,9 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
-from estimators.base import COST_TIE_ULPS, MERGE_RTOL, Estimate, check_rng, cost_tie_level
+from estimators.base import Estimate, check_rng
 from estimators.validity import (
     invalid_estimates,
     numeric_array,
@@ -35,9 +29,6 @@ from estimators.validity import (
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 IntArray = NDArray[np.int64]
-
-DOUBT_FACTOR = 2.0
-"""A distance within this factor of the merge threshold is too close to call."""
 
 _ARRAYS = (
     "position_m",
@@ -353,136 +344,3 @@ def check_rngs(rngs: Sequence[np.random.Generator | None] | None, n: int) -> lis
         for rng in rngs:
             check_rng(rng)
     return list(rngs)
-
-
-@dataclass(frozen=True, slots=True, eq=False)
-class FinalizedColumns:
-    """What :func:`finalize_columns` decides for each trial (``draw`` still to be drawn)."""
-
-    candidates: FloatArray
-    n_candidates: IntArray
-    chosen: IntArray
-    draw: BoolArray
-    ambiguous: BoolArray
-    uncertain: BoolArray
-
-
-def finalize_columns(
-    candidates_m: FloatArray,
-    count: IntArray,
-    costs: FloatArray,
-    mean_position_m: ArrayLike,
-    line: tuple[FloatArray, FloatArray] | None,
-    *,
-    side_prior_m: ArrayLike | None = None,
-    cost_rtol: float = 1e-6,
-) -> FinalizedColumns:
-    """:func:`~estimators.base.finalize_estimate` for ``n`` trials of one geometry.
-
-    Parameters
-    ----------
-    candidates_m : (n, k, 2)
-        Each trial's candidates, the first ``count[i]`` valid, in the order the one-trial
-        path passes them.
-    costs : (n, k)
-    mean_position_m : (2,)
-        The mean horizontal sample position (the one-trial path's reference for its scale).
-    line : the track's ``(origin, direction)`` or None (``straight_track_line``).
-
-    Returns the kept candidates in the one-trial path's order, the index chosen when no draw
-    is needed, and which trials need ``rng.integers(n_candidates)`` (ambiguous, no prior).
-    """
-    n, k, _ = candidates_m.shape
-    # one (n,) array per candidate slot: the candidates, then (straight track) their mirrors
-    xs = [candidates_m[:, j, 0] for j in range(k)]
-    ys = [candidates_m[:, j, 1] for j in range(k)]
-    valid = [count > j for j in range(k)]
-    cost = [np.where(valid[j], costs[:, j], np.inf) for j in range(k)]
-    if line is not None:  # each candidate's mirror image, at its cost, after the candidates
-        (ox, oy), (dx, dy) = (np.asarray(v, dtype=float) for v in line)
-        for j in range(k):
-            along = (xs[j] - ox) * dx + (ys[j] - oy) * dy
-            xs.append(ox + 2.0 * along * dx - (xs[j] - ox))
-            ys.append(oy + 2.0 * along * dy - (ys[j] - oy))
-        cost, valid = cost + cost, valid + valid
-    width = len(xs)
-    mean = np.asarray(mean_position_m, dtype=float)
-    scale = np.full(n, -np.inf)
-    uncertain = np.zeros(n, dtype=bool)
-    for j in range(width):
-        spread = np.maximum(np.abs(xs[j] - mean[0]), np.abs(ys[j] - mean[1]))
-        scale = np.where(valid[j], np.maximum(scale, spread), scale)
-        uncertain |= valid[j] & ~np.isfinite(xs[j] + ys[j] + cost[j])
-    scale = np.maximum(scale, 1e-300)
-    threshold = MERGE_RTOL * scale
-
-    # stable sort by cost, unless every trial's valid costs are in slot order already
-    in_order = all(
-        np.all(~valid[i] | ~valid[j] | (cost[i] <= cost[j])) for j in range(width) for i in range(j)
-    )
-    if not in_order:  # (invalid slots are skipped wherever they stand)
-        order = np.argsort(np.column_stack(cost), axis=1, kind="stable")
-
-        def sort(columns: list[NDArray[Any]]) -> list[NDArray[Any]]:
-            stacked = np.take_along_axis(np.column_stack(columns), order, axis=1)
-            return [stacked[:, j] for j in range(width)]
-
-        xs, ys, cost, valid = sort(xs), sort(ys), sort(cost), sort(valid)
-
-    # greedy merge in cost order: a point within the threshold of a kept one is dropped
-    kept = [valid[0].copy()]
-    for i in range(1, width):
-        keep = valid[i].copy()
-        for j in range(i):
-            distance = np.hypot(xs[i] - xs[j], ys[i] - ys[j])
-            compared = valid[i] & kept[j]
-            keep &= ~(compared & (distance <= threshold))
-            uncertain |= (
-                compared
-                & (distance > threshold / DOUBT_FACTOR)
-                & (distance < threshold * DOUBT_FACTOR)
-            )
-        kept.append(keep)
-
-    # choose_position: the kept points are in cost order; those above the tolerance go. A
-    # cost equal to the best stays whatever the rounding; another near the limit is in doubt
-    best = cost[0]
-    limit = cost_tie_level(best, cost_rtol)
-    band = 1e-9 * np.abs(limit) + np.finfo(float).eps * COST_TIE_ULPS * np.maximum(
-        np.abs(best), 1.0
-    )
-    out = np.full((n, width, 2), np.nan)
-    n_final = np.zeros(n, dtype=np.int64)
-    rows = np.arange(n)
-    for j in range(width):
-        uncertain |= kept[j] & (cost[j] != best) & (np.abs(cost[j] - limit) <= band)
-        final = kept[j] & (cost[j] <= limit)
-        at = rows[final]
-        out[at, n_final[final], 0] = xs[j][final]
-        out[at, n_final[final], 1] = ys[j][final]
-        n_final += final
-
-    ambiguous = n_final > 1
-    chosen = np.zeros(n, dtype=np.int64)
-    draw = np.zeros(n, dtype=bool)
-    if side_prior_m is not None:
-        prior = np.asarray(side_prior_m, dtype=float).reshape(2)
-        distance = np.hypot(out[..., 0] - prior[0], out[..., 1] - prior[1])
-        distance = np.where(np.arange(width)[None, :] < n_final[:, None], distance, np.inf)
-        chosen = np.argmin(distance, axis=1).astype(np.int64)
-        nearest = np.take_along_axis(distance, chosen[:, None], axis=1)[:, 0]
-        others = np.where(np.arange(width)[None, :] == chosen[:, None], np.inf, distance)
-        runner_up = np.min(others, axis=1)
-        uncertain |= np.isfinite(runner_up) & (
-            runner_up - nearest <= 1e-6 * np.maximum(nearest, scale)
-        )
-    else:
-        draw = ambiguous
-    return FinalizedColumns(
-        candidates=out,
-        n_candidates=n_final,
-        chosen=chosen,
-        draw=draw,
-        ambiguous=ambiguous | (line is not None),
-        uncertain=uncertain,
-    )

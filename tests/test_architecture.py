@@ -400,6 +400,7 @@ ESTIMATOR_CORE = frozenset(
         "batch",
         "convergence",
         "frame_model",
+        "mirror_rule",
         "goodness_of_fit",
         "interface",
         "moved",

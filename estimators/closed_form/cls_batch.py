@@ -42,17 +42,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from estimators.base import Estimate
-from estimators.batch import BatchEstimates, check_rngs, finalize_columns
+from estimators.batch import BatchEstimates, check_rngs
 from estimators.closed_form.cls_rows import horizontal_speed_mps
 from estimators.closed_form.gtrs_batch import GtrsBatch, RowBlock, solve_gtrs_batch
+from estimators.mirror_rule import finalize_columns
 from scenarios import measurement_model as model
 from scenarios.geometry import straight_track_line
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
 SolveOne = Callable[[MeasurementSet, np.random.Generator | None], Estimate]
-"""A one-trial finish: ``estimate(data, rng=rng)`` after the checks the batch made once (the
-pseudo-range form's trials that :func:`~estimators.batch.finalize_columns` cannot decide)."""
+"""``estimate(data, rng=rng)`` of one trial, after the checks the batch made once."""
 
 CHUNK_ELEMENTS = 131_072
 """Samples × trials per chunk of the vectorised solve: large enough that numpy's per-call
@@ -234,7 +234,7 @@ def solve_trials(
         chosen[part] = final.chosen
         draw[part] = final.draw
         ambiguous[part] = final.ambiguous
-        failed[part] = solution.failed
+        failed[part] = solution.failed | final.invalid
         hard[part] = solution.hard_case
         multiplier[part] = solution.multiplier
         rank[part] = solution.rank
@@ -344,41 +344,6 @@ def draw_tie_breaks(
     index = [i for i in np.flatnonzero(draw).tolist() if generators[i] is not None]
     counts = n_kept[index].tolist()
     chosen[index] = [generators[i].integers(c) for i, c in zip(index, counts, strict=True)]
-
-
-def draw_and_redo(
-    name: str,
-    solve_one: SolveOne,
-    batch: MeasurementBatch,
-    generators: list[np.random.Generator | None],
-    uncertain: NDArray[np.bool_],
-    draw: NDArray[np.bool_],
-    n_kept: NDArray[np.int64],
-    chosen: NDArray[np.int64],
-) -> tuple[NDArray[np.int64], list[Estimate]]:
-    """In trial order: finish the ``uncertain`` trials one at a time with ``solve_one``, and
-    draw the tie-break of the others that need one (``chosen`` is updated in place)."""
-    redo = np.flatnonzero(uncertain)
-    if redo.size == 0:
-        draw_tie_breaks(generators, draw, n_kept, chosen)
-        return redo, []
-    recomputed = []
-    for i in np.flatnonzero(uncertain | draw).tolist():
-        if uncertain[i]:
-            recomputed.append(_solve_one_safely(name, solve_one, batch.trial(i), generators[i]))
-        elif generators[i] is not None:
-            chosen[i] = generators[i].integers(n_kept[i])
-    return redo, recomputed
-
-
-def _solve_one_safely(
-    name: str, solve_one: SolveOne, data: MeasurementSet, rng: np.random.Generator | None
-) -> Estimate:
-    """``solve_one``; an exception becomes a failed estimate, as a run records it."""
-    try:
-        return solve_one(data, rng)
-    except Exception as error:
-        return Estimate.failed(name, f"{type(error).__name__}: {error}")
 
 
 def system_of_trial(

@@ -51,8 +51,8 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from estimators.batch import BatchEstimates, check_rngs, finalize_columns
-from estimators.closed_form.cls_batch import SolveOne, draw_and_redo
+from estimators.batch import BatchEstimates, check_rngs
+from estimators.closed_form.cls_batch import SolveOne, draw_tie_breaks
 from estimators.closed_form.cls_rows import LocalFrame, horizontal_speed_mps, project_out
 from estimators.closed_form.gtrs_indefinite import STATUSES as GTRS_STATUSES
 from estimators.closed_form.gtrs_indefinite import (
@@ -61,6 +61,7 @@ from estimators.closed_form.gtrs_indefinite import (
     solve_gtrs_indefinite_batch,
     stationary_points,
 )
+from estimators.mirror_rule import finalize_columns
 from scenarios import measurement_model as model
 from scenarios.fisher import gram_information
 from scenarios.geometry import moves_horizontally, single_horizontal_point, straight_track_line
@@ -834,11 +835,10 @@ def estimate_pseudorange_columns(
 
     What ``estimate`` of :mod:`estimators.closed_form.cls` returns trial by trial with an
     unknown emission time (MATH §15): :func:`solve_pseudorange_batch` on the frames used, the
-    hard-case pair ordered by side (``ordered_candidates`` of that module) and the mirror rule
-    of :func:`~estimators.batch.finalize_columns`. Trials whose choices the rule cannot
-    certify, and every trial when the samples used hover (``finalize_estimate`` fails them),
-    are solved one at a time by ``solve_one``; the others draw their tie-break as the one-trial
-    path does, in trial order.
+    hard-case pair left of the last heading first and the mirror rule of
+    :func:`~estimators.mirror_rule.finalize_columns`; ties draw from each trial's generator,
+    in trial order. When the samples used hover every trial goes to ``solve_one``, whose
+    ``finalize_estimate`` fails it with the reason.
     """
     n = batch.n_trials
     generators = check_rngs(rngs, n)
@@ -882,13 +882,10 @@ def estimate_pseudorange_columns(
             line,
             side_prior_m=side_prior_m,
         )
-    n_kept = np.where(success, final.n_candidates, 0)
+    ok = success & ~final.invalid
+    n_kept = np.where(ok, final.n_candidates, 0)
     chosen = final.chosen.copy()
-    uncertain = final.uncertain & success
-    redo, recomputed = draw_and_redo(
-        name, solve_one, batch, generators, uncertain, final.draw & success, n_kept, chosen
-    )
-    ok = success & ~uncertain
+    draw_tie_breaks(generators, final.draw & ok, n_kept, chosen)
     width = final.candidates.shape[1]
     position = final.candidates[np.arange(n), np.minimum(chosen, width - 1)]
     messages = [
@@ -897,9 +894,12 @@ def estimate_pseudorange_columns(
         WRONG_SHEET_NOTE,
         f"hard case: mirror pair (MATH §15); {WRONG_SHEET_NOTE}",
         *(f"pseudo-range closed form: {status} (MATH §15)" for status in STATUSES),
+        "pseudo-range closed form: no finite candidate (MATH §15)",
     ]
     wrong_sheet = ~solution.on_physical_sheet
-    code = np.where(success, hard + 2 * wrong_sheet, 4 + solution.status)
+    code = np.where(
+        ok, hard + 2 * wrong_sheet, np.where(success, len(messages) - 1, 4 + solution.status)
+    )
     diagnostics: dict[str, NDArray[Any]] = {
         "status": np.array(STATUSES, dtype=object)[solution.status],
         "multiplier": solution.gtrs.multiplier,
@@ -923,7 +923,7 @@ def estimate_pseudorange_columns(
         messages=tuple(messages),
         diagnostics=diagnostics,
     )
-    return columns_out.with_trials(redo, recomputed)
+    return columns_out
 
 
 def relaxed_fisher_information(

@@ -60,12 +60,12 @@ from estimators.base import (
     Estimate,
     baseline_problem,
     cost_tie_level,
-    finalize_estimate,
     require_batch,
 )
-from estimators.batch import BatchEstimates, check_rngs, finalize_columns
+from estimators.batch import BatchEstimates, check_rngs
 from estimators.closed_form.cls_batch import SharedGeometry
 from estimators.convergence import DECREMENT_TOL
+from estimators.mirror_rule import finalize_columns
 from estimators.ml.minpack_batch import INFO_CODES, TERMINATION_MESSAGES, column_dot, lmder_batch
 from estimators.ml.ml_batch_audit import decrements
 from estimators.ml.ml_batch_starts import COINCIDENT_RTOL, find_starts, on_start_grid
@@ -307,11 +307,7 @@ def _solve_trials(context: SharedContext, trials: IntArray) -> _Chunk:
         )
     candidates, n_kept, chosen = final.candidates, final.n_candidates, final.chosen
     draw, ambiguous = final.draw, final.ambiguous
-    again = np.flatnonzero(final.uncertain & ok)
-    if again.size:  # too close to call with the columns' margins: the rule on one trial
-        candidates, n_kept, chosen, draw, ambiguous = _finalize_each(
-            context, again, minima, minimum_costs, n_minima, final
-        )
+    ok &= ~final.invalid
     message = note.copy()
     dropped = ok & (n_converged < count)
     for i in np.flatnonzero(dropped).tolist():
@@ -547,46 +543,6 @@ def _compact(
     keep = np.take_along_axis(keep, order, axis=1)
     points = np.where(keep[..., None], points, np.nan)
     return points, np.where(keep, costs, np.inf), keep
-
-
-def _finalize_each(
-    context: SharedContext,
-    again: IntArray,
-    minima: FloatArray,
-    costs: FloatArray,
-    count: IntArray,
-    final: Any,
-) -> tuple[FloatArray, IntArray, IntArray, BoolArray, BoolArray]:
-    """The mirror rule of the trials ``again`` whose comparisons are too close to call with
-    :func:`~estimators.batch.finalize_columns`' margins, by
-    :func:`~estimators.base.finalize_estimate` on the same minima (without drawing)."""
-    estimator = context.estimator
-    found = {}
-    for i in again.tolist():
-        estimate = finalize_estimate(
-            estimator.name,
-            minima[i, : count[i]],
-            costs[i, : count[i]],
-            context.used,
-            side_prior_m=estimator.side_prior_m,
-            cost_rtol=estimator.cost_rtol,
-        )
-        found[i] = estimate
-    width = max([final.candidates.shape[1], *(len(e.candidates_m) for e in found.values())])
-    candidates = np.full((len(count), width, 2), np.nan)
-    candidates[:, : final.candidates.shape[1]] = final.candidates
-    n_kept, chosen = final.n_candidates.copy(), final.chosen.copy()
-    draw = final.draw.copy()
-    for i, estimate in found.items():
-        kept = estimate.candidates_m
-        candidates[i] = np.nan
-        candidates[i, : len(kept)] = kept
-        n_kept[i] = len(kept)
-        same = np.flatnonzero((kept == estimate.position_m).all(axis=1))
-        chosen[i] = int(same[0]) if same.size else 0
-        draw[i] = len(kept) > 1 and estimator.side_prior_m is None
-    ambiguous = (n_kept > 1) | (context.line is not None)
-    return candidates, n_kept, chosen, draw, ambiguous
 
 
 def _covariances(

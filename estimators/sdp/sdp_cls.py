@@ -74,13 +74,13 @@ from estimators.base import (
     Capabilities,
     Estimate,
     check_side_prior,
-    finalize_estimate,
     require_batch,
     require_modalities,
 )
-from estimators.batch import BatchEstimates, FinalizedColumns, check_rngs, finalize_columns
+from estimators.batch import BatchEstimates, check_rngs
 from estimators.closed_form.cls_batch import CHUNK_ELEMENTS, MAX_CHUNK, SharedGeometry
 from estimators.goodness_of_fit import with_fit, with_fit_columns
+from estimators.mirror_rule import FinalizedColumns, finalize_columns
 from estimators.sdp.sdp_lift import (
     RANK_RTOL,
     ChunkRows,
@@ -580,10 +580,8 @@ def _decide(
     failures: dict[int, Estimate],
     generators: list[np.random.Generator | None],
 ) -> _Decided:
-    """The mirror rule of :func:`~estimators.base.finalize_estimate` for every trial that
-    passed (:func:`~estimators.batch.finalize_columns`) and the tie-break draws in trial
-    order; a trial whose choice is within rounding of a threshold is finalized by
-    ``finalize_estimate`` itself, with its generator, when its turn comes."""
+    """The mirror rule (:func:`~estimators.mirror_rule.finalize_columns`) for every trial that
+    passed, and the tie-break draws in trial order."""
     solved = _Solved.join(parts)
     index, world, count, costs, code = (getattr(solved, name) for name in _Solved.FIELDS)
     found, keys = dict(solved.diagnostics), list(solved.diagnostics)
@@ -599,27 +597,20 @@ def _decide(
             )
     else:  # no trial passed: every one is in failures
         none = np.zeros(0, dtype=bool)
-        final = FinalizedColumns(np.empty((0, 1, 2)), count, count, none, none, none)
-    chosen = final.chosen.copy()
-    take = np.flatnonzero(final.uncertain | final.draw).tolist()
-    redone = {}
-    for j in take:  # rows are in trial order
-        rng = generators[int(index[j])]
-        if not final.uncertain[j]:
-            if rng is not None:
-                chosen[j] = rng.integers(final.n_candidates[j])
-            continue
-        k = int(count[j])
-        redone[int(index[j])] = finalize_estimate(
-            estimator.name,
-            world[j, :k],
-            costs[j, :k],
-            shared.used,
-            rng=rng,
-            side_prior_m=estimator.side_prior_m,
-            message=_message(int(code[j]), estimator.solver),
-            diagnostics=_row(found, j),
+        final = FinalizedColumns(
+            np.empty((0, 1, 2)), count, np.empty((0, 1), dtype=np.int64), count, none, none, none
         )
+    chosen = final.chosen.copy()
+    for j in np.flatnonzero(final.draw).tolist():  # rows are in trial order
+        rng = generators[int(index[j])]
+        if rng is not None:
+            chosen[j] = rng.integers(final.n_candidates[j])
+    redone = {
+        int(index[j]): Estimate.failed(
+            estimator.name, "no finite candidate (MATH §7)", **_row(found, j)
+        )
+        for j in np.flatnonzero(final.invalid).tolist()
+    }
     if keys:
         found["straight_track"] = np.full(len(index), shared.line is not None)
     return _Decided(
