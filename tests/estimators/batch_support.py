@@ -24,6 +24,16 @@ def family_batch(families: Families, name: str, n: int, seed: int = 0) -> Measur
     return simulate_trials(build(), snr_db=snr_db, seeds=trial_seeds(seed, n))
 
 
+def sub_batch(batch: MeasurementBatch, trials: slice) -> MeasurementBatch:
+    """The trials ``trials`` of ``batch``, on its geometry."""
+    return MeasurementBatch(
+        geometry=batch.geometry,
+        doppler_hz=batch.doppler_hz[trials],
+        toa_s=batch.toa_s[trials],
+        rss_dbm=None if batch.rss_dbm is None else batch.rss_dbm[trials],
+    )
+
+
 def generators(n: int, seed: int = 100) -> list[np.random.Generator]:
     """One generator per trial."""
     return [np.random.default_rng(seed + i) for i in range(n)]

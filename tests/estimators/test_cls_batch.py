@@ -29,7 +29,7 @@ from scenarios.catalog import get_scenario, heading_velocities_mps
 from scenarios.simulate import simulate_trials, trial_seeds
 from scenarios.types import FlightPlan, MeasurementBatch, Scenario
 from tests.estimators import batch_support
-from tests.estimators.batch_support import generators, rotated
+from tests.estimators.batch_support import generators, rotated, sub_batch
 from tests.estimators.test_gtrs import COST_RTOL, brute_force_minimum
 
 
@@ -70,15 +70,6 @@ def assert_same_estimate(a: Estimate, b: Estimate) -> None:
         b.message,
     )
     np.testing.assert_equal(a.diagnostics, b.diagnostics)
-
-
-def sub_batch(batch: MeasurementBatch, trials: slice) -> MeasurementBatch:
-    return MeasurementBatch(
-        geometry=batch.geometry,
-        doppler_hz=batch.doppler_hz[trials],
-        toa_s=batch.toa_s[trials],
-        rss_dbm=None if batch.rss_dbm is None else batch.rss_dbm[trials],
-    )
 
 
 # --------------------------------------------------------------------------------------------

@@ -24,7 +24,7 @@ from estimators.ml.ml_batch_starts import find_starts, on_start_grid
 from scenarios.catalog import get_scenario
 from scenarios.types import MeasurementBatch, Scenario
 from tests.estimators import batch_support
-from tests.estimators.batch_support import generators, path_problems, rotated
+from tests.estimators.batch_support import generators, path_problems, rotated, sub_batch
 
 
 def near_plane() -> Scenario:
@@ -116,15 +116,6 @@ def test_options_one_trial_is_the_batch_of_one(family: str, estimator) -> None:
     batch = family_batch(family, n, seed=1)
     columns = estimator.estimate_columns(batch, rngs=generators(n))
     assert differences(estimator, batch, columns) == []
-
-
-def sub_batch(batch: MeasurementBatch, trials: slice) -> MeasurementBatch:
-    return MeasurementBatch(
-        geometry=batch.geometry,
-        doppler_hz=batch.doppler_hz[trials],
-        toa_s=batch.toa_s[trials],
-        rss_dbm=None if batch.rss_dbm is None else batch.rss_dbm[trials],
-    )
 
 
 @pytest.mark.paths
