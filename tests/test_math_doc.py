@@ -121,16 +121,25 @@ def test_the_printed_rows_put_the_paper_emitter_at_52_2() -> None:
 
 
 def test_the_printed_doppler_line_vanishes_flying_north() -> None:
-    """§3: the first row of the rank-one system is all zeros when v_x = 0."""
-    from estimators.closed_form.cls_rows import doppler_rows_as_printed
+    """§3: the first row of the rank-one system is all zeros when v_x = 0 (cls-as-printed's
+    Doppler row, the first of its system, on a northbound frame)."""
+    from estimators.closed_form.cls import cls_rows
+    from estimators.closed_form.cls_rows import LocalFrame
+    from scenarios import FlightPlan, get_scenario, noise_free
 
-    K = 10
-    position = np.column_stack([np.zeros(K), 0.5 * np.arange(K), np.full(K, 50.0)])
-    velocity = np.tile([0.0, 10.0, 0.0], (K, 1))
-    A, b = doppler_rows_as_printed(
-        np.zeros(K, dtype=int), position, velocity, np.full(K, 60.0), np.full(K, 3.0), 1.0
+    north = get_scenario("paper-1m").replace(
+        emitter_m=[-15.0, 35.0],
+        flight=FlightPlan(
+            start_position_m=[0, 0, 50],
+            frame_velocities_mps=[[0, 10, 0]],
+            samples_per_frame=10,
+            sample_interval_s=0.05,
+        ),
     )
-    assert np.array_equal(A, np.zeros((1, 3))) and np.array_equal(b, np.zeros(1))
+    data = noise_free(north)
+    A, b = cls_rows(data, LocalFrame.fit(data.position_m, data.range_m), "as-printed")
+    assert len(A) == 11  # one Doppler row for the frame, then ten ToA rows
+    assert np.array_equal(A[0], np.zeros(3)) and b[0] == 0.0
     assert "printed row [0.0, 0.0, 0.0] = 0" in PAGE
 
 

@@ -13,7 +13,7 @@ The reference path is the batch: ``Cls.estimate`` is the batch of one trial.
 """
 
 from estimators.closed_form.cls import Cls, ClsAsPrinted, ClsPaper, cls_rows
-from estimators.closed_form.cls_rows import LocalFrame, doppler_rows, toa_rows
+from estimators.closed_form.cls_rows import LocalFrame, toa_rows
 from estimators.closed_form.constrained_ls import ConstrainedLS
 from estimators.closed_form.gtrs import solve_gtrs
 from estimators.closed_form.gtrs_indefinite import solve_gtrs_indefinite_batch
@@ -26,7 +26,6 @@ __all__ = [
     "ConstrainedLS",
     "LocalFrame",
     "cls_rows",
-    "doppler_rows",
     "solve_gtrs",
     "solve_gtrs_indefinite_batch",
     "solve_pseudorange_batch",

@@ -123,15 +123,23 @@ def test_paper_cls_depends_on_the_unit_system(name: str) -> None:
 
 def test_paper_cls_row_has_the_paper_scale() -> None:
     """On the paper's track (v = (10, 0, 0) m/s, K = 10) the projected row is ``K|v|² = 1000``
-    times the unit row, i.e. exactly the paper's ``[k1, k2, 0]`` with ``k1 = Σ v_x² = 1000``."""
-    from estimators.closed_form.cls_rows import paper_row_scale_m2ps2
+    times the unit row, i.e. exactly the paper's ``[k1, k2, 0]`` with ``k1 = Σ v_x² = 1000``; on
+    ``turn`` each frame's row is its own ``K|v|²`` times its unit heading (SI units: a frame
+    with origin 0 and unit 1 m)."""
+    from estimators.closed_form.cls import cls_rows
+    from estimators.closed_form.cls_rows import LocalFrame
 
+    si = LocalFrame(origin_m=np.zeros(2), scale_m=1.0)
     data = noise_free(get_scenario("paper-1m"))
-    np.testing.assert_allclose(paper_row_scale_m2ps2(data.frame, data.velocity_mps), [1000.0])
+    A, _ = cls_rows(data, si, "per-frame")
+    np.testing.assert_allclose(A[0], [1000.0, 0.0, 0.0], rtol=1e-12)
     turn = noise_free(get_scenario("turn"))
-    speed_sq = np.sum(turn.velocity_mps[:, :2] ** 2, axis=1)
-    expected = [np.sum(speed_sq[turn.frame == f]) for f in np.unique(turn.frame)]
-    np.testing.assert_allclose(paper_row_scale_m2ps2(turn.frame, turn.velocity_mps), expected)
+    A, _ = cls_rows(turn, si, "per-frame")
+    for frame in np.unique(turn.frame):
+        v = turn.velocity_mps[turn.frame == frame]
+        speed_sq = np.sum(v[:, :2] ** 2, axis=1)
+        expected = np.sum(speed_sq) * np.append(v[0, :2] / np.sqrt(speed_sq[0]), 0.0)
+        np.testing.assert_allclose(A[frame], expected, rtol=1e-12, atol=1e-9)
 
 
 def rotated(scenario: Scenario, angle_rad: float) -> Scenario:
