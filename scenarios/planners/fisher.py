@@ -68,6 +68,15 @@ Past = Literal["frames", "covariance"]
 REFINE_POINTS = 21
 """Headings per refinement round (spanning ±1 step of the previous round)."""
 
+HEADING_TIE_RTOL = 1e-9
+"""Headings whose criterion is within this (relative) of the best tie: the least turn from the
+current heading wins, then the turn to the left. A straight track's mirror candidates make the
+criterion symmetric about it, so the best headings come in mirror pairs of equal value, which
+rounding alone would otherwise decide between."""
+
+TURN_RESOLUTION_RAD = 1e-9
+"""Turns equal to this are equal (a heading and its mirror image about the current one)."""
+
 
 def next_frame_geometry(
     start_m: ArrayLike,
@@ -159,6 +168,19 @@ def past_statistics(
     )
 
 
+def least_turn_argmin(values: FloatArray, headings_rad: FloatArray, centre_rad: float) -> int:
+    """The index of the best value; of headings that tie (:data:`HEADING_TIE_RTOL`), the one
+    turning least from ``centre_rad``, then the one turning left: a choice that the rounding of
+    two mirror-symmetric values cannot change."""
+    best = float(np.min(values))
+    if not math.isfinite(best):
+        return int(np.argmin(values))
+    near = np.flatnonzero(values <= best + HEADING_TIE_RTOL * abs(best))
+    turn = np.angle(np.exp(1j * (headings_rad[near] - centre_rad)))  # in (−π, π]
+    size = np.round(np.abs(turn) / TURN_RESOLUTION_RAD)
+    return int(near[np.lexsort((-turn, size))[0]])
+
+
 def best_heading_rad(
     objective: Callable[[FloatArray], FloatArray],
     *,
@@ -171,8 +193,9 @@ def best_heading_rad(
 
     The window is the whole circle when ``half_width_rad >= π`` (``n_headings`` headings,
     step ``2π/n``), else ``centre ± half_width`` (``n_headings`` headings, both ends
-    included). Then ``refine_rounds`` rounds of :data:`REFINE_POINTS` headings over ±1 step
-    around the best, kept inside the window, each round's step a tenth of the previous.
+    included), the best of them by :func:`least_turn_argmin`. Then ``refine_rounds`` rounds of
+    :data:`REFINE_POINTS` headings over ±1 step around the best, kept inside the window, each
+    round's step a tenth of the previous.
     """
     full_circle = half_width_rad >= math.pi
     if full_circle:
@@ -182,7 +205,7 @@ def best_heading_rad(
         grid = np.linspace(centre_rad - half_width_rad, centre_rad + half_width_rad, n_headings)
         step = 2 * half_width_rad / max(n_headings - 1, 1)
     values = objective(grid)
-    best = int(np.argmin(values))
+    best = least_turn_argmin(values, grid, centre_rad)
     heading, value = float(grid[best]), float(values[best])
     for _ in range(refine_rounds):
         local = heading + np.linspace(-step, step, REFINE_POINTS)

@@ -22,7 +22,7 @@ from scenarios.planners import (
     flight_from_measurements,
     get_planner,
 )
-from scenarios.planners.fisher import heading_objective
+from scenarios.planners.fisher import best_heading_rad, heading_objective
 from scenarios.planners.paper import (
     choose_root,
     circle_roots_mps,
@@ -438,3 +438,23 @@ def test_flight_is_reconstructed_from_the_samples():
     moved = dataclasses.replace(data, position_m=data.position_m + shift)
     with pytest.raises(ValueError, match=r"^position_m: the samples depart"):
         flight_from_measurements(moved)
+
+
+@pytest.mark.parametrize("sign", [-1.0, 1.0])
+def test_mirror_symmetric_best_headings_are_decided_by_the_turn_not_the_rounding(sign) -> None:
+    """A criterion symmetric about the current heading (a straight track's mirror pair, MATH
+    §7, §13) has its best headings in mirror pairs; whichever of the two the rounding makes a
+    unit in the last place smaller, the planner turns the least, and left on a tie of turns."""
+    current = 0.3
+    best_turn = 1.1  # radians, either side
+
+    def objective(headings: np.ndarray) -> np.ndarray:
+        turn = np.angle(np.exp(1j * (headings - current)))
+        value = 1.0 + (np.abs(turn) - best_turn) ** 2
+        return value * (1.0 + sign * 2.2e-16 * np.sign(turn))  # one side an ulp cheaper
+
+    heading, value = best_heading_rad(
+        objective, centre_rad=current, half_width_rad=math.pi, n_headings=360, refine_rounds=3
+    )
+    assert heading - current == pytest.approx(best_turn, abs=1e-4)
+    assert value == pytest.approx(1.0, abs=1e-8)
