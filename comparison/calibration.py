@@ -32,7 +32,7 @@ import numpy as np
 
 from estimators.base import Capabilities, Estimate, check_rng, check_side_prior
 from scenarios.fields import finite
-from scenarios.fisher import fisher_information, inverse_2x2
+from scenarios.fisher import fisher_information, inverse_symmetric
 from scenarios.types import MeasurementSet
 
 AXES = ("major", "minor")
@@ -86,7 +86,7 @@ class KnownEfficiency:
         if rng is None:
             raise ValueError("rng: known-efficiency draws its error from rng; pass a Generator")
         truth = np.asarray(self.emitter_m, dtype=float)
-        crlb = inverse_2x2(fisher_information(data, truth, sorted(self.requires)))
+        crlb = inverse_symmetric(fisher_information(data, truth, sorted(self.requires)))
         if not np.all(np.isfinite(crlb)):
             return Estimate.failed(self.name, "singular Fisher information: no CRLB to draw from")
         variances, axes = np.linalg.eigh(crlb)

@@ -29,7 +29,7 @@ from scenarios.fisher import (
     FloatArray,
     fisher_information,
     fisher_information_per_frame,
-    inverse_2x2,
+    inverse_symmetric,
     rmse_bound_m,
     whitened_jacobian,
 )
@@ -47,11 +47,11 @@ __all__ = [
 
 
 def crlb_m2(information: ArrayLike) -> FloatArray:
-    """``J⁻¹``; NaN where ``J`` is singular (an unobservable geometry), shape ``(..., 2, 2)``.
+    """``J⁻¹``; NaN where ``J`` is singular (an unobservable geometry), shape ``(..., d, d)``.
 
-    :func:`scenarios.fisher.inverse_2x2` of the information (MATH §8).
+    :func:`scenarios.fisher.inverse_symmetric` of the information (MATH §8).
     """
-    return inverse_2x2(information)
+    return inverse_symmetric(information)
 
 
 def crlb_table(data: MeasurementSet, at_m: Any) -> dict[str, Any]:

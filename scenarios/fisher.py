@@ -511,7 +511,7 @@ def inverse_symmetric(matrix: ArrayLike) -> FloatArray:
 
 
 def rmse_bound_m(information: ArrayLike) -> FloatArray:
-    """``√trace(J⁻¹)`` of information ``(..., 2, 2)``: the RMSE bound in metres (MATH §8),
+    """``√trace(J⁻¹)`` of information ``(..., d, d)``: the RMSE bound in metres (MATH §8),
     shape ``(...)``; NaN where ``J`` is singular."""
-    covariance = inverse_2x2(information)
-    return np.sqrt(covariance[..., 0, 0] + covariance[..., 1, 1])
+    covariance = inverse_symmetric(information)
+    return np.sqrt(np.trace(covariance, axis1=-2, axis2=-1))

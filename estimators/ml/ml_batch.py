@@ -71,7 +71,7 @@ from estimators.ml.ml_batch_audit import decrements
 from estimators.ml.ml_batch_starts import COINCIDENT_RTOL, find_starts, on_start_grid
 from estimators.ml.ml_residuals import ResidualModel, profiled_offsets
 from estimators.ml.ml_starts import ranges_uninformative
-from scenarios.fisher import inverse_2x2, regular_2x2
+from scenarios.fisher import inverse_symmetric
 from scenarios.geometry import cross_track_m, mirror_across_line, straight_track_line
 from scenarios.types import MeasurementBatch, MeasurementSet
 
@@ -551,7 +551,7 @@ def _covariances(
     """The inverse Fisher information (MATH §8, the Gram matrix ``JᵀJ`` of the whitened
     residuals' Jacobian, summed as :func:`~estimators.ml.minpack_batch.column_sums` sums) at
     each kept candidate of the ``wanted`` trials; NaN where it is singular
-    (:func:`scenarios.fisher.regular_2x2`)."""
+    (:func:`scenarios.fisher.inverse_symmetric`)."""
     n, width, _ = candidates.shape
     covariance = np.full((n, width, 2, 2), np.nan)
     slots = (np.arange(width)[None, :] < count[:, None]) & wanted[:, None]
@@ -562,8 +562,7 @@ def _covariances(
             [np.stack([column_dot(jx, jx), cross], -1), np.stack([cross, column_dot(jy, jy)], -1)],
             axis=-2,
         )
-        regular = regular_2x2(information)
-        covariance[slots] = np.where(regular[:, None, None], inverse_2x2(information), np.nan)
+        covariance[slots] = inverse_symmetric(information)
     return covariance
 
 
