@@ -253,6 +253,12 @@ class _Batches:
             lambda position: self._fit(data, position),
         )
 
+    def constrained_ls(self, data: MeasurementSet) -> ConstrainedLS:
+        """The system ``estimate`` minimises: the last stage's rows (with ``optimal``
+        weighting, stage 2's) on the frames used, an unknown carrier offset projected out."""
+        require_modalities(self, data)
+        return _constrained_ls(self._rows(), self.frames, data)
+
     def _fit(self, data: MeasurementSet, position_m: FloatArray) -> dict[str, Any]:
         """The goodness of fit (MATH §17) at ``position_m`` (1, 2), as ``with_fit_columns``
         computes it for a batch of one (the same arrays, the same bits)."""
@@ -376,23 +382,11 @@ class Cls(_Batches):
     def _options(self, data: MeasurementSet) -> dict[str, Any]:
         return {"offset_method": self.offset_method} if "emission_time_s" in data.unknowns else {}
 
-    def constrained_ls(self, data: MeasurementSet) -> ConstrainedLS:
-        """The system ``estimate`` minimises: with ``optimal`` weighting, stage 2's rows."""
-        require_modalities(self, data)
-        return _constrained_ls(self._rows(), self.frames, data)
-
 
 @dataclass(frozen=True, kw_only=True)
-class ClsPaper(_Batches):
-    """The paper's unweighted CLS with the errata fixed (MATH §3-§5, paper eq ``finalest``).
+class _PaperRows(_Batches):
+    """The paper's two variants: unweighted, Doppler and ToA, every frame or the last."""
 
-    One projected Doppler row per frame at the paper's scale ``K|v|²``, a residual in m³/s²
-    (MATH §3, "Row scale in the unweighted system"), and the squared-range rows with the
-    height term, in m² (MATH §4), solved exactly (MATH §5). Unweighted, so its answer depends
-    on the unit system, as the paper's does; ``frames="last"`` is Algorithm 1.
-    """
-
-    name: ClassVar[str] = "cls-paper"
     requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
 
     frames: Frames = "last"
@@ -406,38 +400,31 @@ class ClsPaper(_Batches):
         # δ's column r_k/(γ|v|), so δ would take a frame's whole Doppler information (§15).
         return Capabilities(modalities=self.requires, frames=self.frames, batch=True)
 
+
+@dataclass(frozen=True, kw_only=True)
+class ClsPaper(_PaperRows):
+    """The paper's unweighted CLS with the errata fixed (MATH §3-§5, paper eq ``finalest``).
+
+    One projected Doppler row per frame at the paper's scale ``K|v|²``, a residual in m³/s²
+    (MATH §3, "Row scale in the unweighted system"), and the squared-range rows with the
+    height term, in m² (MATH §4), solved exactly (MATH §5). Unweighted, so its answer depends
+    on the unit system, as the paper's does; ``frames="last"`` is Algorithm 1.
+    """
+
+    name: ClassVar[str] = "cls-paper"
+
     def _rows(self) -> Rows:
         return "per-frame"
 
-    def constrained_ls(self, data: MeasurementSet) -> ConstrainedLS:
-        """The system ``estimate`` minimises (unweighted, SI-unit rows, frames used)."""
-        require_modalities(self, data)
-        return _constrained_ls("per-frame", self.frames, data)
-
 
 @dataclass(frozen=True, kw_only=True)
-class ClsAsPrinted(_Batches):
+class ClsAsPrinted(_PaperRows):
     """The paper's CLS as printed (first-row Doppler line, no height term); λ solved exactly.
 
     Labelled as the printed version wherever it appears; it shows what the errata cost.
     """
 
     name: ClassVar[str] = "cls-as-printed"
-    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
-
-    frames: Frames = "last"
-    side_prior_m: tuple[float, float] | None = None
-
-    def __post_init__(self) -> None:
-        _check_options(self.frames, self.side_prior_m)
-
-    def _declare(self) -> Capabilities:
-        return Capabilities(modalities=self.requires, frames=self.frames, batch=True)
 
     def _rows(self) -> Rows:
         return "as-printed"
-
-    def constrained_ls(self, data: MeasurementSet) -> ConstrainedLS:
-        """The system ``estimate`` minimises (the printed rows, frames used)."""
-        require_modalities(self, data)
-        return _constrained_ls("as-printed", self.frames, data)
