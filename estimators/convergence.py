@@ -288,11 +288,12 @@ def finish_iterations(
     """The end of an iterated update at ``point`` (cost ``cost``, from ``start_cost``): its
     :func:`convergence_report`, with the decrement there (``inf`` at a non-finite point), then
     :func:`finish_update`'s fallbacks. Returns ``(point, cost, posterior_information, report)``."""
-    decrement = (
-        stationarity_decrement(*cost_derivatives(frame, prior_mean, prior_information, point))
+    derivatives = (
+        cost_derivatives(frame, prior_mean, prior_information, point)
         if np.all(np.isfinite(point))
-        else float("inf")
+        else None
     )
+    decrement = float("inf") if derivatives is None else stationarity_decrement(*derivatives)
     report = convergence_report(
         iterations,
         max_iterations,
@@ -303,7 +304,9 @@ def finish_iterations(
         cost=cost,
         what=what,
     )
-    return finish_update(frame, prior_mean, prior_information, point, cost, report)
+    return finish_update(
+        frame, prior_mean, prior_information, point, cost, report, derivatives=derivatives
+    )
 
 
 def newton_fallback_report(
@@ -400,6 +403,8 @@ def finish_update(
     point_m: ArrayLike,
     cost: float,
     report: SolverReport,
+    *,
+    derivatives: tuple[FloatArray, FloatArray, FloatArray] | None = None,
 ) -> tuple[FloatArray, float, FloatArray, SolverReport]:
     """The documented fallbacks of an iterated update, then the final report.
 
@@ -412,16 +417,20 @@ def finish_update(
        (``report.fallback == "saddle-escape"``); without a lower converged point the report is
        not converged.
 
-    Returns ``(point, cost, posterior_information, report)``. Raises
-    :class:`EstimationFailure` on a non-finite point.
+    ``derivatives``: :func:`cost_derivatives` at ``point_m`` if the caller has them (they are
+    reused while the point stays). Returns ``(point, cost, posterior_information, report)``.
+    Raises :class:`EstimationFailure` on a non-finite point.
     """
     prior_mean = np.asarray(prior_mean_m, dtype=float)
     Lambda = np.asarray(prior_information, dtype=float)
     point = np.asarray(point_m, dtype=float)
     if not report.converged and not report.cost_rose and np.all(np.isfinite(point)):
         point, cost, report = _refined(frame, prior_mean, Lambda, point, report, "newton")
+        derivatives = None
     if report.converged:
-        information, curvature, _ = cost_derivatives(frame, prior_mean, Lambda, point)
+        if derivatives is None:
+            derivatives = cost_derivatives(frame, prior_mean, Lambda, point)
+        information, curvature, _ = derivatives
         direction = negative_curvature(information + curvature)
         if direction is not None:
             saddle = "the update stopped at a saddle point of the posterior cost"
@@ -436,12 +445,16 @@ def finish_update(
                 )
                 if refined_report.converged and refined_cost < cost:
                     point, cost, report, escaped = refined, refined_cost, refined_report, True
+                    derivatives = None
             if not escaped:
                 report = replace(
                     report, converged=False, reason=f"{saddle}; no lower minimum was found off it"
                 )
-    E = frame.whitened_jacobian(point)
-    information = Lambda + E.T @ E
+    if derivatives is None:
+        E = frame.whitened_jacobian(point)
+        information = Lambda + E.T @ E
+    else:
+        information = derivatives[0]  # Λ̄ + EᵀE at this point
     if not np.all(np.isfinite(point)) or not np.all(np.isfinite(information)):
         raise EstimationFailure("the iterated update diverged (non-finite estimate)")
     return point, cost, information, report

@@ -235,9 +235,6 @@ class NuisanceFrame:
 
     # -- the reference's offsets g(s): D = δ + g_δ(s), R = β + g_β(s) -------------------------
 
-    def _rows(self) -> list[int]:
-        return [_ROW[name] for name in self.names]
-
     def offsets(self, position_m: ArrayLike) -> FloatArray:
         """``g(s) = (f₀(s), ρ₀(s))`` of the declared names at the reference, shape
         ``(..., n_u)``; zero without a reference (:func:`reference_offsets`)."""
@@ -303,10 +300,13 @@ class NuisanceFrame:
         enter linearly)."""
         theta = np.asarray(state, dtype=float)
         hessian = np.zeros((self.n_rows, self.n_state, self.n_state))
-        hessian[:, :2, :2] = self.base.hessian(theta[:2])
-        if self.reference is not None:
-            reference = self.reference.hessian(theta[:2])[self._rows()]  # (n_u, 2, 2)
-            hessian[:, :2, :2] -= np.einsum("kj,jab->kab", self.columns(), reference)
+        if self._joint is None:
+            hessian[:, :2, :2] = self.base.hessian(theta[:2])
+        else:
+            joint = self._joint.hessian(theta[:2])
+            hessian[:, :2, :2] = joint[self._base_rows]
+            reference = joint[self._reference_rows]  # (n_u, 2, 2)
+            hessian[:, :2, :2] -= np.einsum("kj,jab->kab", self._columns, reference)
         return hessian
 
     def curvature_terms(self, state: ArrayLike, error: ArrayLike) -> FloatArray:

@@ -89,6 +89,7 @@ from estimators.sequential.nuisance_states import (
     nuisance_diagnostics,
     nuisance_names,
     profile_nuisance,
+    stacked_frames,
 )
 from estimators.sequential.smoother_batch import COST_RISE_RTOL, gtsam_levenberg_marquardt
 from estimators.sequential.smoother_graph import newton_descent, step_sigmas_m
@@ -172,6 +173,13 @@ class Problem:
     prior_sigmas: FloatArray
     random_walk: bool
     max_iterations: int
+    _measuring: tuple[NuisanceFrame, ...] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        # a static emitter: the frames stacked once (stacked_frames), for every graph and fit
+        static = not self.random_walk and len(self.frames) > 1
+        measuring = (stacked_frames(self.frames),) if static else self.frames
+        object.__setattr__(self, "_measuring", measuring)
 
     @property
     def n_variables(self) -> int:
@@ -180,7 +188,7 @@ class Problem:
     def graph(self, prior_state: FloatArray, first: int = 0) -> Any:
         """The factor graph of ``frames[first:]`` (:func:`nuisance_graph`)."""
         return nuisance_graph(
-            self.frames,
+            self._measuring if first == 0 else self.frames,
             prior_state,
             self.prior_sigmas,
             self.steps,
@@ -190,7 +198,7 @@ class Problem:
 
     def fit(self, theta: FloatArray, prior_state: FloatArray) -> NuisanceFit:
         return nuisance_fit(
-            self.frames,
+            self._measuring,
             theta,
             random_walk=self.random_walk,
             step_sigmas=self.steps,
