@@ -186,9 +186,15 @@ def map_cost(
     emitter_m: ArrayLike,
     prior_mean_m: ArrayLike,
     prior_information: ArrayLike,
+    *,
+    predicted: ArrayLike | None = None,
 ) -> float:
-    """``‖e(s)‖² + (s − s̄)ᵀ Λ̄ (s − s̄)``: twice the negative log posterior of one update."""
-    error = frame.whitened_error(emitter_m)
+    """``‖e(s)‖² + (s − s̄)ᵀ Λ̄ (s − s̄)``: twice the negative log posterior of one update
+    (``predicted``: ``h(s)`` if the caller has evaluated it)."""
+    if predicted is None:
+        error = frame.whitened_error(emitter_m)
+    else:
+        error = (np.asarray(predicted, dtype=float) - frame.measured) / frame.sigma
     offset = np.asarray(emitter_m, dtype=float) - np.asarray(prior_mean_m, dtype=float)
     return float(error @ error + offset @ np.asarray(prior_information) @ offset)
 
