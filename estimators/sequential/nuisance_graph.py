@@ -1,7 +1,8 @@
 r"""The graph of the GTSAM smoother with nuisance variables, in GTSAM and in numpy (MATH §8, §15).
 
 The factors of :mod:`estimators.sequential.smoother_nuisance`: one ``CustomFactor`` per frame on
-``[X(t), N(0)]`` (:func:`nuisance_factor`), the emitter variables ``X(t)`` as in
+``[X(t), N(0)]`` (:func:`nuisance_factor`; the frames on ``X(0)`` of a static emitter stacked into
+one), the emitter variables ``X(t)`` as in
 :mod:`estimators.sequential.smoother_graph` and one ``gtsam`` vector ``N(0)`` holding the unknown
 nuisance parameters in the physical state of :mod:`estimators.sequential.nuisance_states` (δ in Hz,
 then ``β = c b`` in metres), with diffuse priors on ``X(0)`` and ``N(0)`` and random-walk links

@@ -11,7 +11,9 @@ nuisance (one ``X(0)``, or one ``X(t)`` per frame linked by random-walk steps); 
 :mod:`estimators.sequential.nuisance_states` (δ in Hz, then ``β = c b`` in metres), constant over
 the pass. Each frame adds ONE ``CustomFactor`` on ``[X(t), N(0)]`` with the stacked whitened
 residuals and two 2-D Jacobian blocks, ``E_s`` of MATH §8 and the constant 0/1 columns
-``∂f_k/∂δ = 1``, ``∂r_k/∂β = 1`` over σ. Diffuse priors sit on ``X(0)`` and ``N(0)`` at the
+``∂f_k/∂δ = 1``, ``∂r_k/∂β = 1`` over σ; with a static emitter the frames of a solve are
+stacked into one such factor on ``[X(0), N(0)]`` (the same residuals, one Python call per
+evaluation of the graph; a streaming update adds the new frame's own). Diffuse priors sit on ``X(0)`` and ``N(0)`` at the
 hypothesis's start (:func:`~estimators.sequential.nuisance_states.diffuse_sigmas`); the starts are
 those of
 :mod:`estimators.sequential.nuisance_starts`. With a static emitter the optimum is the maximum
