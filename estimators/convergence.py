@@ -534,22 +534,31 @@ def iterated_update(
     Lambda = np.asarray(prior_information, dtype=float)
     point = prior_mean.copy() if start_m is None else np.asarray(start_m, dtype=float).copy()
     scale = max(frame.mean_range_m(point), np.finfo(float).tiny)
-    cost = map_cost(frame, point, prior_mean, Lambda)
+    h, H = frame.predicted_and_jacobian(point)
+    cost = map_cost(frame, point, prior_mean, Lambda, predicted=h)
     start_cost = cost
     iterations = 0
     small_step = stalled = False
     while iterations < max_iterations:
         iterations += 1
-        e, E = frame.whitened_error_and_jacobian(point)
+        e, E = (h - frame.measured) / frame.sigma, H / frame.sigma[:, None]  # e(s), E(s)
         information = Lambda + E.T @ E
         gradient = E.T @ e + Lambda @ (point - prior_mean)
-        lower = lower_cost_step(
-            frame, prior_mean, Lambda, point, -np.linalg.solve(information, gradient), cost
-        )
-        if lower is None:
-            stalled = True  # no decrease along the Gauss-Newton direction
-            break
-        point, cost, step = lower
+        step = -np.linalg.solve(information, gradient)
+        # the full step evaluated once, for its cost and, if taken, the next linearisation;
+        # step halving (lower_cost_step) only when it raised the cost
+        trial = point + step
+        h, H = frame.predicted_and_jacobian(trial)
+        trial_cost = map_cost(frame, trial, prior_mean, Lambda, predicted=h)
+        if trial_cost <= cost:
+            point, cost = trial, trial_cost
+        else:
+            lower = lower_cost_step(frame, prior_mean, Lambda, point, step, cost)
+            if lower is None:
+                stalled = True  # no decrease along the Gauss-Newton direction
+                break
+            point, cost, step = lower
+            h, H = frame.predicted_and_jacobian(point)
         if np.linalg.norm(step) <= step_rtol * scale:
             small_step = True
             break
