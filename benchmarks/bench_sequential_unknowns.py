@@ -9,6 +9,10 @@ runs its ``estimate`` on them (the CPU time per estimate, what an experiment cal
 is the least of ``--repeats`` runs (:func:`cpu_time.best_cpu_s`); the ratio is to the
 cooperative emitter's. Timings are printed, never asserted.
 
+A second table is the ``noncooperative`` experiment's rows: ``estimate`` on ``beacon-pass`` and
+``turn-noncooperative`` at its SNRs (``--rows`` seeded trials each), with their unknowns
+declared and with the same data declared cooperative: CPU ms per row and the ratio.
+
 ``--baseline DIR`` runs the same measurement on the package in ``DIR`` (the code before a change,
 e.g. ``mkdir /tmp/baseline && git archive HEAD | tar -x -C /tmp/baseline``) in a subprocess and
 prints it above this tree's.
@@ -101,6 +105,47 @@ def measure(n_frames: int, n_trials: int, snr_db: float, repeats: int) -> dict[s
     return results
 
 
+ROW_SCENARIOS = ("beacon-pass", "turn-noncooperative")
+"""The scenarios of the ``noncooperative`` experiment (comparison/experiment_catalog.py)."""
+
+ROW_SNRS_DB = (-10.0, 0.0, 10.0, 20.0, 30.0)
+"""Its SNR sweep."""
+
+
+def measure_rows(n_rows: int, repeats: int) -> dict[str, list[float]]:
+    """``"<estimator> / <scenario>"`` → CPU ms per ``estimate`` with the unknowns declared
+    cooperative, and with them unknown (the experiment's rows)."""
+    results = {}
+    for scenario_name in ROW_SCENARIOS:
+        scenario = get_scenario(scenario_name)
+        cooperative = scenario.replace(unknowns=())
+        data = {
+            kind: [
+                simulate(s, snr_db=snr, seed=seed) for snr in ROW_SNRS_DB for seed in range(n_rows)
+            ]
+            for kind, s in (("cooperative", cooperative), ("unknowns", scenario))
+        }
+        for name, make in ESTIMATORS.items():
+            estimator = make()
+            estimator.estimate(data["unknowns"][0])  # warm-up
+            results[f"{name} / {scenario_name}"] = [
+                best_cpu_s(lambda e=estimator, ds=ds: [e.estimate(d) for d in ds], repeats)
+                / len(ds)
+                * 1e3
+                for ds in data.values()
+            ]
+    return results
+
+
+def print_rows(title: str, results: dict[str, list[float]]) -> None:
+    header = f"{title:<40}{'cooperative':>12}{'unknowns':>10}{'ratio':>7}"
+    print(header)
+    print("-" * len(header))
+    for key, (cooperative, unknown) in results.items():
+        print(f"{key:<40}{cooperative:12.2f}{unknown:10.2f}{unknown / cooperative:7.2f}")
+    print()
+
+
 def print_table(title: str, results: dict[str, list[float]]) -> None:
     header = (
         f"{title:<34}{'ms/update':>10}{'ratio':>7}{'later half':>11}{'ratio':>7}"
@@ -124,13 +169,19 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=10, help="seeded trials")
     parser.add_argument("--repeats", type=int, default=3, help="timed runs (the least counts)")
     parser.add_argument("--snr", type=float, default=10.0, help="dB")
+    parser.add_argument(
+        "--rows", type=int, default=4, help="trials per point of the experiment's table (0: none)"
+    )
     parser.add_argument("--baseline", help="directory of the package to compare against")
     parser.add_argument("--json", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.frames < 2:
         parser.error("--frames: needs at least 2 frames")
     if args.json:
-        print(json.dumps(measure(args.frames, args.trials, args.snr, args.repeats)))
+        tables = [measure(args.frames, args.trials, args.snr, args.repeats)]
+        if args.rows:
+            tables.append(measure_rows(args.rows, args.repeats))
+        print(json.dumps(tables))
         return
     print(
         f"paper-1m-turn, {args.frames} frames x 10 samples, {args.trials} trials at "
@@ -141,13 +192,23 @@ def main() -> None:
         command = [sys.executable, os.path.abspath(__file__), "--json"]
         command += ["--frames", str(args.frames), "--trials", str(args.trials)]
         command += ["--repeats", str(args.repeats), "--snr", str(args.snr)]
+        command += ["--rows", str(args.rows)]
         env = {**os.environ, "PYTHONPATH": os.path.abspath(args.baseline)}
         output = subprocess.run(command, env=env, check=True, capture_output=True, text=True)
-        print_table("before (--baseline)", json.loads(output.stdout))
-    print_table(
-        "after (this tree)" if args.baseline else "this tree",
-        measure(args.frames, args.trials, args.snr, args.repeats),
-    )
+        before = json.loads(output.stdout)
+    this = "after (this tree)" if args.baseline else "this tree"
+    if args.baseline:
+        print_table("before (--baseline)", before[0])
+    print_table(this, measure(args.frames, args.trials, args.snr, args.repeats))
+    if args.rows:
+        print(
+            f"noncooperative's rows ({args.rows} trials at each of {len(ROW_SNRS_DB)} SNRs): "
+            "CPU ms per estimate, the same data declared cooperative and with its unknowns"
+        )
+        print()
+        if args.baseline:
+            print_rows("before (--baseline)", before[1])
+        print_rows(this, measure_rows(args.rows, args.repeats))
 
 
 if __name__ == "__main__":

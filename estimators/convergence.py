@@ -186,9 +186,15 @@ def map_cost(
     emitter_m: ArrayLike,
     prior_mean_m: ArrayLike,
     prior_information: ArrayLike,
+    *,
+    predicted: ArrayLike | None = None,
 ) -> float:
-    """``‖e(s)‖² + (s − s̄)ᵀ Λ̄ (s − s̄)``: twice the negative log posterior of one update."""
-    error = frame.whitened_error(emitter_m)
+    """``‖e(s)‖² + (s − s̄)ᵀ Λ̄ (s − s̄)``: twice the negative log posterior of one update
+    (``predicted``: ``h(s)`` if the caller has evaluated it)."""
+    if predicted is None:
+        error = frame.whitened_error(emitter_m)
+    else:
+        error = (np.asarray(predicted, dtype=float) - frame.measured) / frame.sigma
     offset = np.asarray(emitter_m, dtype=float) - np.asarray(prior_mean_m, dtype=float)
     return float(error @ error + offset @ np.asarray(prior_information) @ offset)
 
@@ -252,14 +258,22 @@ def lower_cost_step(
     """Step halving: the first of ``point + 2⁻ⁱ step`` (``i <`` :data:`HALVINGS`) whose posterior
     cost (:func:`map_cost`) is at most ``cost``, as ``(trial, trial_cost, 2⁻ⁱ step)``; None when
     none is (a stall). ``first_trial`` is tried in place of ``point + step`` (a filter's own
-    update, the same point up to rounding)."""
+    update, the same point up to rounding). The halvings after the first trial are evaluated
+    together, in one pass of the model over all of them (each cost summed as :func:`map_cost`
+    sums it)."""
     trial = point + step if first_trial is None else first_trial
-    for _ in range(HALVINGS):
-        trial_cost = map_cost(frame, trial, prior_mean, prior_information)
+    trial_cost = map_cost(frame, trial, prior_mean, prior_information)
+    if trial_cost <= cost:
+        return trial, trial_cost, step
+    steps = step * 0.5 ** np.arange(1, HALVINGS)[:, None]
+    trials = point + steps
+    errors = frame.whitened_error(trials)
+    offsets = trials - np.asarray(prior_mean, dtype=float)
+    information = np.asarray(prior_information)
+    for i in range(HALVINGS - 1):
+        trial_cost = float(errors[i] @ errors[i] + offsets[i] @ information @ offsets[i])
         if trial_cost <= cost:
-            return trial, trial_cost, step
-        step = 0.5 * step
-        trial = point + step
+            return trials[i].copy(), trial_cost, steps[i].copy()
     return None
 
 
@@ -280,11 +294,12 @@ def finish_iterations(
     """The end of an iterated update at ``point`` (cost ``cost``, from ``start_cost``): its
     :func:`convergence_report`, with the decrement there (``inf`` at a non-finite point), then
     :func:`finish_update`'s fallbacks. Returns ``(point, cost, posterior_information, report)``."""
-    decrement = (
-        stationarity_decrement(*cost_derivatives(frame, prior_mean, prior_information, point))
+    derivatives = (
+        cost_derivatives(frame, prior_mean, prior_information, point)
         if np.all(np.isfinite(point))
-        else float("inf")
+        else None
     )
+    decrement = float("inf") if derivatives is None else stationarity_decrement(*derivatives)
     report = convergence_report(
         iterations,
         max_iterations,
@@ -295,7 +310,9 @@ def finish_iterations(
         cost=cost,
         what=what,
     )
-    return finish_update(frame, prior_mean, prior_information, point, cost, report)
+    return finish_update(
+        frame, prior_mean, prior_information, point, cost, report, derivatives=derivatives
+    )
 
 
 def newton_fallback_report(
@@ -392,6 +409,8 @@ def finish_update(
     point_m: ArrayLike,
     cost: float,
     report: SolverReport,
+    *,
+    derivatives: tuple[FloatArray, FloatArray, FloatArray] | None = None,
 ) -> tuple[FloatArray, float, FloatArray, SolverReport]:
     """The documented fallbacks of an iterated update, then the final report.
 
@@ -404,16 +423,20 @@ def finish_update(
        (``report.fallback == "saddle-escape"``); without a lower converged point the report is
        not converged.
 
-    Returns ``(point, cost, posterior_information, report)``. Raises
-    :class:`EstimationFailure` on a non-finite point.
+    ``derivatives``: :func:`cost_derivatives` at ``point_m`` if the caller has them (they are
+    reused while the point stays). Returns ``(point, cost, posterior_information, report)``.
+    Raises :class:`EstimationFailure` on a non-finite point.
     """
     prior_mean = np.asarray(prior_mean_m, dtype=float)
     Lambda = np.asarray(prior_information, dtype=float)
     point = np.asarray(point_m, dtype=float)
     if not report.converged and not report.cost_rose and np.all(np.isfinite(point)):
         point, cost, report = _refined(frame, prior_mean, Lambda, point, report, "newton")
+        derivatives = None
     if report.converged:
-        information, curvature, _ = cost_derivatives(frame, prior_mean, Lambda, point)
+        if derivatives is None:
+            derivatives = cost_derivatives(frame, prior_mean, Lambda, point)
+        information, curvature, _ = derivatives
         direction = negative_curvature(information + curvature)
         if direction is not None:
             saddle = "the update stopped at a saddle point of the posterior cost"
@@ -428,12 +451,16 @@ def finish_update(
                 )
                 if refined_report.converged and refined_cost < cost:
                     point, cost, report, escaped = refined, refined_cost, refined_report, True
+                    derivatives = None
             if not escaped:
                 report = replace(
                     report, converged=False, reason=f"{saddle}; no lower minimum was found off it"
                 )
-    E = frame.whitened_jacobian(point)
-    information = Lambda + E.T @ E
+    if derivatives is None:
+        E = frame.whitened_jacobian(point)
+        information = Lambda + E.T @ E
+    else:
+        information = derivatives[0]  # Λ̄ + EᵀE at this point
     if not np.all(np.isfinite(point)) or not np.all(np.isfinite(information)):
         raise EstimationFailure("the iterated update diverged (non-finite estimate)")
     return point, cost, information, report
@@ -507,22 +534,31 @@ def iterated_update(
     Lambda = np.asarray(prior_information, dtype=float)
     point = prior_mean.copy() if start_m is None else np.asarray(start_m, dtype=float).copy()
     scale = max(frame.mean_range_m(point), np.finfo(float).tiny)
-    cost = map_cost(frame, point, prior_mean, Lambda)
+    h, H = frame.predicted_and_jacobian(point)
+    cost = map_cost(frame, point, prior_mean, Lambda, predicted=h)
     start_cost = cost
     iterations = 0
     small_step = stalled = False
     while iterations < max_iterations:
         iterations += 1
-        e, E = frame.whitened_error_and_jacobian(point)
+        e, E = (h - frame.measured) / frame.sigma, H / frame.sigma[:, None]  # e(s), E(s)
         information = Lambda + E.T @ E
         gradient = E.T @ e + Lambda @ (point - prior_mean)
-        lower = lower_cost_step(
-            frame, prior_mean, Lambda, point, -np.linalg.solve(information, gradient), cost
-        )
-        if lower is None:
-            stalled = True  # no decrease along the Gauss-Newton direction
-            break
-        point, cost, step = lower
+        step = -np.linalg.solve(information, gradient)
+        # the full step evaluated once, for its cost and, if taken, the next linearisation;
+        # step halving (lower_cost_step) only when it raised the cost
+        trial = point + step
+        h, H = frame.predicted_and_jacobian(trial)
+        trial_cost = map_cost(frame, trial, prior_mean, Lambda, predicted=h)
+        if trial_cost <= cost:
+            point, cost = trial, trial_cost
+        else:
+            lower = lower_cost_step(frame, prior_mean, Lambda, point, step, cost)
+            if lower is None:
+                stalled = True  # no decrease along the Gauss-Newton direction
+                break
+            point, cost, step = lower
+            h, H = frame.predicted_and_jacobian(point)
         if np.linalg.norm(step) <= step_rtol * scale:
             small_step = True
             break

@@ -288,14 +288,14 @@ def ekf_update(
     kf = ExtendedKalmanFilter(dim_x=len(prior_mean_m), dim_z=frame.n_rows)
     kf.R = np.diag(frame.sigma**2)
     point = prior_mean_m.copy()
-    cost = map_cost(frame, point, prior_mean_m, prior_information)
+    h_at_point, H = frame.predicted_and_jacobian(point)
+    cost = map_cost(frame, point, prior_mean_m, prior_information, predicted=h_at_point)
     start_cost = cost
     mean, covariance = point, prior_covariance_m2
     iterations = 0
     small_step = stalled = False
     while iterations < max_iterations:
         iterations += 1
-        h_at_point, H = frame.predicted_and_jacobian(point)
         linearised_at = point
         kf.x = prior_mean_m.copy()  # 1-D x: filterpy would broadcast a (2, 1) x
         kf.P = prior_covariance_m2.copy()
@@ -307,15 +307,24 @@ def ekf_update(
         mean, covariance = np.array(kf.x, dtype=float), np.array(kf.P, dtype=float)
         if max_iterations == 1:
             break
-        lower = lower_cost_step(
-            frame, prior_mean_m, prior_information, point, mean - point, cost, first_trial=mean
-        )
-        if lower is None:
-            mean = point  # no decrease along the Gauss-Newton direction
-            stalled = True
-            break
-        point, cost, step = lower
-        mean = point
+        # the filter's own update first, evaluated once for its cost and, if taken, the next
+        # linearisation; step halving (lower_cost_step) only when it raised the cost
+        h_at_mean, H_at_mean = frame.predicted_and_jacobian(mean)
+        mean_cost = map_cost(frame, mean, prior_mean_m, prior_information, predicted=h_at_mean)
+        if mean_cost <= cost:
+            point, cost, step = mean, mean_cost, mean - point
+            h_at_point, H = h_at_mean, H_at_mean
+        else:
+            lower = lower_cost_step(
+                frame, prior_mean_m, prior_information, point, mean - point, cost, first_trial=mean
+            )
+            if lower is None:
+                mean = point  # no decrease along the Gauss-Newton direction
+                stalled = True
+                break
+            point, cost, step = lower
+            mean = point
+            h_at_point, H = frame.predicted_and_jacobian(point)
         if np.linalg.norm(step) <= STEP_RTOL * scale:
             small_step = True
             break

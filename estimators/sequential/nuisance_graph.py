@@ -1,7 +1,8 @@
 r"""The graph of the GTSAM smoother with nuisance variables, in GTSAM and in numpy (MATH §8, §15).
 
 The factors of :mod:`estimators.sequential.smoother_nuisance`: one ``CustomFactor`` per frame on
-``[X(t), N(0)]`` (:func:`nuisance_factor`), the emitter variables ``X(t)`` as in
+``[X(t), N(0)]`` (:func:`nuisance_factor`; the frames on ``X(0)`` of a static emitter stacked into
+one), the emitter variables ``X(t)`` as in
 :mod:`estimators.sequential.smoother_graph` and one ``gtsam`` vector ``N(0)`` holding the unknown
 nuisance parameters in the physical state of :mod:`estimators.sequential.nuisance_states` (δ in Hz,
 then ``β = c b`` in metres), with diffuse priors on ``X(0)`` and ``N(0)`` and random-walk links
@@ -22,8 +23,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from estimators.convergence import EstimationFailure, negative_curvature
-from estimators.frame_model import FrameModel
-from estimators.sequential.nuisance_states import NuisanceFrame, position_information
+from estimators.sequential.nuisance_states import (
+    NuisanceFrame,
+    position_information,
+    stacked_frames,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -63,7 +67,8 @@ def nuisance_graph(
     first: int = 0,
 ) -> Any:
     """The graph of ``frames[first:]`` (module text): one factor per frame and the random-walk
-    links into them, with the diffuse priors on ``X(0)`` and ``N(0)`` when ``first == 0`` (the
+    links into them (a static emitter: one factor of those frames stacked,
+    :func:`~estimators.sequential.nuisance_states.stacked_frames`), with the diffuse priors on ``X(0)`` and ``N(0)`` when ``first == 0`` (the
     whole graph; a later ``first`` gives the factors a streaming update adds)."""
     import gtsam
     from gtsam.symbol_shorthand import N, X
@@ -80,9 +85,13 @@ def nuisance_graph(
                 N(0), np.array(prior_state[2:]), gtsam.noiseModel.Diagonal.Sigmas(prior_sigmas[2:])
             )
         )
+    if not random_walk:  # every frame on X(0): one factor, one callback per evaluation
+        if first < len(frames):
+            graph.add(nuisance_factor(stacked_frames(frames[first:]), X(0), N(0)))
+        return graph
     for t in range(first, len(frames)):
-        graph.add(nuisance_factor(frames[t], X(t if random_walk else 0), N(0)))
-        if random_walk and t > 0:
+        graph.add(nuisance_factor(frames[t], X(t), N(0)))
+        if t > 0:
             noise = gtsam.noiseModel.Isotropic.Sigma(2, float(steps[t - 1]))
             graph.add(gtsam.BetweenFactorPoint2(X(t - 1), X(t), np.zeros(2), noise))
     return graph
@@ -160,8 +169,7 @@ def nuisance_fit(
     if random_walk:
         groups = list(enumerate(frames))
     else:  # every frame on X(0): one stacked evaluation (physical state: no reference)
-        base = FrameModel.stacked([frame.base for frame in frames])
-        groups = [(0, NuisanceFrame(base, frames[0].names, frames[0].speed_of_light_mps))]
+        groups = [(0, stacked_frames(frames))]
     for variable, frame in groups:
         state = np.concatenate([theta[2 * variable : 2 * variable + 2], theta[nuisance]])
         e, E = frame.whitened_error_and_jacobian(state)

@@ -108,12 +108,16 @@ def profiled_errors(frame: NuisanceFrame, points_m: ArrayLike) -> tuple[FloatArr
     modality: one σ each), shapes ``(M, 2K)`` and ``(M, 2K, 2)``."""
     points = np.asarray(points_m, dtype=float)
     predicted, jacobian = frame.base.predicted_and_jacobian(points)
-    residual = predicted - frame.measured
     k = frame.n_samples
-    for name in frame.names:
-        rows = slice(0, k) if name == "carrier_offset_hz" else slice(k, 2 * k)
-        residual[..., rows] -= residual[..., rows].mean(axis=-1, keepdims=True)
-        jacobian[..., rows, :] -= jacobian[..., rows, :].mean(axis=-2, keepdims=True)
+    # rows as (modality, sample): a modality's offset profiled out is a mean over its samples,
+    # both modalities at once when both offsets are unknown
+    residual = (predicted - frame.measured).reshape(*predicted.shape[:-1], 2, k)
+    derivative = jacobian.reshape(*predicted.shape[:-1], 2, k, 2)
+    rows = [0 if name == "carrier_offset_hz" else 1 for name in frame.names]
+    modality = slice(None) if len(rows) == 2 else rows[0]
+    residual[..., modality, :] -= residual[..., modality, :].mean(axis=-1, keepdims=True)
+    derivative[..., modality, :, :] -= derivative[..., modality, :, :].mean(axis=-2, keepdims=True)
+    residual, jacobian = residual.reshape(predicted.shape), derivative.reshape(jacobian.shape)
     return residual / frame.sigma, jacobian / frame.sigma[:, None]
 
 

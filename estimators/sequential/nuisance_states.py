@@ -56,8 +56,8 @@ for β. The starts are in :mod:`estimators.sequential.nuisance_starts`.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
-from dataclasses import dataclass
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -118,6 +118,16 @@ def frame_model(
     )
 
 
+def stacked_frames(frames: Sequence[NuisanceFrame]) -> NuisanceFrame:
+    """Frames measuring one emitter position as ONE :class:`NuisanceFrame` in the physical state
+    (no reference): every Doppler row, then every range row (:meth:`FrameModel.stacked`); a
+    single frame as it is."""
+    if len(frames) == 1:
+        return frames[0]
+    base = FrameModel.stacked([frame.base for frame in frames])
+    return NuisanceFrame(base, frames[0].names, frames[0].speed_of_light_mps)
+
+
 def check_same_unknowns(names: tuple[str, ...], frame: MeasurementSet) -> None:
     """Raise ``ValueError`` when a later frame declares other unknowns than the first."""
     if nuisance_names(frame) != names:
@@ -154,6 +164,26 @@ class NuisanceFrame:
     names: tuple[str, ...]
     speed_of_light_mps: float
     reference: FrameModel | None = None
+    _columns: FloatArray = field(init=False, repr=False)
+    _joint: FrameModel | None = field(init=False, repr=False)
+    _base_rows: NDArray[np.intp] = field(init=False, repr=False)
+    _reference_rows: NDArray[np.intp] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        # the 0/1 columns A once, and the frame with its reference sample as ONE model: every
+        # evaluation is one pass over the K + 1 samples (rows of the base, then of the reference)
+        k = len(self.base.position_m)
+        columns = np.zeros((2 * k, len(self.names)))
+        for j, name in enumerate(self.names):
+            columns[_ROW[name] * k : (_ROW[name] + 1) * k, j] = 1.0
+        read_only(columns)
+        joint = None if self.reference is None else FrameModel.stacked([self.base, self.reference])
+        base_rows = np.concatenate([np.arange(k), np.arange(k + 1, 2 * k + 1)])
+        reference_rows = np.array([k + _ROW[name] * (k + 1) for name in self.names])
+        object.__setattr__(self, "_columns", columns)
+        object.__setattr__(self, "_joint", joint)
+        object.__setattr__(self, "_base_rows", base_rows)
+        object.__setattr__(self, "_reference_rows", reference_rows)
 
     # -- the frame's data, as FrameModel ------------------------------------------------------
 
@@ -201,16 +231,9 @@ class NuisanceFrame:
     def columns(self) -> FloatArray:
         """``A``, shape ``(2K, n_u)``: the nuisance states' 0/1 columns, 1 on the Doppler rows
         for δ (or D), on the range rows for β (or R) (MATH §15)."""
-        k = self.n_samples
-        columns = np.zeros((2 * k, len(self.names)))
-        for j, name in enumerate(self.names):
-            columns[_ROW[name] * k : (_ROW[name] + 1) * k, j] = 1.0
-        return columns
+        return self._columns
 
     # -- the reference's offsets g(s): D = δ + g_δ(s), R = β + g_β(s) -------------------------
-
-    def _rows(self) -> list[int]:
-        return [_ROW[name] for name in self.names]
 
     def offsets(self, position_m: ArrayLike) -> FloatArray:
         """``g(s) = (f₀(s), ρ₀(s))`` of the declared names at the reference, shape
@@ -227,23 +250,30 @@ class NuisanceFrame:
         """``h(θ)`` (module text), shape ``(..., 2K)``."""
         theta = np.asarray(state, dtype=float)
         position = theta[..., :2]
-        shift = theta[..., 2:] - self.offsets(position)
-        return self.base.predicted(position) + shift @ self.columns().T
+        if self._joint is None:
+            predicted, shift = self.base.predicted(position), theta[..., 2:]
+        else:
+            joint = self._joint.predicted(position)
+            predicted = joint[..., self._base_rows]
+            shift = theta[..., 2:] - joint[..., self._reference_rows]
+        return predicted + shift @ self._columns.T
 
     def predicted_and_jacobian(self, state: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """``(h(θ), ∂h/∂θ)`` (:meth:`predicted`, :meth:`jacobian`) in one pass over the samples
-        and one over the reference."""
+        and the reference."""
         theta = np.asarray(state, dtype=float)
         position = theta[..., :2]
-        predicted, jacobian = self.base.predicted_and_jacobian(position)
-        columns = self.columns()
-        if self.reference is None:
+        columns = self._columns
+        if self._joint is None:
+            predicted, jacobian = self.base.predicted_and_jacobian(position)
             shift = theta[..., 2:]
         else:
-            offsets, offsets_jacobian = self.reference.predicted_and_jacobian(position)
-            rows = self._rows()
-            shift = theta[..., 2:] - offsets[..., rows]
-            jacobian = jacobian - columns @ offsets_jacobian[..., rows, :]
+            joint, joint_jacobian = self._joint.predicted_and_jacobian(position)
+            predicted = joint[..., self._base_rows]
+            shift = theta[..., 2:] - joint[..., self._reference_rows]
+            jacobian = joint_jacobian[..., self._base_rows, :] - (
+                columns @ joint_jacobian[..., self._reference_rows, :]
+            )
         wide = np.broadcast_to(columns, (*jacobian.shape[:-1], len(self.names)))
         return predicted + shift @ columns.T, np.concatenate([jacobian, wide], axis=-1)
 
@@ -270,10 +300,13 @@ class NuisanceFrame:
         enter linearly)."""
         theta = np.asarray(state, dtype=float)
         hessian = np.zeros((self.n_rows, self.n_state, self.n_state))
-        hessian[:, :2, :2] = self.base.hessian(theta[:2])
-        if self.reference is not None:
-            reference = self.reference.hessian(theta[:2])[self._rows()]  # (n_u, 2, 2)
-            hessian[:, :2, :2] -= np.einsum("kj,jab->kab", self.columns(), reference)
+        if self._joint is None:
+            hessian[:, :2, :2] = self.base.hessian(theta[:2])
+        else:
+            joint = self._joint.hessian(theta[:2])
+            hessian[:, :2, :2] = joint[self._base_rows]
+            reference = joint[self._reference_rows]  # (n_u, 2, 2)
+            hessian[:, :2, :2] -= np.einsum("kj,jab->kab", self._columns, reference)
         return hessian
 
     def curvature_terms(self, state: ArrayLike, error: ArrayLike) -> FloatArray:

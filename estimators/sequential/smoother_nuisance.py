@@ -11,7 +11,9 @@ nuisance (one ``X(0)``, or one ``X(t)`` per frame linked by random-walk steps); 
 :mod:`estimators.sequential.nuisance_states` (δ in Hz, then ``β = c b`` in metres), constant over
 the pass. Each frame adds ONE ``CustomFactor`` on ``[X(t), N(0)]`` with the stacked whitened
 residuals and two 2-D Jacobian blocks, ``E_s`` of MATH §8 and the constant 0/1 columns
-``∂f_k/∂δ = 1``, ``∂r_k/∂β = 1`` over σ. Diffuse priors sit on ``X(0)`` and ``N(0)`` at the
+``∂f_k/∂δ = 1``, ``∂r_k/∂β = 1`` over σ; with a static emitter the frames of a solve are
+stacked into one such factor on ``[X(0), N(0)]`` (the same residuals, one Python call per
+evaluation of the graph; a streaming update adds the new frame's own). Diffuse priors sit on ``X(0)`` and ``N(0)`` at the
 hypothesis's start (:func:`~estimators.sequential.nuisance_states.diffuse_sigmas`); the starts are
 those of
 :mod:`estimators.sequential.nuisance_starts`. With a static emitter the optimum is the maximum
@@ -89,6 +91,7 @@ from estimators.sequential.nuisance_states import (
     nuisance_diagnostics,
     nuisance_names,
     profile_nuisance,
+    stacked_frames,
 )
 from estimators.sequential.smoother_batch import COST_RISE_RTOL, gtsam_levenberg_marquardt
 from estimators.sequential.smoother_graph import newton_descent, step_sigmas_m
@@ -172,6 +175,13 @@ class Problem:
     prior_sigmas: FloatArray
     random_walk: bool
     max_iterations: int
+    _measuring: tuple[NuisanceFrame, ...] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        # a static emitter: the frames stacked once (stacked_frames), for every graph and fit
+        static = not self.random_walk and len(self.frames) > 1
+        measuring = (stacked_frames(self.frames),) if static else self.frames
+        object.__setattr__(self, "_measuring", measuring)
 
     @property
     def n_variables(self) -> int:
@@ -180,7 +190,7 @@ class Problem:
     def graph(self, prior_state: FloatArray, first: int = 0) -> Any:
         """The factor graph of ``frames[first:]`` (:func:`nuisance_graph`)."""
         return nuisance_graph(
-            self.frames,
+            self._measuring if first == 0 else self.frames,
             prior_state,
             self.prior_sigmas,
             self.steps,
@@ -190,7 +200,7 @@ class Problem:
 
     def fit(self, theta: FloatArray, prior_state: FloatArray) -> NuisanceFit:
         return nuisance_fit(
-            self.frames,
+            self._measuring,
             theta,
             random_walk=self.random_walk,
             step_sigmas=self.steps,

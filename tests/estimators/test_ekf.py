@@ -437,3 +437,63 @@ def test_turn_reaches_the_accumulated_crlb_with_honest_covariance(estimator: Ekf
     assert ratio <= 1.1
     assert not wrong_side.any()
     assert low <= nees.mean() <= high
+
+
+def test_step_halving_takes_the_first_lower_halving() -> None:
+    """:func:`~estimators.convergence.lower_cost_step` (the halvings after the first trial
+    evaluated together) returns what a brute-force loop over ``point + 2⁻ⁱ step`` with
+    :func:`map_cost` finds first; a step uphill at every length is a stall (None)."""
+    data = simulate(flight_scenario(EAST_THEN_NORTH), snr_db=10.0, seed=3)
+    frame = FrameModel.from_measurements(list(data.iter_frames())[5])
+    prior_mean = np.array([30.0, 20.0])
+    prior_information = np.eye(2) * 1e-4
+    point = np.array([34.0, 16.0])
+    cost = map_cost(frame, point, prior_mean, prior_information)
+    e, E = frame.whitened_error_and_jacobian(point)
+    gauss_newton = -np.linalg.solve(
+        prior_information + E.T @ E, E.T @ e + prior_information @ (point - prior_mean)
+    )
+    for scale in (1.0, 300.0, 1e5):  # the first trial, a few halvings, many
+        step = scale * gauss_newton
+        costs = [
+            map_cost(frame, point + step * 0.5**i, prior_mean, prior_information)
+            for i in range(convergence.HALVINGS)
+        ]
+        first = next(i for i, c in enumerate(costs) if c <= cost)
+        trial, trial_cost, taken = convergence.lower_cost_step(
+            frame, prior_mean, prior_information, point, step, cost
+        )
+        np.testing.assert_allclose(taken, step * 0.5**first, rtol=1e-15)
+        np.testing.assert_allclose(trial, point + step * 0.5**first, rtol=1e-15)
+        assert trial_cost == pytest.approx(costs[first], rel=1e-12)
+        assert scale == 1.0 or first > 0
+    at_minimum = frame_ml_m([frame], point)
+    uphill = convergence.lower_cost_step(
+        frame,
+        at_minimum,
+        np.zeros((2, 2)),
+        at_minimum,
+        gauss_newton,
+        map_cost(frame, at_minimum, at_minimum, np.zeros((2, 2))) * (1.0 - 1e-9),
+    )
+    assert uphill is None
+
+
+def test_update_finish_reuses_the_derivatives_it_is_given() -> None:
+    """:func:`~estimators.convergence.finish_update` with the cost derivatives already formed
+    at the point returns exactly what it returns forming them itself (the same arrays)."""
+    data = simulate(flight_scenario(EAST_THEN_NORTH), snr_db=0.0, seed=5)
+    frame = FrameModel.from_measurements(list(data.iter_frames())[4])
+    prior_mean, prior_information = np.array([33.0, 17.0]), np.eye(2) * 0.05
+    point, information, _, report = iterated_update(frame, prior_mean, prior_information)
+    cost = map_cost(frame, point, prior_mean, prior_information)
+    derivatives = convergence.cost_derivatives(frame, prior_mean, prior_information, point)
+    given = convergence.finish_update(
+        frame, prior_mean, prior_information, point, cost, report, derivatives=derivatives
+    )
+    formed = convergence.finish_update(frame, prior_mean, prior_information, point, cost, report)
+    assert report.converged
+    np.testing.assert_array_equal(given[0], formed[0])
+    assert given[1] == formed[1] and given[3] == formed[3]
+    np.testing.assert_array_equal(given[2], formed[2])
+    np.testing.assert_array_equal(given[2], information)  # what iterated_update returned

@@ -43,6 +43,7 @@ from estimators.sequential.nuisance_states import (  # noqa: E402
     physical_nuisance,
     position_information,
     reference_sample,
+    stacked_frames,
 )
 from scenarios.catalog import get_scenario  # noqa: E402
 from scenarios.fisher import fisher_information, rmse_bound_m  # noqa: E402
@@ -165,6 +166,53 @@ def test_custom_factor_jacobian_matches_central_differences(unknowns) -> None:
     expected = central_differences(model.whitened_error, state, fd_steps(unknowns))
     np.testing.assert_allclose(A, expected, rtol=1e-7, atol=1e-7)
     np.testing.assert_allclose(b, -model.whitened_error(state), rtol=1e-12)
+
+
+@pytest.mark.parametrize("unknowns", UNKNOWNS, ids=str)
+def test_many_states_evaluate_as_each_alone(unknowns) -> None:
+    """The referenced model (frame and reference sample in one pass) on a batch of states
+    ``(M, n)``: every row equals the model at that state alone, and ``h`` equals the frame's
+    own ``h(s)`` shifted by the nuisance columns, ``A (θ_n − g(s))``, with ``g`` the reference's."""
+    data = simulate(noncooperative("paper-1m-turn", unknowns), seed=3)
+    model = models(data, reference=True)[6]
+    rng = np.random.default_rng(1)
+    states = true_state(data, unknowns) + rng.normal(0.0, 5.0, (7, 2 + len(unknowns)))
+    predicted, jacobian = model.predicted_and_jacobian(states)
+    for state, h, H in zip(states, predicted, jacobian, strict=True):
+        np.testing.assert_allclose(h, model.predicted(state), rtol=1e-14)
+        np.testing.assert_allclose(H, model.jacobian(state), rtol=1e-14, atol=1e-18)
+    rows = [0 if name == "carrier_offset_hz" else 1 for name in unknowns]
+    g = model.reference.predicted(states[:, :2])[:, rows]
+    expected = model.base.predicted(states[:, :2]) + (states[:, 2:] - g) @ model.columns().T
+    np.testing.assert_allclose(predicted, expected, rtol=1e-14)
+
+
+def test_static_graph_stacks_its_frames_into_one_factor() -> None:
+    """A static emitter's graph holds one factor of the frames stacked
+    (:func:`~estimators.sequential.nuisance_states.stacked_frames`): its error and its
+    linearised information are those of one factor per frame, to rounding."""
+    data = simulate(noncooperative("paper-1m-turn", BOTH), snr_db=10.0, seed=8)
+    frames = models(data)
+    truth = true_state(data, BOTH)
+    theta = truth + np.array([0.6, -0.4, 0.3, 1.2])
+    prior, sigmas = truth + 3.0, np.array([6e4, 6e4, 1e4, 6e4])
+    graph = nuisance_graph(frames, prior, sigmas, np.empty(0), random_walk=False)
+    assert graph.size() == 3  # two priors and ONE data factor
+    per_frame = nuisance_graph(frames[:1], prior, sigmas, np.empty(0), random_walk=False)
+    for frame in frames[1:]:
+        per_frame.add(nuisance_factor(frame, X(0), N(0)))
+    assert per_frame.size() == 2 + len(frames)
+    values = nuisance_values(theta, 1)
+    assert graph.error(values) == pytest.approx(per_frame.error(values), rel=1e-12)
+    stacked, separate = (g.linearize(values).hessian() for g in (graph, per_frame))
+    np.testing.assert_allclose(stacked[0], separate[0], rtol=1e-12)
+    np.testing.assert_allclose(stacked[1], separate[1], rtol=1e-9, atol=1e-9)
+    one = stacked_frames(frames)
+    assert one.n_rows == sum(frame.n_rows for frame in frames)
+    e = one.whitened_error(theta)
+    assert e @ e == pytest.approx(
+        sum(float(f.whitened_error(theta) @ f.whitened_error(theta)) for f in frames), rel=1e-12
+    )
 
 
 @pytest.mark.parametrize("random_walk", [False, True], ids=["static", "random-walk"])
