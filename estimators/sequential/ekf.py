@@ -267,9 +267,12 @@ def ekf_update(
 
     Pass ``i`` linearises at the iterate ``s_i`` and applies the standard update to the prior
     ``(s̄, P̄)``: ``s_{i+1} = s̄ + K_i (z − h(s_i) − H_i (s̄ − s_i))``,
-    ``K_i = P̄ H_iᵀ (H_i P̄ H_iᵀ + R)⁻¹`` (Gauss-Newton on the frame's posterior), with the step
-    ``s_{i+1} − s_i`` halved while the posterior cost rises. Stops when a step is shorter than
-    ``STEP_RTOL ×`` the range; the covariance is the Joseph-form ``P`` of the last pass.
+    ``K_i = P̄ H_iᵀ (H_i P̄ H_iᵀ + R)⁻¹`` (Gauss-Newton on the frame's posterior). The iterate is
+    computed in information form, ``s_{i+1} = s_i − (P̄⁻¹ + H_iᵀR⁻¹H_i)⁻¹ g_i`` with ``g_i`` the
+    cost's gradient, which is the same step without the gain's loss of ``cond(P̄)·ε``; the
+    step ``s_{i+1} − s_i`` is halved while the posterior cost rises. Stops when a step is
+    shorter than ``STEP_RTOL ×`` the range; the covariance is filterpy's Joseph-form ``P`` of
+    the last pass.
 
     Returns ``(mean_m, covariance_m2, report)``. The report (:class:`SolverReport`) says whether
     the iterate converged: the decrement
@@ -307,6 +310,15 @@ def ekf_update(
         mean, covariance = np.array(kf.x, dtype=float), np.array(kf.P, dtype=float)
         if max_iterations == 1:
             break
+        # the iterate: the same Gauss-Newton step in information form, −(Λ̄ + EᵀE)⁻¹ g. The
+        # filter's gain P̄Hᵀ(HP̄Hᵀ + R)⁻¹ is that step in exact arithmetic, but loses cond(P̄)·ε
+        # of the prior's spread: after a first frame with nuisance states (cond(P̄) ≈ 4e13) it
+        # is off by more than the step itself near the mode, and the iteration stalls at
+        # rounding's whim. The filter's Joseph-form covariance is kept.
+        whitened = H / frame.sigma[:, None]
+        residual = (h_at_point - frame.measured) / frame.sigma
+        gradient = whitened.T @ residual + prior_information @ (point - prior_mean_m)
+        mean = point - np.linalg.solve(prior_information + whitened.T @ whitened, gradient)
         # the filter's own update first, evaluated once for its cost and, if taken, the next
         # linearisation; step halving (lower_cost_step) only when it raised the cost
         h_at_mean, H_at_mean = frame.predicted_and_jacobian(mean)
