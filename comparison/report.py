@@ -49,6 +49,7 @@ from comparison.metrics import (
     summarize,
     summarize_chunks,
     summary_swept_columns,
+    swept_columns_of,
 )
 from comparison.planner_table import planner_table_html
 from comparison.run_folder import holding_report_lock, write_atomic, write_csv
@@ -187,29 +188,42 @@ def _summary(
     trials: pd.DataFrame | None,
     experiment: Mapping[str, Any],
     n_bootstrap: int,
-) -> tuple[pd.DataFrame, int]:
+) -> tuple[pd.DataFrame, int, pd.DataFrame]:
     """:func:`comparison.metrics.summarize` of the given rows, else of results.sqlite read a
-    few points at a time (:func:`comparison.store.iter_trials`), with the number of rows."""
+    few points at a time (:func:`comparison.store.iter_trials`), with the number of rows and
+    the rows the figures read: the given ones, else their columns
+    (:func:`comparison.report_figures.figure_trial_columns`) kept from the same reading."""
     seed = np.random.SeedSequence(int(experiment.get("seed", 0)), spawn_key=(BOOTSTRAP_STREAM,))
     swept = experiment.get("swept_columns")
     swept = None if swept is None else list(swept)
     if trials is not None:
         summary = summarize(trials, n_bootstrap=n_bootstrap, seed=seed, swept_columns=swept)
-        return summary, len(trials)
+        return summary, len(trials), trials
     from comparison import store
+    from comparison.report_figures import figure_trial_columns
 
     layout = store.trial_layout(run_dir)
     closed = any(label != "" for label in layout.orders["planner"])
     columns = [c for c in SUMMARY_TRIAL_COLUMNS if closed or c != "planner"]
+    shown = figure_trial_columns(closed_loop=closed)
+    kept: list[pd.DataFrame] = []
+
+    def chunks() -> Iterator[pd.DataFrame]:
+        for chunk in store.iter_trials(run_dir, [*columns, *shown]):
+            drawn = {*shown, *swept_columns_of(chunk)}  # store.read_trials(run_dir, shown)
+            kept.append(chunk[[c for c in chunk.columns if c in drawn]])
+            yield chunk
+
     summary = summarize_chunks(
-        store.iter_trials(run_dir, columns),
+        chunks(),
         orders=layout.orders,
         n_trial_sets=layout.n_trial_sets,
         swept_columns=swept,
         n_bootstrap=n_bootstrap,
         seed=seed,
     )
-    return summary, layout.n_rows
+    figure_trials = pd.concat(kept, ignore_index=True) if len(kept) > 1 else kept[0]
+    return summary, layout.n_rows, figure_trials
 
 
 def experiment_dict(experiment: Any) -> dict[str, Any]:
@@ -582,30 +596,18 @@ def write_report(
         The path of ``report.html``.
     """
     folder = Path(run_dir)
-    folder = Path(run_dir)
     points, experiment, run_info = _load(folder, points, experiment, run_info)
-    summary, n_rows = _summary(folder, trials, experiment, n_bootstrap)
+    # the figures' columns kept from the summary's reading (matplotlib imported with them)
+    summary, n_rows, figure_trials = _summary(folder, trials, experiment, n_bootstrap)
     write_csv(folder / "summary.csv", summary)
     write_csv(folder / "thresholds.csv", verdict_table.thresholds(summary))
     limit = (
         configured_limit(_TRIALS_CSV_LIMIT) if max_trials_csv_rows is None else max_trials_csv_rows
     )
     file_notes = []
-    # matplotlib only now: the summary's peak memory does not carry it (about 30 MB)
     from comparison import figures
-    from comparison.report_figures import (
-        FIGURE_STEMS,
-        figure_plans,
-        figure_trial_columns,
-        write_figures,
-    )
+    from comparison.report_figures import FIGURE_STEMS, figure_plans, write_figures
 
-    figure_trials = trials
-    if figure_trials is None:  # the figures' columns only
-        from comparison import store
-
-        closed = "planner" in summary.columns
-        figure_trials = store.read_trials(folder, figure_trial_columns(closed_loop=closed))
     steering = None
     if "planner" in summary.columns:
         if flights is None and (folder / "results.sqlite").is_file():
