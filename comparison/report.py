@@ -31,7 +31,9 @@ from __future__ import annotations
 import base64
 import html
 import json
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import suppress
+from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -188,21 +190,22 @@ def _summary(
     trials: pd.DataFrame | None,
     experiment: Mapping[str, Any],
     n_bootstrap: int,
-) -> tuple[pd.DataFrame, int, pd.DataFrame]:
+    layout: Any = None,
+) -> tuple[pd.DataFrame, pd.DataFrame]:
     """:func:`comparison.metrics.summarize` of the given rows, else of results.sqlite read a
-    few points at a time (:func:`comparison.store.iter_trials`), with the number of rows and
-    the rows the figures read: the given ones, else their columns
-    (:func:`comparison.report_figures.figure_trial_columns`) kept from the same reading."""
+    few points at a time (:func:`comparison.store.iter_trials`; ``layout`` is its
+    :func:`comparison.store.trial_layout`), with the rows the figures read: the given ones,
+    else their columns (:func:`comparison.report_figures.figure_trial_columns`) kept from the
+    same reading."""
     seed = np.random.SeedSequence(int(experiment.get("seed", 0)), spawn_key=(BOOTSTRAP_STREAM,))
     swept = experiment.get("swept_columns")
     swept = None if swept is None else list(swept)
     if trials is not None:
         summary = summarize(trials, n_bootstrap=n_bootstrap, seed=seed, swept_columns=swept)
-        return summary, len(trials), trials
+        return summary, trials
     from comparison import store
     from comparison.report_figures import figure_trial_columns
 
-    layout = store.trial_layout(run_dir)
     closed = any(label != "" for label in layout.orders["planner"])
     columns = [c for c in SUMMARY_TRIAL_COLUMNS if closed or c != "planner"]
     shown = figure_trial_columns(closed_loop=closed)
@@ -223,7 +226,7 @@ def _summary(
         seed=seed,
     )
     figure_trials = pd.concat(kept, ignore_index=True) if len(kept) > 1 else kept[0]
-    return summary, layout.n_rows, figure_trials
+    return summary, figure_trials
 
 
 def experiment_dict(experiment: Any) -> dict[str, Any]:
@@ -539,6 +542,54 @@ def _trial_batches(run_dir: Path) -> Iterator[pd.DataFrame]:
     return store.iter_trials(run_dir, chunk_rows=store.TRIAL_BATCH_ROWS, whole_points=False)
 
 
+def _write_trials_csv(folder: Path, sender: Any) -> None:
+    """Write trials.csv from results.sqlite, in a process of :func:`_trials_csv_forked`;
+    send None when done, else the error."""
+    try:
+        write_csv(folder / "trials.csv", _trial_batches(folder))
+    except BaseException as error:  # a Ctrl-C too: the report sees it
+        try:
+            sender.send(error)
+        except Exception:  # an error that does not pickle: its text
+            sender.send(RuntimeError(f"trials.csv: {error}"))
+    else:
+        sender.send(None)
+    finally:
+        sender.close()
+
+
+def _trials_csv_forked(folder: Path) -> Callable[[], None] | None:
+    """Start writing trials.csv from results.sqlite in a forked process, so that it overlaps
+    the summary, and return the function that waits for it (and raises its error here); None
+    when a second process does not pay or cannot be forked
+    (:func:`comparison.report_figures.figure_processes`)."""
+    from comparison.report_figures import figure_processes
+
+    if figure_processes(2) < 2:
+        return None
+    context = get_context("fork")
+    receiver, sender = context.Pipe(duplex=False)
+    process = context.Process(target=_write_trials_csv, args=(folder, sender), daemon=True)
+    process.start()
+    sender.close()
+
+    def wait() -> None:
+        try:
+            error = receiver.recv()
+        except EOFError:  # ended without a word: killed
+            error = RuntimeError(
+                f"trials.csv: the process writing it ended with code {process.exitcode}; "
+                "run emitterbench report again"
+            )
+        finally:
+            process.join()
+            receiver.close()
+        if error is not None:
+            raise error
+
+    return wait
+
+
 def trials_csv_note(n_rows: int, limit: int) -> str:
     """The sentence of a report whose trial rows are too many for trials.csv."""
     return (
@@ -597,13 +648,27 @@ def write_report(
     """
     folder = Path(run_dir)
     points, experiment, run_info = _load(folder, points, experiment, run_info)
-    # the figures' columns kept from the summary's reading (matplotlib imported with them)
-    summary, n_rows, figure_trials = _summary(folder, trials, experiment, n_bootstrap)
-    write_csv(folder / "summary.csv", summary)
-    write_csv(folder / "thresholds.csv", verdict_table.thresholds(summary))
     limit = (
         configured_limit(_TRIALS_CSV_LIMIT) if max_trials_csv_rows is None else max_trials_csv_rows
     )
+    layout = None
+    if trials is None:
+        from comparison import store
+
+        layout = store.trial_layout(folder)
+    n_rows = len(trials) if layout is None else layout.n_rows
+    # trials.csv from results.sqlite in a process of its own while the summary is worked out
+    csv_written = _trials_csv_forked(folder) if layout is not None and n_rows <= limit else None
+    try:
+        # the figures' columns kept from the summary's reading (matplotlib imported with them)
+        summary, figure_trials = _summary(folder, trials, experiment, n_bootstrap, layout)
+    except BaseException:
+        if csv_written is not None:  # no process left behind
+            with suppress(Exception):
+                csv_written()
+        raise
+    write_csv(folder / "summary.csv", summary)
+    write_csv(folder / "thresholds.csv", verdict_table.thresholds(summary))
     file_notes = []
     from comparison import figures
     from comparison.report_figures import FIGURE_STEMS, figure_plans, write_figures
@@ -627,8 +692,11 @@ def write_report(
         tracks_m = scenario_tracks_m(experiment)
 
     def write_trials_csv() -> None:
-        """The rows as text, a batch at a time from results.sqlite (or none, said on the page)."""
-        if n_rows <= limit:
+        """The rows as text, a batch at a time from results.sqlite (or none, said on the page);
+        or wait for the process writing them."""
+        if csv_written is not None:
+            csv_written()
+        elif n_rows <= limit:
             write_csv(
                 folder / "trials.csv", trials if trials is not None else _trial_batches(folder)
             )

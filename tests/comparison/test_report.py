@@ -5,6 +5,7 @@ from __future__ import annotations
 import base64
 import json
 import math
+import multiprocessing
 import sys
 import types
 import xml.etree.ElementTree as ET
@@ -199,6 +200,33 @@ def snr_run(tmp_path_factory):
         stand_in_store(patch, trials)
         html_path = write_report(folder, n_bootstrap=200)
     return folder, html_path, trials
+
+
+def test_an_error_writing_trials_csv_is_raised_by_the_report_and_no_process_is_left(tmp_path):
+    """trials.csv is written from results.sqlite while the summary is worked out (in a
+    process of its own where one may be forked): its error reaches the caller whole."""
+    folder = tmp_path / "run"
+    trials, points, experiment = synthetic_run([{"snr_db": s} for s in (0.0, 10.0)], n_trials=20)
+    write_run_folder(folder, experiment)
+    engine = types.ModuleType("comparison.engine")
+    engine.read_points = lambda run_dir: points.copy()
+    engine.read_experiment = lambda run_dir: experiment
+
+    def rows(run_dir, columns=None, **_):
+        if columns is None:  # every column: the rows of trials.csv
+            raise ValueError("results.sqlite: the rows cannot be read; rerun the experiment")
+        return iter([trials.copy()])
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setitem(sys.modules, "comparison.engine", engine)
+        patch.setattr(comparison, "engine", engine, raising=False)
+        stand_in_store(patch, trials)
+        patch.setattr(store, "iter_trials", rows)
+        with pytest.raises(ValueError, match=r"^results.sqlite: the rows cannot be read; rerun"):
+            write_report(folder, n_bootstrap=50)
+    assert multiprocessing.active_children() == []
+    assert not (folder / "trials.csv").exists()
+    assert not list(folder.glob(".trials.csv.*"))  # no temporary file left
 
 
 def parse_html(path: Path) -> ET.Element:
