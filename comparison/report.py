@@ -32,7 +32,7 @@ import base64
 import html
 import json
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import suppress
+from contextlib import contextmanager, suppress
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -558,36 +558,50 @@ def _write_trials_csv(folder: Path, sender: Any) -> None:
         sender.close()
 
 
-def _trials_csv_forked(folder: Path) -> Callable[[], None] | None:
-    """Start writing trials.csv from results.sqlite in a forked process, so that it overlaps
-    the summary, and return the function that waits for it (and raises its error here); None
-    when a second process does not pay or cannot be forked
-    (:func:`comparison.report_figures.figure_processes`)."""
+@contextmanager
+def _trials_csv_forked(folder: Path, start: bool) -> Iterator[Callable[[], None] | None]:
+    """With ``start``, write trials.csv from results.sqlite in a forked process started now,
+    so that it overlaps the summary: the block gets the function that waits for it (and
+    raises its error here), and the block's end waits for it in any case, so that no process
+    is left behind. None when not started, or when a second process does not pay or cannot
+    be forked (:func:`comparison.report_figures.figure_processes`)."""
     from comparison.report_figures import figure_processes
 
-    if figure_processes(2) < 2:
-        return None
+    if not start or figure_processes(2) < 2:
+        yield None
+        return
     context = get_context("fork")
     receiver, sender = context.Pipe(duplex=False)
     process = context.Process(target=_write_trials_csv, args=(folder, sender), daemon=True)
     process.start()
     sender.close()
+    outcome: list[BaseException | None] = []
 
     def wait() -> None:
-        try:
-            error = receiver.recv()
-        except EOFError:  # ended without a word: killed
-            error = RuntimeError(
-                f"trials.csv: the process writing it ended with code {process.exitcode}; "
-                "run emitterbench report again"
-            )
-        finally:
-            process.join()
-            receiver.close()
-        if error is not None:
-            raise error
+        if not outcome:
+            try:
+                error = receiver.recv()
+            except EOFError:  # ended without a word
+                error = None
+            finally:
+                process.join()
+                receiver.close()
+            if error is None and process.exitcode != 0:  # killed
+                error = RuntimeError(
+                    f"trials.csv: the process writing it ended with code {process.exitcode}; "
+                    "run emitterbench report again"
+                )
+            outcome.append(error)
+        if outcome[0] is not None:
+            raise outcome[0]
 
-    return wait
+    try:
+        yield wait
+    except BaseException:
+        with suppress(BaseException):  # the block's error is the one to see
+            wait()
+        raise
+    wait()
 
 
 def trials_csv_note(n_rows: int, limit: int) -> str:
@@ -658,58 +672,53 @@ def write_report(
         layout = store.trial_layout(folder)
     n_rows = len(trials) if layout is None else layout.n_rows
     # trials.csv from results.sqlite in a process of its own while the summary is worked out
-    csv_written = _trials_csv_forked(folder) if layout is not None and n_rows <= limit else None
-    try:
+    forked = layout is not None and n_rows <= limit
+    with _trials_csv_forked(folder, forked) as csv_written:
         # the figures' columns kept from the summary's reading (matplotlib imported with them)
         summary, figure_trials = _summary(folder, trials, experiment, n_bootstrap, layout)
-    except BaseException:
-        if csv_written is not None:  # no process left behind
-            with suppress(Exception):
+        write_csv(folder / "summary.csv", summary)
+        write_csv(folder / "thresholds.csv", verdict_table.thresholds(summary))
+        file_notes = []
+        from comparison import figures
+        from comparison.report_figures import FIGURE_STEMS, figure_plans, write_figures
+
+        steering = None
+        if "planner" in summary.columns:
+            if flights is None and (folder / "results.sqlite").is_file():
+                from comparison import engine
+
+                flights = engine.read_flights(folder)
+            if flights is not None:
+                write_csv(folder / "flights.csv", flights)
+            steering = experiment.get("steering_estimator")
+            if steering is None and experiment.get("estimators"):
+                first = experiment["estimators"][0]
+                if isinstance(first, Mapping):
+                    steering = first.get("label") or first.get("name")
+                else:
+                    steering = str(first)
+        if tracks_m is None and figures.is_geometry_sweep(summary):
+            tracks_m = scenario_tracks_m(experiment)
+
+        def write_trials_csv() -> None:
+            """The rows as text, a batch at a time from results.sqlite (or none, said on the page);
+            or wait for the process writing them."""
+            if csv_written is not None:
                 csv_written()
-        raise
-    write_csv(folder / "summary.csv", summary)
-    write_csv(folder / "thresholds.csv", verdict_table.thresholds(summary))
-    file_notes = []
-    from comparison import figures
-    from comparison.report_figures import FIGURE_STEMS, figure_plans, write_figures
-
-    steering = None
-    if "planner" in summary.columns:
-        if flights is None and (folder / "results.sqlite").is_file():
-            from comparison import engine
-
-            flights = engine.read_flights(folder)
-        if flights is not None:
-            write_csv(folder / "flights.csv", flights)
-        steering = experiment.get("steering_estimator")
-        if steering is None and experiment.get("estimators"):
-            first = experiment["estimators"][0]
-            if isinstance(first, Mapping):
-                steering = first.get("label") or first.get("name")
+            elif n_rows <= limit:
+                write_csv(
+                    folder / "trials.csv", trials if trials is not None else _trial_batches(folder)
+                )
             else:
-                steering = str(first)
-    if tracks_m is None and figures.is_geometry_sweep(summary):
-        tracks_m = scenario_tracks_m(experiment)
+                (folder / "trials.csv").unlink(missing_ok=True)  # an earlier report's, now stale
+                file_notes.append(trials_csv_note(n_rows, limit))
 
-    def write_trials_csv() -> None:
-        """The rows as text, a batch at a time from results.sqlite (or none, said on the page);
-        or wait for the process writing them."""
-        if csv_written is not None:
-            csv_written()
-        elif n_rows <= limit:
-            write_csv(
-                folder / "trials.csv", trials if trials is not None else _trial_batches(folder)
-            )
-        else:
-            (folder / "trials.csv").unlink(missing_ok=True)  # an earlier report's, now stale
-            file_notes.append(trials_csv_note(n_rows, limit))
-
-    figure_dir = folder / "figures"
-    plans = figure_plans(
-        summary, figure_trials, points, tracks_m, flights, steering_estimator=steering
-    )
-    # each file replaced whole, the old one kept till then; trials.csv written meanwhile
-    made = write_figures(plans, figure_dir, dpi=dpi, meanwhile=write_trials_csv)
+        figure_dir = folder / "figures"
+        plans = figure_plans(
+            summary, figure_trials, points, tracks_m, flights, steering_estimator=steering
+        )
+        # each file replaced whole, the old one kept till then; trials.csv written meanwhile
+        made = write_figures(plans, figure_dir, dpi=dpi, meanwhile=write_trials_csv)
     entries = [(stem, caption, _png_data_uri(png_path)) for stem, caption, png_path in made]
     drawn = {stem for stem, _, _ in made}
     for stale in set(FIGURE_STEMS) - drawn:  # an earlier report's, once the new ones are in
