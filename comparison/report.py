@@ -7,12 +7,13 @@
   (scenario, point, frame, estimator), and planner in a closed loop;
 - ``trials.csv``: the tidy trial rows, one per estimator × scenario × point × frame × trial
   (× planner in a closed loop), for runs of at most :data:`MAX_TRIALS_CSV_ROWS` rows (larger
-  runs keep them in ``results.sqlite`` only, and the page says so);
+  runs keep them in ``results.sqlite`` only, and the page says so); read again from
+  ``results.sqlite`` and written in a forked process while the summary is worked out;
 - ``flights.csv`` (closed loop): every frame flown, per planner and trial
   (:func:`comparison.engine.read_flights`);
 - ``figures/<name>.png`` (150 dpi) and ``figures/<name>.svg`` for every figure of
   :mod:`comparison.figures` that applies to the sweep, chosen, captioned and drawn by
-  :mod:`comparison.report_figures` (in worker processes, while trials.csv is written);
+  :mod:`comparison.report_figures` (in worker processes, heaviest first);
 - ``thresholds.csv``: per scenario and estimator of an SNR sweep, the threshold SNR from
   which every higher point attains the CRLB (:mod:`comparison.verdict_table`);
 - ``report.html``: one self-contained file (figures embedded as base64 PNG, styles inline, no

@@ -418,8 +418,9 @@ def write_figures(
 
     With :func:`figure_processes` above 1 the figures are drawn in forked worker processes
     (module docstring), handed out heaviest first (:func:`figure_cost`), while this process
-    calls ``meanwhile`` (the report writes trials.csv then); else ``meanwhile`` is called first and the figures drawn here. An error in a
-    figure is raised here once the figures under way are done (the others are dropped).
+    calls ``meanwhile`` (the report writes trials.csv then, or waits for the process writing
+    it); else ``meanwhile`` is called first and the figures drawn here. An error in a figure
+    is raised here once the figures under way are done (the others are dropped).
     """
     directory = Path(directory)
     processes = figure_processes(len(plans))
