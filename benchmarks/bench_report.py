@@ -2,18 +2,21 @@
 
 The stages, in the order ``write_report`` meets them:
 
-- ``read store``: experiment.json, the trial and point rows of results.sqlite, run.json;
-- ``summarize``: :func:`comparison.metrics.summarize`, the bootstrap intervals
-  (``comparison.metric_groups``) included (``  bootstrap`` below it is their share);
-- ``thresholds``, ``summary.csv``, ``thresholds.csv``, ``trials.csv``;
+- ``read store``: experiment.json, the point rows of results.sqlite, run.json;
+- ``summarize``: :func:`comparison.metrics.summarize_chunks` of the trial rows, their reading
+  from results.sqlite (``  read trials`` below it: the summary's columns and the figures') and
+  the bootstrap intervals (``comparison.metric_groups``; ``  bootstrap``) included;
+- ``thresholds``, ``summary.csv``, ``thresholds.csv``, ``trials.csv`` (every column read
+  again a batch at a time: ``  read trials`` below it);
 - ``draw <figure>`` and ``save <figure>`` (PNG and SVG) for every figure of the report;
 - ``notes`` (the first screen's sentences), ``html`` (the page) and ``write report.html``;
 - ``other``: what ``write_report`` spends outside the stages above.
 
 A stage called inside another (the verdict table computes the thresholds again) counts in
 the outer one. The figures are drawn in this process, one after another, so that each is
-timed (the report draws them in worker processes: ``benchmarks/bench_speed.py``). Each stage is timed by wrapping the function ``write_report`` calls, so the
-report written is the ordinary one. The runs are the built-ins ``paper-fig2`` (500 trials per
+timed (the report draws them in worker processes: ``benchmarks/bench_speed.py``). Each stage
+is timed by wrapping the function ``write_report`` calls, so the report written is the
+ordinary one. The runs are the built-ins ``paper-fig2`` (500 trials per
 point, 7 estimators, 27 points) and ``geometry-map-dense`` (10,000 points, 2 estimators,
 100 trials), run once into ``--fig2`` and ``--dense`` (2 workers) unless those folders
 already hold a finished run; each report is then written ``--repeats`` times and the best
@@ -38,6 +41,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 import comparison.report as report
 import comparison.report_figures as report_figures
 from comparison import figures, metric_groups, verdict_table
@@ -53,12 +58,16 @@ class StageClock:
     def __init__(self) -> None:
         self.seconds: dict[str, float] = defaultdict(float)
         self.depth = 0
-        self.nested: dict[str, float] = defaultdict(float)
+        self.outer = ""
+        self.nested: dict[str, dict[str, float]] = defaultdict(lambda: defaultdict(float))
 
     @contextlib.contextmanager
     def stage(self, name: str, *, nested: bool = False) -> Iterator[None]:
-        """Time the block as ``name``; with ``nested``, also inside another stage."""
+        """Time the block as ``name``; with ``nested``, also inside another stage (kept under
+        that stage's name)."""
         outer = self.depth == 0
+        if outer:
+            self.outer = name
         self.depth += 1
         start = time.perf_counter()
         try:
@@ -69,7 +78,7 @@ class StageClock:
             if outer:
                 self.seconds[name] += elapsed
             elif nested:
-                self.nested[name] += elapsed
+                self.nested[self.outer][name] += elapsed
 
     def wrap(self, function: Callable[..., Any], name: Callable[..., str] | str, **kw) -> Any:
         @functools.wraps(function)
@@ -80,16 +89,34 @@ class StageClock:
 
         return timed
 
+    def wrap_iterator(self, function: Callable[..., Iterator[Any]], name: str) -> Any:
+        """``function`` returning an iterator whose every step is timed as ``name``."""
+
+        @functools.wraps(function)
+        def timed(*args: Any, **kwargs: Any) -> Iterator[Any]:
+            iterator = iter(function(*args, **kwargs))
+            while True:
+                with self.stage(name, nested=True):
+                    item = next(iterator, StopIteration)
+                if item is StopIteration:
+                    return
+                yield item
+
+        return timed
+
 
 @contextlib.contextmanager
 def patched(clock: StageClock) -> Iterator[None]:
     """Wrap the functions ``write_report`` calls in the clock's stages."""
     import comparison.intervals as intervals
+    import comparison.store as store
 
     replacements: list[tuple[Any, str, Any]] = [
         (report_figures, "figure_processes", lambda n_figures: 1),
         (report, "_load", clock.wrap(report._load, "read store")),
         (report, "summarize", clock.wrap(report.summarize, "summarize")),
+        (report, "summarize_chunks", clock.wrap(report.summarize_chunks, "summarize")),
+        (store, "iter_trials", clock.wrap_iterator(store.iter_trials, "  read trials")),
         (
             metric_groups,
             "studentized_bootstrap_interval",
@@ -139,10 +166,13 @@ def ensure_run(folder: Path, experiment: str) -> Path:
     return folder
 
 
-def time_report(folder: Path, repeats: int) -> tuple[dict[str, float], dict[str, float], float]:
-    """The best time of every stage, of the nested bootstrap, and of the whole report."""
+def time_report(
+    folder: Path, repeats: int
+) -> tuple[dict[str, float], dict[str, dict[str, float]], float]:
+    """The best time of every stage, of the stages timed inside them (reading the trials,
+    the bootstrap), and of the whole report."""
     best: dict[str, float] = {}
-    best_nested: dict[str, float] = {}
+    best_nested: dict[str, dict[str, float]] = defaultdict(dict)
     best_total = float("inf")
     for _ in range(repeats):
         clock = StageClock()
@@ -153,8 +183,9 @@ def time_report(folder: Path, repeats: int) -> tuple[dict[str, float], dict[str,
         clock.seconds["other"] = total - sum(clock.seconds.values())
         for name, seconds in clock.seconds.items():
             best[name] = min(best.get(name, float("inf")), seconds)
-        for name, seconds in clock.nested.items():
-            best_nested[name] = min(best_nested.get(name, float("inf")), seconds)
+        for outer, inner in clock.nested.items():
+            for name, seconds in inner.items():
+                best_nested[outer][name] = min(best_nested[outer].get(name, np.inf), seconds)
         best_total = min(best_total, total)
     return best, best_nested, best_total
 
@@ -179,9 +210,8 @@ def main() -> None:
         )
         for name, seconds in stages.items():
             print(f"  {name:<28} {seconds:8.3f} s")
-            if name == "summarize":
-                for inner, inner_seconds in nested.items():
-                    print(f"  {inner:<28} {inner_seconds:8.3f} s")
+            for inner, inner_seconds in nested.get(name, {}).items():
+                print(f"  {inner:<28} {inner_seconds:8.3f} s")
 
 
 if __name__ == "__main__":

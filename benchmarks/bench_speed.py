@@ -7,8 +7,11 @@ rows and of its report, apart.
   trials per task the run used (``chunk_size``, ``"auto"`` unless ``--chunk-size N``: the
   fixed 25 of earlier versions for comparison);
 - ``report``: :func:`comparison.report.write_report` of that folder (summary.csv,
-  thresholds.csv, trials.csv, ten figure files, report.html), with the figures drawn in
-  worker processes as the report does (``--serial-figures``: drawn one after another here),
+  thresholds.csv, trials.csv, twelve figure files, report.html), after the run's idle worker
+  pool is shut down as ``emitterbench run`` does before its report
+  (:func:`comparison.execution.release_workers`: a process that forks runs no other thread),
+  with trials.csv and the figures written in forked processes as the report does
+  (``--serial-figures``: drawn one after another here),
   and the time spent in the figures alone (:func:`comparison.report_figures.write_figures`,
   the trials.csv it overlaps included).
 
@@ -41,6 +44,7 @@ import pandas as pd
 
 import comparison.report_figures as report_figures
 from comparison.engine import read_trials, run_experiment
+from comparison.execution import release_workers
 from comparison.experiment import builtin_experiment
 from comparison.report import write_report
 from comparison.run_folder import read_experiment
@@ -79,7 +83,9 @@ def timed_report(folder: Path) -> tuple[float, float, float]:
 
     report_figures.write_figures = watched
     try:
-        start, cpu = time.perf_counter(), cpu_s()
+        start = time.perf_counter()
+        release_workers()  # as run_experiment before its report (the workers' CPU not counted)
+        cpu = cpu_s()
         write_report(folder)
         return time.perf_counter() - start, cpu_s() - cpu, sum(spent)
     finally:

@@ -22,8 +22,10 @@ emitterbench reads them back.
 from __future__ import annotations
 
 import csv
+import os
 import re
 
+import numpy as np
 import pandas as pd
 
 FORMULA_TRIGGERS = ("=", "+", "-", "@", "\t", "\r", "\n")
@@ -70,3 +72,60 @@ def neutralised_frame(frame: pd.DataFrame) -> pd.DataFrame:
     if not changed and all(name == new for name, new in renamed.items()):
         return frame
     return frame.assign(**changed).rename(columns=renamed)
+
+
+_TRIGGERED = frozenset("'" + "".join(FORMULA_TRIGGERS))
+"""First characters after which :func:`neutralised_cell` has something to check."""
+
+
+def _quoted_cell(text: str) -> str:
+    """A text cell as written: neutralised, in double quotes, inner quotes doubled."""
+    if text[:1] in _TRIGGERED:
+        text = neutralised_cell(text)
+    return '"' + (text.replace('"', '""') if '"' in text else text) + '"'
+
+
+def _column_cells(column: pd.Series) -> list[str] | None:
+    """The cells of one column as :func:`csv_text` writes them, or None for a type it leaves
+    to pandas (only float64, numpy integers and booleans, and text with missing values).
+
+    Each distinct value is formatted once (a point's columns repeat within it): floats by
+    ``repr`` (distinct bit patterns, so ``-0.0`` stays), integers and booleans by ``str``,
+    text by :func:`_quoted_cell`; a missing value is ``""``, pandas' empty ``na_rep`` quoted.
+    """
+    dtype = column.dtype
+    if isinstance(dtype, pd.StringDtype) or dtype == np.dtype(object):
+        codes, distinct = pd.factorize(column.to_numpy(dtype=object), use_na_sentinel=True)
+        texts = distinct.tolist()
+        if not all(isinstance(text, str) for text in texts):
+            return None  # numbers among the text: pandas writes them bare
+        cells = [_quoted_cell(text) for text in texts]
+    elif dtype == np.float64:
+        values = column.to_numpy()
+        codes, distinct = pd.factorize(values.view(np.int64), use_na_sentinel=False)
+        floats = distinct.view(np.float64)
+        cells = list(map(float.__repr__, floats.tolist()))
+        for at in np.flatnonzero(np.isnan(floats)).tolist():
+            cells[at] = '""'
+    elif dtype == np.bool_ or (isinstance(dtype, np.dtype) and dtype.kind in "iu"):
+        codes, distinct = pd.factorize(column.to_numpy(), use_na_sentinel=False)
+        cells = list(map(str, distinct.tolist()))
+    else:
+        return None
+    cells.append('""')  # code -1: missing
+    return [cells[code] for code in codes.tolist()]
+
+
+def csv_text(frame: pd.DataFrame, *, header: bool = True) -> str | None:
+    """``frame`` as CSV text, byte for byte what pandas writes of :func:`neutralised_frame`
+    with ``to_csv(index=False, quoting=QUOTING)``, about twice as fast (the trial rows of a
+    run); None when a column holds a type that only pandas writes (numbers among text,
+    float32, nullable integers, dates, a name that is not text)."""
+    if frame.shape[1] == 0 or not all(isinstance(name, str) for name in frame.columns):
+        return None
+    columns = [_column_cells(frame.iloc[:, at]) for at in range(frame.shape[1])]
+    if any(cells is None for cells in columns):
+        return None
+    lines = [",".join(map(_quoted_cell, frame.columns))] if header else []
+    lines.extend(map(",".join, zip(*columns, strict=True)))  # type: ignore[arg-type]
+    return os.linesep.join(lines) + os.linesep if lines else ""

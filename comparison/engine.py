@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from comparison.bounds import CrlbKey, PointInfo, crlb_key, point_infos, point_rows
-from comparison.execution import WORKER_WAIT_S, connect_scheduler, execute
+from comparison.execution import WORKER_WAIT_S, connect_scheduler, execute, release_workers
 from comparison.experiment import AUTO_CHUNK_SIZE, Experiment
 from comparison.progress import progress_reporter
 from comparison.run_folder import (
@@ -222,6 +222,7 @@ def run_experiment(
         )
         write_run_info(out, session)
         if write_report is not None:
+            release_workers()  # the report forks its own processes: no pool's threads then
             write_report(out)
     return out
 

@@ -7,12 +7,13 @@
   (scenario, point, frame, estimator), and planner in a closed loop;
 - ``trials.csv``: the tidy trial rows, one per estimator × scenario × point × frame × trial
   (× planner in a closed loop), for runs of at most :data:`MAX_TRIALS_CSV_ROWS` rows (larger
-  runs keep them in ``results.sqlite`` only, and the page says so);
+  runs keep them in ``results.sqlite`` only, and the page says so); read again from
+  ``results.sqlite`` and written in a forked process while the summary is worked out;
 - ``flights.csv`` (closed loop): every frame flown, per planner and trial
   (:func:`comparison.engine.read_flights`);
 - ``figures/<name>.png`` (150 dpi) and ``figures/<name>.svg`` for every figure of
   :mod:`comparison.figures` that applies to the sweep, chosen, captioned and drawn by
-  :mod:`comparison.report_figures` (in worker processes, while trials.csv is written);
+  :mod:`comparison.report_figures` (in worker processes, heaviest first);
 - ``thresholds.csv``: per scenario and estimator of an SNR sweep, the threshold SNR from
   which every higher point attains the CRLB (:mod:`comparison.verdict_table`);
 - ``report.html``: one self-contained file (figures embedded as base64 PNG, styles inline, no
@@ -31,7 +32,9 @@ from __future__ import annotations
 import base64
 import html
 import json
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager, suppress
+from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +52,7 @@ from comparison.metrics import (
     summarize,
     summarize_chunks,
     summary_swept_columns,
+    swept_columns_of,
 )
 from comparison.planner_table import planner_table_html
 from comparison.run_folder import holding_report_lock, write_atomic, write_csv
@@ -187,29 +191,43 @@ def _summary(
     trials: pd.DataFrame | None,
     experiment: Mapping[str, Any],
     n_bootstrap: int,
-) -> tuple[pd.DataFrame, int]:
+    layout: Any = None,
+) -> tuple[pd.DataFrame, pd.DataFrame]:
     """:func:`comparison.metrics.summarize` of the given rows, else of results.sqlite read a
-    few points at a time (:func:`comparison.store.iter_trials`), with the number of rows."""
+    few points at a time (:func:`comparison.store.iter_trials`; ``layout`` is its
+    :func:`comparison.store.trial_layout`), with the rows the figures read: the given ones,
+    else their columns (:func:`comparison.report_figures.figure_trial_columns`) kept from the
+    same reading."""
     seed = np.random.SeedSequence(int(experiment.get("seed", 0)), spawn_key=(BOOTSTRAP_STREAM,))
     swept = experiment.get("swept_columns")
     swept = None if swept is None else list(swept)
     if trials is not None:
         summary = summarize(trials, n_bootstrap=n_bootstrap, seed=seed, swept_columns=swept)
-        return summary, len(trials)
+        return summary, trials
     from comparison import store
+    from comparison.report_figures import figure_trial_columns
 
-    layout = store.trial_layout(run_dir)
     closed = any(label != "" for label in layout.orders["planner"])
     columns = [c for c in SUMMARY_TRIAL_COLUMNS if closed or c != "planner"]
+    shown = figure_trial_columns(closed_loop=closed)
+    kept: list[pd.DataFrame] = []
+
+    def chunks() -> Iterator[pd.DataFrame]:
+        for chunk in store.iter_trials(run_dir, [*columns, *shown]):
+            drawn = {*shown, *swept_columns_of(chunk)}  # store.read_trials(run_dir, shown)
+            kept.append(chunk[[c for c in chunk.columns if c in drawn]])
+            yield chunk
+
     summary = summarize_chunks(
-        store.iter_trials(run_dir, columns),
+        chunks(),
         orders=layout.orders,
         n_trial_sets=layout.n_trial_sets,
         swept_columns=swept,
         n_bootstrap=n_bootstrap,
         seed=seed,
     )
-    return summary, layout.n_rows
+    figure_trials = pd.concat(kept, ignore_index=True) if len(kept) > 1 else kept[0]
+    return summary, figure_trials
 
 
 def experiment_dict(experiment: Any) -> dict[str, Any]:
@@ -525,6 +543,68 @@ def _trial_batches(run_dir: Path) -> Iterator[pd.DataFrame]:
     return store.iter_trials(run_dir, chunk_rows=store.TRIAL_BATCH_ROWS, whole_points=False)
 
 
+def _write_trials_csv(folder: Path, sender: Any) -> None:
+    """Write trials.csv from results.sqlite, in a process of :func:`_trials_csv_forked`;
+    send None when done, else the error."""
+    try:
+        write_csv(folder / "trials.csv", _trial_batches(folder))
+    except BaseException as error:  # a Ctrl-C too: the report sees it
+        try:
+            sender.send(error)
+        except Exception:  # an error that does not pickle: its text
+            sender.send(RuntimeError(f"trials.csv: {error}"))
+    else:
+        sender.send(None)
+    finally:
+        sender.close()
+
+
+@contextmanager
+def _trials_csv_forked(folder: Path, start: bool) -> Iterator[Callable[[], None] | None]:
+    """With ``start``, write trials.csv from results.sqlite in a forked process started now,
+    so that it overlaps the summary: the block gets the function that waits for it (and
+    raises its error here), and the block's end waits for it in any case, so that no process
+    is left behind. None when not started, or when a second process does not pay or cannot
+    be forked (:func:`comparison.report_figures.figure_processes`)."""
+    from comparison.report_figures import figure_processes
+
+    if not start or figure_processes(2) < 2:
+        yield None
+        return
+    context = get_context("fork")
+    receiver, sender = context.Pipe(duplex=False)
+    process = context.Process(target=_write_trials_csv, args=(folder, sender), daemon=True)
+    process.start()
+    sender.close()
+    outcome: list[BaseException | None] = []
+
+    def wait() -> None:
+        if not outcome:
+            try:
+                error = receiver.recv()
+            except EOFError:  # ended without a word
+                error = None
+            finally:
+                process.join()
+                receiver.close()
+            if error is None and process.exitcode != 0:  # killed
+                error = RuntimeError(
+                    f"trials.csv: the process writing it ended with code {process.exitcode}; "
+                    "run emitterbench report again"
+                )
+            outcome.append(error)
+        if outcome[0] is not None:
+            raise outcome[0]
+
+    try:
+        yield wait
+    except BaseException:
+        with suppress(BaseException):  # the block's error is the one to see
+            wait()
+        raise
+    wait()
+
+
 def trials_csv_note(n_rows: int, limit: int) -> str:
     """The sentence of a report whose trial rows are too many for trials.csv."""
     return (
@@ -582,64 +662,64 @@ def write_report(
         The path of ``report.html``.
     """
     folder = Path(run_dir)
-    folder = Path(run_dir)
     points, experiment, run_info = _load(folder, points, experiment, run_info)
-    summary, n_rows = _summary(folder, trials, experiment, n_bootstrap)
-    write_csv(folder / "summary.csv", summary)
-    write_csv(folder / "thresholds.csv", verdict_table.thresholds(summary))
     limit = (
         configured_limit(_TRIALS_CSV_LIMIT) if max_trials_csv_rows is None else max_trials_csv_rows
     )
-    file_notes = []
-    # matplotlib only now: the summary's peak memory does not carry it (about 30 MB)
-    from comparison import figures
-    from comparison.report_figures import (
-        FIGURE_STEMS,
-        figure_plans,
-        figure_trial_columns,
-        write_figures,
-    )
-
-    figure_trials = trials
-    if figure_trials is None:  # the figures' columns only
+    layout = None
+    if trials is None:
         from comparison import store
 
-        closed = "planner" in summary.columns
-        figure_trials = store.read_trials(folder, figure_trial_columns(closed_loop=closed))
-    steering = None
-    if "planner" in summary.columns:
-        if flights is None and (folder / "results.sqlite").is_file():
-            from comparison import engine
+        layout = store.trial_layout(folder)
+    n_rows = len(trials) if layout is None else layout.n_rows
+    # trials.csv from results.sqlite in a process of its own while the summary is worked out
+    forked = layout is not None and n_rows <= limit
+    with _trials_csv_forked(folder, forked) as csv_written:
+        # the figures' columns kept from the summary's reading (matplotlib imported with them)
+        summary, figure_trials = _summary(folder, trials, experiment, n_bootstrap, layout)
+        write_csv(folder / "summary.csv", summary)
+        write_csv(folder / "thresholds.csv", verdict_table.thresholds(summary))
+        file_notes = []
+        from comparison import figures
+        from comparison.report_figures import FIGURE_STEMS, figure_plans, write_figures
 
-            flights = engine.read_flights(folder)
-        if flights is not None:
-            write_csv(folder / "flights.csv", flights)
-        steering = experiment.get("steering_estimator")
-        if steering is None and experiment.get("estimators"):
-            first = experiment["estimators"][0]
-            if isinstance(first, Mapping):
-                steering = first.get("label") or first.get("name")
+        steering = None
+        if "planner" in summary.columns:
+            if flights is None and (folder / "results.sqlite").is_file():
+                from comparison import engine
+
+                flights = engine.read_flights(folder)
+            if flights is not None:
+                write_csv(folder / "flights.csv", flights)
+            steering = experiment.get("steering_estimator")
+            if steering is None and experiment.get("estimators"):
+                first = experiment["estimators"][0]
+                if isinstance(first, Mapping):
+                    steering = first.get("label") or first.get("name")
+                else:
+                    steering = str(first)
+        if tracks_m is None and figures.is_geometry_sweep(summary):
+            tracks_m = scenario_tracks_m(experiment)
+
+        def write_trials_csv() -> None:
+            """The rows as text, a batch at a time from results.sqlite (or none, said on the page);
+            or wait for the process writing them."""
+            if csv_written is not None:
+                csv_written()
+            elif n_rows <= limit:
+                write_csv(
+                    folder / "trials.csv", trials if trials is not None else _trial_batches(folder)
+                )
             else:
-                steering = str(first)
-    if tracks_m is None and figures.is_geometry_sweep(summary):
-        tracks_m = scenario_tracks_m(experiment)
+                (folder / "trials.csv").unlink(missing_ok=True)  # an earlier report's, now stale
+                file_notes.append(trials_csv_note(n_rows, limit))
 
-    def write_trials_csv() -> None:
-        """The rows as text, a batch at a time from results.sqlite (or none, said on the page)."""
-        if n_rows <= limit:
-            write_csv(
-                folder / "trials.csv", trials if trials is not None else _trial_batches(folder)
-            )
-        else:
-            (folder / "trials.csv").unlink(missing_ok=True)  # an earlier report's, now stale
-            file_notes.append(trials_csv_note(n_rows, limit))
-
-    figure_dir = folder / "figures"
-    plans = figure_plans(
-        summary, figure_trials, points, tracks_m, flights, steering_estimator=steering
-    )
-    # each file replaced whole, the old one kept till then; trials.csv written meanwhile
-    made = write_figures(plans, figure_dir, dpi=dpi, meanwhile=write_trials_csv)
+        figure_dir = folder / "figures"
+        plans = figure_plans(
+            summary, figure_trials, points, tracks_m, flights, steering_estimator=steering
+        )
+        # each file replaced whole, the old one kept till then; trials.csv written meanwhile
+        made = write_figures(plans, figure_dir, dpi=dpi, meanwhile=write_trials_csv)
     entries = [(stem, caption, _png_data_uri(png_path)) for stem, caption, png_path in made]
     drawn = {stem for stem, _, _ in made}
     for stale in set(FIGURE_STEMS) - drawn:  # an earlier report's, once the new ones are in

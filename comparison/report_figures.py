@@ -360,6 +360,27 @@ def figure_plans(
 # drawn and written, in parallel when it pays
 # --------------------------------------------------------------------------------------------
 
+FIGURE_COSTS: dict[str, float] = {
+    "error_cdf": 2.1,
+    "geometry": 2.0,
+    "trajectories": 2.0,
+    "rmse": 1.0,
+    "rmse_side_resolved": 0.9,
+    "planner_rmse_vs_frame": 0.9,
+    "planner_rmse_side_resolved_vs_frame": 0.9,
+    "efficiency": 0.6,
+}
+"""CPU seconds of a figure's drawing and files, measured on paper-fig2 (the geometry heatmap
+and the trajectories guessed like the error CDF, the heaviest measured); 0.5 for any other.
+:func:`write_figures` hands the figures to its workers heaviest first, so that no worker is
+left with the heaviest while the others are done."""
+
+
+def figure_cost(stem: str) -> float:
+    """The expected cost of figure ``stem`` (:data:`FIGURE_COSTS`)."""
+    return FIGURE_COSTS.get(stem, 0.5)
+
+
 _PLANS: list[FigurePlan] = []
 """The plans a forked worker of :func:`write_figures` draws from, by index (set before the
 workers are forked, so that they inherit it and no data is pickled)."""
@@ -396,9 +417,10 @@ def write_figures(
     (:func:`comparison.figures.save_figure`); ``(stem, caption, PNG path)`` in the plans' order.
 
     With :func:`figure_processes` above 1 the figures are drawn in forked worker processes
-    (module docstring) while this process calls ``meanwhile`` (the report writes trials.csv
-    then); else ``meanwhile`` is called first and the figures drawn here. An error in a
-    figure is raised here once the figures under way are done (the others are dropped).
+    (module docstring), handed out heaviest first (:func:`figure_cost`), while this process
+    calls ``meanwhile`` (the report writes trials.csv then, or waits for the process writing
+    it); else ``meanwhile`` is called first and the figures drawn here. An error in a figure
+    is raised here once the figures under way are done (the others are dropped).
     """
     directory = Path(directory)
     processes = figure_processes(len(plans))
@@ -412,10 +434,13 @@ def write_figures(
     _PLANS[:] = plans
     pool = ProcessPoolExecutor(processes, mp_context=get_context("fork"))
     try:
-        futures = [pool.submit(_draw_and_save, i, directory, dpi) for i in range(len(plans))]
+        futures = {
+            index: pool.submit(_draw_and_save, index, directory, dpi)
+            for index in sorted(range(len(plans)), key=lambda i: -figure_cost(plans[i][0]))
+        }
         if meanwhile is not None:
             meanwhile()
-        paths = [future.result() for future in futures]
+        paths = [futures[index].result() for index in range(len(plans))]
     finally:  # on an error or Ctrl-C the figures not started are dropped
         pool.shutdown(wait=True, cancel_futures=True)
         _PLANS.clear()

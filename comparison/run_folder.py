@@ -170,14 +170,18 @@ def write_csv(path: str | os.PathLike[str], frame: Any) -> None:
     ``'``, every text cell is double-quoted, numbers are written bare and unchanged.
     :func:`comparison.csv_cells.original_text` gives a cell's text back.
     """
-    from comparison.csv_cells import QUOTING, neutralised_frame
+    from comparison.csv_cells import QUOTING, csv_text, neutralised_frame
 
     frames = [frame] if hasattr(frame, "to_csv") else frame
 
     def write(handle: IO[str]) -> None:
         for index, part in enumerate(frames):
-            safe = neutralised_frame(part)
-            safe.to_csv(handle, index=False, header=index == 0, quoting=QUOTING)
+            text = csv_text(part, header=index == 0)
+            if text is None:  # a type csv_text leaves to pandas
+                safe = neutralised_frame(part)
+                safe.to_csv(handle, index=False, header=index == 0, quoting=QUOTING)
+            else:
+                handle.write(text)
 
     write_atomic(path, write)
 

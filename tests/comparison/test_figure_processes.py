@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 
 import pytest
 
 import comparison.report_figures as report_figures
+from comparison.engine import run_experiment
+from comparison.execution import release_workers
+from comparison.experiment import load_experiment
 from comparison.metrics import summarize
 from comparison.report_figures import figure_plans, figure_processes, write_figures
 from tests.comparison.test_report import synthetic_run
@@ -61,3 +65,20 @@ def test_one_figure_or_another_thread_keeps_the_figures_here():
     finally:
         release.set()
         other.join()
+
+
+def test_a_run_on_worker_processes_hands_its_report_a_process_of_one_thread(tmp_path):
+    """The pool a run keeps for the next one is shut down before its report, which forks
+    (threads of other tests, if any, aside)."""
+    release_workers()  # an earlier test's pool
+    before = threading.active_count()
+    seen = []
+    experiment = dataclasses.replace(load_experiment("smoke"), trials=4)
+    run_experiment(
+        experiment,
+        tmp_path / "run",
+        workers=2,
+        progress=False,
+        write_report=lambda out: seen.append(threading.active_count()),
+    )
+    assert seen == [before]

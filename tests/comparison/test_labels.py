@@ -19,7 +19,13 @@ import pandas as pd
 import pytest
 from matplotlib.text import Text
 
-from comparison.csv_cells import FORMULA_TRIGGERS, original_text
+from comparison.csv_cells import (
+    FORMULA_TRIGGERS,
+    QUOTING,
+    csv_text,
+    neutralised_frame,
+    original_text,
+)
 from comparison.engine import run_experiment
 from comparison.experiment import Experiment, load_experiment
 from comparison.labels import BIDI_CONTROLS, MAX_LABEL_CHARS, PLAIN_MARK
@@ -120,6 +126,39 @@ def test_write_csv_quotes_formula_cells_and_leaves_numbers_alone(tmp_path):
     assert [row[3] for row in rows] == ["True", "False"] * 7
     # a text cell is quoted, so a ';' separator (many locales) cannot start a new cell
     assert '"x;=1+2"' in (tmp_path / "t.csv").read_text(encoding="utf-8")
+
+
+def pandas_csv(frame: pd.DataFrame, *, header: bool = True) -> str:
+    return neutralised_frame(frame).to_csv(index=False, header=header, quoting=QUOTING)
+
+
+def test_csv_text_is_what_pandas_writes_byte_for_byte():
+    rng = np.random.default_rng(5)
+    n = 400
+    texts = [*FORMULAS, "'=x", 'say "hi"', "a,b", "line\nbreak", "-3.5", "", "plain", "\t"]
+    numbers = rng.standard_normal(n) * 10.0 ** rng.integers(-30, 30, n)
+    numbers[:8] = [0.0, -0.0, np.nan, np.inf, -np.inf, 1e16, 1e-5, 5e-324]
+    frame = pd.DataFrame(
+        {
+            "label": pd.array([texts[i % len(texts)] for i in range(n)], dtype="str"),
+            "value": numbers,
+            "repeated": np.repeat([0.5, -0.0, 0.0, np.nan], n // 4),
+            "count": rng.integers(-(2**62), 2**62, n),
+            "small": rng.integers(0, 3, n).astype(np.int32),
+            "ok": rng.random(n) < 0.5,
+            "text": pd.Series([None, "=1", np.nan, "x"] * (n // 4), dtype=object),
+            "missing": pd.array([pd.NA, "@y"] * (n // 2), dtype="string"),
+            "=formula name": 1.25,
+        }
+    )
+    assert csv_text(frame) == pandas_csv(frame)
+    assert csv_text(frame.iloc[:0]) == pandas_csv(frame.iloc[:0])
+    assert csv_text(frame.iloc[5:9], header=False) == pandas_csv(frame.iloc[5:9], header=False)
+    # types it leaves to pandas
+    mixed = pd.DataFrame({"mixed": pd.Series(["a", 1.0, True], dtype=object)})
+    assert csv_text(mixed) is None
+    assert csv_text(pd.DataFrame({"f": np.ones(2, np.float32)})) is None
+    assert csv_text(pd.DataFrame({0: [1.0]})) is None
 
 
 def test_the_csv_files_of_a_run_hold_no_live_formula(tmp_path):

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import math
+import multiprocessing
 import sys
 import types
 import xml.etree.ElementTree as ET
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +18,7 @@ import pandas as pd
 import pytest
 
 import comparison
+import comparison.report_figures as report_figures_module
 from comparison import store
 from comparison.intervals import nees_band
 from comparison.metrics import CONTRACT_METRIC_NAMES, format_number, summarize
@@ -199,6 +203,65 @@ def snr_run(tmp_path_factory):
         stand_in_store(patch, trials)
         html_path = write_report(folder, n_bootstrap=200)
     return folder, html_path, trials
+
+
+@contextlib.contextmanager
+def stand_in_run(folder: Path) -> Iterator[pytest.MonkeyPatch]:
+    """A small SNR sweep in ``folder``, read through stand-in readers while the block runs."""
+    trials, points, experiment = synthetic_run([{"snr_db": s} for s in (0.0, 10.0)], n_trials=20)
+    write_run_folder(folder, experiment)
+    engine = types.ModuleType("comparison.engine")
+    engine.read_points = lambda run_dir: points.copy()
+    engine.read_experiment = lambda run_dir: experiment
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setitem(sys.modules, "comparison.engine", engine)
+        patch.setattr(comparison, "engine", engine, raising=False)
+        stand_in_store(patch, trials)
+        # a process for trials.csv even where other tests left threads running
+        patch.setattr(report_figures_module, "figure_processes", lambda n: min(n, 2))
+        yield patch
+
+
+def child_ids() -> set[int]:
+    """The process ids of this process's children (an earlier test's pool among them)."""
+    return {process.pid for process in multiprocessing.active_children()}
+
+
+def test_an_error_writing_trials_csv_is_raised_by_the_report_and_no_process_is_left(tmp_path):
+    """trials.csv is written from results.sqlite while the summary is worked out (in a
+    process of its own where one may be forked): its error reaches the caller whole."""
+    folder = tmp_path / "run"
+    children = child_ids()
+    with stand_in_run(folder) as patch:
+        rows = store.iter_trials
+
+        def failing(run_dir, columns=None, **options):
+            if columns is None:  # every column: the rows of trials.csv
+                raise ValueError("results.sqlite: the rows cannot be read; rerun the experiment")
+            return rows(run_dir, columns, **options)
+
+        patch.setattr(store, "iter_trials", failing)
+        with pytest.raises(ValueError, match=r"^results.sqlite: the rows cannot be read; rerun"):
+            write_report(folder, n_bootstrap=50)
+    assert child_ids() <= children
+    assert not (folder / "trials.csv").exists()
+    assert not list(folder.glob(".trials.csv.*"))  # no temporary file left
+
+
+def test_an_error_after_the_summary_leaves_trials_csv_whole_and_no_process(tmp_path):
+    folder = tmp_path / "run"
+    children = child_ids()
+    with stand_in_run(folder) as patch:
+
+        def failing(*args, **kwargs):
+            raise ValueError("figures: cannot be drawn")
+
+        patch.setattr(report_figures_module, "figure_plans", failing)
+        with pytest.raises(ValueError, match=r"^figures: cannot be drawn$"):
+            write_report(folder, n_bootstrap=50)
+        expected = store.iter_trials(folder)
+        assert len(pd.read_csv(folder / "trials.csv")) == len(next(expected)) == 2 * 4 * 20
+    assert child_ids() <= children
 
 
 def parse_html(path: Path) -> ET.Element:
