@@ -450,7 +450,7 @@ def solve_chunk(
             rank_deficient=deficient,
         )
     swap = _left_first(shared, solution) == 1
-    for name in ("x", "y", "costs", "nuisance"):
+    for name in ("x", "y", "costs", "nuisance") if swap.any() else ():
         values = getattr(solution, name)
         if values is not None:
             values[swap] = values[swap, ::-1]

@@ -80,8 +80,19 @@ class RowBlock:
 
         return RowBlock(pick(self.ax), pick(self.ay), pick(self.az), pick(self.b), pick(self.ac))
 
+    def per_point(self) -> RowBlock:
+        """The columns as (R, n, 1), to meet points of shape (n, p)."""
+
+        def column(values: FloatArray | None) -> FloatArray | None:
+            return None if values is None else values[:, :, None]
+
+        return RowBlock(
+            column(self.ax), column(self.ay), column(self.az), column(self.b), column(self.ac)
+        )
+
     def residual(self, x: FloatArray, y: FloatArray) -> FloatArray:
-        """``A r − b`` at ``r = (x, y, x² + y²)`` for each system, shape (R, n)."""
+        """``A r − b`` at ``r = (x, y, x² + y²)`` for each system, shape (R, n) (or (R, n, p)
+        for the columns of :meth:`per_point` and points (n, p))."""
         out = self.ax * x
         out += self.ay * y
         out -= self.b
@@ -116,34 +127,19 @@ class NormalEquations:
     @classmethod
     def of(cls, blocks: list[RowBlock], n: int) -> NormalEquations:
         sums: dict[str, FloatArray] = {}
-
-        def add(key: str, left: FloatArray, right: FloatArray) -> None:
-            total = row_dot(left, right, n)
-            sums[key] = total if key not in sums else sums[key] + total
-
         for block in blocks:
-            ax, ay, az, b = block.ax, block.ay, block.az, block.b
-            for key, left, right in (
-                ("m11", ax, ax),
-                ("m12", ax, ay),
-                ("m22", ay, ay),
-                ("q1", ax, b),
-                ("q2", ay, b),
-                ("bb", b, b),
-            ):
-                add(key, left, right)
+            ax, ay, az, b, ac = block.ax, block.ay, block.az, block.b, block.ac
+            pairs = [("m11", ax, ax), ("m12", ax, ay), ("m22", ay, ay)]
+            pairs += [("q1", ax, b), ("q2", ay, b), ("bb", b, b)]
             if az is not None:
-                for key, left, right in (
-                    ("m13", ax, az),
-                    ("m23", ay, az),
-                    ("m33", az, az),
-                    ("q3", az, b),
-                ):
-                    add(key, left, right)
-            if block.ac is not None:
-                for key, left in (("c1", ax), ("c2", ay), ("c3", az), ("cb", b), ("cc", block.ac)):
-                    if left is not None:
-                        add(key, left, block.ac)
+                pairs += [("m13", ax, az), ("m23", ay, az), ("m33", az, az), ("q3", az, b)]
+            if ac is not None:
+                pairs += [("c1", ax, ac), ("c2", ay, ac), ("cb", b, ac), ("cc", ac, ac)]
+                if az is not None:
+                    pairs.append(("c3", az, ac))
+            for key, left, right in pairs:
+                total = row_dot(left, right, n)
+                sums[key] = total if key not in sums else sums[key] + total
         zero = np.zeros(n)
         keys = ("m11", "m12", "m13", "m22", "m23", "m33", "q1", "q2", "q3", "bb")
         values = {key: sums.get(key, zero) for key in keys}
@@ -379,7 +375,7 @@ def _solve(blocks: list[RowBlock], n: int, rtol: float, want_rank: bool | str) -
         for j, sign in enumerate((1.0, -1.0)):
             px[:, j], py[:, j] = sub.to_rows(-sub.h_t1 + sign * w, y2)
         rows = take_systems(blocks, idx, n)
-        pair_costs = np.column_stack([_cost(rows, px[:, j], py[:, j]) for j in range(2)])
+        pair_costs = _cost(rows, px, py)
         norms = np.sqrt(px**2 + py**2 + (px**2 + py**2) ** 2).max(axis=1)
         # a small but real e₁ (two headings a few millidegrees apart) passes the screen, yet
         # the pair's costs then differ by 4|e₁|√(−φ(−μ₁)): the pair only when they are equal
@@ -430,6 +426,8 @@ def _cost(blocks: list[RowBlock], x: FloatArray, y: FloatArray) -> FloatArray:
     free unknown's column ``c``, at its best value ``t = cᵀ(b − A r)/‖c‖²``: the residual
     ``A r + c t − b`` is formed before it is squared (subtracting ``(cᵀ(A r − b))²/‖c‖²`` from
     the unprojected cost would lose the digits of a small cost to a large one)."""
+    if x.ndim == 2:  # several points per system: the rows' columns as (R, n, 1)
+        blocks = [block.per_point() for block in blocks]
     residuals = [block.residual(x, y) for block in blocks]
     if any(block.ac is not None for block in blocks):
         along = np.zeros(x.shape)
