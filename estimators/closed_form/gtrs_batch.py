@@ -34,7 +34,7 @@ is one numpy call over the whole batch.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -49,6 +49,9 @@ EPS = float(np.finfo(float).eps)
 TINY = float(np.finfo(float).tiny)
 
 NEWTON_ITERATIONS = 100
+
+_PAIR_SIGNS = np.array([1.0, -1.0])
+"""The hard case's two points, ``−h̃₁ ± √(−φ(−μ₁))``."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -316,6 +319,11 @@ class Spectrum:
             return self
         return Spectrum(**{name: getattr(self, name)[index] for name in self.__slots__})
 
+    def take_column(self) -> Spectrum:
+        """The eigenvectors as (n, 1) columns (the rest unchanged), for :meth:`to_rows` of
+        (n, p) points."""
+        return replace(self, c=self.c[:, None], s=self.s[:, None])
+
     def to_rows(self, y1: FloatArray, y2: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Eigenbasis coordinates back to the rows' ``(x, y)``: ``U ỹ``."""
         return self.c * y1 - self.s * y2, self.s * y1 + self.c * y2
@@ -370,13 +378,12 @@ def _solve(blocks: list[RowBlock], n: int, rtol: float, want_rank: bool | str) -
         sub = sp.take(idx)
         y2 = sub.e2 / gap_safe[idx] - sub.h_t2
         w = width[idx]
-        px = np.empty((idx.size, 2))
-        py = np.empty((idx.size, 2))
-        for j, sign in enumerate((1.0, -1.0)):
-            px[:, j], py[:, j] = sub.to_rows(-sub.h_t1 + sign * w, y2)
+        column = sub.take_column()  # (m, 1) each, against the pair's two columns
+        px, py = column.to_rows((-sub.h_t1)[:, None] + _PAIR_SIGNS * w[:, None], y2[:, None])
         rows = take_systems(blocks, idx, n)
         pair_costs = _cost(rows, px, py)
-        norms = np.sqrt(px**2 + py**2 + (px**2 + py**2) ** 2).max(axis=1)
+        square = px * px + py * py
+        norms = np.maximum.reduce(np.sqrt(square + square * square), axis=1)
         # a small but real e₁ (two headings a few millidegrees apart) passes the screen, yet
         # the pair's costs then differ by 4|e₁|√(−φ(−μ₁)): the pair only when they are equal
         equal = equal_to_rounding(
