@@ -34,7 +34,7 @@ is one numpy call over the whole batch.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -319,14 +319,11 @@ class Spectrum:
             return self
         return Spectrum(**{name: getattr(self, name)[index] for name in self.__slots__})
 
-    def take_column(self) -> Spectrum:
-        """The eigenvectors as (n, 1) columns (the rest unchanged), for :meth:`to_rows` of
-        (n, p) points."""
-        return replace(self, c=self.c[:, None], s=self.s[:, None])
-
     def to_rows(self, y1: FloatArray, y2: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Eigenbasis coordinates back to the rows' ``(x, y)``: ``U ỹ``."""
-        return self.c * y1 - self.s * y2, self.s * y1 + self.c * y2
+        """Eigenbasis coordinates back to the rows' ``(x, y)``: ``U ỹ`` (of (n,) or (n, p)
+        points)."""
+        c, s = (self.c, self.s) if np.ndim(y1) == 1 else (self.c[:, None], self.s[:, None])
+        return c * y1 - s * y2, s * y1 + c * y2
 
 
 def solve_gtrs_batch(
@@ -378,8 +375,7 @@ def _solve(blocks: list[RowBlock], n: int, rtol: float, want_rank: bool | str) -
         sub = sp.take(idx)
         y2 = sub.e2 / gap_safe[idx] - sub.h_t2
         w = width[idx]
-        column = sub.take_column()  # (m, 1) each, against the pair's two columns
-        px, py = column.to_rows((-sub.h_t1)[:, None] + _PAIR_SIGNS * w[:, None], y2[:, None])
+        px, py = sub.to_rows((-sub.h_t1)[:, None] + _PAIR_SIGNS * w[:, None], y2[:, None])
         rows = take_systems(blocks, idx, n)
         pair_costs = _cost(rows, px, py)
         square = px * px + py * py
