@@ -246,6 +246,8 @@ def eigen_2x2(
     uy = np.where(big, -(half_diff + radius), -s12)
     norm = np.hypot(ux, uy)
     isotropic = norm == 0.0
+    if not isotropic.any():  # (the usual case: the same quotients, fewer calls)
+        return mu1, mu2, 2.0 * radius, ux / norm, uy / norm
     c = np.where(isotropic, 1.0, ux / np.where(isotropic, 1.0, norm))
     s = np.where(isotropic, 0.0, uy / np.where(isotropic, 1.0, norm))
     return mu1, mu2, 2.0 * radius, c, s
@@ -292,9 +294,14 @@ class Spectrum:
         h_sq = h_t1 * h_t1 + h_t2 * h_t2
         base = h_sq + (q3 - 0.5 * mu1) / m33
         positive = gap > 0.0
-        second_at_pole = np.where(
-            positive, e2 * e2 / np.where(positive, gap, 1.0) ** 2, np.where(e2 == 0, 0.0, np.inf)
-        )
+        if positive.all():
+            second_at_pole = e2 * e2 / gap**2
+        else:
+            second_at_pole = np.where(
+                positive,
+                e2 * e2 / np.where(positive, gap, 1.0) ** 2,
+                np.where(e2 == 0, 0.0, np.inf),
+            )
         return cls(
             mu1=mu1,
             mu2=mu2,
@@ -356,7 +363,7 @@ def _solve(blocks: list[RowBlock], n: int, rtol: float, want_rank: bool | str) -
     finite = np.isfinite(ne.trace) & np.isfinite(ne.q1 + ne.q2 + ne.q3 + ne.bb) & (ne.m33 > 0.0)
     failed = ~finite
     mu_scale = np.maximum(np.abs(sp.mu2), TINY)
-    gap_safe = np.where(sp.gap > 0.0, sp.gap, 1.0)
+    gap_safe = sp.gap if (sp.gap > 0.0).all() else np.where(sp.gap > 0.0, sp.gap, 1.0)
 
     # hard-case screen (MATH §5): φ(−μ₁) < 0 and |e₁| ≤ rtol·μ₂·√(−φ(−μ₁))
     negative = sp.phi_pole < 0.0
