@@ -93,57 +93,55 @@ def finalize_columns(
         Merge coincident candidates (step 2); off, the rule is the tie rule alone.
     """
     n, k, _ = candidates_m.shape
-    # (n, w) arrays, one column per candidate slot: the candidates, then (straight track)
-    # their mirror images at the same costs
-    x, y = candidates_m[:, :, 0], candidates_m[:, :, 1]
-    valid = (np.arange(k) < count[:, None]) & np.isfinite(x + y + costs)
-    cost = np.where(valid, costs, np.inf)
+    # (w, n) arrays, one row per candidate slot (slot-major: numpy's loops run over the
+    # trials): the candidates, then (straight track) their mirror images at the same costs
+    x, y = candidates_m[:, :, 0].T, candidates_m[:, :, 1].T
+    valid = (np.arange(k)[:, None] < count) & np.isfinite(x + y + costs.T)
+    cost = np.where(valid, costs.T, np.inf)
     if line is not None:
         (ox, oy), (dx, dy) = (np.asarray(v, dtype=float) for v in line)
         along = (x - ox) * dx + (y - oy) * dy
-        x = np.concatenate([x, ox + 2.0 * along * dx - (x - ox)], axis=1)
-        y = np.concatenate([y, oy + 2.0 * along * dy - (y - oy)], axis=1)
-        cost = np.concatenate([cost, cost], axis=1)
-        valid = np.concatenate([valid, valid], axis=1)
-    width = x.shape[1]
-    slots = np.arange(width)
-    rows = np.arange(n)[:, None]
+        x = np.concatenate([x, ox + 2.0 * along * dx - (x - ox)])
+        y = np.concatenate([y, oy + 2.0 * along * dy - (y - oy)])
+        cost = np.concatenate([cost, cost])
+        valid = np.concatenate([valid, valid])
+    width = len(x)
+    trials = np.arange(n)
 
     # stable sort by cost, unless every trial's valid costs are in slot order already
     # (invalid slots, at cost inf, are skipped wherever they stand)
-    source: IntArray = np.broadcast_to(slots, (n, width))
-    running = np.maximum.accumulate(np.where(valid, cost, -np.inf), axis=1)
-    if not np.logical_and.reduce(cost[:, 1:] >= running[:, :-1], axis=None):
-        source = np.argsort(cost, axis=1, kind="stable")
-        x, y, cost, valid = (
-            x[rows, source],
-            y[rows, source],
-            cost[rows, source],
-            valid[rows, source],
-        )
+    source: IntArray = np.broadcast_to(np.arange(width)[:, None], (width, n))
+    running = np.maximum.accumulate(np.where(valid, cost, -np.inf), axis=0)
+    if not np.logical_and.reduce(cost[1:] >= running[:-1], axis=None):
+        source = np.argsort(cost, axis=0, kind="stable")
+        x, y = x[source, trials], y[source, trials]
+        cost, valid = cost[source, trials], valid[source, trials]
 
     kept = valid
     if merge and width > 1:  # greedy in cost order: a point near a kept one is dropped
         centre = np.asarray(centre_m, dtype=float)
         spread = np.maximum(np.abs(x - centre[0]), np.abs(y - centre[1]))
-        scale = np.maximum.reduce(np.where(valid, spread, -np.inf), axis=1)
+        scale = np.maximum.reduce(np.where(valid, spread, -np.inf), axis=0)
         threshold = MERGE_RTOL * np.maximum(scale, 1e-300)
-        close = np.hypot(x[:, :, None] - x[:, None, :], y[:, :, None] - y[:, None, :])
-        close = close <= threshold[:, None, None]  # [i, j]: slot i within reach of slot j
         kept = valid.copy()
-        for i in range(1, width):
-            kept[:, i] &= ~np.logical_or.reduce(kept[:, :i] & close[:, i, :i], axis=1)
+        for i in range(1, width):  # slot i against the slots before it
+            close = np.hypot(x[i] - x[:i], y[i] - y[:i]) <= threshold
+            kept[i] &= ~np.logical_or.reduce(kept[:i] & close, axis=0)
 
     # the kept points are in cost order; those above the tie level go
-    best = np.minimum.reduce(cost, axis=1)  # the first valid slot's (always kept)
+    best = np.minimum.reduce(cost, axis=0)  # the first valid slot's (always kept)
     best = np.where(best < np.inf, best, 0.0)
-    final = kept & (cost <= cost_tie_level(best, cost_rtol)[:, None])
-    n_final = np.add.reduce(final, axis=1, dtype=np.int64)
+    final = kept & (cost <= cost_tie_level(best, cost_rtol))
+    n_final = np.add.reduce(final, axis=0, dtype=np.int64)
     # the final slots moved to the front, in order
-    order = np.argsort(~final, axis=1, kind="stable")
-    filled = slots < n_final[:, None]
-    out = np.where(filled[..., None], np.stack([x[rows, order], y[rows, order]], axis=-1), np.nan)
-    out_source = np.where(filled, source[rows, order], -1)
+    slot, trial = np.nonzero(final)
+    at = np.cumsum(final, axis=0)[slot, trial] - 1
+    out = np.full((n, width, 2), np.nan)
+    out[trial, at, 0] = x[slot, trial]
+    out[trial, at, 1] = y[slot, trial]
+    out_source = np.full((n, width), -1, dtype=np.int64)
+    out_source[trial, at] = source[slot, trial]
+    filled = np.arange(width) < n_final[:, None]
 
     chosen = np.zeros(n, dtype=np.int64)
     draw = np.zeros(n, dtype=bool)

@@ -84,10 +84,10 @@ class RowBlock:
         return RowBlock(pick(self.ax), pick(self.ay), pick(self.az), pick(self.b), pick(self.ac))
 
     def per_point(self) -> RowBlock:
-        """The columns as (R, n, 1), to meet points of shape (n, p)."""
+        """The columns as (R, 1, n), to meet points of shape (p, n)."""
 
         def column(values: FloatArray | None) -> FloatArray | None:
-            return None if values is None else values[:, :, None]
+            return None if values is None else values[:, None, :]
 
         return RowBlock(
             column(self.ax), column(self.ay), column(self.az), column(self.b), column(self.ac)
@@ -95,7 +95,7 @@ class RowBlock:
 
     def residual(self, x: FloatArray, y: FloatArray) -> FloatArray:
         """``A r − b`` at ``r = (x, y, x² + y²)`` for each system, shape (R, n) (or (R, n, p)
-        for the columns of :meth:`per_point` and points (n, p))."""
+        for the columns of :meth:`per_point` and points (p, n))."""
         out = self.ax * x
         out += self.ay * y
         out -= self.b
@@ -327,10 +327,9 @@ class Spectrum:
         return Spectrum(**{name: getattr(self, name)[index] for name in self.__slots__})
 
     def to_rows(self, y1: FloatArray, y2: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Eigenbasis coordinates back to the rows' ``(x, y)``: ``U ỹ`` (of (n,) or (n, p)
+        """Eigenbasis coordinates back to the rows' ``(x, y)``: ``U ỹ`` (of (n,) or (p, n)
         points)."""
-        c, s = (self.c, self.s) if np.ndim(y1) == 1 else (self.c[:, None], self.s[:, None])
-        return c * y1 - s * y2, s * y1 + c * y2
+        return self.c * y1 - self.s * y2, self.s * y1 + self.c * y2
 
 
 def solve_gtrs_batch(
@@ -382,9 +381,11 @@ def _solve(blocks: list[RowBlock], n: int, rtol: float, want_rank: bool | str) -
         sub = sp.take(idx)
         y2 = sub.e2 / gap_safe[idx] - sub.h_t2
         w = width[idx]
-        px, py = sub.to_rows((-sub.h_t1)[:, None] + _PAIR_SIGNS * w[:, None], y2[:, None])
+        # (2, m): the pair point-major, so that numpy's loops run over the systems
+        px, py = sub.to_rows(-sub.h_t1 + _PAIR_SIGNS[:, None] * w, y2)
         rows = take_systems(blocks, idx, n)
-        pair_costs = _cost(rows, px, py)
+        pair_costs = _cost(rows, px, py).T
+        px, py = px.T, py.T
         square = px * px + py * py
         norms = np.maximum.reduce(np.sqrt(square + square * square), axis=1)
         # a small but real e₁ (two headings a few millidegrees apart) passes the screen, yet
@@ -436,7 +437,7 @@ def _cost(blocks: list[RowBlock], x: FloatArray, y: FloatArray) -> FloatArray:
     free unknown's column ``c``, at its best value ``t = cᵀ(b − A r)/‖c‖²``: the residual
     ``A r + c t − b`` is formed before it is squared (subtracting ``(cᵀ(A r − b))²/‖c‖²`` from
     the unprojected cost would lose the digits of a small cost to a large one)."""
-    if x.ndim == 2:  # several points per system: the rows' columns as (R, n, 1)
+    if x.ndim == 2:  # p points per system, (p, n): the rows' columns as (R, 1, n)
         blocks = [block.per_point() for block in blocks]
     residuals = [block.residual(x, y) for block in blocks]
     if any(block.ac is not None for block in blocks):
@@ -444,8 +445,8 @@ def _cost(blocks: list[RowBlock], x: FloatArray, y: FloatArray) -> FloatArray:
         norm = np.zeros(x.shape)
         for block, residual in zip(blocks, residuals, strict=True):
             if block.ac is not None:
-                along += row_dot(block.ac, residual, x.size)
-                norm += row_dot(block.ac, block.ac, x.size)
+                along += row_dot(block.ac, residual, x.shape)
+                norm += row_dot(block.ac, block.ac, x.shape)
         step = along / norm
         residuals = [
             residual if block.ac is None else residual - block.ac * step
@@ -453,7 +454,7 @@ def _cost(blocks: list[RowBlock], x: FloatArray, y: FloatArray) -> FloatArray:
         ]
     total = np.zeros(x.shape)
     for residual in residuals:
-        total += row_dot(residual, residual, x.size)
+        total += row_dot(residual, residual, x.shape)
     return total
 
 

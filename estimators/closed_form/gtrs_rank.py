@@ -23,9 +23,10 @@ RANK_RTOL = 1e-10
 """Singular values above ``RANK_RTOL`` times the largest count in the numerical rank."""
 
 
-def row_dot(left: FloatArray, right: FloatArray, n: int) -> FloatArray:
+def row_dot(left: FloatArray, right: FloatArray, n: int | tuple[int, ...]) -> FloatArray:
     """``Σ_rows left·right`` for each of ``n`` systems, (R, n) arrays or (R, 1) columns (or
-    (R, n, p) arrays: ``p`` points of each system, summed the same way).
+    (R, p, n) arrays: ``p`` points of each system, summed the same way; ``n`` is then the
+    result's shape ``(p, n)``).
 
     Always the sequential sum over the rows, system by system, ``s = 0; s += l_i r_i``:
     numpy's own sums change their order with the shape (a single column is summed pairwise),
