@@ -359,7 +359,8 @@ def solve_gtrs_batch(
 def _solve(blocks: list[RowBlock], n: int, rtol: float, want_rank: bool | str) -> GtrsBatch:
     ne = NormalEquations.of(blocks, n)
     sp = Spectrum.of(ne)
-    finite = np.isfinite(ne.trace) & np.isfinite(ne.q1 + ne.q2 + ne.q3 + ne.bb) & (ne.m33 > 0.0)
+    trace = ne.trace
+    finite = np.isfinite(trace) & np.isfinite(ne.q1 + ne.q2 + ne.q3 + ne.bb) & (ne.m33 > 0.0)
     failed = ~finite
     mu_scale = np.maximum(np.abs(sp.mu2), TINY)
     gap_safe = sp.gap if (sp.gap > 0.0).all() else np.where(sp.gap > 0.0, sp.gap, 1.0)
@@ -378,9 +379,14 @@ def _solve(blocks: list[RowBlock], n: int, rtol: float, want_rank: bool | str) -
     # --- hard case: the two points of the null line on the paraboloid
     idx = np.flatnonzero(screen)
     if idx.size:
+        every = idx.size == n  # (one trial's usual case: nothing to pick)
+
+        def pick(values: FloatArray) -> FloatArray:
+            return values if every else values[idx]
+
         sub = sp.take(idx)
-        y2 = sub.e2 / gap_safe[idx] - sub.h_t2
-        w = width[idx]
+        y2 = sub.e2 / pick(gap_safe) - sub.h_t2
+        w = pick(width)
         # (2, m): the pair point-major, so that numpy's loops run over the systems
         px, py = sub.to_rows(-sub.h_t1 + _PAIR_SIGNS[:, None] * w, y2)
         rows = take_systems(blocks, idx, n)
@@ -391,12 +397,17 @@ def _solve(blocks: list[RowBlock], n: int, rtol: float, want_rank: bool | str) -
         # a small but real e₁ (two headings a few millidegrees apart) passes the screen, yet
         # the pair's costs then differ by 4|e₁|√(−φ(−μ₁)): the pair only when they are equal
         equal = equal_to_rounding(
-            pair_costs, norms, np.sqrt(ne.trace[idx]), np.sqrt(ne.bb[idx]), ne.n_rows
+            pair_costs, norms, np.sqrt(pick(trace)), np.sqrt(pick(ne.bb)), ne.n_rows
         )
-        keep = idx[equal]
-        hard[keep] = True
-        x[keep], y[keep], costs[keep] = px[equal], py[equal], pair_costs[equal]
-        multiplier[keep] = -sp.mu1[keep]
+        if every and equal.all():
+            hard[:] = True
+            x[:], y[:], costs[:] = px, py, pair_costs
+            multiplier[:] = -sp.mu1
+        else:
+            keep = idx[equal]
+            hard[keep] = True
+            x[keep], y[keep], costs[keep] = px[equal], py[equal], pair_costs[equal]
+            multiplier[keep] = -sp.mu1[keep]
 
     # --- the unique root of the secular equation
     idx = np.flatnonzero(finite & ~hard)
