@@ -133,18 +133,19 @@ def fit_p_value(chi2_value: float, dof: int) -> float:
     return float(chi2.sf(chi2_value, dof))
 
 
-def _used(estimator: Any, geometry: MeasurementSet) -> tuple[NDArray[np.bool_], list[str]]:
-    """The samples (a mask) and the modalities the estimator uses on these data."""
+def _used(estimator: Any, geometry: MeasurementSet) -> tuple[NDArray[np.bool_] | None, list[str]]:
+    """The samples (a mask, None for every sample) and the modalities the estimator uses on
+    these data."""
     capabilities = capabilities_of(estimator)
     modalities = [m for m in MEASURED_FIELD if m in capabilities.modalities & geometry.modalities]
     frames = capabilities.frames
     if frames == "all":
-        mask = np.ones(geometry.n_samples, dtype=bool)
-    elif frames == "last":
+        return None, modalities
+    if frames == "last":
         mask = geometry.frame == geometry.frame[-1]
     else:
         mask = np.isin(geometry.frame, np.asarray(frames))
-    return mask, modalities
+    return (None if mask.all() else mask), modalities
 
 
 def fit_of(
@@ -154,10 +155,15 @@ def fit_of(
     with ``position_m`` of shape ``(n_trials, 2)``)."""
     geometry = data.geometry if isinstance(data, MeasurementBatch) else data
     mask, modalities = _used(estimator, geometry)
-    if not mask.any() or not modalities:
+    if (mask is not None and not mask.any()) or not modalities:
         return np.full(np.shape(position_m)[:-1], np.nan), 0
-    used = geometry if mask.all() else geometry.take(mask)
-    measured = {m: np.asarray(getattr(data, MEASURED_FIELD[m]))[..., mask] for m in modalities}
+    if mask is None:
+        used = geometry
+        # (the layout the mask's copy had: the fit's sums see the same arrays)
+        measured = {m: np.ascontiguousarray(getattr(data, MEASURED_FIELD[m])) for m in modalities}
+    else:
+        used = geometry.take(mask)
+        measured = {m: np.asarray(getattr(data, MEASURED_FIELD[m]))[..., mask] for m in modalities}
     return fit_chi_square(position_m, used, measured)
 
 

@@ -30,6 +30,8 @@ FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 IntArray = NDArray[np.int64]
 
+EPS = float(np.finfo(float).eps)
+
 MERGE_RTOL = 1e-9
 """Candidates closer than this times the scale of the points are one."""
 
@@ -42,7 +44,7 @@ def cost_tie_level(best: ArrayLike, cost_rtol: float) -> Any:
     """The highest cost that ties ``best`` (a number or an array of them): ``cost_rtol``
     relative, plus rounding (``COST_TIE_ULPS``). The one tie level of MATH §7."""
     size = np.abs(best)
-    return best + cost_rtol * size + np.finfo(float).eps * COST_TIE_ULPS * np.maximum(size, 1.0)
+    return best + cost_rtol * size + EPS * COST_TIE_ULPS * np.maximum(size, 1.0)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -91,74 +93,62 @@ def finalize_columns(
         Merge coincident candidates (step 2); off, the rule is the tie rule alone.
     """
     n, k, _ = candidates_m.shape
-    # one (n,) array per candidate slot: the candidates, then (straight track) their mirrors
-    xs = [candidates_m[:, j, 0] for j in range(k)]
-    ys = [candidates_m[:, j, 1] for j in range(k)]
-    valid = [(count > j) & np.isfinite(xs[j] + ys[j] + costs[:, j]) for j in range(k)]
-    cost = [np.where(valid[j], costs[:, j], np.inf) for j in range(k)]
-    if line is not None:  # each candidate's mirror image, at its cost, after the candidates
+    # (w, n) arrays, one row per candidate slot (slot-major: numpy's loops run over the
+    # trials): the candidates, then (straight track) their mirror images at the same costs
+    x, y = candidates_m[:, :, 0].T, candidates_m[:, :, 1].T
+    valid = (np.arange(k)[:, None] < count) & np.isfinite(x + y + costs.T)
+    cost = np.where(valid, costs.T, np.inf)
+    if line is not None:
         (ox, oy), (dx, dy) = (np.asarray(v, dtype=float) for v in line)
-        for j in range(k):
-            along = (xs[j] - ox) * dx + (ys[j] - oy) * dy
-            xs.append(ox + 2.0 * along * dx - (xs[j] - ox))
-            ys.append(oy + 2.0 * along * dy - (ys[j] - oy))
-        cost, valid = cost + cost, valid + valid
-    width = len(xs)
-    source = [np.full(n, j, dtype=np.int64) for j in range(width)]
+        along = (x - ox) * dx + (y - oy) * dy
+        x = np.concatenate([x, ox + 2.0 * along * dx - (x - ox)])
+        y = np.concatenate([y, oy + 2.0 * along * dy - (y - oy)])
+        cost = np.concatenate([cost, cost])
+        valid = np.concatenate([valid, valid])
+    width = len(x)
+    trials = np.arange(n)
 
     # stable sort by cost, unless every trial's valid costs are in slot order already
-    in_order = all(
-        np.all(~valid[i] | ~valid[j] | (cost[i] <= cost[j])) for j in range(width) for i in range(j)
-    )
-    if not in_order:  # (invalid slots are skipped wherever they stand)
-        order = np.argsort(np.column_stack(cost), axis=1, kind="stable")
+    # (invalid slots, at cost inf, are skipped wherever they stand)
+    source: IntArray = np.broadcast_to(np.arange(width)[:, None], (width, n))
+    running = np.maximum.accumulate(np.where(valid, cost, -np.inf), axis=0)
+    if not np.logical_and.reduce(cost[1:] >= running[:-1], axis=None):
+        source = np.argsort(cost, axis=0, kind="stable")
+        x, y = x[source, trials], y[source, trials]
+        cost, valid = cost[source, trials], valid[source, trials]
 
-        def sort(columns: list[NDArray[Any]]) -> list[NDArray[Any]]:
-            stacked = np.take_along_axis(np.column_stack(columns), order, axis=1)
-            return [stacked[:, j] for j in range(width)]
-
-        xs, ys, cost, valid, source = sort(xs), sort(ys), sort(cost), sort(valid), sort(source)
-
-    kept = [valid[0]]
-    if merge:  # greedy in cost order: a point within the threshold of a kept one is dropped
+    kept = valid
+    if merge and width > 1:  # greedy in cost order: a point near a kept one is dropped
         centre = np.asarray(centre_m, dtype=float)
-        scale = np.full(n, -np.inf)
-        for j in range(width):
-            spread = np.maximum(np.abs(xs[j] - centre[0]), np.abs(ys[j] - centre[1]))
-            scale = np.where(valid[j], np.maximum(scale, spread), scale)
+        spread = np.maximum(np.abs(x - centre[0]), np.abs(y - centre[1]))
+        scale = np.maximum.reduce(np.where(valid, spread, -np.inf), axis=0)
         threshold = MERGE_RTOL * np.maximum(scale, 1e-300)
-        for i in range(1, width):
-            keep = valid[i].copy()
-            for j in range(i):
-                distance = np.hypot(xs[i] - xs[j], ys[i] - ys[j])
-                keep &= ~(kept[j] & (distance <= threshold))
-            kept.append(keep)
-    else:
-        kept += valid[1:]
+        kept = valid.copy()
+        for i in range(1, width):  # slot i against the slots before it
+            close = np.hypot(x[i] - x[:i], y[i] - y[:i]) <= threshold
+            kept[i] &= ~np.logical_or.reduce(kept[:i] & close, axis=0)
 
     # the kept points are in cost order; those above the tie level go
-    best = np.full(n, np.inf)
-    for j in range(width):
-        best = np.where(kept[j] & (best == np.inf), cost[j], best)
-    limit = cost_tie_level(np.where(np.isfinite(best), best, 0.0), cost_rtol)
+    best = np.minimum.reduce(cost, axis=0)  # the first valid slot's (always kept)
+    best = np.where(best < np.inf, best, 0.0)
+    final = kept & (cost <= cost_tie_level(best, cost_rtol))
+    n_final = np.add.reduce(final, axis=0, dtype=np.int64)
+    # the final slots moved to the front, in order
+    slot, trial = np.nonzero(final)
+    at = np.cumsum(final, axis=0)[slot, trial] - 1
     out = np.full((n, width, 2), np.nan)
+    out[trial, at, 0] = x[slot, trial]
+    out[trial, at, 1] = y[slot, trial]
     out_source = np.full((n, width), -1, dtype=np.int64)
-    n_final = np.zeros(n, dtype=np.int64)
-    rows = np.arange(n)
-    for j in range(width):
-        final = kept[j] & (cost[j] <= limit)
-        at, slot = rows[final], n_final[final]
-        out[at, slot, 0] = xs[j][final]
-        out[at, slot, 1] = ys[j][final]
-        out_source[at, slot] = source[j][final]
-        n_final += final
+    out_source[trial, at] = source[slot, trial]
+    filled = np.arange(width) < n_final[:, None]
 
     chosen = np.zeros(n, dtype=np.int64)
     draw = np.zeros(n, dtype=bool)
     if side_prior_m is not None:
         prior = np.asarray(side_prior_m, dtype=float).reshape(2)
         distance = np.hypot(out[..., 0] - prior[0], out[..., 1] - prior[1])
-        distance = np.where(np.arange(width)[None, :] < n_final[:, None], distance, np.inf)
+        distance = np.where(filled, distance, np.inf)
         chosen = np.argmin(distance, axis=1).astype(np.int64)
     else:
         draw = n_final > 1

@@ -33,6 +33,7 @@ KINEMATIC_RTOL = 1e-6
 """Relative tolerance of :func:`check_straight_frames` (that of ``emitterbench fly``)."""
 
 _ROUNDING = 16 * np.finfo(float).eps
+_TINY = float(np.finfo(float).tiny)
 """Relative float rounding allowed on top of the tolerances."""
 
 
@@ -131,24 +132,32 @@ def straight_track_line(
     Returns ``(origin_m, direction)``: a point of the line and its unit direction, both (2,).
     The mirror ambiguity of MATH §7 holds exactly when this is not None.
     """
+    return straight_track_lines(position_m, velocity_mps, (rtol,))[0]
+
+
+def straight_track_lines(
+    position_m: ArrayLike, velocity_mps: ArrayLike, rtols: tuple[float, ...]
+) -> list[tuple[FloatArray, FloatArray] | None]:
+    """:func:`straight_track_line` at each relative tolerance of ``rtols``, from one
+    decomposition of the samples."""
     xy = np.asarray(position_m, dtype=float)[:, :2]
     v_xy = np.asarray(velocity_mps, dtype=float)[:, :2]
-    origin = xy.mean(axis=0)
+    origin = np.add.reduce(xy, axis=0) / len(xy)  # their mean
     spread = xy - origin
     # principal direction of the samples, else of the velocities (a single sample)
-    basis = spread if np.any(spread) else v_xy
-    if not np.any(basis):
-        return None
+    basis = spread if spread.any() else v_xy
+    if not basis.any():
+        return [None] * len(rtols)
     _, singular, vt = np.linalg.svd(basis, full_matrices=False)
     direction = vt[0]
-    scale = max(singular[0], np.finfo(float).tiny)
-    if len(singular) > 1 and singular[1] > rtol * scale:
-        return None
-    speed = np.linalg.norm(v_xy, axis=1)
+    scale = max(singular[0], _TINY)
+    speed = np.sqrt(v_xy[:, 0] * v_xy[:, 0] + v_xy[:, 1] * v_xy[:, 1])
     cross = np.abs(v_xy[:, 0] * direction[1] - v_xy[:, 1] * direction[0])
-    if np.any(cross > rtol * speed):
-        return None
-    return origin, direction
+    lines: list[tuple[FloatArray, FloatArray] | None] = []
+    for rtol in rtols:
+        straight = not (len(singular) > 1 and singular[1] > rtol * scale)
+        lines.append((origin, direction) if straight and not (cross > rtol * speed).any() else None)
+    return lines
 
 
 def mirror_across_line(

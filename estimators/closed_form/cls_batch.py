@@ -47,7 +47,7 @@ from estimators.closed_form.cls_rows import horizontal_speed_mps
 from estimators.closed_form.gtrs_batch import GtrsBatch, RowBlock, solve_gtrs_batch
 from estimators.mirror_rule import finalize_columns
 from scenarios import measurement_model as model
-from scenarios.geometry import straight_track_line
+from scenarios.geometry import straight_track_lines
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -59,6 +59,8 @@ CHUNK_ELEMENTS = 131_072
 overhead is small, small enough that the working arrays stay in cache."""
 MAX_CHUNK = 16_384
 """Trials per chunk at most."""
+MAX_CANDIDATES = 4
+"""Candidate slots per trial: a hard-case pair and, on a straight track, their mirrors."""
 
 HARD_CASE_MESSAGE = "hard case: mirror pair (MATH §5)"
 FAILED_MESSAGE = "CLS: the GTRS has no finite minimiser (MATH §5); check the data for NaN"
@@ -106,34 +108,30 @@ class SharedGeometry:
         else:
             columns = np.arange(geometry.n_samples)
         position = used.position_m
-        origin = position[:, :2].mean(axis=0) if origin_m is None else np.asarray(origin_m)
+        k = len(position)
+        mean_xy = np.add.reduce(position[:, :2], axis=0) / k  # (np.mean's bits)
+        origin = mean_xy if origin_m is None else np.asarray(origin_m)
         offset = position[:, :2] - origin
-        spread_sq = float(np.mean(np.sum(offset**2, axis=1)))
+        spread_sq = float(np.add.reduce(np.add.reduce(offset * offset, axis=1)) / k)
         velocity = used.velocity_mps
         speed = horizontal_speed_mps(velocity)
-        _, starts, counts = np.unique(used.frame, return_index=True, return_counts=True)
+        # frames never decrease (MeasurementSet checks it): each starts where it changes
+        frame = used.frame
+        starts = np.flatnonzero(np.concatenate([[True], frame[1:] != frame[:-1]]))
+        counts = np.diff(np.append(starts, k))
         unit = velocity[:, :2] / speed[:, None]
         dz = position[:, 2] - used.emitter_height_m
-        per_sample = {  # (K, 1) columns that broadcast against (K, n) arrays
-            "x": offset[:, 0],
-            "y": offset[:, 1],
-            "-2x": -2.0 * offset[:, 0],
-            "-2y": -2.0 * offset[:, 1],
-            "ux": unit[:, 0],
-            "uy": unit[:, 1],
-            "-ux": -unit[:, 0],
-            "-uy": -unit[:, 1],
-            "vx": velocity[:, 0],
-            "vy": velocity[:, 1],
-            "vz": velocity[:, 2],
-            "dz": dz,
-            "gv": used.gamma_per_m * speed,
-        }
-        line = straight_track_line(position, velocity)
+        names = ("x", "y", "-2x", "-2y", "ux", "uy", "-ux", "-uy", "vx", "vy", "vz", "dz", "gv")
+        per_sample = np.empty((len(names), k, 1))  # (K, 1) columns that broadcast against (K, n)
+        per_sample[0:2, :, 0] = offset.T
+        per_sample[2:4, :, 0] = -2.0 * offset.T
+        per_sample[4:6, :, 0] = unit.T
+        per_sample[6:8, :, 0] = -unit.T
+        per_sample[8:11, :, 0] = velocity.T
+        per_sample[11, :, 0] = dz
+        per_sample[12, :, 0] = used.gamma_per_m * speed
         # collinear to COLLINEAR_RTOL implies straight to the default 1e-9
-        collinear = line is not None and (
-            straight_track_line(position, velocity, rtol=COLLINEAR_RTOL) is not None
-        )
+        line, collinear_line = straight_track_lines(position, velocity, (1e-9, COLLINEAR_RTOL))
         return cls(
             used=used,
             columns=columns,
@@ -147,11 +145,9 @@ class SharedGeometry:
             frame_starts=starts,
             frame_counts=counts.astype(float),
             line=line,
-            collinear=collinear,
-            mean_xy=position[:, :2].mean(axis=0),
-            column=dict(
-                zip(per_sample, np.stack(list(per_sample.values()))[..., None], strict=True)
-            ),
+            collinear=line is not None and collinear_line is not None,
+            mean_xy=mean_xy,
+            column=dict(zip(names, per_sample, strict=True)),
             offset_unknown="carrier_offset_hz" in used.unknowns,
         )
 
@@ -193,55 +189,76 @@ def solve_trials(
     chunks of about :data:`CHUNK_ELEMENTS` (one chunk for one trial)."""
     n = len(ranges)
     k = shared.used.n_samples
-    kept = np.full((n, 4, 2), np.nan)
-    n_kept = np.zeros(n, dtype=np.int64)
-    chosen = np.zeros(n, dtype=np.int64)
-    draw = np.zeros(n, dtype=bool)
-    ambiguous = np.zeros(n, dtype=bool)
-    failed = np.zeros(n, dtype=bool)
-    hard = np.zeros(n, dtype=bool)
-    multiplier = np.full(n, np.nan)
-    rank = np.zeros(n, dtype=np.int64)
-    offset = np.full(n, np.nan) if shared.offset_unknown else None
     chunk = n if n == 1 else int(np.clip(CHUNK_ELEMENTS // max(k, 1), 256, MAX_CHUNK))
-    for start in range(0, n, chunk):
-        part = slice(start, min(start + chunk, n))
-        r = np.ascontiguousarray(ranges[part].T)
-        f = np.ascontiguousarray(doppler[part].T)
-        single = r.shape[1] == 1
-        if single:  # numpy sums one column in another order: solve it as two, keep one
-            r, f = np.repeat(r, 2, axis=1), np.repeat(f, 2, axis=1)
-        with np.errstate(all="ignore"):
-            world, solution = solve_chunk(shared, rows, r, f)
-            if single:
-                world, solution = world[:1], solution.first()
-            # on a straight track the hard case hands over its left point only: the other is
-            # that one's mirror image, which the mirror rule adds (cls.ordered_candidates)
-            count = solution.count
-            if shared.line is not None:
-                count = np.where(solution.hard_case, 1, count)
-            final = finalize_columns(
-                world,
-                count,
-                _ordered_costs(solution),
-                shared.mean_xy,
-                shared.line,
-                side_prior_m=side_prior_m,
-            )
-        width = final.candidates.shape[1]
-        kept[part, :width] = final.candidates
-        n_kept[part] = final.n_candidates
-        chosen[part] = final.chosen
-        draw[part] = final.draw
-        ambiguous[part] = final.ambiguous
-        failed[part] = solution.failed | final.invalid
-        hard[part] = solution.hard_case
-        multiplier[part] = solution.multiplier
-        rank[part] = solution.rank
-        if offset is not None:
-            offset[part] = solution.nuisance[:, 0]
+    parts = [
+        _solve_part(
+            shared,
+            rows,
+            ranges[start : start + chunk],
+            doppler[start : start + chunk],
+            side_prior_m,
+        )
+        for start in range(0, n, chunk)
+    ]
+    if len(parts) == 1:
+        return parts[0]
     return SolvedTrials(
-        kept, n_kept, chosen, draw, ambiguous, failed, hard, multiplier, rank, offset
+        *(
+            None
+            if getattr(parts[0], name) is None
+            else np.concatenate([getattr(part, name) for part in parts])
+            for name in SolvedTrials.__slots__
+        )
+    )
+
+
+def _solve_part(
+    shared: SharedGeometry,
+    rows: str,
+    ranges: FloatArray,
+    doppler: FloatArray,
+    side_prior_m: tuple[float, float] | None,
+) -> SolvedTrials:
+    """:func:`solve_trials` of one chunk (n, K)."""
+    r = np.ascontiguousarray(ranges.T)
+    f = np.ascontiguousarray(doppler.T)
+    single = r.shape[1] == 1
+    if single:  # numpy sums one column in another order: solve it as two, keep one
+        r, f = np.repeat(r, 2, axis=1), np.repeat(f, 2, axis=1)
+    with np.errstate(all="ignore"):
+        world, solution = solve_chunk(shared, rows, r, f)
+        if single:
+            world, solution = world[:1], solution.first()
+        # on a straight track the hard case hands over its left point only: the other is
+        # that one's mirror image, which the mirror rule adds (cls.ordered_candidates)
+        count = solution.count
+        if shared.line is not None:
+            count = np.where(solution.hard_case, 1, count)
+        final = finalize_columns(
+            world,
+            count,
+            _ordered_costs(solution),
+            shared.mean_xy,
+            shared.line,
+            side_prior_m=side_prior_m,
+        )
+    candidates = final.candidates
+    if candidates.shape[1] < MAX_CANDIDATES:  # every chunk holds the same width
+        missing = MAX_CANDIDATES - candidates.shape[1]
+        candidates = np.concatenate(
+            [candidates, np.full((len(candidates), missing, 2), np.nan)], axis=1
+        )
+    return SolvedTrials(
+        candidates,
+        final.n_candidates,
+        final.chosen,
+        final.draw,
+        final.ambiguous,
+        solution.failed | final.invalid,
+        solution.hard_case,
+        solution.multiplier,
+        solution.rank,
+        None if not shared.offset_unknown else solution.nuisance[:, 0],
     )
 
 
@@ -281,7 +298,7 @@ def estimate_columns(
     solved = solve_trials(shared, rows, ranges, doppler, side_prior_m)
     chosen = solved.chosen
     draw_tie_breaks(generators, solved.draw & ~solved.failed, solved.n_candidates, chosen)
-    position = solved.candidates[np.arange(n), np.minimum(chosen, 3)]
+    position = solved.candidates[np.arange(n), np.minimum(chosen, MAX_CANDIDATES - 1)]
     ok = ~solved.failed
     return BatchEstimates(
         estimator=name,
@@ -320,7 +337,7 @@ def estimate_trial(
     chosen = int(solved.chosen[0])
     if solved.draw[0] and rng is not None:
         chosen = int(rng.integers(count))
-    position = solved.candidates[:1, min(chosen, 3)]
+    position = solved.candidates[:1, min(chosen, MAX_CANDIDATES - 1)]
     hard = bool(solved.hard_case[0])
     return Estimate(
         estimator=name,
@@ -433,7 +450,7 @@ def solve_chunk(
             rank_deficient=deficient,
         )
     swap = _left_first(shared, solution) == 1
-    for name in ("x", "y", "costs", "nuisance"):
+    for name in ("x", "y", "costs", "nuisance") if swap.any() else ():
         values = getattr(solution, name)
         if values is not None:
             values[swap] = values[swap, ::-1]

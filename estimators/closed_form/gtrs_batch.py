@@ -50,6 +50,9 @@ TINY = float(np.finfo(float).tiny)
 
 NEWTON_ITERATIONS = 100
 
+_PAIR_SIGNS = np.array([1.0, -1.0])
+"""The hard case's two points, ``−h̃₁ ± √(−φ(−μ₁))``."""
+
 
 @dataclass(frozen=True, slots=True)
 class RowBlock:
@@ -80,8 +83,19 @@ class RowBlock:
 
         return RowBlock(pick(self.ax), pick(self.ay), pick(self.az), pick(self.b), pick(self.ac))
 
+    def per_point(self) -> RowBlock:
+        """The columns as (R, 1, n), to meet points of shape (p, n)."""
+
+        def column(values: FloatArray | None) -> FloatArray | None:
+            return None if values is None else values[:, None, :]
+
+        return RowBlock(
+            column(self.ax), column(self.ay), column(self.az), column(self.b), column(self.ac)
+        )
+
     def residual(self, x: FloatArray, y: FloatArray) -> FloatArray:
-        """``A r − b`` at ``r = (x, y, x² + y²)`` for each system, shape (R, n)."""
+        """``A r − b`` at ``r = (x, y, x² + y²)`` for each system, shape (R, n) (or (R, n, p)
+        for the columns of :meth:`per_point` and points (p, n))."""
         out = self.ax * x
         out += self.ay * y
         out -= self.b
@@ -116,34 +130,19 @@ class NormalEquations:
     @classmethod
     def of(cls, blocks: list[RowBlock], n: int) -> NormalEquations:
         sums: dict[str, FloatArray] = {}
-
-        def add(key: str, left: FloatArray, right: FloatArray) -> None:
-            total = row_dot(left, right, n)
-            sums[key] = total if key not in sums else sums[key] + total
-
         for block in blocks:
-            ax, ay, az, b = block.ax, block.ay, block.az, block.b
-            for key, left, right in (
-                ("m11", ax, ax),
-                ("m12", ax, ay),
-                ("m22", ay, ay),
-                ("q1", ax, b),
-                ("q2", ay, b),
-                ("bb", b, b),
-            ):
-                add(key, left, right)
+            ax, ay, az, b, ac = block.ax, block.ay, block.az, block.b, block.ac
+            pairs = [("m11", ax, ax), ("m12", ax, ay), ("m22", ay, ay)]
+            pairs += [("q1", ax, b), ("q2", ay, b), ("bb", b, b)]
             if az is not None:
-                for key, left, right in (
-                    ("m13", ax, az),
-                    ("m23", ay, az),
-                    ("m33", az, az),
-                    ("q3", az, b),
-                ):
-                    add(key, left, right)
-            if block.ac is not None:
-                for key, left in (("c1", ax), ("c2", ay), ("c3", az), ("cb", b), ("cc", block.ac)):
-                    if left is not None:
-                        add(key, left, block.ac)
+                pairs += [("m13", ax, az), ("m23", ay, az), ("m33", az, az), ("q3", az, b)]
+            if ac is not None:
+                pairs += [("c1", ax, ac), ("c2", ay, ac), ("cb", b, ac), ("cc", ac, ac)]
+                if az is not None:
+                    pairs.append(("c3", az, ac))
+            for key, left, right in pairs:
+                total = row_dot(left, right, n)
+                sums[key] = total if key not in sums else sums[key] + total
         zero = np.zeros(n)
         keys = ("m11", "m12", "m13", "m22", "m23", "m33", "q1", "q2", "q3", "bb")
         values = {key: sums.get(key, zero) for key in keys}
@@ -247,6 +246,8 @@ def eigen_2x2(
     uy = np.where(big, -(half_diff + radius), -s12)
     norm = np.hypot(ux, uy)
     isotropic = norm == 0.0
+    if not isotropic.any():  # (the usual case: the same quotients, fewer calls)
+        return mu1, mu2, 2.0 * radius, ux / norm, uy / norm
     c = np.where(isotropic, 1.0, ux / np.where(isotropic, 1.0, norm))
     s = np.where(isotropic, 0.0, uy / np.where(isotropic, 1.0, norm))
     return mu1, mu2, 2.0 * radius, c, s
@@ -293,9 +294,14 @@ class Spectrum:
         h_sq = h_t1 * h_t1 + h_t2 * h_t2
         base = h_sq + (q3 - 0.5 * mu1) / m33
         positive = gap > 0.0
-        second_at_pole = np.where(
-            positive, e2 * e2 / np.where(positive, gap, 1.0) ** 2, np.where(e2 == 0, 0.0, np.inf)
-        )
+        if positive.all():
+            second_at_pole = e2 * e2 / gap**2
+        else:
+            second_at_pole = np.where(
+                positive,
+                e2 * e2 / np.where(positive, gap, 1.0) ** 2,
+                np.where(e2 == 0, 0.0, np.inf),
+            )
         return cls(
             mu1=mu1,
             mu2=mu2,
@@ -321,7 +327,8 @@ class Spectrum:
         return Spectrum(**{name: getattr(self, name)[index] for name in self.__slots__})
 
     def to_rows(self, y1: FloatArray, y2: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Eigenbasis coordinates back to the rows' ``(x, y)``: ``U ỹ``."""
+        """Eigenbasis coordinates back to the rows' ``(x, y)``: ``U ỹ`` (of (n,) or (p, n)
+        points)."""
         return self.c * y1 - self.s * y2, self.s * y1 + self.c * y2
 
 
@@ -352,10 +359,11 @@ def solve_gtrs_batch(
 def _solve(blocks: list[RowBlock], n: int, rtol: float, want_rank: bool | str) -> GtrsBatch:
     ne = NormalEquations.of(blocks, n)
     sp = Spectrum.of(ne)
-    finite = np.isfinite(ne.trace) & np.isfinite(ne.q1 + ne.q2 + ne.q3 + ne.bb) & (ne.m33 > 0.0)
+    trace = ne.trace
+    finite = np.isfinite(trace) & np.isfinite(ne.q1 + ne.q2 + ne.q3 + ne.bb) & (ne.m33 > 0.0)
     failed = ~finite
     mu_scale = np.maximum(np.abs(sp.mu2), TINY)
-    gap_safe = np.where(sp.gap > 0.0, sp.gap, 1.0)
+    gap_safe = sp.gap if (sp.gap > 0.0).all() else np.where(sp.gap > 0.0, sp.gap, 1.0)
 
     # hard-case screen (MATH §5): φ(−μ₁) < 0 and |e₁| ≤ rtol·μ₂·√(−φ(−μ₁))
     negative = sp.phi_pole < 0.0
@@ -371,25 +379,35 @@ def _solve(blocks: list[RowBlock], n: int, rtol: float, want_rank: bool | str) -
     # --- hard case: the two points of the null line on the paraboloid
     idx = np.flatnonzero(screen)
     if idx.size:
+        every = idx.size == n  # (one trial's usual case: nothing to pick)
+
+        def pick(values: FloatArray) -> FloatArray:
+            return values if every else values[idx]
+
         sub = sp.take(idx)
-        y2 = sub.e2 / gap_safe[idx] - sub.h_t2
-        w = width[idx]
-        px = np.empty((idx.size, 2))
-        py = np.empty((idx.size, 2))
-        for j, sign in enumerate((1.0, -1.0)):
-            px[:, j], py[:, j] = sub.to_rows(-sub.h_t1 + sign * w, y2)
+        y2 = sub.e2 / pick(gap_safe) - sub.h_t2
+        w = pick(width)
+        # (2, m): the pair point-major, so that numpy's loops run over the systems
+        px, py = sub.to_rows(-sub.h_t1 + _PAIR_SIGNS[:, None] * w, y2)
         rows = take_systems(blocks, idx, n)
-        pair_costs = np.column_stack([_cost(rows, px[:, j], py[:, j]) for j in range(2)])
-        norms = np.sqrt(px**2 + py**2 + (px**2 + py**2) ** 2).max(axis=1)
+        pair_costs = _cost(rows, px, py).T
+        px, py = px.T, py.T
+        square = px * px + py * py
+        norms = np.maximum.reduce(np.sqrt(square + square * square), axis=1)
         # a small but real e₁ (two headings a few millidegrees apart) passes the screen, yet
         # the pair's costs then differ by 4|e₁|√(−φ(−μ₁)): the pair only when they are equal
         equal = equal_to_rounding(
-            pair_costs, norms, np.sqrt(ne.trace[idx]), np.sqrt(ne.bb[idx]), ne.n_rows
+            pair_costs, norms, np.sqrt(pick(trace)), np.sqrt(pick(ne.bb)), ne.n_rows
         )
-        keep = idx[equal]
-        hard[keep] = True
-        x[keep], y[keep], costs[keep] = px[equal], py[equal], pair_costs[equal]
-        multiplier[keep] = -sp.mu1[keep]
+        if every and equal.all():
+            hard[:] = True
+            x[:], y[:], costs[:] = px, py, pair_costs
+            multiplier[:] = -sp.mu1
+        else:
+            keep = idx[equal]
+            hard[keep] = True
+            x[keep], y[keep], costs[keep] = px[equal], py[equal], pair_costs[equal]
+            multiplier[keep] = -sp.mu1[keep]
 
     # --- the unique root of the secular equation
     idx = np.flatnonzero(finite & ~hard)
@@ -430,14 +448,16 @@ def _cost(blocks: list[RowBlock], x: FloatArray, y: FloatArray) -> FloatArray:
     free unknown's column ``c``, at its best value ``t = cᵀ(b − A r)/‖c‖²``: the residual
     ``A r + c t − b`` is formed before it is squared (subtracting ``(cᵀ(A r − b))²/‖c‖²`` from
     the unprojected cost would lose the digits of a small cost to a large one)."""
+    if x.ndim == 2:  # p points per system, (p, n): the rows' columns as (R, 1, n)
+        blocks = [block.per_point() for block in blocks]
     residuals = [block.residual(x, y) for block in blocks]
     if any(block.ac is not None for block in blocks):
         along = np.zeros(x.shape)
         norm = np.zeros(x.shape)
         for block, residual in zip(blocks, residuals, strict=True):
             if block.ac is not None:
-                along += row_dot(block.ac, residual, x.size)
-                norm += row_dot(block.ac, block.ac, x.size)
+                along += row_dot(block.ac, residual, x.shape)
+                norm += row_dot(block.ac, block.ac, x.shape)
         step = along / norm
         residuals = [
             residual if block.ac is None else residual - block.ac * step
@@ -445,7 +465,7 @@ def _cost(blocks: list[RowBlock], x: FloatArray, y: FloatArray) -> FloatArray:
         ]
     total = np.zeros(x.shape)
     for residual in residuals:
-        total += row_dot(residual, residual, x.size)
+        total += row_dot(residual, residual, x.shape)
     return total
 
 

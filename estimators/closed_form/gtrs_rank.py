@@ -23,8 +23,10 @@ RANK_RTOL = 1e-10
 """Singular values above ``RANK_RTOL`` times the largest count in the numerical rank."""
 
 
-def row_dot(left: FloatArray, right: FloatArray, n: int) -> FloatArray:
-    """``Σ_rows left·right`` for each of ``n`` systems, (R, n) arrays or (R, 1) columns.
+def row_dot(left: FloatArray, right: FloatArray, n: int | tuple[int, ...]) -> FloatArray:
+    """``Σ_rows left·right`` for each of ``n`` systems, (R, n) arrays or (R, 1) columns (or
+    (R, p, n) arrays: ``p`` points of each system, summed the same way; ``n`` is then the
+    result's shape ``(p, n)``).
 
     Always the sequential sum over the rows, system by system, ``s = 0; s += l_i r_i``:
     numpy's own sums change their order with the shape (a single column is summed pairwise),
@@ -33,8 +35,8 @@ def row_dot(left: FloatArray, right: FloatArray, n: int) -> FloatArray:
     summed by ``cumsum``, which adds in order too.
     """
     product = np.multiply(left, right)
-    if product.shape[1] == 1:
-        total = np.cumsum(product[:, 0])[-1] + 0.0 if len(product) else 0.0
+    if product.size == len(product):  # one column
+        total = np.cumsum(product.reshape(-1))[-1] + 0.0 if len(product) else 0.0
         return np.full(n, total)
     return np.add.reduce(product, axis=0, initial=0.0)
 
@@ -64,9 +66,6 @@ def numerical_rank(
     c11 = m22 * m33 - m23 * m23
     c22 = m11 * m33 - m13 * m13
     c33 = m11 * m22 - m12 * m12
-    c12 = m13 * m23 - m12 * m33
-    c13 = m12 * m23 - m13 * m22
-    c23 = m12 * m13 - m11 * m23
     minors = c11 + c22 + c33
     minors_error = 8.0 * EPS * trace * trace
     err_mu = 8.0 * EPS * np.sqrt(ne.n_rows) * trace
@@ -78,20 +77,21 @@ def numerical_rank(
     full = det_low / (minors + minors_error) > ratio_sq * trace
     rank[full] = 3
 
-    # null vector: the largest column of adj M
-    column = np.argmax(np.stack([c11, c22, c33]), axis=0)
-    u1 = np.choose(column, [c11, c12, c13])
-    u2 = np.choose(column, [c12, c22, c23])
-    u3 = np.choose(column, [c13, c23, c33])
-    norm = np.sqrt(u1 * u1 + u2 * u2 + u3 * u3)
+    todo = np.zeros(0, dtype=np.int64)
     if deficient:
         sigma2_sq_low = (minors - minors_error) / (2.0 * trace)
         rank[~full & (sigma2_sq_low > ratio_sq * trace)] = 2
-        todo = np.zeros(0, dtype=np.int64)
-    else:
+    elif ne.nuisance is None:  # (with one, ‖A u‖ is of the projected rows: the SVD decides)
+        # null vector: the largest column of adj M
+        c12 = m13 * m23 - m12 * m33
+        c13 = m12 * m23 - m13 * m22
+        c23 = m12 * m13 - m11 * m23
+        column = np.argmax(np.stack([c11, c22, c33]), axis=0)
+        u1 = np.choose(column, [c11, c12, c13])
+        u2 = np.choose(column, [c12, c22, c23])
+        u3 = np.choose(column, [c13, c23, c33])
+        norm = np.sqrt(u1 * u1 + u2 * u2 + u3 * u3)
         todo = np.flatnonzero(~full & (norm > 0.0) & np.isfinite(norm))
-        if ne.nuisance is not None:  # ‖A u‖ is of the projected rows: the SVD decides
-            todo = todo[:0]
     if todo.size:
         v1, v2, v3 = u1[todo] / norm[todo], u2[todo] / norm[todo], u3[todo] / norm[todo]
         residual_sq = np.zeros(todo.size)

@@ -18,7 +18,7 @@ from estimators.closed_form.cls import cls_rows
 from estimators.closed_form.cls_rows import LocalFrame
 from estimators.closed_form.gtrs import constrained_cost, solve_gtrs
 from scenarios.catalog import get_scenario, heading_velocities_mps
-from scenarios.geometry import mirror_across_line, straight_track_line
+from scenarios.geometry import mirror_across_line, straight_track_line, straight_track_lines
 from scenarios.simulate import noise_free, simulate
 from scenarios.types import FlightPlan, NoiseSigmas, Scenario
 
@@ -365,3 +365,30 @@ def test_batch_solver_flags_what_it_cannot_solve() -> None:
         solve_gtrs(A[:, :, 0], b[:, 0])
     with pytest.raises(ValueError, match=r"^A, b: the rows hold NaN"):
         solve_gtrs(A[:, :, 2], b[:, 2])
+
+
+@pytest.mark.parametrize(
+    ("bend", "expected"),
+    [(0.0, (True, True)), (1e-11, (True, False)), (1e-6, (False, False))],
+)
+def test_straight_track_lines_decide_each_tolerance_as_straight_track_line(bend, expected):
+    """One decomposition, several tolerances (the CLS's straight and collinear tests, MATH §5,
+    §7): a track bent sideways by ``bend`` of its length is straight to 1e-9 but not to 1e-13
+    at 1e-11, and at 1e-6 to neither; each answer is straight_track_line's at that tolerance."""
+    along = np.linspace(-400.0, 400.0, 9)
+    position = np.column_stack(
+        [along, 20.0 + bend * 800.0 * (along / 400.0) ** 2, np.full(9, 50.0)]
+    )
+    velocity = np.tile([30.0, 0.0, 0.0], (9, 1))
+    lines = straight_track_lines(position, velocity, (1e-9, 1e-13))
+    assert tuple(line is not None for line in lines) == expected
+    for line, rtol in zip(lines, (1e-9, 1e-13), strict=True):
+        single = straight_track_line(position, velocity, rtol=rtol)
+        assert (line is None) == (single is None)
+        if line is not None:
+            np.testing.assert_array_equal(line[0], single[0])
+            np.testing.assert_array_equal(line[1], single[1])
+            np.testing.assert_allclose(
+                line[0], [0.0, 20.0 + bend * 800.0 * 5.0 / 12.0], rtol=0.0, atol=1e-12
+            )
+            assert abs(line[1][0]) == pytest.approx(1.0, abs=1e-12)
