@@ -11,7 +11,7 @@ The mirror rule applied to columns is :func:`estimators.mirror_rule.finalize_col
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -37,7 +37,6 @@ _ARRAYS = (
     "ambiguous",
     "success",
     "message_code",
-    "recomputed",
     "covariance_m2",
 )
 """The per-trial columns of :class:`BatchEstimates` (the diagnostics besides)."""
@@ -64,9 +63,6 @@ class BatchEstimates:
         One column per diagnostics key, in the estimator's key order; a failed trial has
         no diagnostics. Every successful trial has the same keys (those of the columns); an
         estimator whose successful trials differ in their keys cannot be held as columns.
-    recomputed : (n,) bool
-        Trials solved one at a time because a choice of the batch solver was within rounding
-        of its threshold (their values are the one-trial path's own).
     covariance_m2 : (n, d, d) or None
 
     The arrays are made read-only (not copied): a result is a value. Built, the columns obey
@@ -84,13 +80,10 @@ class BatchEstimates:
     message_code: IntArray
     messages: tuple[str, ...]
     diagnostics: Mapping[str, NDArray[Any]] = field(default_factory=dict)
-    recomputed: BoolArray | None = None
     covariance_m2: FloatArray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.position_m)
-        if self.recomputed is None:
-            object.__setattr__(self, "recomputed", np.zeros(n, dtype=bool))
         d = position_dimension(np.shape(self.position_m)[-1]) if np.ndim(self.position_m) else 2
         columns = {
             "position_m": (self.position_m, (n, d)),
@@ -99,7 +92,6 @@ class BatchEstimates:
             "ambiguous": (self.ambiguous, (n,)),
             "success": (self.success, (n,)),
             "message_code": (self.message_code, (n,)),
-            "recomputed": (self.recomputed, (n,)),
         }
         if self.covariance_m2 is not None:
             columns["covariance_m2"] = (self.covariance_m2, (n, d, d))
@@ -214,8 +206,7 @@ class BatchEstimates:
         empty = cls.failed(
             n, estimator=estimator, covariance=covariance, dimension=dimensions.pop()
         )
-        filled = empty.with_trials(range(n), estimates)
-        return replace(filled, recomputed=np.zeros(n, dtype=bool))
+        return empty.with_trials(range(n), estimates)
 
     def __len__(self) -> int:
         return len(self.position_m)
@@ -247,13 +238,13 @@ class BatchEstimates:
         return [self.estimate(index) for index in range(len(self))]
 
     def with_trials(self, index: Sequence[int], estimates: Sequence[Estimate]) -> BatchEstimates:
-        """A copy with trials ``index`` replaced by ``estimates`` (e.g. solved one at a time).
+        """A copy with trials ``index`` replaced by ``estimates`` (e.g. failures found late).
 
         A successful replacement must carry the same diagnostics keys as every other
         successful trial: those of the columns while a trial not replaced keeps its
         diagnostics, else those of the first successful replacement (when every success is
-        replaced, the columns' own keys, e.g. a batch path's for trials it left to the
-        one-trial path, describe no trial). Raises ``ValueError`` naming the trial otherwise.
+        replaced, the columns' own keys describe no trial). Raises ``ValueError`` naming the
+        trial otherwise.
         """
         if len(index) == 0:
             return self
@@ -265,7 +256,6 @@ class BatchEstimates:
         ambiguous = self.ambiguous.copy()
         success = self.success.copy()
         code = self.message_code.copy()
-        recomputed = self.recomputed.copy()
         messages = list(self.messages)
         diagnostics = {key: value.copy() for key, value in self.diagnostics.items()}
         kept = self.success.copy()
@@ -284,7 +274,6 @@ class BatchEstimates:
             n_candidates[i] = count
             ambiguous[i] = estimate.ambiguous
             success[i] = estimate.success
-            recomputed[i] = True
             if estimate.message not in messages:
                 messages.append(estimate.message)
             code[i] = messages.index(estimate.message)
@@ -308,7 +297,6 @@ class BatchEstimates:
             message_code=code,
             messages=tuple(messages),
             diagnostics=diagnostics,
-            recomputed=recomputed,
             covariance_m2=covariance,
         )
 

@@ -347,7 +347,6 @@ def test_with_trials_replaces_rows_and_checks_keys() -> None:
     columns = Cls().estimate_columns(batch)
     failed = Estimate.failed("cls", "refused")
     replaced = columns.with_trials([1], [failed])
-    assert replaced.recomputed.tolist() == [False, True, False, False, False]
     assert replaced.estimate(1).message == "refused"
     assert replaced.messages[-1] == "refused" and not replaced.success[1]
     assert replaced.estimate(0).message == columns.estimate(0).message
@@ -364,7 +363,6 @@ def test_columns_from_per_trial_estimates_round_trip() -> None:
     estimates = Cls().estimate_batch(batch, rngs=generators(8))
     estimates[3] = Estimate.failed("cls", "refused")
     columns = BatchEstimates.from_estimates("cls", estimates)
-    assert not columns.recomputed.any()
     assert columns.success.tolist() == [True] * 3 + [False] + [True] * 4
     assert columns.diagnostics["rank"].dtype == np.int64
     for i, estimate in enumerate(estimates):

@@ -90,7 +90,7 @@ def test_batch_equals_one_at_a_time(family):
     """2000 trials: same statuses, rungs, candidates, positions, draws and diagnostics."""
     batch = family_batch(family, 2000)
     estimates, columns = compare_with_single(SdpCls(), batch)
-    assert columns.success.all() and not columns.recomputed.any()
+    assert columns.success.all()
     statuses = [e.diagnostics["stage_statuses"] for e in estimates]
     assert statuses == [["optimal", "optimal"]] * 2000
     rank = columns.diagnostics["rank"]
