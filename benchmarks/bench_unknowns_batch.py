@@ -6,7 +6,8 @@ On ``beacon-pass`` (a 406 MHz beacon, 40 samples) and ``turn-noncooperative`` (t
 trials, with the relaxed closed form (``offset_method="relaxed"``, the default) and with the
 profiled offset (``"profile"``: a root search over δ, one GTRS per step); and on both with the
 carrier offset alone unknown (``-offset``: δ's column of the CLS rows, projected out in the
-GTRS's normal equations, :mod:`estimators.closed_form.gtrs_batch`):
+GTRS's normal equations, :mod:`estimators.closed_form.gtrs_batch`). The same for ``ml`` (the
+relaxed cases), whose batch takes its starts from those closed forms:
 
 - ``one-at-a-time``: ``estimate(batch.trial(i), rng=rngs[i])``: the pseudo-range closed form
   on one trial (its batch of one); the columns were this call per trial before they were
@@ -35,6 +36,7 @@ import numpy as np  # noqa: E402
 from cpu_time import best_cpu_us  # noqa: E402
 
 from estimators.closed_form.cls import Cls  # noqa: E402
+from estimators.registry import make_estimator  # noqa: E402
 from scenarios.catalog import get_scenario  # noqa: E402
 from scenarios.simulate import simulate_trials, trial_seeds  # noqa: E402
 
@@ -44,12 +46,14 @@ SNR_DB = 10.0
 SCENARIOS = ("beacon-pass", "turn-noncooperative")
 
 
-def bench(scenario_name: str, n: int, offset_method: str) -> None:
+def bench(scenario_name: str, n: int, offset_method: str, estimator_name: str = "cls") -> None:
     scenario = get_scenario(scenario_name.removesuffix("-offset"))
     if scenario_name.endswith("-offset"):  # the carrier offset alone unknown
         scenario = scenario.replace(unknowns=("carrier_offset_hz",))
     batch = simulate_trials(scenario, snr_db=SNR_DB, seeds=trial_seeds(2026, n))
-    estimator = Cls(offset_method=offset_method)
+    estimator = (
+        Cls(offset_method=offset_method) if estimator_name == "cls" else make_estimator("ml")
+    )
     single = min(n, PER_TRIAL if offset_method == "relaxed" else PER_TRIAL_PROFILE)
     trials = [batch.trial(i) for i in range(single)]
 
@@ -70,7 +74,7 @@ def bench(scenario_name: str, n: int, offset_method: str) -> None:
     positions = np.array([e.position_m for e in singles])
     distance = np.nanmax(np.linalg.norm(positions - result.position_m[:single], axis=1))
     print(
-        f"{scenario_name:>20}  N={n:>6,}  offset_method={offset_method}  "
+        f"{estimator_name:>3} {scenario_name:>26}  N={n:>6,}  offset_method={offset_method}  "
         f"unknowns={','.join(scenario.unknowns)}\n"
         f"{'':>22}one-at-a-time {per_trial_us:9.1f} µs/estimate\n"
         f"{'':>22}columns       {columns_us:9.1f} µs/estimate  "
@@ -83,11 +87,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=2_000, help="N (default 2,000)")
     args = parser.parse_args()
-    for offset_method in ("relaxed", "profile"):
-        for name in SCENARIOS:
-            bench(name, args.trials, offset_method)
     for name in SCENARIOS:
-        bench(f"{name}-offset", args.trials, "relaxed")
+        bench(name, args.trials, "profile")
+    for estimator_name in ("cls", "ml"):
+        for name in SCENARIOS:
+            bench(name, args.trials, "relaxed", estimator_name)
+            bench(f"{name}-offset", args.trials, "relaxed", estimator_name)
 
 
 if __name__ == "__main__":

@@ -133,7 +133,10 @@ class SharedContext:
             columns = np.arange(geometry.n_samples)
         uses_toa = estimator.use_toa and batch.toa_s is not None
         cls_geometry = None
-        if uses_toa and not geometry.unknowns and batch.n_trials >= CLS_BATCH_MIN_TRIALS:
+        # the batch CLS gives every trial's starts, an unknown carrier offset projected out in
+        # its rows; with an unknown emission time the pseudo-range form does (pseudo_ranges)
+        batch_cls = uses_toa and "emission_time_s" not in geometry.unknowns
+        if batch_cls and batch.n_trials >= CLS_BATCH_MIN_TRIALS:
             try:
                 cls_geometry = SharedGeometry.of(batch, estimator.frames)
             except ValueError:  # e.g. a hovering sample: the one-trial closed form says why
