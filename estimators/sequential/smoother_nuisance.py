@@ -545,10 +545,13 @@ def estimate(
             track = None if track is None else track.extended(frame)
         chosen = hypothesis_starts(starts, first_track, track)
         hypotheses, fallbacks, iterations = [], [], 0
+        solved: dict[bytes, tuple[NuisanceHypothesis, int, str]] = {}
         for start in chosen:
-            hypothesis, n, fallback = lm_solve(
-                problem, _flat_start(start, problem.n_variables), start
-            )
+            # a start on the first track is its own mirror image: the same solve, done once
+            key = start.tobytes()
+            if key not in solved:
+                solved[key] = lm_solve(problem, _flat_start(start, problem.n_variables), start)
+            hypothesis, n, fallback = solved[key]
             hypotheses.append(hypothesis)
             fallbacks.append(fallback)
             iterations = max(iterations, n)
