@@ -209,6 +209,13 @@ class Problem:
         )
 
 
+LM_RELATIVE_ERROR_TOL = 1e-10
+"""Levenberg-Marquardt ends after an iteration that lowered the graph's error by at most this
+fraction. At 1e-15 it ran on to the rounding floor: after the last step that counts, some
+twenty more evaluations of the graph while the damping climbed to its ceiling and every
+shorter step was rejected at rounding level. The decrement checks below decide convergence."""
+
+
 def _converged(fit: NuisanceFit) -> bool:
     return fit.decrement <= max(DECREMENT_TOL, COST_ROUNDING_RTOL * fit.chi2)
 
@@ -222,7 +229,10 @@ def lm_solve(
     n_var = problem.n_variables
     graph = problem.graph(prior_state)
     result, start_error, end_error, iterations = gtsam_levenberg_marquardt(
-        graph, nuisance_values(start, n_var), problem.max_iterations
+        graph,
+        nuisance_values(start, n_var),
+        problem.max_iterations,
+        relative_error_tol=LM_RELATIVE_ERROR_TOL,
     )
     if not end_error <= start_error * (1.0 + COST_RISE_RTOL):
         raise EstimationFailure("Levenberg-Marquardt raised the cost")
