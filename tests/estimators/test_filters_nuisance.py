@@ -415,7 +415,7 @@ def test_streaming_smoother_updates_isam2_instead_of_re_solving(monkeypatch) -> 
     monkeypatch.setattr(
         smoother_nuisance,
         "gtsam_levenberg_marquardt",
-        lambda *args: solves.append(args[0].size()) or original(*args),
+        lambda *args, **kwargs: solves.append(args[0].size()) or original(*args, **kwargs),
     )
     estimator = GtsamSmoother()
     state = estimator.init()
