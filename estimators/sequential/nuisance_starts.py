@@ -131,15 +131,16 @@ def profiled_along(
     d = np.asarray(direction, dtype=float)
     doppler, ranges = frame.base.components(np.asarray(points_m, dtype=float), 1)
     k = frame.n_samples
-    residual = np.concatenate([doppler[0], ranges[0]], axis=-1) - frame.measured
-    derivative = np.concatenate(
-        [doppler[1] * d[0] + doppler[2] * d[1], ranges[1] * d[0] + ranges[2] * d[1]], axis=-1
-    )
+    both = np.empty((2, *doppler.shape[1:-1], 2 * k))  # e, then E_s d, before centring
+    np.subtract(doppler[0], frame.measured[:k], out=both[0, ..., :k])
+    np.subtract(ranges[0], frame.measured[k:], out=both[0, ..., k:])
+    np.add(doppler[1] * d[0], doppler[2] * d[1], out=both[1, ..., :k])
+    np.add(ranges[1] * d[0], ranges[2] * d[1], out=both[1, ..., k:])
     for name in frame.names:  # an offset profiled out: its modality's rows centred
-        rows = slice(0, k) if name == "carrier_offset_hz" else slice(k, 2 * k)
-        residual[:, rows] -= residual[:, rows].mean(axis=-1, keepdims=True)
-        derivative[:, rows] -= derivative[:, rows].mean(axis=-1, keepdims=True)
-    return residual / frame.sigma, derivative / frame.sigma
+        rows = both[..., :k] if name == "carrier_offset_hz" else both[..., k:]
+        rows -= np.add.reduce(rows, axis=-1, keepdims=True) / k  # their mean
+    both /= frame.sigma
+    return both[0], both[1]
 
 
 def profile_scan(frame: NuisanceFrame, start_m: ArrayLike) -> FloatArray:
