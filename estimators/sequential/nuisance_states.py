@@ -255,28 +255,23 @@ class NuisanceFrame:
         doppler, ranges = model.components(theta[..., :2], int(with_jacobian))
         k = self.n_samples
         blocks = (doppler, ranges)
-        predicted = np.empty((*theta.shape[:-1], 2 * k))
-        predicted[..., :k] = doppler[0][..., :k]
-        predicted[..., k:] = ranges[0][..., :k]
-        jacobian = None
-        if with_jacobian:
-            jacobian = np.zeros((*predicted.shape, self.n_state))
-            for row, block in enumerate(blocks):
-                rows = slice(row * k, (row + 1) * k)
-                jacobian[..., rows, 0] = block[1][..., :k]
-                jacobian[..., rows, 1] = block[2][..., :k]
+        rows = np.concatenate([doppler[..., :k], ranges[..., :k]], axis=-1)  # value, ∂x, ∂y
         for j, name in enumerate(self.names):
             row = _ROW[name]
-            rows = slice(row * k, (row + 1) * k)
+            block = rows[..., row * k : (row + 1) * k]
             shift = theta[..., 2 + j]
             if self._joint is not None:
-                shift = shift - blocks[row][0][..., k]
-            predicted[..., rows] += shift[..., None]
-            if jacobian is not None:
-                if self._joint is not None:
-                    jacobian[..., rows, 0] -= blocks[row][1][..., k, None]
-                    jacobian[..., rows, 1] -= blocks[row][2][..., k, None]
-                jacobian[..., rows, 2 + j] = 1.0
+                reference = blocks[row][..., k]  # the reference sample's value and gradient
+                shift = shift - reference[0]
+                block[1:] -= reference[1:, ..., None]
+            block[0] += shift[..., None]
+        predicted = rows[0]
+        if not with_jacobian:
+            return predicted, None
+        jacobian = np.empty((*predicted.shape, self.n_state))
+        jacobian[..., 0] = rows[1]
+        jacobian[..., 1] = rows[2]
+        jacobian[..., 2:] = self._columns
         return predicted, jacobian
 
     def predicted(self, state: ArrayLike) -> FloatArray:
