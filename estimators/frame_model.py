@@ -251,9 +251,12 @@ class FrameModel:
         """``∂²h/∂(x_s, y_s)²`` of every row, shape ``(2K, 2, 2)`` (MATH §8, from
         :func:`scenarios.measurement_model.doppler_range_derivatives`; ``per_sample``:
         ``emitter_m`` has shape (K, 2), as in :meth:`whitened_error_and_jacobian_per_sample`)."""
-        doppler, ranges = self.derivatives(
-            np.asarray(emitter_m, dtype=float), 2, per_sample=per_sample
-        )
+        emitter = np.asarray(emitter_m, dtype=float)
+        if not per_sample and emitter.ndim == 1:  # one emitter: components first, one pass
+            doppler, ranges = self.components(emitter, 2)
+            second = np.concatenate([doppler[3:], ranges[3:]], axis=-1).T  # xx, xy, yy
+            return second[:, [[0, 1], [1, 2]]]
+        doppler, ranges = self.derivatives(emitter, 2, per_sample=per_sample)
         second = np.concatenate([doppler[:, 3:], ranges[:, 3:]])  # xx, xy, yy
         return second[:, [[0, 1], [1, 2]]]
 
