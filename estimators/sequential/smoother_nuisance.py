@@ -20,7 +20,8 @@ those of
 likelihood of ``(s, δ, β)`` over all frames (MATH §10), whose ``(x, y)`` error attains the nuisance
 CRLB of :func:`scenarios.fisher.fisher_information` at high SNR.
 
-**Solve and checks** (:func:`lm_solve`). Levenberg-Marquardt on the whole graph, then the checks
+**Solve and checks** (:func:`lm_solve`). Levenberg-Marquardt on the whole graph (ended by
+:data:`LM_RELATIVE_ERROR_TOL`), then the checks
 of :mod:`estimators.sequential.smoother_batch` on the numpy fit of the same graph (its
 χ², decrement, Laplace evidence ``−½χ² − ½ log det Λ``, exact Hessian): converged when the
 decrement is at most ``DECREMENT_TOL`` without a cost rise; short of that Newton's method on the
