@@ -19,7 +19,7 @@ be rebuilt into filter or factor-graph objects inside any worker process.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -62,6 +62,22 @@ class FrameModel:
     gamma_per_m: float
     emitter_height_m: float
     time_s: float
+    _planes: tuple[FloatArray, ...] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        # the samples' coordinates and velocities as contiguous planes, once: ``p_x, p_y,
+        # p_z − z_s, v_x, v_y, v_z``, each (K,), what every evaluation subtracts the emitter from
+        position, velocity = self.position_m, self.velocity_mps
+        planes = (
+            np.ascontiguousarray(position[:, 0]),
+            np.ascontiguousarray(position[:, 1]),
+            position[:, 2] - np.asarray(self.emitter_height_m, dtype=float),
+            np.ascontiguousarray(velocity[:, 0]),
+            np.ascontiguousarray(velocity[:, 1]),
+            np.ascontiguousarray(velocity[:, 2]),
+        )
+        read_only(*planes)
+        object.__setattr__(self, "_planes", planes)
 
     @classmethod
     def from_measurements(cls, frame: MeasurementSet) -> FrameModel:
@@ -149,15 +165,45 @@ class FrameModel:
             order=order,
         )
 
+    def components(self, emitter_m: ArrayLike, order: int) -> tuple[FloatArray, FloatArray]:
+        """The Doppler and range rows with their derivatives up to ``order``, components first,
+        each ``(n, ..., K)`` (:func:`scenarios.measurement_model.derivatives_of_offsets` on the
+        cached planes), at emitter positions ``(..., 2)``."""
+        emitter = np.asarray(emitter_m, dtype=float)
+        px, py, dz, vx, vy, vz = self._planes
+        if emitter.ndim == 1:
+            dx, dy = px - emitter[0], py - emitter[1]
+        else:
+            dx, dy = px - emitter[..., 0, None], py - emitter[..., 1, None]
+        return model.derivatives_of_offsets(dx, dy, dz, (vx, vy, vz), self.gamma_per_m, order=order)
+
     def _evaluate(
         self, emitter_m: ArrayLike, with_jacobian: bool, *, per_sample: bool = False
     ) -> tuple[FloatArray, FloatArray | None]:
         """``h(s)`` and, if asked, ``∂h/∂(x_s, y_s)`` (MATH §1, §8), one pass over the samples."""
-        doppler, ranges = self.derivatives(emitter_m, int(with_jacobian), per_sample=per_sample)
-        predicted = np.concatenate([doppler[..., 0], ranges[..., 0]], axis=-1)
+        emitter = np.asarray(emitter_m, dtype=float)
+        if per_sample:  # sample k against emitter k: the planes minus (K,) components
+            px, py, dz, vx, vy, vz = self._planes
+            doppler, ranges = model.derivatives_of_offsets(
+                px - emitter[:, 0],
+                py - emitter[:, 1],
+                dz,
+                (vx, vy, vz),
+                self.gamma_per_m,
+                order=int(with_jacobian),
+            )
+        else:
+            doppler, ranges = self.components(emitter, int(with_jacobian))
+        predicted = np.concatenate([doppler[0], ranges[0]], axis=-1)
         if not with_jacobian:
             return predicted, None
-        return predicted, np.concatenate([doppler[..., 1:], ranges[..., 1:]], axis=-2)
+        k = doppler.shape[-1]
+        jacobian = np.empty((*predicted.shape, 2))
+        jacobian[..., :k, 0] = doppler[1]
+        jacobian[..., :k, 1] = doppler[2]
+        jacobian[..., k:, 0] = ranges[1]
+        jacobian[..., k:, 1] = ranges[2]
+        return predicted, jacobian
 
     def predicted(self, emitter_m: ArrayLike) -> FloatArray:
         """``h(s) = [f_k(s); ρ_k(s)]`` (MATH §1), shape ``(..., 2K)``."""
@@ -205,9 +251,12 @@ class FrameModel:
         """``∂²h/∂(x_s, y_s)²`` of every row, shape ``(2K, 2, 2)`` (MATH §8, from
         :func:`scenarios.measurement_model.doppler_range_derivatives`; ``per_sample``:
         ``emitter_m`` has shape (K, 2), as in :meth:`whitened_error_and_jacobian_per_sample`)."""
-        doppler, ranges = self.derivatives(
-            np.asarray(emitter_m, dtype=float), 2, per_sample=per_sample
-        )
+        emitter = np.asarray(emitter_m, dtype=float)
+        if not per_sample and emitter.ndim == 1:  # one emitter: components first, one pass
+            doppler, ranges = self.components(emitter, 2)
+            second = np.concatenate([doppler[3:], ranges[3:]], axis=-1).T  # xx, xy, yy
+            return second[:, [[0, 1], [1, 2]]]
+        doppler, ranges = self.derivatives(emitter, 2, per_sample=per_sample)
         second = np.concatenate([doppler[:, 3:], ranges[:, 3:]])  # xx, xy, yy
         return second[:, [[0, 1], [1, 2]]]
 

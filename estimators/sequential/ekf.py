@@ -256,6 +256,28 @@ class EkfState:
 # --------------------------------------------------------------------------------------------
 
 
+def filterpy_update(
+    kf: Any,
+    frame: FrameModel | NuisanceFrame,
+    prior_mean_m: FloatArray,
+    prior_covariance_m2: FloatArray,
+    predicted: FloatArray,
+    jacobian: FloatArray,
+    linearised_at: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """filterpy's update of the prior ``(s̄, P̄)`` with the measurement function linearised at
+    ``linearised_at``, ``h(s) ≈ h(s_i) + H_i (s − s_i)`` (``predicted``, ``jacobian``: ``h(s_i)``
+    and ``H_i``): the new mean and filterpy's Joseph-form covariance."""
+    kf.x = prior_mean_m.copy()  # 1-D x: filterpy would broadcast a (2, 1) x
+    kf.P = prior_covariance_m2.copy()
+    kf.update(
+        frame.measured,
+        HJacobian=lambda _x: jacobian,
+        Hx=lambda x: predicted + jacobian @ (x - linearised_at),
+    )
+    return np.array(kf.x, dtype=float), np.array(kf.P, dtype=float)
+
+
 def ekf_update(
     frame: FrameModel | NuisanceFrame,
     prior_mean_m: FloatArray,
@@ -272,7 +294,8 @@ def ekf_update(
     cost's gradient, which is the same step without the gain's loss of ``cond(P̄)·ε``; the
     step ``s_{i+1} − s_i`` is halved while the posterior cost rises. Stops when a step is
     shorter than ``STEP_RTOL ×`` the range; the covariance is filterpy's Joseph-form ``P`` of
-    the last pass.
+    the last pass (:func:`filterpy_update`, run once, on that pass's linearisation: the earlier
+    passes' filterpy means are not used).
 
     Returns ``(mean_m, covariance_m2, report)``. The report (:class:`SolverReport`) says whether
     the iterate converged: the decrement
@@ -299,16 +322,11 @@ def ekf_update(
     small_step = stalled = False
     while iterations < max_iterations:
         iterations += 1
-        linearised_at = point
-        kf.x = prior_mean_m.copy()  # 1-D x: filterpy would broadcast a (2, 1) x
-        kf.P = prior_covariance_m2.copy()
-        kf.update(
-            frame.measured,
-            HJacobian=lambda _x, H=H: H,
-            Hx=lambda x, h=h_at_point, H=H, s=linearised_at: h + H @ (x - s),
-        )
-        mean, covariance = np.array(kf.x, dtype=float), np.array(kf.P, dtype=float)
+        linearised = (h_at_point, H, point)  # the last pass's linearisation: the covariance's
         if max_iterations == 1:
+            mean, covariance = filterpy_update(
+                kf, frame, prior_mean_m, prior_covariance_m2, *linearised
+            )
             break
         # the iterate: the same Gauss-Newton step in information form, −(Λ̄ + EᵀE)⁻¹ g. The
         # filter's gain P̄Hᵀ(HP̄Hᵀ + R)⁻¹ is that step in exact arithmetic, but loses cond(P̄)·ε
@@ -340,6 +358,8 @@ def ekf_update(
         if np.linalg.norm(step) <= STEP_RTOL * scale:
             small_step = True
             break
+    if max_iterations > 1:  # filterpy's pass on the last linearisation: its covariance
+        _, covariance = filterpy_update(kf, frame, prior_mean_m, prior_covariance_m2, *linearised)
     covariance = 0.5 * (covariance + covariance.T)
     if max_iterations == 1:
         return mean, covariance, SolverReport(1, 1, float("nan"), True)

@@ -121,6 +121,28 @@ def profiled_errors(frame: NuisanceFrame, points_m: ArrayLike) -> tuple[FloatArr
     return residual / frame.sigma, jacobian / frame.sigma[:, None]
 
 
+def profiled_along(
+    frame: NuisanceFrame, points_m: ArrayLike, direction: ArrayLike
+) -> tuple[FloatArray, FloatArray]:
+    """``(e, E_s d)`` of :func:`profiled_errors` at ``(M, 2)`` points with the derivative taken
+    along one unit direction ``d`` only (what :func:`profile_scan`'s steps need), from the
+    forward model's components (:meth:`~estimators.frame_model.FrameModel.components`): shapes
+    ``(M, 2K)`` each."""
+    d = np.asarray(direction, dtype=float)
+    doppler, ranges = frame.base.components(np.asarray(points_m, dtype=float), 1)
+    k = frame.n_samples
+    both = np.empty((2, *doppler.shape[1:-1], 2 * k))  # e, then E_s d, before centring
+    np.subtract(doppler[0], frame.measured[:k], out=both[0, ..., :k])
+    np.subtract(ranges[0], frame.measured[k:], out=both[0, ..., k:])
+    np.add(doppler[1] * d[0], doppler[2] * d[1], out=both[1, ..., :k])
+    np.add(ranges[1] * d[0], ranges[2] * d[1], out=both[1, ..., k:])
+    for name in frame.names:  # an offset profiled out: its modality's rows centred
+        rows = both[..., :k] if name == "carrier_offset_hz" else both[..., k:]
+        rows -= np.add.reduce(rows, axis=-1, keepdims=True) / k  # their mean
+    both /= frame.sigma
+    return both[0], both[1]
+
+
 def profile_scan(frame: NuisanceFrame, start_m: ArrayLike) -> FloatArray:
     """The lowest point of the profiled cost ``‖e‖²`` (nuisance values profiled out) along the
     cross-track distances ``c = 2L j / SCAN_POINTS`` (``L`` the mean range at ``start_m``) on
@@ -137,8 +159,7 @@ def profile_scan(frame: NuisanceFrame, start_m: ArrayLike) -> FloatArray:
     a = np.full_like(c, float((start - origin) @ along))
     for _ in range(SCAN_STEPS):
         points = origin + a[:, None] * along + c[:, None] * normal
-        e, E = profiled_errors(frame, points)
-        derivative = E @ along
+        e, derivative = profiled_along(frame, points, along)
         curvature = np.einsum("mk,mk->m", derivative, derivative)
         step = -np.einsum("mk,mk->m", derivative, e) / np.maximum(curvature, 1e-300)
         a = a + np.clip(step, -0.25 * length, 0.25 * length)

@@ -246,36 +246,44 @@ class NuisanceFrame:
 
     # -- the model ------------------------------------------------------------------------------
 
+    def _rows(self, state: ArrayLike, with_jacobian: bool) -> tuple[FloatArray, FloatArray | None]:
+        """``h(θ)`` and, if asked, ``∂h/∂θ`` (module text) from one pass of the forward model over
+        the samples and the reference (:meth:`FrameModel.components`): each nuisance state
+        shifts its block of rows, its reference value (and gradient) subtracted."""
+        theta = np.asarray(state, dtype=float)
+        model = self.base if self._joint is None else self._joint
+        doppler, ranges = model.components(theta[..., :2], int(with_jacobian))
+        k = self.n_samples
+        blocks = (doppler, ranges)
+        rows = np.concatenate([doppler[..., :k], ranges[..., :k]], axis=-1)  # value, ∂x, ∂y
+        for j, name in enumerate(self.names):
+            row = _ROW[name]
+            block = rows[..., row * k : (row + 1) * k]
+            shift = theta[..., 2 + j]
+            if self._joint is not None:
+                reference = blocks[row][..., k]  # the reference sample's value and gradient
+                shift = shift - reference[0]
+                block[1:] -= reference[1:, ..., None]
+            block[0] += shift[..., None]
+        predicted = rows[0]
+        if not with_jacobian:
+            return predicted, None
+        jacobian = np.empty((*predicted.shape, self.n_state))
+        jacobian[..., 0] = rows[1]
+        jacobian[..., 1] = rows[2]
+        jacobian[..., 2:] = self._columns
+        return predicted, jacobian
+
     def predicted(self, state: ArrayLike) -> FloatArray:
         """``h(θ)`` (module text), shape ``(..., 2K)``."""
-        theta = np.asarray(state, dtype=float)
-        position = theta[..., :2]
-        if self._joint is None:
-            predicted, shift = self.base.predicted(position), theta[..., 2:]
-        else:
-            joint = self._joint.predicted(position)
-            predicted = joint[..., self._base_rows]
-            shift = theta[..., 2:] - joint[..., self._reference_rows]
-        return predicted + shift @ self._columns.T
+        return self._rows(state, with_jacobian=False)[0]
 
     def predicted_and_jacobian(self, state: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """``(h(θ), ∂h/∂θ)`` (:meth:`predicted`, :meth:`jacobian`) in one pass over the samples
         and the reference."""
-        theta = np.asarray(state, dtype=float)
-        position = theta[..., :2]
-        columns = self._columns
-        if self._joint is None:
-            predicted, jacobian = self.base.predicted_and_jacobian(position)
-            shift = theta[..., 2:]
-        else:
-            joint, joint_jacobian = self._joint.predicted_and_jacobian(position)
-            predicted = joint[..., self._base_rows]
-            shift = theta[..., 2:] - joint[..., self._reference_rows]
-            jacobian = joint_jacobian[..., self._base_rows, :] - (
-                columns @ joint_jacobian[..., self._reference_rows, :]
-            )
-        wide = np.broadcast_to(columns, (*jacobian.shape[:-1], len(self.names)))
-        return predicted + shift @ columns.T, np.concatenate([jacobian, wide], axis=-1)
+        predicted, jacobian = self._rows(state, with_jacobian=True)
+        assert jacobian is not None
+        return predicted, jacobian
 
     def jacobian(self, state: ArrayLike) -> FloatArray:
         """``∂h/∂θ = [∇h_k − A ∂g/∂s | A]`` (MATH §8, §15), shape ``(..., 2K, n)``."""

@@ -49,17 +49,18 @@ COST_RISE_RTOL = 1e-9
 
 
 def gtsam_levenberg_marquardt(
-    graph: Any, initial: Any, max_iterations: int
+    graph: Any, initial: Any, max_iterations: int, *, relative_error_tol: float = 1e-15
 ) -> tuple[Any, float, float, int]:
     """GTSAM's Levenberg-Marquardt on ``graph`` from ``initial``, run to ``max_iterations`` (the
-    error tolerances at 1e-15, the damping bounded by ``LM_LAMBDA_UPPER_BOUND``): the result,
-    the error before and after and the iterations. A GTSAM error is an
-    :class:`EstimationFailure`."""
+    absolute error tolerance at 1e-15, the relative one ``relative_error_tol``: an iteration
+    that lowers the error by at most that fraction ends the solve; the damping bounded by
+    ``LM_LAMBDA_UPPER_BOUND``): the result, the error before and after and the iterations. A
+    GTSAM error is an :class:`EstimationFailure`."""
     import gtsam
 
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
-    params.setRelativeErrorTol(1e-15)
+    params.setRelativeErrorTol(relative_error_tol)
     params.setAbsoluteErrorTol(1e-15)
     params.setlambdaUpperBound(LM_LAMBDA_UPPER_BOUND)
     try:
