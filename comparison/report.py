@@ -6,7 +6,8 @@
 - ``summary.csv``: :func:`comparison.metrics.summarize`, full precision, one row per
   (scenario, point, frame, estimator), and planner in a closed loop;
 - ``trials.csv``: the tidy trial rows, one per estimator × scenario × point × frame × trial
-  (× planner in a closed loop), for runs of at most :data:`MAX_TRIALS_CSV_ROWS` rows (larger
+  (× planner in a closed loop), for runs of at most
+  :data:`~comparison.trials_csv.MAX_TRIALS_CSV_ROWS` rows (larger
   runs keep them in ``results.sqlite`` only, and the page says so); read again from
   ``results.sqlite`` and written in a forked process while the summary is worked out;
 - ``flights.csv`` (closed loop): every frame flown, per planner and trial
@@ -32,9 +33,7 @@ from __future__ import annotations
 import base64
 import html
 import json
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import contextmanager, suppress
-from multiprocessing import get_context
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -56,23 +55,22 @@ from comparison.metrics import (
 )
 from comparison.planner_table import planner_table_html
 from comparison.run_folder import holding_report_lock, write_atomic, write_csv
+from comparison.trials_csv import (
+    TRIALS_CSV_LIMIT,
+    trial_batches,
+    trials_csv_forked,
+    trials_csv_note,
+)
 from comparison.verdicts import VERDICTS
 from scenarios.limits import configured_limit
 
 BOOTSTRAP_STREAM = 2**31 + 7
 """Spawn key of the bootstrap's seed sequence under the experiment seed (no trial uses it)."""
 
-MAX_TRIALS_CSV_ROWS = 1_000_000
-"""Most trial rows written to trials.csv (``EMITTERBENCH_MAX_TRIALS_CSV_ROWS``): about 500 MB of
-text and 10 s of formatting. A larger run (a dense geometry map) keeps its rows in
-results.sqlite only, which :func:`comparison.engine.read_trials` reads."""
-
 MAX_TABLE_ROWS = 1000
 """Most summary rows of one scenario printed as tables in report.html. A scenario with more
 (a dense sweep) gets one line per estimator instead: its verdicts counted and the range of
 its judged efficiency; every row stays in summary.csv."""
-
-_TRIALS_CSV_LIMIT = (MAX_TRIALS_CSV_ROWS, "EMITTERBENCH_MAX_TRIALS_CSV_ROWS")
 
 COMPACT_COLUMNS: tuple[str, ...] = (
     "n_trials",
@@ -485,7 +483,7 @@ def render_html(
 
     ``experiment_text`` is the text of experiment.json, shown verbatim (default: ``experiment``
     as JSON); ``file_notes`` are sentences about the files written, shown above the summary
-    tables (:func:`trials_csv_note`).
+    tables (:func:`~comparison.trials_csv.trials_csv_note`).
     """
     name = str(experiment.get("name", "experiment"))
     description = experiment.get("description", "")
@@ -536,85 +534,6 @@ def render_html(
     )
 
 
-def _trial_batches(run_dir: Path) -> Iterator[pd.DataFrame]:
-    """Every trial row of results.sqlite, every column, a batch at a time."""
-    from comparison import store
-
-    return store.iter_trials(run_dir, chunk_rows=store.TRIAL_BATCH_ROWS, whole_points=False)
-
-
-def _write_trials_csv(folder: Path, sender: Any) -> None:
-    """Write trials.csv from results.sqlite, in a process of :func:`_trials_csv_forked`;
-    send None when done, else the error."""
-    try:
-        write_csv(folder / "trials.csv", _trial_batches(folder))
-    except BaseException as error:  # a Ctrl-C too: the report sees it
-        try:
-            sender.send(error)
-        except Exception:  # an error that does not pickle: its text
-            sender.send(RuntimeError(f"trials.csv: {error}"))
-    else:
-        sender.send(None)
-    finally:
-        sender.close()
-
-
-@contextmanager
-def _trials_csv_forked(folder: Path, start: bool) -> Iterator[Callable[[], None] | None]:
-    """With ``start``, write trials.csv from results.sqlite in a forked process started now,
-    so that it overlaps the summary: the block gets the function that waits for it (and
-    raises its error here), and the block's end waits for it in any case, so that no process
-    is left behind. None when not started, or when a second process does not pay or cannot
-    be forked (:func:`comparison.report_figures.figure_processes`)."""
-    from comparison.report_figures import figure_processes
-
-    if not start or figure_processes(2) < 2:
-        yield None
-        return
-    context = get_context("fork")
-    receiver, sender = context.Pipe(duplex=False)
-    process = context.Process(target=_write_trials_csv, args=(folder, sender), daemon=True)
-    process.start()
-    sender.close()
-    outcome: list[BaseException | None] = []
-
-    def wait() -> None:
-        if not outcome:
-            try:
-                error = receiver.recv()
-            except EOFError:  # ended without a word
-                error = None
-            finally:
-                process.join()
-                receiver.close()
-            if error is None and process.exitcode != 0:  # killed
-                error = RuntimeError(
-                    f"trials.csv: the process writing it ended with code {process.exitcode}; "
-                    "run emitterbench report again"
-                )
-            outcome.append(error)
-        if outcome[0] is not None:
-            raise outcome[0]
-
-    try:
-        yield wait
-    except BaseException:
-        with suppress(BaseException):  # the block's error is the one to see
-            wait()
-        raise
-    wait()
-
-
-def trials_csv_note(n_rows: int, limit: int) -> str:
-    """The sentence of a report whose trial rows are too many for trials.csv."""
-    return (
-        f"trials.csv is not written: this run has {n_rows:,} trial rows, more than the "
-        f"{limit:,} written as text ({_TRIALS_CSV_LIMIT[1]}). Every row is in results.sqlite, "
-        "which comparison.engine.read_trials reads; to have the file, raise the limit and "
-        "run emitterbench report again."
-    )
-
-
 @holding_report_lock
 def write_report(
     run_dir: str | Path,
@@ -652,7 +571,8 @@ def write_report(
     dpi : int
         Resolution of the PNG figures.
     max_trials_csv_rows : int, optional
-        Most trial rows written to trials.csv (default :data:`MAX_TRIALS_CSV_ROWS`, or the
+        Most trial rows written to trials.csv (default
+        :data:`~comparison.trials_csv.MAX_TRIALS_CSV_ROWS`, or the
         environment variable ``EMITTERBENCH_MAX_TRIALS_CSV_ROWS``); a run with more writes
         none, removes an earlier report's, and says so on the page.
 
@@ -664,7 +584,7 @@ def write_report(
     folder = Path(run_dir)
     points, experiment, run_info = _load(folder, points, experiment, run_info)
     limit = (
-        configured_limit(_TRIALS_CSV_LIMIT) if max_trials_csv_rows is None else max_trials_csv_rows
+        configured_limit(TRIALS_CSV_LIMIT) if max_trials_csv_rows is None else max_trials_csv_rows
     )
     layout = None
     if trials is None:
@@ -674,7 +594,7 @@ def write_report(
     n_rows = len(trials) if layout is None else layout.n_rows
     # trials.csv from results.sqlite in a process of its own while the summary is worked out
     forked = layout is not None and n_rows <= limit
-    with _trials_csv_forked(folder, forked) as csv_written:
+    with trials_csv_forked(folder, forked) as csv_written:
         # the figures' columns kept from the summary's reading (matplotlib imported with them)
         summary, figure_trials = _summary(folder, trials, experiment, n_bootstrap, layout)
         write_csv(folder / "summary.csv", summary)
@@ -708,7 +628,7 @@ def write_report(
                 csv_written()
             elif n_rows <= limit:
                 write_csv(
-                    folder / "trials.csv", trials if trials is not None else _trial_batches(folder)
+                    folder / "trials.csv", trials if trials is not None else trial_batches(folder)
                 )
             else:
                 (folder / "trials.csv").unlink(missing_ok=True)  # an earlier report's, now stale

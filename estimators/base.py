@@ -238,7 +238,7 @@ def baseline_problem(modalities: frozenset[str] | set[str], data: MeasurementSet
     """
     if not single_horizontal_point(data.position_m):
         return None
-    hovering = _hovering_problem(data)
+    hovering = hovering_problem(data)
     if hovering is not None:
         return hovering
     where = vector_text(data.position_m[0, :2])
@@ -259,8 +259,9 @@ def baseline_problem(modalities: frozenset[str] | set[str], data: MeasurementSet
     return None
 
 
-def _hovering_problem(data: MeasurementSet) -> str | None:
-    """The reason of :func:`baseline_problem` for a hovering or climbing UAV, else None."""
+def hovering_problem(data: MeasurementSet) -> str | None:
+    """The reason of :func:`baseline_problem` for a hovering or climbing UAV, else None: the
+    samples ``finalize_estimate`` refuses whatever the candidates."""
     if not single_horizontal_point(data.position_m) or moves_horizontally(data.velocity_mps):
         return None
     return (
@@ -455,7 +456,7 @@ def finalize_estimate(
     :func:`finalize_from_track` with the track of ``data``
     (:meth:`scenarios.geometry.TrackSoFar.of`).
     """
-    hovering = _hovering_problem(data)
+    hovering = hovering_problem(data)
     if hovering is not None:
         return Estimate.failed(estimator, hovering, **dict(diagnostics or {}))
     return finalize_from_track(

@@ -197,3 +197,49 @@ def test_lls_rss_mean_reference_on_orbit_is_near_the_rss_crlb():
     bound = rmse_bound_m(fisher_information(batch.geometry, scenario.emitter_m, "rss"))
     # lower limit: four Monte Carlo standard errors of an RMSE (1/√(2n) relative) below the bound
     assert (1.0 - 4.0 / np.sqrt(2 * len(batch))) * bound <= rmse <= 1.5 * bound
+
+
+# --------------------------------------------------------------------------------------------
+# every trial at once: one trial is the batch of one
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("scenario_name", ["turn", "paper-1m", "orbit"])
+def test_lls_solutions_equal_numpy_lstsq_trial_by_trial(scenario_name):
+    """The stacked SVD's minimum-norm solutions are ``numpy.linalg.lstsq``'s (LAPACK gelsd,
+    another path) on each trial's rows in its local frame, to rounding, ranks equal."""
+    from estimators.baselines.lls import RANK_RTOL, lls_toa_columns
+
+    batch = simulate_trials(get_scenario(scenario_name), snr_db=10.0, seeds=trial_seeds(5, 40))
+    geometry = batch.geometry
+    ranges = geometry.speed_of_light_mps * batch.toa_s
+    solved = lls_toa_columns(geometry.position_m, ranges, geometry.emitter_height_m)
+    for i in range(40):
+        scale, origin = solved.scale_m[i], solved.origin_m
+        x, y = ((geometry.position_m[:, :2] - origin) / scale).T
+        dz = (geometry.position_m[:, 2] - geometry.emitter_height_m) / scale
+        A = np.column_stack([-2 * x, -2 * y, np.ones_like(x)])
+        b = (ranges[i] / scale) ** 2 - x**2 - y**2 - dz**2
+        reference, _, rank, singular = np.linalg.lstsq(A, b, rcond=RANK_RTOL)
+        assert solved.rank[i] == rank
+        tolerance = 1e-9 * singular[0] / singular[rank - 1] * (1.0 + np.abs(reference).max())
+        np.testing.assert_allclose(
+            (solved.position_m[i] - origin) / scale, reference[:2], rtol=0.0, atol=tolerance
+        )
+
+
+@pytest.mark.bits("one trial and a batch's row run the same code on the same arrays")
+@pytest.mark.parametrize("estimator", [LlsToa(), LlsRss(), LlsRss(reference="mean")], ids=repr)
+@pytest.mark.parametrize("scenario_name", ["turn", "paper-1m"])
+def test_estimate_is_the_batchs_row(estimator, scenario_name):
+    batch = simulate_trials(get_scenario(scenario_name), snr_db=0.0, seeds=trial_seeds(6, 30))
+    rngs = [np.random.default_rng(i) for i in range(30)]
+    columns = estimator.estimate_columns(batch, rngs=rngs)
+    again = [np.random.default_rng(i) for i in range(30)]
+    for i in range(30):
+        single, row = estimator.estimate(batch.trial(i), rng=again[i]), columns.estimate(i)
+        np.testing.assert_array_equal(single.position_m, row.position_m)
+        np.testing.assert_array_equal(single.candidates_m, row.candidates_m)
+        assert (single.message, single.ambiguous) == (row.message, row.ambiguous)
+        np.testing.assert_equal(single.diagnostics, row.diagnostics)
+    assert [r.bit_generator.state for r in rngs] == [r.bit_generator.state for r in again]
