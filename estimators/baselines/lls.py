@@ -407,7 +407,14 @@ class _LinearLs:
     """``estimate`` as the batch of one and ``estimate_batch`` of the LLS baselines."""
 
     name: ClassVar[str]
+    requires: ClassVar[frozenset[str]]
     frames: Frames
+
+    def capabilities(self) -> Capabilities:
+        """One unit in every row (m², or dB-derived m²): unit-invariant; trials in batch."""
+        return Capabilities(
+            modalities=self.requires, frames=self.frames, unit_invariant=True, batch=True
+        )
 
     def _columns(
         self, batch: MeasurementBatch, rngs: Sequence[np.random.Generator | None] | None
@@ -457,12 +464,6 @@ class LlsToa(_LinearLs):
     def __post_init__(self) -> None:
         _check_frames(self.frames)
 
-    def capabilities(self) -> Capabilities:
-        """One unit in every row (m², or dB-derived m²): unit-invariant; trials in batch."""
-        return Capabilities(
-            modalities=self.requires, frames=self.frames, unit_invariant=True, batch=True
-        )
-
     def _columns(
         self, batch: MeasurementBatch, rngs: Sequence[np.random.Generator | None] | None
     ) -> BatchEstimates:
@@ -495,12 +496,6 @@ class LlsRss(_LinearLs):
         _check_frames(self.frames)
         if self.reference not in ("strongest", "mean"):
             raise ValueError(f"reference: expected 'strongest' or 'mean', got {self.reference!r}")
-
-    def capabilities(self) -> Capabilities:
-        """One unit in every row (m², or dB-derived m²): unit-invariant; trials in batch."""
-        return Capabilities(
-            modalities=self.requires, frames=self.frames, unit_invariant=True, batch=True
-        )
 
     def _columns(
         self, batch: MeasurementBatch, rngs: Sequence[np.random.Generator | None] | None
