@@ -577,18 +577,24 @@ class MeasurementSet:
         return None if self.toa_s is None else self.speed_of_light_mps * self.toa_s
 
     def take(self, mask: NDArray[np.bool_]) -> MeasurementSet:
-        """The samples where ``mask`` is true."""
+        """The samples where ``mask`` (N,) is true.
+
+        Not checked again: every check of ``__post_init__`` holds sample by sample or along a
+        straight frame, so it holds for any subset of samples that passed it (the filters take
+        a frame of the data at every update)."""
         mask = np.asarray(mask, dtype=bool)
+        if mask.shape != (self.n_samples,):
+            raise ValueError(f"mask: expected shape ({self.n_samples},), got {mask.shape}")
         if not mask.any():
             raise ValueError("samples: the selection is empty")
-        changes: dict[str, Any] = {
-            name: getattr(self, name)[mask]
-            for name in ("frame", "time_s", "position_m", "velocity_mps")
-        }
-        for name in MEASURED:
+        subset = copy.copy(self)
+        for name in ("frame", "time_s", "position_m", "velocity_mps", *MEASURED):
             value = getattr(self, name)
-            changes[name] = None if value is None else value[mask]
-        return replace(self, **changes)
+            if value is not None:
+                value = value[mask]
+                value.flags.writeable = False
+                object.__setattr__(subset, name, value)
+        return subset
 
     def select_frames(self, frames: str | Sequence[int]) -> MeasurementSet:
         """``"all"``, ``"last"``, or the listed frame indices."""

@@ -270,3 +270,26 @@ def test_noise_at_snr_scales_every_sigma() -> None:
     assert noise.rss_db == pytest.approx(0.4, rel=1e-15)
     assert NoiseSigmas(toa_s=1.0).at_snr(-6.0).doppler_hz is None
     assert get_scenario("paper").gamma_per_m == 1.0
+
+
+def test_a_subset_of_samples_is_the_checked_subset_without_checking_again() -> None:
+    """``take`` keeps the fields of a fresh MeasurementSet of those samples (which runs every
+    check), read-only, and names the field of a mask of the wrong shape."""
+    import dataclasses
+
+    from scenarios.catalog import get_scenario
+    from scenarios.simulate import simulate
+
+    data = simulate(get_scenario("turn-noncooperative"), seed=3)
+    mask = (data.frame == data.frame[-1]) & (np.arange(data.n_samples) % 2 == 0)
+    subset = data.take(mask)
+    fields = ("frame", "time_s", "position_m", "velocity_mps", "doppler_hz", "toa_s", "rss_dbm")
+    fresh = dataclasses.replace(data, **{name: getattr(subset, name) for name in fields})
+    for field in dataclasses.fields(MeasurementSet):
+        np.testing.assert_array_equal(getattr(subset, field.name), getattr(fresh, field.name))
+    assert not subset.position_m.flags.writeable and not subset.toa_s.flags.writeable
+    assert data.n_samples == 20 and subset.n_samples == 5
+    with pytest.raises(ValueError, match=r"^mask: expected shape \(20,\), got \(3,\)"):
+        data.take(np.ones(3, dtype=bool))
+    with pytest.raises(ValueError, match=r"^samples: the selection is empty"):
+        data.take(np.zeros(20, dtype=bool))
