@@ -247,6 +247,10 @@ def _run_on_loky(tasks: list[Task], workers: int) -> Iterator[TaskResult]:
                     outcomes.close()
 
 
+FEEDER_JOIN_S = 1.0
+"""How long :func:`release_workers` waits for a closed queue's feeder thread to end."""
+
+
 def release_workers() -> None:
     """Shut down the worker processes loky keeps for the next run, and the threads that tend
     them, if this process has them: a process that forks (the report's figures and
@@ -259,6 +263,10 @@ def release_workers() -> None:
     from joblib.externals.loky import get_reusable_executor
 
     get_reusable_executor(reuse=True).shutdown(wait=True, kill_workers=True)
+    # the pool's call queue hands its feeder thread the shutdown and lets it end on its own
+    for thread in threading.enumerate():
+        if thread.name == "QueueFeederThread":
+            thread.join(timeout=FEEDER_JOIN_S)
 
 
 def _run_on_dask(tasks: list[Task], scheduler: str) -> Iterator[TaskResult]:

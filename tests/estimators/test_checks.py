@@ -481,13 +481,17 @@ class DeclaredClsAsPrinted(ClsAsPrinted):
 @dataclass(frozen=True, kw_only=True)
 class DeclaredLlsToa(LlsToa):
     def capabilities(self) -> Capabilities:
-        return Capabilities(modalities=frozenset({"toa"}), frames=self.frames, unit_invariant=True)
+        return Capabilities(
+            modalities=frozenset({"toa"}), frames=self.frames, unit_invariant=True, batch=True
+        )
 
 
 @dataclass(frozen=True, kw_only=True)
 class DeclaredLlsRss(LlsRss):
     def capabilities(self) -> Capabilities:
-        return Capabilities(modalities=frozenset({"rss"}), frames=self.frames, unit_invariant=True)
+        return Capabilities(
+            modalities=frozenset({"rss"}), frames=self.frames, unit_invariant=True, batch=True
+        )
 
 
 @dataclass(frozen=True, kw_only=True)

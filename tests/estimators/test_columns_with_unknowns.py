@@ -52,6 +52,8 @@ ESTIMATORS = {
     "sdp-cls": ("sdp-cls", {}),
     "ml": ("ml", {}),
     "ml-doppler": ("ml", {"use_toa": False}),
+    "lls-toa": ("lls-toa", {}),
+    "lls-rss": ("lls-rss", {}),
 }
 """Every built-in with ``estimate_columns``, with the options that change what it does with
 unknowns."""
