@@ -406,10 +406,8 @@ def system_of_trial(
 
     A = np.concatenate(
         [
-            np.column_stack(
-                [column(b.ax, b.n_rows), column(b.ay, b.n_rows), column(b.az, b.n_rows)]
-            )
-            for b in blocks
+            np.column_stack([column(part, block.n_rows) for part in (block.ax, block.ay, block.az)])
+            for block in blocks
         ]
     )
     b = np.concatenate([block.b[:, 0] for block in blocks])
