@@ -332,3 +332,25 @@ def check_rngs(rngs: Sequence[np.random.Generator | None] | None, n: int) -> lis
         for rng in rngs:
             check_rng(rng)
     return list(rngs)
+
+
+class EstimatesOfColumns:
+    """``estimate_batch`` of an estimator that computes ``estimate_columns``: the same columns
+    as one :class:`~estimators.base.Estimate` per trial (written once for the built-ins)."""
+
+    def estimate_columns(
+        self,
+        batch: Any,
+        *,
+        rngs: Sequence[np.random.Generator | None] | None = None,
+    ) -> BatchEstimates:
+        raise NotImplementedError
+
+    def estimate_batch(
+        self,
+        batch: Any,
+        *,
+        rngs: Sequence[np.random.Generator | None] | None = None,
+    ) -> list[Estimate]:
+        """``estimate`` of every trial (trial ``i`` with ``rngs[i]``), solved together."""
+        return self.estimate_columns(batch, rngs=rngs).to_estimates()

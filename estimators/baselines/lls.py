@@ -34,7 +34,7 @@ from estimators.base import (
     require_batch,
     require_modalities,
 )
-from estimators.batch import BatchEstimates, check_rngs
+from estimators.batch import BatchEstimates, EstimatesOfColumns, check_rngs
 from estimators.closed_form.cls_batch import draw_tie_breaks
 from estimators.closed_form.cls_rows import LocalFrame
 from estimators.closed_form.gtrs_rank import row_dot
@@ -403,7 +403,7 @@ def _rank_message(rank: int, n_unknowns: int) -> str:
     )
 
 
-class _LinearLs:
+class _LinearLs(EstimatesOfColumns):
     """``estimate`` as the batch of one and ``estimate_batch`` of the LLS baselines."""
 
     name: ClassVar[str]
@@ -425,15 +425,6 @@ class _LinearLs:
         require_modalities(self, data)
         check_rng(rng)
         return self.estimate_columns(MeasurementBatch.of_one(data), rngs=[rng]).estimate(0)
-
-    def estimate_batch(
-        self,
-        batch: MeasurementBatch,
-        *,
-        rngs: Sequence[np.random.Generator | None] | None = None,
-    ) -> list[Estimate]:
-        """``estimate`` of every trial (trial ``i`` with ``rngs[i]``), solved together."""
-        return self.estimate_columns(batch, rngs=rngs).to_estimates()
 
     def estimate_columns(
         self,

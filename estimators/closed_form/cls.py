@@ -56,7 +56,7 @@ from estimators.base import (
     require_batch,
     require_modalities,
 )
-from estimators.batch import BatchEstimates
+from estimators.batch import BatchEstimates, EstimatesOfColumns
 from estimators.closed_form.cls_batch import estimate_columns, estimate_trial, system_of_trial
 from estimators.closed_form.cls_rows import (
     LocalFrame,
@@ -203,7 +203,7 @@ def _declared(estimator: _Batches) -> Capabilities:
     return estimator._declare()
 
 
-class _Batches:
+class _Batches(EstimatesOfColumns):
     """``estimate``, ``estimate_batch`` and ``estimate_columns`` of the closed forms.
 
     ``estimate`` is the batch's answer for a batch of one: the same vectorised solve
@@ -274,15 +274,6 @@ class _Batches:
             self.side_prior_m,
             **self._options(data),
         )
-
-    def estimate_batch(
-        self,
-        batch: MeasurementBatch,
-        *,
-        rngs: Sequence[np.random.Generator | None] | None = None,
-    ) -> list[Estimate]:
-        """``estimate`` of every trial (trial ``i`` with ``rngs[i]``), solved together."""
-        return self.estimate_columns(batch, rngs=rngs).to_estimates()
 
     def estimate_columns(
         self,

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from estimators.base import Capabilities, Estimate, check_side_prior, require_modalities
-from estimators.batch import BatchEstimates
+from estimators.batch import BatchEstimates, EstimatesOfColumns
 from estimators.goodness_of_fit import with_fit, with_fit_columns
 from estimators.ml.ml_batch import solve_batch
 from estimators.ml.ml_residuals import ResidualModel
@@ -63,7 +63,7 @@ def whitened_residual_jacobian(
 
 
 @dataclass(frozen=True, kw_only=True)
-class MaximumLikelihood:
+class MaximumLikelihood(EstimatesOfColumns):
     """Maximum likelihood on the raw measurements, started from every CLS candidate (MATH §10).
 
     Parameters
@@ -138,10 +138,6 @@ class MaximumLikelihood:
             unit_invariant=True,
             unknowns=frozenset(NUISANCE_PARAMETERS),  # profiled out (MATH §15)
         )
-
-    def estimate_batch(self, batch: MeasurementBatch, *, rngs: Rngs = None) -> list[Estimate]:
-        """``estimate`` of every trial (trial ``i`` with ``rngs[i]``), solved together."""
-        return self.estimate_columns(batch, rngs=rngs).to_estimates()
 
     def estimate_columns(self, batch: MeasurementBatch, *, rngs: Rngs = None) -> BatchEstimates:
         """``estimate_batch`` as columns (:func:`estimators.ml.ml_batch.solve_batch`)."""
