@@ -168,6 +168,7 @@ class NuisanceFrame:
     _joint: FrameModel | None = field(init=False, repr=False)
     _base_rows: NDArray[np.intp] = field(init=False, repr=False)
     _reference_rows: NDArray[np.intp] = field(init=False, repr=False)
+    _last: list[Any] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         # the 0/1 columns A once, and the frame with its reference sample as ONE model: every
@@ -184,6 +185,8 @@ class NuisanceFrame:
         object.__setattr__(self, "_joint", joint)
         object.__setattr__(self, "_base_rows", base_rows)
         object.__setattr__(self, "_reference_rows", reference_rows)
+        # the last single state evaluated, [state bytes, h, ∂h/∂θ or None] (see _rows)
+        object.__setattr__(self, "_last", [b"", None, None])
 
     # -- the frame's data, as FrameModel ------------------------------------------------------
 
@@ -251,6 +254,12 @@ class NuisanceFrame:
         the samples and the reference (:meth:`FrameModel.components`): each nuisance state
         shifts its block of rows, its reference value (and gradient) subtracted."""
         theta = np.asarray(state, dtype=float)
+        # an iterated update evaluates its accepted point again (its cost, the convergence check,
+        # the information): one state's values are kept and given back for the same bits
+        key = theta.tobytes() if theta.ndim == 1 else None
+        last = self._last
+        if key is not None and last[0] == key and (last[2] is not None or not with_jacobian):
+            return last[1], last[2] if with_jacobian else None
         model = self.base if self._joint is None else self._joint
         doppler, ranges = model.components(theta[..., :2], int(with_jacobian))
         k = self.n_samples
@@ -266,12 +275,15 @@ class NuisanceFrame:
                 block[1:] -= reference[1:, ..., None]
             block[0] += shift[..., None]
         predicted = rows[0]
-        if not with_jacobian:
-            return predicted, None
-        jacobian = np.empty((*predicted.shape, self.n_state))
-        jacobian[..., 0] = rows[1]
-        jacobian[..., 1] = rows[2]
-        jacobian[..., 2:] = self._columns
+        jacobian = None
+        if with_jacobian:
+            jacobian = np.empty((*predicted.shape, self.n_state))
+            jacobian[..., 0] = rows[1]
+            jacobian[..., 1] = rows[2]
+            jacobian[..., 2:] = self._columns
+        if key is not None:
+            read_only(predicted, *(() if jacobian is None else (jacobian,)))
+            last[:] = [key, predicted, jacobian]
         return predicted, jacobian
 
     def predicted(self, state: ArrayLike) -> FloatArray:
