@@ -188,6 +188,37 @@ def test_many_states_evaluate_as_each_alone(unknowns) -> None:
     np.testing.assert_allclose(predicted, expected, rtol=1e-14)
 
 
+@pytest.mark.parametrize("reference", [False, True], ids=["physical", "referenced"])
+def test_a_state_evaluated_again_gives_its_own_values(reference) -> None:
+    """The model keeps its last single state's values (an iterated update evaluates its accepted
+    point again): whatever was evaluated in between (another state, a batch, ``h`` alone), every
+    evaluation equals a fresh model's at that state, and what it gives back cannot be written."""
+    data = simulate(noncooperative("paper-1m-turn", BOTH), seed=5)
+    model = models(data, reference)[6]
+    truth = true_state(data, BOTH)
+    first = truth + np.array([3.0, -2.0, 1.5, 4.0])
+    second = truth + np.array([-7.0, 5.0, -2.5, 1.0])
+    sequence = [
+        ("predicted", first),
+        ("predicted_and_jacobian", first),
+        ("predicted", first),
+        ("predicted_and_jacobian", second),
+        ("predicted_and_jacobian", np.array([first, second])),
+        ("predicted", first),
+        ("predicted_and_jacobian", first),
+        ("predicted_and_jacobian", second),
+    ]
+    for method, state in sequence:
+        fresh = getattr(models(data, reference)[6], method)(state)
+        got = getattr(model, method)(state)
+        got, fresh = (got, fresh) if method == "predicted_and_jacobian" else ((got,), (fresh,))
+        for value, expected in zip(got, fresh, strict=True):
+            np.testing.assert_array_equal(value, expected)  # same code, same arrays
+            if np.ndim(state) == 1:
+                with pytest.raises(ValueError, match="read-only"):
+                    value[0] = 0.0
+
+
 def test_static_graph_stacks_its_frames_into_one_factor() -> None:
     """A static emitter's graph holds one factor of the frames stacked
     (:func:`~estimators.sequential.nuisance_states.stacked_frames`): its error and its
