@@ -164,7 +164,7 @@ def profile_scan(frame: NuisanceFrame, start_m: ArrayLike) -> FloatArray:
         step = -np.einsum("mk,mk->m", derivative, e) / np.maximum(curvature, 1e-300)
         a = a + np.clip(step, -0.25 * length, 0.25 * length)
     points = origin + a[:, None] * along + c[:, None] * normal
-    e, _ = profiled_errors(frame, points)
+    e, _ = profiled_along(frame, points, along)  # the residuals alone (a cheap derivative)
     chi2 = np.einsum("mk,mk->m", e, e)
     chi2[~np.isfinite(chi2)] = np.inf
     return points[int(np.argmin(chi2))]
@@ -179,7 +179,7 @@ def straight_frame_starts(frame: NuisanceFrame) -> FloatArray:
     origin, _, normal, _ = _track_frame(frame)
     closed = closed_form_point(frame)
     points = np.array([closed, profile_scan(frame, closed)])
-    e, _ = profiled_errors(frame, points)
+    e, _ = profiled_along(frame, points, normal)
     chi2 = np.einsum("mk,mk->m", e, e)
     best = points[1] if chi2[1] < chi2[0] else points[0]  # ties: the exact closed form
     offset = best - origin
