@@ -83,7 +83,7 @@ def _judged_interval(end: str) -> Callable[[Groups], FloatArray]:
 
 
 def _nees_band(g: Groups) -> tuple[FloatArray, FloatArray]:
-    return nees_band(g["n_nees"], g.confidence)
+    return nees_band(g["n_nees"], g.confidence, dof=g.dimension)
 
 
 def _verdicts(g: Groups) -> tuple[ArrayLike, list[str]]:

@@ -60,8 +60,10 @@ from comparison.trial_rows import (
     FLIGHTS,
     POINT_COLUMNS,
     POINTS,
+    SCORED_DIMENSION,
     TRIALS,
     Table,
+    matrix_columns,
     with_swept,
 )
 
@@ -74,9 +76,7 @@ _ADDED_LATER: tuple[tuple[Table, tuple[str, ...]], ...] = (
             "nees_side_resolved",
             "x_side_resolved_m",
             "y_side_resolved_m",
-            "crlb_xx_m2",
-            "crlb_xy_m2",
-            "crlb_yy_m2",
+            *matrix_columns("crlb", SCORED_DIMENSION),
             "fit_chi2",
             "fit_dof",
         ),
