@@ -325,7 +325,7 @@ class BiasIntervals:
 
     Attributes
     ----------
-    mean_m : (m, 2)
+    mean_m : (m, d)
         The mean error vector.
     low_m, high_m : (m,)
         The 95% interval of its norm (:func:`bias_intervals`).
@@ -340,7 +340,8 @@ class BiasIntervals:
 
     @property
     def norm_m(self) -> FloatArray:
-        return np.hypot(self.mean_m[:, 0], self.mean_m[:, 1])
+        """``‖mean_m‖``: ``hypot`` folded over the coordinates (``hypot(x, y)`` for ``d = 2``)."""
+        return np.hypot.reduce(self.mean_m, axis=1)
 
     def _relative(self, value_m: FloatArray) -> FloatArray:
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -382,7 +382,7 @@ EXTRA_METRICS: tuple[Metric, ...] = (
         "RMSE/√CRLB along the CRLB's major principal axis (the judged error); an unbiased "
         "estimator is at or above 1 along every axis",
     ),
-    *_axis_metrics("minor", 1, "RMSE/√CRLB along the CRLB's minor principal axis"),
+    *_axis_metrics("minor", -1, "RMSE/√CRLB along the CRLB's minor principal axis"),
     Metric(
         "tail_share",
         "1",

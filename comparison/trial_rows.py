@@ -157,6 +157,20 @@ def coordinate_columns(template: str, dimension: int) -> tuple[str, ...]:
     return tuple(template.format(name) for name in COORDINATES[:dimension])
 
 
+def dimension_columns(dimension: int) -> tuple[str, ...]:
+    """The trial columns named per coordinate or matrix entry for positions of ``dimension``
+    coordinates: the truth's, the position's and the side-resolved position's coordinates, the
+    covariance's and the CRLB's entries. With ``d = 3`` these are the columns a trial frame may
+    hold beyond :data:`TRIAL_COLUMNS` that are no swept parameter."""
+    return (
+        *coordinate_columns("truth_{}_m", dimension),
+        *coordinate_columns("{}_m", dimension),
+        *coordinate_columns("{}_side_resolved_m", dimension),
+        *matrix_columns("cov", dimension),
+        *matrix_columns("crlb", dimension),
+    )
+
+
 def matrix_values(matrix: ArrayLike) -> list[NDArray[np.float64]]:
     """The entries of symmetric matrices ``(..., d, d)`` in the order of
     :func:`matrix_columns`, each of shape ``(...)``."""

@@ -161,11 +161,18 @@ def check_covariance(covariance_m2: ArrayLike | None, dimension: int = 2) -> Flo
         return None
     d = dimension
     try:
-        matrix = np.array(covariance_m2, dtype=float).reshape(d, d)
+        array = np.array(covariance_m2, dtype=float)
     except (TypeError, ValueError):
         raise ValueError(
-            f"covariance_m2: expected a ({d}, {d}) matrix or None, got {covariance_m2!r}"
+            f"covariance_m2: expected a ({d}, {d}) matrix of numbers or None, got "
+            f"{type(covariance_m2).__name__}"
         ) from None
+    if array.size != d * d:
+        raise ValueError(
+            f"covariance_m2: expected a ({d}, {d}) matrix or None, got shape {array.shape}; "
+            "give the estimate's covariance of the candidates' coordinates"
+        )
+    matrix = array.reshape(d, d)
     if not np.all(np.isfinite(matrix)):
         return None  # an estimator without a usable covariance: as if none was given
     return 0.5 * (matrix + matrix.T)
