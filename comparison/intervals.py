@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import stats
 
+from comparison.scoring import distance_m
 from comparison.trial_rows import SCORED_DIMENSION
 
 FloatArray = NDArray[np.float64]
@@ -340,8 +341,8 @@ class BiasIntervals:
 
     @property
     def norm_m(self) -> FloatArray:
-        """``‖mean_m‖``: ``hypot`` folded over the coordinates (``hypot(x, y)`` for ``d = 2``)."""
-        return np.hypot.reduce(self.mean_m, axis=1)
+        """``‖mean_m‖`` (:func:`~comparison.scoring.distance_m`)."""
+        return distance_m(self.mean_m)
 
     def _relative(self, value_m: FloatArray) -> FloatArray:
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -427,7 +428,7 @@ def bias_intervals(
             np.nan,
         )
         reach = np.sqrt(t2 * np.maximum(largest, 0.0) / count)
-    norm = np.hypot.reduce(mean, axis=1)
+    norm = distance_m(mean)
     mean[~valid] = np.nan
     return BiasIntervals(
         mean_m=mean,

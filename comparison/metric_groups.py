@@ -147,6 +147,7 @@ class Groups:
     ) -> None:
         self.trials = trials
         self.dimension = position_dimension_of(trials.columns)
+        self.readable = frozenset(summary_trial_columns(self.dimension))
         self.n_bootstrap = n_bootstrap
         self.confidence = confidence
         self.success = trials["success"].to_numpy(dtype=bool)
@@ -197,8 +198,8 @@ class Groups:
 
     def column(self, column: str) -> FloatArray:
         """A trial column as floats: NaN for an optional one missing in an older run folder."""
-        if column not in summary_trial_columns(self.dimension):
-            raise KeyError(f"{column}: add it to SUMMARY_TRIAL_COLUMNS so chunked reads load it")
+        if column not in self.readable:
+            raise KeyError(f"{column}: add it to summary_trial_columns so chunked reads load it")
         if column not in self.trials.columns:
             return np.full(len(self.trials), np.nan)
         return self.trials[column].to_numpy(dtype=float)

@@ -149,10 +149,14 @@ def dimension_message(dimension: int, scored: int = SCORED_DIMENSION) -> str:
 
 
 def distance_m(offset_m: ArrayLike) -> NDArray[np.float64]:
-    """The Euclidean length of offsets ``(..., d)``, shape ``(...)``: ``hypot`` folded over the
-    coordinates, ``hypot(hypot(x, y), z)`` (no overflow or underflow of the squares; for
-    ``d = 2`` exactly ``hypot(x, y)``)."""
-    return np.hypot.reduce(np.asarray(offset_m, dtype=float), axis=-1)
+    """The Euclidean length of offsets ``(..., d)``, ``d ≥ 2``, shape ``(...)``: ``hypot``
+    folded over the coordinates, ``hypot(hypot(x, y), z)`` (no overflow or underflow of the
+    squares)."""
+    offset = np.asarray(offset_m, dtype=float)
+    length = np.hypot(offset[..., 0], offset[..., 1])
+    for k in range(2, offset.shape[-1]):
+        length = np.hypot(length, offset[..., k])
+    return length
 
 
 def mirror_reflection(direction: ArrayLike, dimension: int) -> NDArray[np.float64]:
@@ -415,7 +419,8 @@ def _candidates_texts(candidates: NDArray[np.float64], count: NDArray[np.int64])
     k, d = candidates.shape[1], candidates.shape[2]
     slot = np.arange(k)[None, :] < count[:, None]
     texts = _float_texts(candidates[slot].reshape(-1))
-    points = ["[" + ", ".join(texts[i : i + d]) + "]" for i in range(0, len(texts), d)]
+    coordinates = zip(*(texts[c::d] for c in range(d)), strict=True)
+    points = list(map("[{}]".format, map(", ".join, coordinates)))
     ends = np.cumsum(count).tolist()
     starts = [0, *ends[:-1]]
     return ["[" + ", ".join(points[a:b]) + "]" for a, b in zip(starts, ends, strict=True)]

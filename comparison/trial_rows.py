@@ -27,6 +27,7 @@ crlb_zz_m2`` after their 2-D namesakes.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -128,6 +129,7 @@ emitter being at a known height (:func:`coordinate_columns` and :func:`matrix_co
 ``d`` name the columns of :data:`POINTS` and :data:`TRIALS`)."""
 
 
+@functools.cache
 def matrix_entries(dimension: int) -> tuple[tuple[int, int], ...]:
     """The ``(i, j)``, ``i ≤ j``, of a symmetric ``d × d`` matrix that its columns hold, in column
     order: the upper triangle column by column, ``(0, 0), (0, 1), (1, 1)`` then ``(0, 2), (1, 2),
@@ -140,6 +142,7 @@ def matrix_entries(dimension: int) -> tuple[tuple[int, int], ...]:
     return tuple((i, j) for j in range(dimension) for i in range(j + 1))
 
 
+@functools.cache
 def matrix_columns(prefix: str, dimension: int) -> tuple[str, ...]:
     """The column names of a symmetric ``d × d`` matrix in m² (a covariance ``"cov"``, a CRLB
     ``"crlb"``), one per entry of :func:`matrix_entries`: ``crlb_xx_m2, crlb_xy_m2,
@@ -150,6 +153,7 @@ def matrix_columns(prefix: str, dimension: int) -> tuple[str, ...]:
     )
 
 
+@functools.cache
 def coordinate_columns(template: str, dimension: int) -> tuple[str, ...]:
     """The column names of a position's coordinates: ``template`` with ``{}`` replaced by each
     coordinate's name (``"truth_{}_m"`` → ``truth_x_m, truth_y_m`` and, for ``d = 3``,
@@ -157,6 +161,7 @@ def coordinate_columns(template: str, dimension: int) -> tuple[str, ...]:
     return tuple(template.format(name) for name in COORDINATES[:dimension])
 
 
+@functools.cache
 def dimension_columns(dimension: int) -> tuple[str, ...]:
     """The trial columns named per coordinate or matrix entry for positions of ``dimension``
     coordinates: the truth's, the position's and the side-resolved position's coordinates, the
