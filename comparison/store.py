@@ -63,6 +63,7 @@ from comparison.trial_rows import (
     SCORED_DIMENSION,
     TRIALS,
     Table,
+    coordinate_columns,
     matrix_columns,
     with_swept,
 )
@@ -74,8 +75,7 @@ _ADDED_LATER: tuple[tuple[Table, tuple[str, ...]], ...] = (
             "planner",
             "planner_index",
             "nees_side_resolved",
-            "x_side_resolved_m",
-            "y_side_resolved_m",
+            *coordinate_columns("{}_side_resolved_m", SCORED_DIMENSION),
             *matrix_columns("crlb", SCORED_DIMENSION),
             "fit_chi2",
             "fit_dof",
