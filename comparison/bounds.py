@@ -22,7 +22,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from comparison.crlb import crlb_m2, rmse_bound_m
-from comparison.trial_rows import POINT_CRLB_SETS, POINT_KNOWN_CRLB_SETS
+from comparison.trial_rows import (
+    POINT_CRLB_SETS,
+    POINT_KNOWN_CRLB_SETS,
+    SCORED_DIMENSION,
+    coordinate_columns,
+    matrix_values,
+)
 from estimators.base import Estimator, capabilities_of
 from scenarios.fisher import InformationStatistics, frame_statistics
 from scenarios.measurement_model import slant_range_m
@@ -58,50 +64,77 @@ class PointInfo:
     def n_frames(self) -> int:
         return self.scenario.flight.n_frames
 
+    @property
+    def dimension(self) -> int:
+        """``d``: the coordinates of the scenario's emitter, those the bound is of."""
+        return int(np.size(self.scenario.emitter_m))
+
     def rmse_bound_m(self, modalities: tuple[str, ...], frame: int, frames: Any = "all") -> float:
         """√trace(CRLB) of ``modalities`` over the frames an estimator uses up to ``frame``."""
-        return bound_of(self.information.get(modalities), frame, frames)
+        return bound_of(self.information.get(modalities), frame, frames, self.dimension)
 
     def bound_columns(
         self, modalities: tuple[str, ...], frame: int, frames: Any = "all"
     ) -> tuple[float, ...]:
         """:func:`bound_columns` of ``modalities`` over the frames an estimator uses."""
-        return bound_columns(self.information.get(modalities), frame, frames)
+        return bound_columns(self.information.get(modalities), frame, frames, self.dimension)
 
 
-def information_of(info: Information | None, frame: int, frames: Any = "all") -> np.ndarray:
-    """The 2×2 Fisher information of the frames an estimator uses up to ``frame`` (``"all"``,
-    ``"last"`` or listed frames; MATH §8): that of the union of their samples, any nuisance
-    parameter one over all of them (MATH §15). NaN without information or frames."""
+def information_of(
+    info: Information | None, frame: int, frames: Any = "all", dimension: int | None = None
+) -> np.ndarray:
+    """The ``d × d`` Fisher information of the frames an estimator uses up to ``frame``
+    (``"all"``, ``"last"`` or listed frames; MATH §8): that of the union of their samples, any
+    nuisance parameter one over all of them (MATH §15). NaN without information or frames.
+
+    ``d`` is the information's own (:attr:`~scenarios.fisher.InformationStatistics.dimension`);
+    ``dimension`` gives it when there is no information (the emitter's coordinates;
+    :data:`~comparison.trial_rows.SCORED_DIMENSION` when not given), and must agree with it
+    otherwise."""
+    d = _dimension(info, dimension)
     if info is None:
-        return np.full((2, 2), np.nan)
+        return np.full((d, d), np.nan)
     if isinstance(frames, str) and frames == "last":
         chosen = [frame]
     elif isinstance(frames, Sequence) and not isinstance(frames, str):
         chosen = [int(f) for f in frames if 0 <= int(f) <= frame]
         if not chosen:
-            return np.full((2, 2), np.nan)
+            return np.full((d, d), np.nan)
     else:
         chosen = list(range(frame + 1))
     return info.information(chosen)
 
 
-def bound_of(info: Information | None, frame: int, frames: Any = "all") -> float:
+def _dimension(info: Information | None, dimension: int | None) -> int:
+    """The bound's ``d``: the information's, else ``dimension``, else the tables'."""
+    if info is None:
+        return SCORED_DIMENSION if dimension is None else int(dimension)
+    if dimension is not None and dimension != info.dimension:
+        raise ValueError(
+            f"dimension: the information is of {info.dimension} coordinates, not {dimension}; "
+            "compute it at the emitter's own coordinates"
+        )
+    return info.dimension
+
+
+def bound_of(
+    info: Information | None, frame: int, frames: Any = "all", dimension: int | None = None
+) -> float:
     """√trace(CRLB) over the frames an estimator uses up to ``frame`` (:func:`information_of`)."""
-    return float(rmse_bound_m(information_of(info, frame, frames)))
+    return float(rmse_bound_m(information_of(info, frame, frames, dimension)))
 
 
-def bound_columns(info: Information | None, frame: int, frames: Any = "all") -> tuple[float, ...]:
-    """The :data:`~comparison.trial_rows.BOUND_COLUMNS` of a row: ``√trace(CRLB)`` and the
-    CRLB's ``xx, xy, yy`` in m² (MATH §8), over the frames an estimator uses up to ``frame``;
-    NaN where the information is singular or absent."""
-    crlb = crlb_m2(information_of(info, frame, frames))
-    return (
-        float(np.sqrt(crlb[0, 0] + crlb[1, 1])),
-        float(crlb[0, 0]),
-        float(crlb[0, 1]),
-        float(crlb[1, 1]),
-    )
+def bound_columns(
+    info: Information | None, frame: int, frames: Any = "all", dimension: int | None = None
+) -> tuple[float, ...]:
+    """A row's bound columns: ``√trace(CRLB)``, then the CRLB's entries in m² in the order of
+    :func:`~comparison.trial_rows.matrix_columns` (``xx, xy, yy`` for ``d = 2``: the
+    :data:`~comparison.trial_rows.BOUND_COLUMNS`; for ``d = 3`` then ``xz, yz, zz``), over the
+    frames an estimator uses up to ``frame`` (MATH §8); NaN where the information is singular
+    or absent (``d`` as :func:`information_of` finds it)."""
+    crlb = crlb_m2(information_of(info, frame, frames, dimension))
+    entries = matrix_values(crlb)
+    return (float(np.sqrt(np.trace(crlb))), *(float(value) for value in entries))
 
 
 def _modality_key(modalities: Iterable[str]) -> tuple[str, ...]:
@@ -191,8 +224,7 @@ def point_rows(
                     "scenario_index": i,
                     "snr_db": info.snr_db,
                     **swept,
-                    "truth_x_m": truth[0],
-                    "truth_y_m": truth[1],
+                    **dict(zip(coordinate_columns("truth_{}_m", len(truth)), truth, strict=True)),
                     "range_scale_m": scale,
                     **bounds,
                 }

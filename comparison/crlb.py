@@ -1,4 +1,4 @@
-r"""Fisher information and the Cramér-Rao lower bound for the emitter's ``(x_s, y_s)`` (MATH §8).
+r"""Fisher information and the Cramér-Rao lower bound for the emitter's position (MATH §8).
 
 .. math::
 
@@ -9,8 +9,8 @@ r"""Fisher information and the Cramér-Rao lower bound for the emitter's ``(x_s,
 
 over the samples and the modalities used. The comparison's names for what
 :mod:`scenarios.fisher` computes (the one implementation, which planners and estimators use
-too): ``emitter_m`` of shape ``(..., 2)`` evaluates many emitter positions (a geometry map) in
-one call; per-frame and accumulated information come from :func:`fisher_information_per_frame`.
+too): ``emitter_m`` of shape ``(..., d)`` evaluates many emitter positions (a geometry map) in
+one call, ``d`` its coordinates (``(x_s, y_s)`` at a known height); per-frame and accumulated information come from :func:`fisher_information_per_frame`.
 
 Doppler alone gives a nonsingular ``J``: the paper's claim that one UAV cannot localise from
 Doppler alone is false (MATH §8).

@@ -29,6 +29,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import stats
 
+from comparison.scoring import distance_m
+from comparison.trial_rows import SCORED_DIMENSION
+
 FloatArray = NDArray[np.float64]
 
 TAIL_FRACTION = 0.01
@@ -38,7 +41,32 @@ DEFAULT_N_BOOTSTRAP = 2000
 """Bootstrap resamples per group."""
 
 AXIS_NAMES = ("major", "minor")
-"""The principal axes of the CRLB, largest variance first."""
+"""The principal axes of a 2×2 CRLB, largest variance first (:func:`axis_names` of 2)."""
+
+
+def axis_names(dimension: int) -> tuple[str, ...]:
+    """The principal axes of a ``d × d`` CRLB, largest variance first: ``major, minor`` for
+    ``d = 2``, ``major, middle, minor`` for ``d = 3``."""
+    if dimension == 2:
+        return AXIS_NAMES
+    if dimension == 3:
+        return ("major", "middle", "minor")
+    raise ValueError(f"dimension: principal axes are named for 2 or 3 coordinates, not {dimension}")
+
+
+def largest_eigenvalue(matrix: ArrayLike) -> FloatArray:
+    """The largest eigenvalue of symmetric matrices ``(..., d, d)``, shape ``(...)``; NaN where
+    an entry is not finite. ``d = 2`` in closed form, ``m + √(((a − d)/2)² + b²)`` with
+    ``m = (a + d)/2`` (``hypot`` against overflow); larger ones by ``eigvalsh``."""
+    S = np.asarray(matrix, dtype=float)
+    if S.shape[-1] == 2:
+        a, b, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 1]
+        return 0.5 * (a + d) + np.hypot(0.5 * (a - d), b)
+    largest = np.full(S.shape[:-2], np.nan)
+    finite = np.isfinite(S).all(axis=(-2, -1))
+    if finite.any():
+        largest[finite] = np.linalg.eigvalsh(S[finite])[..., -1]
+    return largest
 
 
 def short_number(value: float) -> str:
@@ -298,7 +326,7 @@ class BiasIntervals:
 
     Attributes
     ----------
-    mean_m : (m, 2)
+    mean_m : (m, d)
         The mean error vector.
     low_m, high_m : (m,)
         The 95% interval of its norm (:func:`bias_intervals`).
@@ -313,7 +341,8 @@ class BiasIntervals:
 
     @property
     def norm_m(self) -> FloatArray:
-        return np.hypot(self.mean_m[:, 0], self.mean_m[:, 1])
+        """``‖mean_m‖`` (:func:`~comparison.scoring.distance_m`)."""
+        return distance_m(self.mean_m)
 
     def _relative(self, value_m: FloatArray) -> FloatArray:
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -350,16 +379,18 @@ def bias_intervals(
 ) -> BiasIntervals:
     """The mean error of every group and a confidence interval of its norm.
 
-    Hotelling's region for the mean of ``n`` 2-vectors with sample covariance ``S`` is the
-    ellipse ``n (b − b̄)ᵀ S⁻¹ (b − b̄) ≤ T²``, ``T² = 2(n − 1)/(n − 2) F₂,ₙ₋₂(confidence)``
-    (Anderson 2003, sec. 5.3). It reaches at most ``r = √(T² λ_max(S)/n)`` from its centre, so
-    ``‖b‖`` lies in ``[max(‖b̄‖ − r, 0), ‖b̄‖ + r]`` with at least that confidence (the interval
-    of the norm over the ellipse's enclosing circle: conservative where ``S`` is elongated).
+    Hotelling's region for the mean of ``n`` ``d``-vectors with sample covariance ``S`` is the
+    ellipsoid ``n (b − b̄)ᵀ S⁻¹ (b − b̄) ≤ T²``,
+    ``T² = d(n − 1)/(n − d) F_{d,n−d}(confidence)`` (Anderson 2003, sec. 5.3). It reaches at
+    most ``r = √(T² λ_max(S)/n)`` from its centre, so ``‖b‖`` lies in
+    ``[max(‖b̄‖ − r, 0), ‖b̄‖ + r]`` with at least that confidence (the interval of the norm over
+    the ellipsoid's enclosing sphere: conservative where ``S`` is elongated).
 
     Parameters
     ----------
-    error_m : (n, 2)
-        Each trial's error vector; rows with a NaN (failed trials) are left out.
+    error_m : (n, d)
+        Each trial's error vector (``d`` its coordinates, 2 or 3); rows with a NaN (failed
+        trials) are left out.
     groups : (n,) int
     n_groups : int
     bound_m : (n_groups,)
@@ -369,32 +400,35 @@ def bias_intervals(
     Returns
     -------
     BiasIntervals
-        NaN for a group with fewer than three finite errors.
+        NaN for a group with fewer than ``d + 1`` finite errors.
     """
-    error = np.asarray(error_m, dtype=float).reshape(-1, 2)
+    error = np.asarray(error_m, dtype=float)
+    p = error.shape[-1]
+    error = error.reshape(-1, p)
     codes = np.asarray(groups, dtype=np.int64)
     keep = np.isfinite(error).all(axis=1)
     error, codes = error[keep], codes[keep]
     count = np.bincount(codes, minlength=n_groups).astype(float)
     with np.errstate(divide="ignore", invalid="ignore"):
         mean = np.stack(
-            [np.bincount(codes, weights=error[:, k], minlength=n_groups) / count for k in (0, 1)],
+            [np.bincount(codes, weights=error[:, k], minlength=n_groups) / count for k in range(p)],
             axis=1,
         )
         d = error - mean[codes]  # centred, so the covariance does not cancel
-        sxx, sxy, syy = (
-            np.bincount(codes, weights=a * b, minlength=n_groups) / (count - 1)
-            for a, b in ((d[:, 0], d[:, 0]), (d[:, 0], d[:, 1]), (d[:, 1], d[:, 1]))
-        )
-        largest = 0.5 * (sxx + syy) + np.hypot(0.5 * (sxx - syy), sxy)
-        valid = count >= 3
+        scatter = np.empty((n_groups, p, p))
+        for i in range(p):
+            for j in range(i, p):
+                entry = np.bincount(codes, weights=d[:, i] * d[:, j], minlength=n_groups)
+                scatter[:, i, j] = scatter[:, j, i] = entry / (count - 1)
+        valid = count >= p + 1
+        largest = np.where(valid, largest_eigenvalue(np.where(valid[:, None, None], scatter, 0)), 0)
         t2 = np.where(
             valid,
-            2 * (count - 1) / (count - 2) * stats.f.ppf(confidence, 2, np.maximum(count - 2, 1)),
+            p * (count - 1) / (count - p) * stats.f.ppf(confidence, p, np.maximum(count - p, 1)),
             np.nan,
         )
         reach = np.sqrt(t2 * np.maximum(largest, 0.0) / count)
-    norm = np.hypot(mean[:, 0], mean[:, 1])
+    norm = distance_m(mean)
     mean[~valid] = np.nan
     return BiasIntervals(
         mean_m=mean,
@@ -406,8 +440,8 @@ def bias_intervals(
 
 @dataclass(frozen=True, slots=True, eq=False)
 class AxisEfficiencies:
-    """The efficiency along each principal axis of the CRLB (:data:`AXIS_NAMES`), with its
-    95% interval: arrays of shape ``(m, 2)``."""
+    """The efficiency along each principal axis of the CRLB (:func:`axis_names`), with its
+    95% interval: arrays of shape ``(m, d)``."""
 
     efficiency: FloatArray
     low: FloatArray
@@ -423,12 +457,14 @@ def axis_squared_errors(error_m: ArrayLike, crlb_m2: ArrayLike) -> FloatArray:
     variance: ``(uₖᵀe)²/λₖ`` for the eigenpairs of the CRLB, largest ``λ`` first.
 
     For an unbiased efficient estimator each has mean 1; for any unbiased estimator at least
-    1, since ``E[eeᵀ] ⪰ CRLB``. Shapes: ``error_m (n, 2)``, ``crlb_m2 (n, 2, 2)`` → ``(n, 2)``;
+    1, since ``E[eeᵀ] ⪰ CRLB``. Shapes: ``error_m (n, d)``, ``crlb_m2 (n, d, d)`` → ``(n, d)``;
     NaN where the CRLB is not finite. Rows with the same CRLB (one flight for all trials) share
     one eigen-decomposition.
     """
-    error = np.asarray(error_m, dtype=float).reshape(-1, 2)
-    crlb = np.asarray(crlb_m2, dtype=float).reshape(-1, 2, 2)
+    crlb = np.asarray(crlb_m2, dtype=float)
+    d = crlb.shape[-1]
+    crlb = crlb.reshape(-1, d, d)
+    error = np.asarray(error_m, dtype=float).reshape(-1, d)
     if len(error) > AXIS_BLOCK_ROWS:  # the same numbers a block of rows at a time
         blocks = range(0, len(error), AXIS_BLOCK_ROWS)
         return np.concatenate(
@@ -437,12 +473,12 @@ def axis_squared_errors(error_m: ArrayLike, crlb_m2: ArrayLike) -> FloatArray:
                 for i in blocks
             ]
         )
-    out = np.full((len(error), 2), np.nan)
+    out = np.full((len(error), d), np.nan)
     finite = np.isfinite(crlb).all(axis=(1, 2))
     if not finite.any():
         return out
-    distinct, inverse = np.unique(crlb[finite].reshape(-1, 4), axis=0, return_inverse=True)
-    variances, axes = np.linalg.eigh(distinct.reshape(-1, 2, 2))
+    distinct, inverse = np.unique(crlb[finite].reshape(-1, d * d), axis=0, return_inverse=True)
+    variances, axes = np.linalg.eigh(distinct.reshape(-1, d, d))
     variances, axes = variances[:, ::-1], axes[:, :, ::-1]  # largest variance first
     along = np.einsum("nk,nkj->nj", error[finite], axes[inverse.reshape(-1)])
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -451,10 +487,11 @@ def axis_squared_errors(error_m: ArrayLike, crlb_m2: ArrayLike) -> FloatArray:
 
 
 def nees_band(
-    n: ArrayLike, confidence: float = 0.95, *, dof: int = 2
+    n: ArrayLike, confidence: float = 0.95, *, dof: int = SCORED_DIMENSION
 ) -> tuple[FloatArray, FloatArray]:
     """Two-sided interval for the mean of ``n`` independent NEES values of ``dof`` degrees of
-    freedom (the coordinates of the position: 2, or 3 with the height estimated).
+    freedom (the coordinates of the position ``d``: 2, or 3 with the height estimated; the
+    default is :data:`~comparison.trial_rows.SCORED_DIMENSION`).
 
     If the estimator's covariance is consistent, each NEES is χ²(dof) and ``n`` times their
     mean is χ²(dof·n) (Bar-Shalom, Li & Kirubarajan 2001, sec. 5.4.2), so the mean lies in

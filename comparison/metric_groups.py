@@ -11,7 +11,7 @@ flagged ambiguous, MATH §7), the bootstrap intervals, the bias and principal-ax
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from functools import cached_property
 from typing import TypeVar
 
@@ -23,32 +23,69 @@ from pandas.api.typing import SeriesGroupBy
 from comparison.intervals import (
     AxisEfficiencies,
     BiasIntervals,
+    axis_names,
     axis_squared_errors,
     bias_intervals,
     studentized_bootstrap_interval,
 )
-from comparison.trial_rows import REQUIRED_TRIAL_COLUMNS
+from comparison.trial_rows import (
+    COORDINATES,
+    REQUIRED_TRIAL_COLUMNS,
+    SCORED_DIMENSION,
+    coordinate_columns,
+    matrix_columns,
+    matrix_of_values,
+)
 
 FloatArray = NDArray[np.float64]
 _Shared = TypeVar("_Shared")
 
-SUMMARY_TRIAL_COLUMNS: tuple[str, ...] = (
-    *REQUIRED_TRIAL_COLUMNS,
-    "planner",
-    "trial",
-    "x_side_resolved_m",
-    "y_side_resolved_m",
-    "crlb_xx_m2",
-    "crlb_xy_m2",
-    "crlb_yy_m2",
-    "fit_chi2",
-    "fit_dof",
-)
-"""The trial columns a summary reads (with the swept ones): the required ones, and those it
-reads when present. :class:`Groups` reads no other, so a chunked read of these is enough."""
 
-INTERVAL_SEED_ROWS: dict[str, int] = {"error": 0, "side_resolved": 1, "major": 2, "minor": 3}
-"""The row of the seeds drawn per trial set that each bootstrap interval of a group uses."""
+def summary_trial_columns(dimension: int = SCORED_DIMENSION) -> tuple[str, ...]:
+    """The trial columns a summary of positions of ``dimension`` coordinates reads (with the
+    swept ones): the required ones (and, past ``(x, y)``, the further coordinates of the truth
+    and the position), and those it reads when present: the side-resolved position and the
+    CRLB's entries (:func:`~comparison.trial_rows.coordinate_columns`,
+    :func:`~comparison.trial_rows.matrix_columns`)."""
+    coordinates = (
+        *coordinate_columns("truth_{}_m", dimension),
+        *coordinate_columns("{}_m", dimension),
+    )
+    return (
+        *REQUIRED_TRIAL_COLUMNS,
+        *(name for name in coordinates if name not in REQUIRED_TRIAL_COLUMNS),
+        "planner",
+        "trial",
+        *coordinate_columns("{}_side_resolved_m", dimension),
+        *matrix_columns("crlb", dimension),
+        "fit_chi2",
+        "fit_dof",
+    )
+
+
+SUMMARY_TRIAL_COLUMNS: tuple[str, ...] = summary_trial_columns()
+"""The trial columns a summary of the tables (:data:`~comparison.trial_rows.SCORED_DIMENSION`)
+reads. :class:`Groups` reads no other, so a chunked read of these is enough."""
+
+INTERVAL_SEED_ROWS: dict[str, int] = {
+    "error": 0,
+    "side_resolved": 1,
+    "major": 2,
+    "minor": 3,
+    "middle": 4,
+}
+"""The row of the seeds drawn per trial set that each bootstrap interval of a group uses (the
+principal axes': :func:`~comparison.intervals.axis_names`; ``middle`` only in 3-D, last so
+that the rows of 2-D summaries are drawn as before it)."""
+
+
+def position_dimension_of(columns: Iterable[str]) -> int:
+    """``d`` of trial rows with these columns: how many coordinates of the truth they hold,
+    ``truth_x_m``, ``truth_y_m`` (and ``truth_z_m``) (:data:`~comparison.trial_rows.COORDINATES`)."""
+    present = set(columns)
+    names = coordinate_columns("truth_{}_m", len(COORDINATES))
+    return next((k for k, name in enumerate(names) if name not in present), len(names))
+
 
 Aggregation = str | Callable[[SeriesGroupBy], pd.Series]
 """How a per-trial quantity becomes one number per group: a pandas aggregation name
@@ -109,6 +146,8 @@ class Groups:
         confidence: float,
     ) -> None:
         self.trials = trials
+        self.dimension = position_dimension_of(trials.columns)
+        self.readable = frozenset(summary_trial_columns(self.dimension))
         self.n_bootstrap = n_bootstrap
         self.confidence = confidence
         self.success = trials["success"].to_numpy(dtype=bool)
@@ -159,8 +198,8 @@ class Groups:
 
     def column(self, column: str) -> FloatArray:
         """A trial column as floats: NaN for an optional one missing in an older run folder."""
-        if column not in SUMMARY_TRIAL_COLUMNS:
-            raise KeyError(f"{column}: add it to SUMMARY_TRIAL_COLUMNS so chunked reads load it")
+        if column not in self.readable:
+            raise KeyError(f"{column}: add it to summary_trial_columns so chunked reads load it")
         if column not in self.trials.columns:
             return np.full(len(self.trials), np.nan)
         return self.trials[column].to_numpy(dtype=float)
@@ -169,9 +208,12 @@ class Groups:
         """A trial column on the successful trials, NaN on the others."""
         return np.where(self.success, self.column(column), np.nan)
 
-    def error_vector(self, x: FloatArray, y: FloatArray) -> FloatArray:
-        """``(n, 2)`` position minus truth."""
-        return np.stack([x, y], axis=1) - self.trials[["truth_x_m", "truth_y_m"]].to_numpy(float)
+    def error_vector(self, template: str) -> FloatArray:
+        """``(n, d)`` the position whose coordinate columns ``template`` names (``"{}_m"``,
+        ``"{}_side_resolved_m"``) minus the truth."""
+        position = [self.column(name) for name in coordinate_columns(template, self.dimension)]
+        truth = [self.column(name) for name in coordinate_columns("truth_{}_m", self.dimension)]
+        return np.stack(position, axis=1) - np.stack(truth, axis=1)
 
     def count(self, mask: NDArray[np.bool_]) -> NDArray[np.int64]:
         """How many trials of each group ``mask`` holds."""
@@ -251,13 +293,11 @@ class Groups:
 
     @cached_property
     def judged_vector(self) -> FloatArray:
-        """Per trial, the ``(n, 2)`` error vector the verdicts judge."""
-        side_vector = self.error_vector(
-            self.column("x_side_resolved_m"), self.column("y_side_resolved_m")
-        )
-        side_vector = np.where(self.success[:, None], side_vector, np.nan)
-        returned_vector = self.error_vector(self.successful("x_m"), self.successful("y_m"))
-        return np.where(self.side[self.group][:, None], side_vector, returned_vector)
+        """Per trial, the ``(n, d)`` error vector the verdicts judge (NaN on a failed trial)."""
+        side_vector = self.error_vector("{}_side_resolved_m")
+        returned_vector = self.error_vector("{}_m")
+        vector = np.where(self.side[self.group][:, None], side_vector, returned_vector)
+        return np.where(self.success[:, None], vector, np.nan)
 
     @cached_property
     def bias(self) -> BiasIntervals:
@@ -268,15 +308,16 @@ class Groups:
 
     @cached_property
     def axes(self) -> AxisEfficiencies:
-        """The judged RMSE/√CRLB along the CRLB's principal axes, with intervals (MATH §16)."""
-        xx, xy, yy = (self.column(f"crlb_{k}_m2") for k in ("xx", "xy", "yy"))
-        crlb_matrix = np.stack([xx, xy, xy, yy], axis=1).reshape(-1, 2, 2)
-        del xx, xy, yy
+        """The judged RMSE/√CRLB along the CRLB's principal axes (:func:`axis_names` of ``d``),
+        with intervals (MATH §16)."""
+        crlb_matrix = matrix_of_values(
+            [self.column(name) for name in matrix_columns("crlb", self.dimension)]
+        )
         axis_squared = axis_squared_errors(self.judged_vector, crlb_matrix)
         del crlb_matrix
         intervals = [
             self.interval_m(q, name)
-            for q, name in zip(axis_squared.T, ("major", "minor"), strict=True)
+            for q, name in zip(axis_squared.T, axis_names(self.dimension), strict=True)
         ]
         efficiency = pd.DataFrame(axis_squared).groupby(self.group, sort=True).mean()
         return AxisEfficiencies(

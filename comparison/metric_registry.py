@@ -83,7 +83,7 @@ def _judged_interval(end: str) -> Callable[[Groups], FloatArray]:
 
 
 def _nees_band(g: Groups) -> tuple[FloatArray, FloatArray]:
-    return nees_band(g["n_nees"], g.confidence)
+    return nees_band(g["n_nees"], g.confidence, dof=g.dimension)
 
 
 def _verdicts(g: Groups) -> tuple[ArrayLike, list[str]]:
@@ -382,7 +382,7 @@ EXTRA_METRICS: tuple[Metric, ...] = (
         "RMSE/√CRLB along the CRLB's major principal axis (the judged error); an unbiased "
         "estimator is at or above 1 along every axis",
     ),
-    *_axis_metrics("minor", 1, "RMSE/√CRLB along the CRLB's minor principal axis"),
+    *_axis_metrics("minor", -1, "RMSE/√CRLB along the CRLB's minor principal axis"),
     Metric(
         "tail_share",
         "1",

@@ -29,7 +29,12 @@ from comparison.metric_groups import SUMMARY_TRIAL_COLUMNS as SUMMARY_TRIAL_COLU
 from comparison.metric_registry import CONTRACT_METRIC_NAMES as CONTRACT_METRIC_NAMES
 from comparison.metric_registry import METRIC_NAMES as METRIC_NAMES
 from comparison.metric_registry import METRICS
-from comparison.trial_rows import REQUIRED_TRIAL_COLUMNS, TRIAL_COLUMNS
+from comparison.trial_rows import (
+    COORDINATES,
+    REQUIRED_TRIAL_COLUMNS,
+    TRIAL_COLUMNS,
+    dimension_columns,
+)
 
 N_INTERVALS = len(INTERVAL_SEED_ROWS)
 """Bootstrap intervals of a group, each drawing a seed per key: the RMSE, the side-resolved
@@ -48,8 +53,9 @@ def has_planners(frame: pd.DataFrame) -> bool:
 
 
 def swept_columns_of(trials: pd.DataFrame) -> list[str]:
-    """The swept-parameter columns of a trial frame (every column not in the contract)."""
-    fixed = set(TRIAL_COLUMNS)
+    """The swept-parameter columns of a trial frame (every column not in the contract, nor a
+    coordinate or matrix entry of a 3-D position: :func:`~comparison.trial_rows.dimension_columns`)."""
+    fixed = {*TRIAL_COLUMNS, *dimension_columns(len(COORDINATES))}
     return [column for column in trials.columns if column not in fixed]
 
 

@@ -23,7 +23,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from comparison.trial_rows import ESTIMATE_COLUMNS
+from comparison.trial_rows import (
+    ESTIMATE_COLUMNS,
+    SCORED_DIMENSION,
+    coordinate_columns,
+    matrix_columns,
+    matrix_values,
+)
 from estimators.base import Estimate
 from estimators.batch import BatchEstimates
 from estimators.goodness_of_fit import FIT_KEYS
@@ -74,7 +80,8 @@ def estimate_columns(
     """The per-estimate columns of a trial row, in the order of
     :data:`~comparison.trial_rows.ESTIMATE_COLUMNS`: :func:`score_outcomes` of one estimate
     (a closed-loop frame, which is scored as it is flown)."""
-    return score_outcomes(Outcomes.of_estimates([(estimate, runtime_s)]), truth_m, track)[0]
+    outcomes = Outcomes.of_estimates([(estimate, runtime_s)], dimension=np.size(truth_m))
+    return score_outcomes(outcomes, truth_m, track)[0]
 
 
 def jsonable(value: Any) -> Any:
@@ -127,17 +134,38 @@ def diagnostics_text(diagnostics: Mapping[str, Any]) -> str:
     return _SORTED_JSON.encode(jsonable(dict(diagnostics)))
 
 
-SCORED_DIMENSION = 2
-"""The coordinates the comparison scores: ``(x, y)``, the scenarios' emitters being at a known
-height. An estimate of another dimension fails its own rows (:func:`dimension_message`)."""
-
-
-def dimension_message(dimension: int) -> str:
-    """Why an estimate of ``dimension`` coordinates is not scored."""
+def dimension_message(dimension: int, scored: int = SCORED_DIMENSION) -> str:
+    """Why an estimate of ``dimension`` coordinates is not scored where the emitter has
+    ``scored`` (:data:`~comparison.trial_rows.SCORED_DIMENSION`: ``(x, y)``, its height known)."""
+    if scored == 2:
+        return (
+            f"position_m: {dimension} coordinates, but the scenario's emitter height is known "
+            "and the comparison scores (x, y); return the horizontal position"
+        )
     return (
-        f"position_m: {dimension} coordinates, but the scenario's emitter height is known and "
-        f"the comparison scores (x, y); return the horizontal position"
+        f"position_m: {dimension} coordinates, but the scenario's emitter has {scored} and the "
+        f"comparison scores those; return {scored} coordinates"
     )
+
+
+def distance_m(offset_m: ArrayLike) -> NDArray[np.float64]:
+    """The Euclidean length of offsets ``(..., d)``, ``d ≥ 2``, shape ``(...)``: ``hypot``
+    folded over the coordinates, ``hypot(hypot(x, y), z)`` (no overflow or underflow of the
+    squares)."""
+    offset = np.asarray(offset_m, dtype=float)
+    length = np.hypot(offset[..., 0], offset[..., 1])
+    for k in range(2, offset.shape[-1]):
+        length = np.hypot(length, offset[..., k])
+    return length
+
+
+def mirror_reflection(direction: ArrayLike, dimension: int) -> NDArray[np.float64]:
+    """The ``d × d`` reflection across the vertical plane through a horizontal track of unit
+    ``direction`` (MATH §7): ``2 u uᵀ − I`` on ``(x, y)``, the height (``d = 3``) unchanged."""
+    u = np.asarray(direction, dtype=float).reshape(2)
+    reflection = np.eye(dimension)
+    reflection[:2, :2] = 2.0 * np.outer(u, u) - np.eye(2)
+    return reflection
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -160,37 +188,46 @@ class Outcomes:
     diagnostics_json: tuple[str, ...] | None = None
 
     @classmethod
-    def of_columns(cls, columns: BatchEstimates, runtime_s: float) -> Outcomes:
+    def of_columns(
+        cls, columns: BatchEstimates, runtime_s: float, dimension: int = SCORED_DIMENSION
+    ) -> Outcomes:
         """A column-returning estimator's results, every trial given ``runtime_s`` (failed
-        when they are not of the scored dimension, :data:`SCORED_DIMENSION`)."""
-        if columns.position_m.shape[1] != SCORED_DIMENSION:
+        when they are not of the scored ``dimension``, the emitter's coordinates:
+        :data:`~comparison.trial_rows.SCORED_DIMENSION` at a known height)."""
+        if columns.position_m.shape[1] != dimension:
             columns = BatchEstimates.failed(
                 len(columns),
-                dimension_message(columns.position_m.shape[1]),
+                dimension_message(columns.position_m.shape[1], dimension),
                 estimator=columns.estimator,
+                dimension=dimension,
             )
         return cls(columns, np.full(len(columns), float(runtime_s)))
 
     @classmethod
-    def of_estimates(cls, results: Sequence[tuple[Estimate, float]]) -> Outcomes:
-        """``(estimate, runtime_s)`` per trial, as columns (the diagnostics as their text).
+    def of_estimates(
+        cls, results: Sequence[tuple[Estimate, float]], dimension: int = SCORED_DIMENSION
+    ) -> Outcomes:
+        """``(estimate, runtime_s)`` per trial, as columns (the diagnostics as their text); an
+        estimate not of the scored ``dimension`` (as in :meth:`of_columns`) fails.
 
         Unlike :meth:`BatchEstimates.from_estimates` it keeps whatever the diagnostics hold:
         those of a failed estimate, keys that differ between trials, nested values.
         """
-        n = len(results)
+        n, d = len(results), dimension
         estimates = [
             estimate
-            if len(estimate.position_m) == SCORED_DIMENSION
-            else Estimate.failed(estimate.estimator, dimension_message(len(estimate.position_m)))
+            if len(estimate.position_m) == d
+            else Estimate.failed(
+                estimate.estimator, dimension_message(len(estimate.position_m), d), dimension=d
+            )
             for estimate, _ in results
         ]
         counts = [len(estimate.candidates_m) for estimate in estimates]
-        candidates = np.full((n, max(counts, default=0), 2), np.nan)
-        position = np.full((n, 2), np.nan)
+        candidates = np.full((n, max(counts, default=0), d), np.nan)
+        position = np.full((n, d), np.nan)
         success = np.array([estimate.success for estimate in estimates], dtype=bool)
         with_covariance = any(estimate.covariance_m2 is not None for estimate in estimates)
-        covariance = np.full((n, 2, 2), np.nan) if with_covariance else None
+        covariance = np.full((n, d, d), np.nan) if with_covariance else None
         codes: dict[str, int] = {}
         for i, estimate in enumerate(estimates):
             if counts[i]:
@@ -226,6 +263,10 @@ def score_outcomes(
     """The per-estimate columns of every trial of ``outcomes`` (one row each, in the order of
     :data:`~comparison.trial_rows.ESTIMATE_COLUMNS`), computed on columns.
 
+    The position has the truth's ``d`` coordinates (those of ``outcomes``, built with that
+    ``dimension``); errors are Euclidean in ``d`` (:func:`distance_m`), the NEES has ``d``
+    degrees of freedom, the side of the track is judged on ``(x, y)``.
+
     ``error_side_resolved_m`` uses the candidate nearest to the truth (MATH §7), whose
     coordinates are ``x_side_resolved_m`` and ``y_side_resolved_m``. ``nees`` is the returned
     position's error against the estimator's covariance; ``nees_side_resolved`` the nearest
@@ -244,7 +285,13 @@ def score_outcomes(
     if n == 0:
         return []
     nan = math.nan
-    truth = np.asarray(truth_m, dtype=float)[:2]
+    truth = np.asarray(truth_m, dtype=float).reshape(-1)
+    d = len(truth)
+    if columns.position_m.shape[1] != d:
+        raise ValueError(
+            f"truth_m: {d} coordinates but the estimates have {columns.position_m.shape[1]}; "
+            f"build the outcomes with dimension={d}"
+        )
     success = np.asarray(columns.success, dtype=bool)
     count = np.asarray(columns.n_candidates, dtype=np.int64)
     k = columns.candidates_m.shape[1]
@@ -254,13 +301,13 @@ def score_outcomes(
     finite_position = np.isfinite(position).all(axis=1)
     rows = np.arange(n)
     with np.errstate(invalid="ignore", over="ignore"):
-        error_m = np.hypot(position[:, 0] - truth[0], position[:, 1] - truth[1])
+        error_m = distance_m(position - truth)
         # the nearest candidate (the position when there is none), as np.nanargmin picks it
-        pool = np.full((n, max(k, 1), 2), nan)
+        pool = np.full((n, max(k, 1), d), nan)
         pool[:, :k] = candidates
         empty = count == 0
         pool[empty, 0] = position[empty]
-        distances = np.hypot(pool[..., 0] - truth[0], pool[..., 1] - truth[1])
+        distances = distance_m(pool - truth)
         found = success & np.isfinite(distances).any(axis=1)
         distances = np.where(np.isnan(distances), np.inf, distances)
         best = np.argmin(distances, axis=1)
@@ -283,35 +330,35 @@ def score_outcomes(
             side_nearest = dx * (nearest[:, 1] - oy) - dy * (nearest[:, 0] - ox)
             mirror = side_nearest * side_estimate < 0.0
         if columns.covariance_m2 is None:
-            cov_xx = cov_xy = cov_yy = nees = nees_side_resolved = np.full(n, nan)
+            nees = nees_side_resolved = np.full(n, nan)
+            covariance_entries = [nees] * len(matrix_columns("cov", d))
         else:
             covariance = np.asarray(columns.covariance_m2, dtype=float)
-            cov_xx, cov_xy, cov_yy = covariance[:, 0, 0], covariance[:, 0, 1], covariance[:, 1, 1]
+            covariance_entries = matrix_values(covariance)
             nees = normalized_error_squared(position - truth, covariance)
             if track is not None and mirror.any():
-                d = np.asarray(track[1], dtype=float).reshape(2)
-                reflection = 2.0 * np.outer(d, d) - np.eye(2)
+                reflection = mirror_reflection(track[1], d)
                 covariance = covariance.copy()
                 covariance[mirror] = np.matmul(
                     np.matmul(reflection, covariance[mirror]), reflection.T
                 )
             nees_side_resolved = normalized_error_squared(nearest - truth, covariance)
     messages = [str(message) for message in columns.messages]
+    side_resolved = np.where(found[:, None], nearest, nan)
     values = {
-        "x_m": position[:, 0].tolist(),
-        "y_m": position[:, 1].tolist(),
+        **_coordinate_values("{}_m", position),
         "error_m": error_m.tolist(),
         "error_side_resolved_m": side_resolved_m.tolist(),
-        "x_side_resolved_m": np.where(found, nearest[:, 0], nan).tolist(),
-        "y_side_resolved_m": np.where(found, nearest[:, 1], nan).tolist(),
+        **_coordinate_values("{}_side_resolved_m", side_resolved),
         "wrong_side": wrong_side.tolist(),
         "ambiguous": np.asarray(columns.ambiguous, dtype=bool).tolist(),
         "success": success.tolist(),
         "n_candidates": count.tolist(),
         "candidates_json": _candidates_texts(candidates, count),
-        "cov_xx_m2": cov_xx.tolist(),
-        "cov_xy_m2": cov_xy.tolist(),
-        "cov_yy_m2": cov_yy.tolist(),
+        **{
+            name: value.tolist()
+            for name, value in zip(matrix_columns("cov", d), covariance_entries, strict=True)
+        },
         "nees": nees.tolist(),
         "nees_side_resolved": nees_side_resolved.tolist(),
         **{key: _fit_column(columns, key, success).tolist() for key in FIT_KEYS},
@@ -324,6 +371,12 @@ def score_outcomes(
         ),
     }
     return list(zip(*(values[column] for column in ESTIMATE_COLUMNS), strict=True))
+
+
+def _coordinate_values(template: str, points: NDArray[np.float64]) -> dict[str, list[float]]:
+    """The columns of points ``(n, d)`` named by ``template`` (``"{}_m"``: ``x_m, y_m`` ...)."""
+    names = coordinate_columns(template, points.shape[1])
+    return {name: points[:, k].tolist() for k, name in enumerate(names)}
 
 
 def fit_value(diagnostics: Mapping[str, Any], key: str) -> float:
@@ -361,11 +414,13 @@ def _float_texts(values: NDArray[np.float64]) -> list[str]:
 
 
 def _candidates_texts(candidates: NDArray[np.float64], count: NDArray[np.int64]) -> list[str]:
-    """``candidates_json`` of each row: ``json.dumps`` of its ``count`` points, [[x, y], ...]."""
-    k = candidates.shape[1]
+    """``candidates_json`` of each row: ``json.dumps`` of its ``count`` points of ``d``
+    coordinates, ``[[x, y], ...]`` (``[[x, y, z], ...]``)."""
+    k, d = candidates.shape[1], candidates.shape[2]
     slot = np.arange(k)[None, :] < count[:, None]
     texts = _float_texts(candidates[slot].reshape(-1))
-    points = [f"[{x}, {y}]" for x, y in zip(texts[0::2], texts[1::2], strict=True)]
+    coordinates = zip(*(texts[c::d] for c in range(d)), strict=True)
+    points = list(map("[{}]".format, map(", ".join, coordinates)))
     ends = np.cumsum(count).tolist()
     starts = [0, *ends[:-1]]
     return ["[" + ", ".join(points[a:b]) + "]" for a, b in zip(starts, ends, strict=True)]

@@ -13,13 +13,26 @@ and :data:`FLIGHTS` do the same for the ``points`` and ``flights`` tables
 A table is stored as its key columns (the primary key, in order), then its index columns
 (``<key>_index``: the position of the scenario, planner or estimator in the experiment, by
 which rows are sorted; never read back), then its other stored columns in contract order.
+
+The dimension ``d`` of a position (MATH §8: ``(x_s, y_s)`` at a known emitter height; with the
+height estimated ``(x_s, y_s, z_s)``) names its columns here and nowhere else: one column per
+coordinate (:func:`coordinate_columns`: ``truth_x_m``, ``x_m``, ``x_side_resolved_m`` ...) and
+per entry of the upper triangle of a covariance or CRLB (:func:`matrix_columns`: ``cov_xx_m2``,
+``crlb_xy_m2`` ...; :func:`matrix_values` and :func:`matrix_of_values` convert). The tables hold
+``d = 2``; a 3-D table keeps these columns, bytes and order, and adds ``truth_z_m``, ``z_m``,
+``z_side_resolved_m``, ``cov_xz_m2, cov_yz_m2, cov_zz_m2`` and ``crlb_xz_m2, crlb_yz_m2,
+crlb_zz_m2`` after their 2-D namesakes.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 SWEPT_AFTER = "snr_db"
 """An experiment's swept-parameter columns (REAL, float64) follow this column."""
@@ -105,6 +118,90 @@ def with_swept(names: Sequence[str], swept: Sequence[str]) -> tuple[str, ...]:
     return tuple(out)
 
 
+COORDINATES: tuple[str, ...] = ("x", "y", "z")
+"""The names of a position's coordinates, in order: ``(x, y)`` at a known emitter height,
+``(x, y, z)`` with the height estimated (``d = 2`` or ``3``)."""
+
+
+SCORED_DIMENSION = 2
+"""The coordinates the tables hold and the comparison scores: ``(x, y)``, every scenario's
+emitter being at a known height (:func:`coordinate_columns` and :func:`matrix_columns` of this
+``d`` name the columns of :data:`POINTS` and :data:`TRIALS`)."""
+
+
+@functools.cache
+def matrix_entries(dimension: int) -> tuple[tuple[int, int], ...]:
+    """The ``(i, j)``, ``i ≤ j``, of a symmetric ``d × d`` matrix that its columns hold, in column
+    order: the upper triangle column by column, ``(0, 0), (0, 1), (1, 1)`` then ``(0, 2), (1, 2),
+    (2, 2)``. The entries of ``d = 2`` come first whatever ``d``, so a 3-D table adds columns
+    after the 2-D ones and a 2-D row is the same row."""
+    if not 1 <= dimension <= len(COORDINATES):
+        raise ValueError(
+            f"dimension: a position has 1 to {len(COORDINATES)} coordinates, got {dimension}"
+        )
+    return tuple((i, j) for j in range(dimension) for i in range(j + 1))
+
+
+@functools.cache
+def matrix_columns(prefix: str, dimension: int) -> tuple[str, ...]:
+    """The column names of a symmetric ``d × d`` matrix in m² (a covariance ``"cov"``, a CRLB
+    ``"crlb"``), one per entry of :func:`matrix_entries`: ``crlb_xx_m2, crlb_xy_m2,
+    crlb_yy_m2`` for ``d = 2``; for ``d = 3`` those, then ``crlb_xz_m2, crlb_yz_m2,
+    crlb_zz_m2``. The one home of these names."""
+    return tuple(
+        f"{prefix}_{COORDINATES[i]}{COORDINATES[j]}_m2" for i, j in matrix_entries(dimension)
+    )
+
+
+@functools.cache
+def coordinate_columns(template: str, dimension: int) -> tuple[str, ...]:
+    """The column names of a position's coordinates: ``template`` with ``{}`` replaced by each
+    coordinate's name (``"truth_{}_m"`` → ``truth_x_m, truth_y_m`` and, for ``d = 3``,
+    ``truth_z_m``)."""
+    return tuple(template.format(name) for name in COORDINATES[:dimension])
+
+
+@functools.cache
+def dimension_columns(dimension: int) -> tuple[str, ...]:
+    """The trial columns named per coordinate or matrix entry for positions of ``dimension``
+    coordinates: the truth's, the position's and the side-resolved position's coordinates, the
+    covariance's and the CRLB's entries. With ``d = 3`` these are the columns a trial frame may
+    hold beyond :data:`TRIAL_COLUMNS` that are no swept parameter."""
+    return (
+        *coordinate_columns("truth_{}_m", dimension),
+        *coordinate_columns("{}_m", dimension),
+        *coordinate_columns("{}_side_resolved_m", dimension),
+        *matrix_columns("cov", dimension),
+        *matrix_columns("crlb", dimension),
+    )
+
+
+def matrix_values(matrix: ArrayLike) -> list[NDArray[np.float64]]:
+    """The entries of symmetric matrices ``(..., d, d)`` in the order of
+    :func:`matrix_columns`, each of shape ``(...)``."""
+    array = np.asarray(matrix, dtype=float)
+    return [array[..., i, j] for i, j in matrix_entries(array.shape[-1])]
+
+
+def matrix_of_values(values: Sequence[ArrayLike]) -> NDArray[np.float64]:
+    """The symmetric matrices ``(..., d, d)`` whose entries, in the order of
+    :func:`matrix_columns`, are ``values`` (``d (d + 1)/2`` arrays of one shape):
+    :func:`matrix_values` inverted."""
+    count = len(values)
+    dimension = next((d for d in range(1, len(COORDINATES) + 1) if d * (d + 1) // 2 == count), 0)
+    if not dimension:
+        raise ValueError(
+            f"values: {count} entries are not the upper triangle of a symmetric matrix of "
+            f"1 to {len(COORDINATES)} rows"
+        )
+    arrays = [np.asarray(v, dtype=float) for v in values]
+    matrix = np.empty((*np.broadcast_shapes(*(a.shape for a in arrays)), dimension, dimension))
+    for (i, j), value in zip(matrix_entries(dimension), arrays, strict=True):
+        matrix[..., i, j] = value
+        matrix[..., j, i] = value
+    return matrix
+
+
 def _real(name: str, source: str = "value", *, required: bool = True) -> Column:
     return Column(name, "REAL", "float64", source, required)
 
@@ -135,8 +232,7 @@ POINTS = Table(
         Column("point", "INTEGER", "int64", "key"),
         _real("snr_db"),
         Column("frame", "INTEGER", "int64", "key"),
-        _real("truth_x_m"),
-        _real("truth_y_m"),
+        *(_real(name) for name in coordinate_columns("truth_{}_m", SCORED_DIMENSION)),
         _real("range_scale_m"),
         *(_real(name) for name in POINT_CRLB_SETS),
         *(_real(name, required=False) for name in POINT_KNOWN_CRLB_SETS),
@@ -168,30 +264,32 @@ TRIALS = Table(
         Column("estimator", "TEXT", None, "key"),
         Column("frame", "INTEGER", "int64", "key"),
         Column("trial", "INTEGER", "int64", "key", required=False),
-        _joined("truth_x_m"),
-        _joined("truth_y_m"),
-        _real("x_m", "estimate"),
-        _real("y_m", "estimate"),
+        *(_joined(name) for name in coordinate_columns("truth_{}_m", SCORED_DIMENSION)),
+        *(_real(name, "estimate") for name in coordinate_columns("{}_m", SCORED_DIMENSION)),
         _real("error_m", "estimate"),
         _real("error_side_resolved_m", "estimate"),
-        _real("x_side_resolved_m", "estimate", required=False),
-        _real("y_side_resolved_m", "estimate", required=False),
+        *(
+            _real(name, "estimate", required=False)
+            for name in coordinate_columns("{}_side_resolved_m", SCORED_DIMENSION)
+        ),
         _real("wrong_side", "estimate"),
         _estimate("ambiguous", "INTEGER", "bool"),
         _estimate("success", "INTEGER", "bool"),
         _estimate("n_candidates", "INTEGER", "int64", required=False),
         _estimate("candidates_json", "TEXT", None, required=False),
-        _real("cov_xx_m2", "estimate", required=False),
-        _real("cov_xy_m2", "estimate", required=False),
-        _real("cov_yy_m2", "estimate", required=False),
+        *(
+            _real(name, "estimate", required=False)
+            for name in matrix_columns("cov", SCORED_DIMENSION)
+        ),
         _real("nees", "estimate"),
         _real("nees_side_resolved", "estimate"),
         _real("fit_chi2", "estimate", required=False),
         _real("fit_dof", "estimate", required=False),
         _real("crlb_rmse_m", "bound"),
-        _real("crlb_xx_m2", "bound", required=False),
-        _real("crlb_xy_m2", "bound", required=False),
-        _real("crlb_yy_m2", "bound", required=False),
+        *(
+            _real(name, "bound", required=False)
+            for name in matrix_columns("crlb", SCORED_DIMENSION)
+        ),
         _real("runtime_s", "estimate"),
         _estimate("message", "TEXT", None, required=False),
         _estimate("diagnostics_json", "TEXT", None, required=False),
@@ -220,7 +318,8 @@ ESTIMATE_COLUMNS: tuple[str, ...] = tuple(c.name for c in TRIALS.columns if c.so
 
 BOUND_COLUMNS: tuple[str, ...] = tuple(c.name for c in TRIALS.columns if c.source == "bound")
 """The CRLB an estimate is scored against (MATH §8): ``√trace`` first, then the matrix's
-entries ``xx, xy, yy`` (m²), from which the verdicts take its principal axes."""
+entries ``xx, xy, yy`` (m², :func:`matrix_columns`), from which the verdicts take its principal
+axes."""
 
 POINT_COLUMNS: tuple[str, ...] = tuple(c.name for c in TRIALS.columns if c.source == "points")
 """The trial columns joined from the points table (on its key)."""

@@ -54,9 +54,9 @@ import pandas as pd
 from numpy.typing import ArrayLike, NDArray
 
 from comparison.intervals import (
-    AXIS_NAMES,
     AxisEfficiencies,
     BiasIntervals,
+    axis_names,
     short_number,
 )
 
@@ -95,7 +95,7 @@ def _above_along(axes: AxisEfficiencies, i: int, band_high: float) -> str:
     return "; ".join(
         f"along the CRLB's {name} axis its RMSE is {short_number(axes.efficiency[i, k])} of the bound's, "
         f"95% interval [{short_number(axes.low[i, k])}, {short_number(axes.high[i, k])}], above {band_high:g}"
-        for k, name in enumerate(AXIS_NAMES)
+        for k, name in enumerate(axis_names(axes.efficiency.shape[1]))
         if axes.low[i, k] > band_high
     )
 
@@ -231,7 +231,7 @@ def _bias_finding(bias: BiasIntervals, axes: AxisEfficiencies, i: int, band_low:
     found = []
     if bias.low[i] > BIAS_LIMIT:
         found.append(f"{bias.text(i)} lies beyond {BIAS_LIMIT:g} √CRLB")
-    for k, name in enumerate(AXIS_NAMES):
+    for k, name in enumerate(axis_names(axes.efficiency.shape[1])):
         if axes.high[i, k] < band_low:
             found.append(
                 f"along the CRLB's {name} axis its RMSE is {short_number(axes.efficiency[i, k])} of the "

@@ -388,7 +388,7 @@ def newton_refine(
 
 
 def negative_curvature(hessian: ArrayLike) -> FloatArray | None:
-    """A unit direction of negative curvature of a 2×2 Hessian beyond rounding
+    """A unit direction of negative curvature of a ``d × d`` Hessian beyond rounding
     (:data:`SADDLE_RTOL`), or None: a stationary point with one is a saddle, not a minimum."""
     values, vectors = np.linalg.eigh(np.asarray(hessian, dtype=float))
     if values[0] < -SADDLE_RTOL * max(abs(float(values[-1])), np.finfo(float).tiny):
@@ -514,15 +514,16 @@ def iterated_update(
 
     started at ``start_m`` (default the prior mean), until a step is shorter than
     ``step_rtol ×`` the range. With a diffuse ``Λ̄`` this is the frame's maximum likelihood,
-    started at a closed-form candidate (MATH §10); the 2×2 information form stays exact where a
+    started at a closed-form candidate (MATH §10); the information form stays exact where a
     covariance-form gain would lose the digits of a huge prior variance. If Gauss-Newton has
     not converged then (decrement above :data:`DECREMENT_TOL`: its cap, a stall, or negligible
     steps in a near-track valley), :func:`newton_refine` takes over (:func:`finish_update`).
 
     Returns
     -------
-    mean_m : (2,)
-    posterior_information : (2, 2)
+    mean_m : (d,)
+        ``d`` the coordinates of the frame's position (those of ``prior_mean_m``).
+    posterior_information : (d, d)
         ``Λ̄ + EᵀE`` at the mode.
     log_likelihood : float
         :func:`laplace_log_likelihood` at the mode.

@@ -28,8 +28,9 @@ The rules, in the order they are checked (the first broken one is named):
    negative, MATH §16).
 
 A position has :data:`POSITION_DIMENSIONS` coordinates, ``(x, y)`` or ``(x, y, z)``
-(:func:`position_dimension`); the candidates and the covariance have as many. The 2×2
-covariance's eigenvalue is in closed form; a larger one is checked by ``eigvalsh``.
+(:func:`position_dimension`); the candidates and the covariance have as many. Every rule is
+written for ``d`` coordinates; the 2×2 covariance's eigenvalue is in closed form, a larger one
+is checked by ``eigvalsh``.
 
 A failed estimate is checked for rule 1 only: its position is NaN and nothing else of it is
 scored. The check costs about 0.3 µs a trial on columns and 20-35 µs for one
@@ -51,14 +52,14 @@ INVALID = "invalid estimate: "
 """How the message of a refused estimate begins."""
 
 POSITION_RTOL = 1e-9
-"""A success's position lies within this times ``max(1 m, |x|, |y|)`` of a candidate: about
+"""A success's position lies within this times ``max(1 m, |x|, |y|, |z|)`` of a candidate: about
 10⁷ ulps of its coordinates, far above the rounding of any computation of a coordinate and far
 below any distance that matters (1 µm at 1 km)."""
 
 COVARIANCE_RTOL = 1e-9
 """Asymmetry and negative eigenvalue allowed in a covariance, relative to its Frobenius norm.
 
-Rounding moves the eigenvalues of a computed 2×2 covariance by about ``ε ‖P‖`` (Weyl; ε ≈
+Rounding moves the eigenvalues of a computed ``d × d`` covariance by about ``ε ‖P‖`` (Weyl; ε ≈
 2.2e-16 per operation), so 1e-9 leaves a plug-in's own arithmetic (an LU inverse, ``A P Aᵀ``,
 a sum of many terms) a wide margin. The built-ins need none of it: on 544 covariances of
 ``ml``, ``ekf`` and ``gtsam-smoother`` (``paper-1m``, ``paper-10m`` and ``turn`` with emitters
@@ -66,7 +67,7 @@ up to 2×10⁵ m away or 1 mm from the track, frames of 3 and 10 samples, 0 to 9
 ``λmax/λmin`` up to 4×10²¹),
 each was exactly symmetric with no negative eigenvalue. A covariance singular to rounding
 (a negative eigenvalue within the tolerance) is kept; its NEES is NaN, as for any singular
-covariance (:func:`scenarios.fisher.inverse_2x2`)."""
+covariance (:func:`scenarios.fisher.inverse_symmetric`)."""
 
 
 def numeric_array(value: Any, field: str) -> NDArray[Any]:

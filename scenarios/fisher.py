@@ -1,4 +1,4 @@
-r"""The Fisher information of the emitter's ``(x_s, y_s)`` and its 2×2 inverse (MATH §8).
+r"""The Fisher information of the emitter's position and its inverse, the CRLB (MATH §8).
 
 With independent Gaussian noise the information is a sum over the samples ``k`` and the
 modalities used,
@@ -16,8 +16,13 @@ height and the RSS model of a :class:`~scenarios.types.MeasurementSet`. It depen
 world (geometry and noise), not on measured values, so it lives beside the measurement model
 and everything downstream (planners, estimators, comparison) uses this one copy.
 
+The position has ``d`` coordinates, ``(x_s, y_s)`` at a known emitter height (``d = 2``, every
+scenario today) or ``(x_s, y_s, z_s)`` (``d = 3``); ``d`` is never assumed here: it is the last
+axis of the gradients of :mod:`scenarios.measurement_model` (one column per coordinate of
+``emitter_m``), and every information and covariance is ``(..., d, d)``.
+
 Layers, each vectorised: ``position_m`` and ``velocity_mps`` have shape ``(..., N, 3)`` and
-``emitter_m`` shape ``(..., 2)``, leading axes broadcasting as in the measurement model (many
+``emitter_m`` shape ``(..., d)``, leading axes broadcasting as in the measurement model (many
 emitter positions for a geometry map, many headings for a planner):
 
 - :func:`whitened_gradients`: the rows ``g = ∇h_k/σ``, one block of ``N`` per modality;
@@ -29,14 +34,16 @@ emitter positions for a geometry map, many headings for a planner):
 - :func:`information_statistics`, :func:`frame_statistics`: the sufficient statistics of groups
   of samples (a measurement set's frames), from which :class:`InformationStatistics` forms
   ``J`` of any union of groups with the nuisance parameters shared over it (MATH §15);
-- :func:`regular_2x2`, :func:`inverse_2x2`, :func:`rmse_bound_m`: the 2×2 algebra of the bound.
+- :func:`regular_symmetric`, :func:`inverse_symmetric`, :func:`rmse_bound_m`: the algebra of the
+  bound in any dimension, one rule of regularity; :func:`regular_2x2` and :func:`inverse_2x2`
+  are its closed form for ``d = 2``.
 
 Modalities are ``"toa"``, ``"doppler"``, ``"rss"`` or a combination, given as a tuple or as a
 string joined by ``+`` (``"toa+doppler"``); see :func:`parse_modalities`.
 
 Nuisance parameters (MATH §15). With an unknown carrier offset δ every Doppler row gains the
 column ``∂f_k/∂δ = 1``, with an unknown emission time b every ToA row the column
-``∂τ_k/∂b = 1``. The ``(x_s, y_s)`` block of the inverse of the enlarged information is the
+``∂τ_k/∂b = 1``. The position's block of the inverse of the enlarged information is the
 inverse of its Schur complement, and because each nuisance column is constant over one
 modality's rows (one σ) and zero elsewhere, that complement is the Gram matrix of the rows with
 each affected modality's block *centred* over its samples: ``J = Σ (g − ḡ)(g − ḡ)ᵀ``. So
@@ -76,7 +83,10 @@ MODALITY_SETS: dict[str, tuple[str, ...]] = {
 """The modality subsets reported by ``emitterbench crlb``."""
 
 SINGULAR_RTOL = 1e-12
-"""A symmetric 2×2 matrix counts as singular when ``det ≤ SINGULAR_RTOL · |J₁₁ J₂₂|``."""
+"""A symmetric ``d × d`` matrix counts as singular when ``det J ≤ SINGULAR_RTOL · |Π_i J_ii|``
+(``|J₁₁ J₂₂|`` for ``d = 2``): by Hadamard's inequality ``det J ≤ Π J_ii`` for a positive
+semi-definite ``J``, and the ratio is the determinant of its correlation matrix, whatever the
+units of each coordinate."""
 
 
 def parse_modalities(modalities: str | Iterable[str]) -> tuple[str, ...]:
@@ -103,7 +113,7 @@ def _whitened_blocks(
     modalities: str | Iterable[str],
     unknowns: Iterable[str] = (),
 ) -> list[FloatArray]:
-    """One ``∇h_k/σ`` block of shape ``(..., N, 2)`` per modality, in the order given; the
+    """One ``∇h_k/σ`` block of shape ``(..., N, d)`` per modality, in the order given; the
     block of a modality with an unknown nuisance parameter centred over its samples (§15)."""
     emitter = np.asarray(emitter_m, dtype=float)
     centred = {AFFECTED_MODALITY[name] for name in parse_unknowns(unknowns)}
@@ -144,13 +154,13 @@ def whitened_gradients(
     *,
     unknowns: Iterable[str] = (),
 ) -> FloatArray:
-    """The rows ``g = ∇h_k/σ`` of MATH §8 at the given samples, shape ``(..., M·N, 2)``.
+    """The rows ``g = ∇h_k/σ`` of MATH §8 at the given samples, shape ``(..., M·N, d)``.
 
     Parameters
     ----------
     position_m, velocity_mps : (..., N, 3)
         Sample positions and velocities (need not be ``data``'s own: a planned frame works).
-    emitter_m : (..., 2)
+    emitter_m : (..., d)
         Where the gradients are taken; leading axes broadcast with the samples'.
     data : MeasurementSet
         Supplies the constants: the σ's, ``γ``, ``c``, the emitter height, the RSS model. A
@@ -171,7 +181,7 @@ def whitened_gradients(
 def gram_information(whitened_rows: ArrayLike, *, row_axis: int = -2) -> FloatArray:
     """``J = Σ_rows g gᵀ`` of whitened gradient rows ``(..., n_rows, p)``: shape ``(..., p, p)``.
 
-    With the rows of :func:`whitened_gradients` (``p = 2``) this is the information of MATH §8;
+    With the rows of :func:`whitened_gradients` (``p = d``) this is the information of MATH §8;
     any other stack of rows ``∇h/σ`` of independent Gaussian measurements gives its information
     too (a filter's state of ``p`` entries). ``row_axis`` names the axis of the rows when it is
     not the one before the last (``0``: rows first, ``(n_rows, ..., p)``). The rows are added
@@ -207,7 +217,7 @@ def per_sample_information(
     data: MeasurementSet,
     modalities: str | Iterable[str] = "toa+doppler",
 ) -> FloatArray:
-    """Each sample's term ``J_k = Σ_modalities ∇h_k∇h_kᵀ/σ²`` of MATH §8, shape ``(..., N, 2, 2)``.
+    """Each sample's term ``J_k = Σ_modalities ∇h_k∇h_kᵀ/σ²`` of MATH §8, shape ``(..., N, d, d)``.
 
     Arguments as for :func:`whitened_gradients`; summed over ``N`` it is
     :func:`information_at_samples`.
@@ -223,7 +233,7 @@ def information_at_samples(
     data: MeasurementSet,
     modalities: str | Iterable[str] = "toa+doppler",
 ) -> FloatArray:
-    """``J`` of MATH §8 over the given samples, units 1/m², shape ``(..., 2, 2)``.
+    """``J`` of MATH §8 over the given samples, units 1/m², shape ``(..., d, d)``.
 
     Arguments as for :func:`whitened_gradients`: the samples may be any (a planned frame,
     many headings at once), the constants are ``data``'s.
@@ -240,10 +250,10 @@ def whitened_jacobian(
     *,
     unknowns: Iterable[str] | None = None,
 ) -> FloatArray:
-    """Rows ``∇h_k/σ`` of every sample of ``data`` and modality, shape ``(..., n_rows, 2)``.
+    """Rows ``∇h_k/σ`` of every sample of ``data`` and modality, shape ``(..., n_rows, d)``.
 
     :func:`whitened_gradients` at ``data``'s own samples (MATH §8); ``emitter_m`` is
-    ``(..., 2)``. ``unknowns`` defaults to ``data.unknowns`` (MATH §15); ``()`` gives the rows
+    ``(..., d)``. ``unknowns`` defaults to ``data.unknowns`` (MATH §15); ``()`` gives the rows
     of a cooperative emitter.
     """
     unknowns = data.unknowns if unknowns is None else unknowns
@@ -259,10 +269,10 @@ def fisher_information(
     *,
     unknowns: Iterable[str] | None = None,
 ) -> FloatArray:
-    """``J`` of MATH §8 over all samples of ``data``, shape ``(..., 2, 2)`` for ``emitter_m``
-    of shape ``(..., 2)`` (many emitter positions in one call: a geometry map).
+    """``J`` of MATH §8 over all samples of ``data``, shape ``(..., d, d)`` for ``emitter_m``
+    of shape ``(..., d)`` (many emitter positions in one call: a geometry map).
 
-    With ``data.unknowns`` (or ``unknowns``) it is the information left for ``(x_s, y_s)`` once
+    With ``data.unknowns`` (or ``unknowns``) it is the information left for the position once
     the nuisance parameters are estimated too, the Schur complement of MATH §15; pass
     ``unknowns=()`` for the bound with them known (the price of an unknown is the ratio).
     """
@@ -278,8 +288,8 @@ def fisher_information_per_frame(
 ) -> tuple[FloatArray, FloatArray]:
     """Information of each frame and accumulated up to each frame (MATH §8, §15).
 
-    Returns ``(per_frame, accumulated)``, each of shape ``(n_frames, ..., 2, 2)`` for
-    ``emitter_m`` of shape ``(..., 2)``, frames in the order of ``data.frames``;
+    Returns ``(per_frame, accumulated)``, each of shape ``(n_frames, ..., d, d)`` for
+    ``emitter_m`` of shape ``(..., d)``, frames in the order of ``data.frames``;
     ``per_frame[l]`` is :func:`fisher_information` of frame ``l``'s samples and
     ``accumulated[l]`` that of the samples of frames ``<= l``: the running sum
     ``Σ_{l' ≤ l} per_frame[l']`` for a cooperative emitter. With nuisance parameters
@@ -300,13 +310,13 @@ class InformationStatistics:
 
     Attributes
     ----------
-    plain : (G, ..., 2, 2)
+    plain : (G, ..., d, d)
         ``Σ g gᵀ`` over the group's rows of the modalities whose nuisance parameters are known
         (one Gram matrix of their rows, in modality order).
-    centred : (C, G, ..., 2, 2)
+    centred : (C, G, ..., d, d)
         Per modality with an unknown nuisance parameter (``C`` of them, in modality order),
         ``Σ (g − ḡ)(g − ḡ)ᵀ`` over the group's rows, ``ḡ`` their mean in the group.
-    mean : (C, G, ..., 2)
+    mean : (C, G, ..., d)
         ``ḡ`` of those rows in each group.
     count : (G,)
         The samples of each group (one row per sample and modality).
@@ -333,9 +343,14 @@ class InformationStatistics:
     def n_groups(self) -> int:
         return len(self.count)
 
+    @property
+    def dimension(self) -> int:
+        """``d``: the coordinates of the position the information is of."""
+        return int(self.plain.shape[-1])
+
     def information(self, groups: ArrayLike | None = None) -> FloatArray:
         """``J`` of the union of ``groups`` (group indices, repeats ignored; None: every
-        group), with the nuisance parameters shared over it, shape ``(..., 2, 2)``. No group:
+        group), with the nuisance parameters shared over it, shape ``(..., d, d)``. No group:
         zeros."""
         index = (
             np.arange(self.n_groups)
@@ -356,11 +371,11 @@ class InformationStatistics:
         return information
 
     def per_group(self) -> FloatArray:
-        """``J`` of each group alone, shape ``(G, ..., 2, 2)``."""
+        """``J`` of each group alone, shape ``(G, ..., d, d)``."""
         return np.stack([self.information([g]) for g in range(self.n_groups)])
 
     def accumulated(self) -> FloatArray:
-        """``J`` of groups ``0 … l`` for each ``l``, shape ``(G, ..., 2, 2)``."""
+        """``J`` of groups ``0 … l`` for each ``l``, shape ``(G, ..., d, d)``."""
         return np.stack([self.information(np.arange(g + 1)) for g in range(self.n_groups)])
 
     def joined(self, other: InformationStatistics) -> InformationStatistics:
@@ -416,17 +431,17 @@ def information_statistics(
     members = [labels == label for label in np.unique(labels)]
     plain_blocks = [b for m, b in zip(chosen, blocks, strict=True) if m not in centred_modalities]
     centred_blocks = [b for m, b in zip(chosen, blocks, strict=True) if m in centred_modalities]
-    leading = blocks[0].shape[:-2]
+    leading, d = blocks[0].shape[:-2], blocks[0].shape[-1]
     plain = np.stack(
         [
             gram_information(np.concatenate([b[..., member, :] for b in plain_blocks], axis=-2))
             if plain_blocks
-            else np.zeros((*leading, 2, 2))
+            else np.zeros((*leading, d, d))
             for member in members
         ]
     )
-    centred = np.zeros((len(centred_blocks), len(members), *leading, 2, 2))
-    mean = np.zeros((len(centred_blocks), len(members), *leading, 2))
+    centred = np.zeros((len(centred_blocks), len(members), *leading, d, d))
+    mean = np.zeros((len(centred_blocks), len(members), *leading, d))
     for c, block in enumerate(centred_blocks):
         for g, member in enumerate(members):
             rows = block[..., member, :]
@@ -460,8 +475,28 @@ def frame_statistics(
     )
 
 
+def regular_symmetric(matrix: ArrayLike) -> BoolArray:
+    """Where symmetric matrices ``(..., d, d)`` are regular, shape ``(...)``: the one rule of
+    regularity of the bound (MATH §8), ``det J > SINGULAR_RTOL · |Π_i J_ii|``
+    (:data:`SINGULAR_RTOL`). A NaN or ``inf`` entry or a negative determinant counts as
+    singular. ``d = 2`` is :func:`regular_2x2`, the determinant in closed form."""
+    J = np.asarray(matrix, dtype=float)
+    if J.shape[-1] == 2:
+        return regular_2x2(J)
+    regular = np.zeros(J.shape[:-2], dtype=bool)
+    finite = np.isfinite(J).all(axis=(-2, -1))
+    if finite.any():
+        kept = J[finite]
+        diagonal = np.abs(np.prod(np.diagonal(kept, axis1=-2, axis2=-1), axis=-1))
+        regular[finite] = np.linalg.det(kept) > SINGULAR_RTOL * np.maximum(
+            diagonal, np.finfo(float).tiny
+        )
+    return regular
+
+
 def regular_2x2(matrix: ArrayLike) -> BoolArray:
-    """Where a symmetric 2×2 matrix ``(..., 2, 2)`` is regular, shape ``(...)``.
+    """Where a symmetric 2×2 matrix ``(..., 2, 2)`` is regular, shape ``(...)``: the ``d = 2``
+    case of :func:`regular_symmetric`, its determinant in closed form.
 
     Regular: ``det > SINGULAR_RTOL · |J₁₁ J₂₂|`` (a negative determinant, NaN or ``inf``
     entries count as singular). Reads ``J₁₁``, ``J₁₂`` and ``J₂₂``.
@@ -473,7 +508,8 @@ def regular_2x2(matrix: ArrayLike) -> BoolArray:
 
 
 def inverse_2x2(matrix: ArrayLike) -> FloatArray:
-    """The inverse of symmetric 2×2 matrices ``(..., 2, 2)`` (an information or a covariance).
+    """The inverse of symmetric 2×2 matrices ``(..., 2, 2)`` (an information or a covariance):
+    the ``d = 2`` case of :func:`inverse_symmetric`.
 
     ``[[d, −b], [−b, a]] / (a d − b²)`` from ``a = J₁₁``, ``b = J₁₂``, ``d = J₂₂``; NaN where
     the matrix is singular (:func:`regular_2x2`). Applied to ``J`` it is the CRLB of MATH §8.
@@ -490,23 +526,21 @@ def inverse_2x2(matrix: ArrayLike) -> FloatArray:
 
 
 def inverse_symmetric(matrix: ArrayLike) -> FloatArray:
-    """The inverse of symmetric matrices ``(..., d, d)`` of any size, NaN where singular.
+    """The inverse of symmetric matrices ``(..., d, d)`` of any size, NaN where singular
+    (:func:`regular_symmetric`): an information's is the CRLB (MATH §8), a covariance's the
+    weight of the NEES (MATH §16).
 
-    ``d = 2`` is :func:`inverse_2x2` (closed form, its rule of regularity). A larger one is
-    regular where every eigenvalue exceeds ``SINGULAR_RTOL`` times the largest (a covariance or
-    an information matrix is positive semi-definite; NaN or ``inf`` entries count as singular)
-    and is inverted through its eigendecomposition.
+    ``d = 2`` is :func:`inverse_2x2` (the closed form); a larger one is inverted by LU
+    (``numpy.linalg.inv``) and made exactly symmetric, ``(A + Aᵀ)/2``.
     """
     J = np.asarray(matrix, dtype=float)
     if J.shape[-1] == 2:
         return inverse_2x2(J)
     inverse = np.full(J.shape, np.nan)
-    finite = np.isfinite(J).all(axis=(-2, -1))
-    if finite.any():
-        values, vectors = np.linalg.eigh(J[finite])
-        regular = values[..., 0] > SINGULAR_RTOL * np.maximum(values[..., -1], 0.0)
-        scaled = vectors / np.where(regular[..., None], values, np.nan)[..., None, :]
-        inverse[finite] = scaled @ np.swapaxes(vectors, -1, -2)
+    regular = regular_symmetric(J)
+    if regular.any():
+        solved = np.linalg.inv(J[regular])
+        inverse[regular] = 0.5 * (solved + np.swapaxes(solved, -1, -2))
     return inverse
 
 

@@ -4,8 +4,10 @@ A *planner* chooses the velocity of the next frame (MATH §0: a frame is K sampl
 constant velocity) from what is known after the frames flown so far:
 
 - the flight so far, a :class:`~scenarios.types.FlightPlan` (positions, velocities, K, Δ);
-- the current estimate: its candidates ``(n, 2)``, the returned position first (with the
-  mirror ambiguity of MATH §7 there are two), and optionally its covariance ``(2, 2)``;
+- the current estimate: its candidates ``(n, d)``, the returned position first (with the
+  mirror ambiguity of MATH §7 there are two), and optionally its covariance ``(d, d)``: ``d``
+  the coordinates of a position, ``(x, y)`` at a known emitter height (what the built-in
+  planners plan from, ``d = 2``) or ``(x, y, z)``;
 - the measurements of the frames flown, a :class:`~scenarios.types.MeasurementSet`.
 
 It is any object with a ``name`` and a ``plan`` method returning a :class:`Plan` (a
@@ -127,19 +129,21 @@ class Planner(Protocol):
 # --------------------------------------------------------------------------------------------
 
 
-def check_candidates(candidates_m: ArrayLike) -> FloatArray:
-    """The candidates as a finite ``(n, 2)`` array with ``n >= 1``, or ``ValueError``."""
+def check_candidates(candidates_m: ArrayLike, dimension: int = 2) -> FloatArray:
+    """The candidates as a finite ``(n, d)`` array with ``n >= 1``, or ``ValueError``; ``d``
+    is ``dimension``, the coordinates the planner plans from."""
+    d = dimension
     try:
         points = np.array(candidates_m, dtype=float)
     except (TypeError, ValueError):
         raise ValueError(
-            f"candidates_m: expected numbers of shape (n, 2), got {candidates_m!r}"
+            f"candidates_m: expected numbers of shape (n, {d}), got {candidates_m!r}"
         ) from None
-    if points.ndim == 1 and points.size == 2:
-        points = points.reshape(1, 2)
-    if points.ndim != 2 or points.shape[1] != 2 or len(points) == 0:
+    if points.ndim == 1 and points.size == d:
+        points = points.reshape(1, d)
+    if points.ndim != 2 or points.shape[1] != d or len(points) == 0:
         raise ValueError(
-            f"candidates_m: expected shape (n, 2) with n >= 1, got {points.shape}; "
+            f"candidates_m: expected shape (n, {d}) with n >= 1, got {points.shape}; "
             "give the estimate's candidates, the returned position first"
         )
     if not np.all(np.isfinite(points)):
@@ -150,16 +154,25 @@ def check_candidates(candidates_m: ArrayLike) -> FloatArray:
     return points
 
 
-def check_covariance(covariance_m2: ArrayLike | None) -> FloatArray | None:
-    """The covariance as a finite symmetric ``(2, 2)`` array, None, or ``ValueError``."""
+def check_covariance(covariance_m2: ArrayLike | None, dimension: int = 2) -> FloatArray | None:
+    """The covariance as a finite symmetric ``(d, d)`` array, None, or ``ValueError``; ``d``
+    is ``dimension``, that of the candidates (:func:`check_candidates`)."""
     if covariance_m2 is None:
         return None
+    d = dimension
     try:
-        matrix = np.array(covariance_m2, dtype=float).reshape(2, 2)
+        array = np.array(covariance_m2, dtype=float)
     except (TypeError, ValueError):
         raise ValueError(
-            f"covariance_m2: expected a (2, 2) matrix or None, got {covariance_m2!r}"
+            f"covariance_m2: expected a ({d}, {d}) matrix of numbers or None, got "
+            f"{type(covariance_m2).__name__}"
         ) from None
+    if array.size != d * d:
+        raise ValueError(
+            f"covariance_m2: expected a ({d}, {d}) matrix or None, got shape {array.shape}; "
+            "give the estimate's covariance of the candidates' coordinates"
+        )
+    matrix = array.reshape(d, d)
     if not np.all(np.isfinite(matrix)):
         return None  # an estimator without a usable covariance: as if none was given
     return 0.5 * (matrix + matrix.T)
