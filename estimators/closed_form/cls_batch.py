@@ -429,7 +429,7 @@ def solve_chunk(
     """World candidates (n, 2, 2), a hard-case pair left of the last heading first, and the
     solution of the last stage (its ``x, y`` and ``nuisance`` in the same order)."""
     scale = np.sqrt(shared.spread_sq + np.add.reduce(r * r, axis=0) / len(r))  # (np.mean's bits)
-    scale[scale <= 0.0] = 1.0
+    scale[~(scale > 0.0)] = 1.0  # (NaN too)
     rows_of = RowsOfChunk(shared, r, f, scale)
     deficient = shared.collinear
     n = r.shape[1]
@@ -478,8 +478,8 @@ def candidates_of_trial(data: MeasurementSet) -> FloatArray:
 
 def _second_left(shared: SharedGeometry, solution: GtrsBatch) -> NDArray[np.bool_]:
     """Whether the second of each hard-case pair lies left of the last heading (False off the
-    hard case): the order handed to the mirror rule, so that which point a tie-break returns does not
-    depend on the rounding of the two costs."""
+    hard case): the order handed to the mirror rule, so that which point a tie-break returns
+    does not depend on the rounding of the two costs."""
     velocity = shared.velocity[-1]
     across = (solution.x[:, 0] - solution.x[:, 1]) * -velocity[1] + (
         solution.y[:, 0] - solution.y[:, 1]
