@@ -110,7 +110,7 @@ def finalize_columns(
 
     # stable sort by cost, unless every trial's valid costs are in slot order already
     # (invalid slots, at cost inf, are skipped wherever they stand)
-    source: IntArray = np.broadcast_to(np.arange(width)[:, None], (width, n))
+    source: IntArray | None = None  # (None: slot order)
     running = np.maximum.accumulate(np.where(valid, cost, -np.inf), axis=0)
     if not np.logical_and.reduce(cost[1:] >= running[:-1], axis=None):
         source = np.argsort(cost, axis=0, kind="stable")
@@ -123,10 +123,11 @@ def finalize_columns(
         spread = np.maximum(np.abs(x - centre[0]), np.abs(y - centre[1]))
         scale = np.maximum.reduce(np.where(valid, spread, -np.inf), axis=0)
         threshold = MERGE_RTOL * np.maximum(scale, 1e-300)
+        # close[i, j]: slot i within the threshold of slot j (every pair at once)
+        close = np.hypot(x[:, None] - x, y[:, None] - y) <= threshold
         kept = valid.copy()
-        for i in range(1, width):  # slot i against the slots before it
-            close = np.hypot(x[i] - x[:i], y[i] - y[:i]) <= threshold
-            kept[i] &= ~np.logical_or.reduce(kept[:i] & close, axis=0)
+        for i in range(1, width):  # slot i against the kept slots before it
+            kept[i] &= ~np.logical_or.reduce(kept[:i] & close[i, :i], axis=0)
 
     # the kept points are in cost order; those above the tie level go
     best = np.minimum.reduce(cost, axis=0)  # the first valid slot's (always kept)
@@ -140,7 +141,7 @@ def finalize_columns(
     out[trial, at, 0] = x[slot, trial]
     out[trial, at, 1] = y[slot, trial]
     out_source = np.full((n, width), -1, dtype=np.int64)
-    out_source[trial, at] = source[slot, trial]
+    out_source[trial, at] = slot if source is None else source[slot, trial]
     filled = np.arange(width) < n_final[:, None]
 
     chosen = np.zeros(n, dtype=np.int64)

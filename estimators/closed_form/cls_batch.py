@@ -117,8 +117,10 @@ class SharedGeometry:
         speed = horizontal_speed_mps(velocity)
         # frames never decrease (MeasurementSet checks it): each starts where it changes
         frame = used.frame
-        starts = np.flatnonzero(np.concatenate([[True], frame[1:] != frame[:-1]]))
-        counts = np.diff(np.append(starts, k))
+        change = np.ones(k, dtype=bool)
+        np.not_equal(frame[1:], frame[:-1], out=change[1:])
+        bounds = np.append(np.flatnonzero(change), k)
+        starts, counts = bounds[:-1], bounds[1:] - bounds[:-1]
         unit = velocity[:, :2] / speed[:, None]
         dz = position[:, 2] - used.emitter_height_m
         names = ("x", "y", "-2x", "-2y", "ux", "uy", "-ux", "-uy", "vx", "vy", "vz", "dz", "gv")
@@ -220,45 +222,43 @@ def _solve_part(
     side_prior_m: tuple[float, float] | None,
 ) -> SolvedTrials:
     """:func:`solve_trials` of one chunk (n, K)."""
-    r = np.ascontiguousarray(ranges.T)
-    f = np.ascontiguousarray(doppler.T)
-    single = r.shape[1] == 1
-    if single:  # numpy sums one column in another order: solve it as two, keep one
-        r, f = np.repeat(r, 2, axis=1), np.repeat(f, 2, axis=1)
+    n = len(ranges)
+    if n == 1:  # numpy sums one column in another order: solve it as two, keep one
+        r, f = np.repeat(ranges.T, 2, axis=1), np.repeat(doppler.T, 2, axis=1)
+    else:
+        r, f = np.ascontiguousarray(ranges.T), np.ascontiguousarray(doppler.T)
     with np.errstate(all="ignore"):
         world, solution = solve_chunk(shared, rows, r, f)
-        if single:
-            world, solution = world[:1], solution.first()
+        hard = solution.hard_case[:n]
         # on a straight track the hard case hands over its left point only: the other is
         # that one's mirror image, which the mirror rule adds (cls.ordered_candidates)
-        count = solution.count
+        count = solution.count[:n]
         if shared.line is not None:
-            count = np.where(solution.hard_case, 1, count)
+            count = count - hard
         final = finalize_columns(
-            world,
+            world[:n],
             count,
-            _ordered_costs(solution),
+            _ordered_costs(solution.costs[:n], hard),
             shared.mean_xy,
             shared.line,
             side_prior_m=side_prior_m,
         )
     candidates = final.candidates
     if candidates.shape[1] < MAX_CANDIDATES:  # every chunk holds the same width
-        missing = MAX_CANDIDATES - candidates.shape[1]
-        candidates = np.concatenate(
-            [candidates, np.full((len(candidates), missing, 2), np.nan)], axis=1
-        )
+        padded = np.full((n, MAX_CANDIDATES, 2), np.nan)
+        padded[:, : candidates.shape[1]] = candidates
+        candidates = padded
     return SolvedTrials(
         candidates,
         final.n_candidates,
         final.chosen,
         final.draw,
         final.ambiguous,
-        solution.failed | final.invalid,
-        solution.hard_case,
-        solution.multiplier,
-        solution.rank,
-        None if not shared.offset_unknown else solution.nuisance[:, 0],
+        solution.failed[:n] | final.invalid,
+        hard,
+        solution.multiplier[:n],
+        solution.rank[:n],
+        None if not shared.offset_unknown else solution.nuisance[:n, 0],
     )
 
 
@@ -395,8 +395,8 @@ def system_of_trial(
     elif last_stage and rows == "weighted":
         with np.errstate(all="ignore"):
             first = solve_gtrs_batch(rows_of.blocks(rows), 1)
-        pick = _left_first(shared, first)
-        weights_at = (first.x[:1, pick[0]], first.y[:1, pick[0]])
+        pick = int(_second_left(shared, first)[0])
+        weights_at = (first.x[:1, pick], first.y[:1, pick])
     blocks = rows_of.blocks(rows, weights_at=weights_at)
 
     def column(values: FloatArray | None, n_rows: int) -> FloatArray:
@@ -417,10 +417,10 @@ def system_of_trial(
     return A, b, offset, float(scale[0])
 
 
-def _ordered_costs(solution: GtrsBatch) -> FloatArray:
-    """The costs handed to the mirror rule: a hard-case pair's both at the smaller one."""
-    pair_best = np.min(solution.costs, axis=1)
-    return np.where(solution.hard_case[:, None], pair_best[:, None], solution.costs)
+def _ordered_costs(costs: FloatArray, hard_case: NDArray[np.bool_]) -> FloatArray:
+    """The costs (n, 2) handed to the mirror rule: a hard-case pair's both at the smaller one."""
+    pair_best = np.minimum.reduce(costs, axis=1, keepdims=True)
+    return np.where(hard_case[:, None], pair_best, costs)
 
 
 def solve_chunk(
@@ -428,8 +428,8 @@ def solve_chunk(
 ) -> tuple[FloatArray, GtrsBatch]:
     """World candidates (n, 2, 2), a hard-case pair left of the last heading first, and the
     solution of the last stage (its ``x, y`` and ``nuisance`` in the same order)."""
-    scale = np.sqrt(shared.spread_sq + np.mean(r * r, axis=0))
-    scale = np.where(scale > 0.0, scale, 1.0)
+    scale = np.sqrt(shared.spread_sq + np.add.reduce(r * r, axis=0) / len(r))  # (np.mean's bits)
+    scale[~(scale > 0.0)] = 1.0  # (NaN too)
     rows_of = RowsOfChunk(shared, r, f, scale)
     deficient = shared.collinear
     n = r.shape[1]
@@ -439,26 +439,25 @@ def solve_chunk(
     if rows == "weighted":
         # stage 2: weights at the stage-1 estimate (MATH §6); of a hard-case pair, at the point
         # left of the last heading (on a straight track both give the same weights)
-        first = _left_first(shared, solution)
-        local_x, local_y = solution.x[np.arange(n), first], solution.y[np.arange(n), first]
+        first = _second_left(shared, solution)
+        local_x = np.where(first, solution.x[:, 1], solution.x[:, 0])
+        local_y = np.where(first, solution.y[:, 1], solution.y[:, 0])
         solution = solve_gtrs_batch(
             rows_of.blocks(rows, weights_at=(local_x, local_y)),
             n,
             rank=True,
             rank_deficient=deficient,
         )
-    swap = _left_first(shared, solution) == 1
+    swap = _second_left(shared, solution)
     for name in ("x", "y", "costs", "nuisance") if swap.any() else ():
         values = getattr(solution, name)
         if values is not None:
             values[swap] = values[swap, ::-1]
-    world = np.stack(
-        [
-            solution.x * scale[:, None] + shared.origin[0],
-            solution.y * scale[:, None] + shared.origin[1],
-        ],
-        axis=-1,
-    )
+    world = np.empty((n, 2, 2))
+    np.multiply(solution.x, scale[:, None], out=world[..., 0])
+    world[..., 0] += shared.origin[0]
+    np.multiply(solution.y, scale[:, None], out=world[..., 1])
+    world[..., 1] += shared.origin[1]
     return world, solution
 
 
@@ -477,15 +476,15 @@ def candidates_of_trial(data: MeasurementSet) -> FloatArray:
     return world[0, : int(solution.count[0])]
 
 
-def _left_first(shared: SharedGeometry, solution: GtrsBatch) -> NDArray[np.int64]:
-    """Which of each hard-case pair lies left of the last heading (0 or 1; 0 off the hard case):
-    the order handed to the mirror rule, so that which point a tie-break returns does not
-    depend on the rounding of the two costs."""
-    velocity = shared.used.velocity_mps[-1]
+def _second_left(shared: SharedGeometry, solution: GtrsBatch) -> NDArray[np.bool_]:
+    """Whether the second of each hard-case pair lies left of the last heading (False off the
+    hard case): the order handed to the mirror rule, so that which point a tie-break returns
+    does not depend on the rounding of the two costs."""
+    velocity = shared.velocity[-1]
     across = (solution.x[:, 0] - solution.x[:, 1]) * -velocity[1] + (
         solution.y[:, 0] - solution.y[:, 1]
     ) * velocity[0]
-    return (solution.hard_case & (across < 0.0)).astype(np.int64)
+    return solution.hard_case & (across < 0.0)
 
 
 class RowsOfChunk:

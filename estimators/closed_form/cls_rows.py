@@ -58,8 +58,9 @@ class LocalFrame:
 
 def horizontal_speed_mps(velocity_mps: ArrayLike) -> FloatArray:
     """``|v_xy|`` per sample; raises ``ValueError`` on a sample with no horizontal motion."""
-    speed = np.linalg.norm(np.asarray(velocity_mps, dtype=float)[:, :2], axis=1)
-    if np.any(speed <= 0.0):
+    velocity = np.asarray(velocity_mps, dtype=float)
+    speed = np.sqrt(velocity[:, 0] * velocity[:, 0] + velocity[:, 1] * velocity[:, 1])
+    if (speed <= 0.0).any():
         index = int(np.argmin(speed))
         raise ValueError(
             f"velocity_mps: sample {index} has zero horizontal speed; the Doppler rows of "

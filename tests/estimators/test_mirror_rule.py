@@ -1,0 +1,99 @@
+"""The mirror rule of MATH §7 (:func:`estimators.mirror_rule.finalize_columns`) against a
+plain-Python statement of it, trial by trial, and the batch against its trials one at a time."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from estimators.mirror_rule import MERGE_RTOL, cost_tie_level, finalize_columns
+
+
+def _rule_of_one_trial(candidates, count, costs, centre, line, cost_rtol=1e-6):
+    """The rule as the module text states it, one trial in plain Python: (kept points best
+    first, their source slots)."""
+    slots = len(candidates)
+    points = []  # (x, y, cost, source, valid), in slot order: the candidates, then mirrors
+    for j in range(slots):
+        x, y, c = (float(v) for v in (*candidates[j], costs[j]))
+        valid = j < count and np.isfinite(x + y + c)
+        points.append((x, y, c if valid else np.inf, j, valid))
+    if line is not None:
+        (ox, oy), (dx, dy) = line
+        for x, y, c, j, valid in points[:slots]:
+            along = (x - ox) * dx + (y - oy) * dy
+            mirrored = (ox + 2.0 * along * dx - (x - ox), oy + 2.0 * along * dy - (y - oy))
+            points.append((*mirrored, c, slots + j, valid))
+    points = sorted(points, key=lambda p: p[2])  # stable: equal costs keep their order
+    spread = [max(abs(x - centre[0]), abs(y - centre[1])) for x, y, _, _, v in points if v]
+    threshold = MERGE_RTOL * max(max(spread, default=-np.inf), 1e-300)
+    kept = []
+    for point in points:
+        near = any(np.hypot(point[0] - k[0], point[1] - k[1]) <= threshold for k in kept)
+        if point[4] and not near:
+            kept.append(point)
+    best = min((p[2] for p in points), default=np.inf)
+    level = cost_tie_level(best if best < np.inf else 0.0, cost_rtol)
+    final = [p for p in kept if p[2] <= level]
+    return [(p[0], p[1]) for p in final], [p[3] for p in final]
+
+
+def _random_trials(rng: np.random.Generator, n: int) -> tuple[np.ndarray, ...]:
+    """Two candidate slots per trial with coincident points, tied costs and NaNs mixed in."""
+    candidates = rng.normal(0.0, 50.0, size=(n, 2, 2)) + np.array([30.0, 10.0])
+    near = rng.random(n) < 0.3  # the second a hair away from the first: one point
+    candidates[near, 1] = candidates[near, 0] + rng.normal(0.0, 1e-9, size=(near.sum(), 2))
+    costs = rng.exponential(10.0, size=(n, 2))
+    tied = rng.random(n) < 0.4
+    costs[tied, 1] = costs[tied, 0] * (1.0 + rng.choice([0.0, 1e-9, 1e-3], size=tied.sum()))
+    candidates[rng.random(n) < 0.05, rng.integers(0, 2)] = np.nan
+    count = rng.integers(0, 3, size=n)
+    return candidates, count, costs
+
+
+@pytest.mark.parametrize("straight", [False, True])
+def test_the_batch_follows_the_rule_trial_by_trial(straight: bool) -> None:
+    rng = np.random.default_rng(21 + straight)
+    n = 400
+    candidates, count, costs = _random_trials(rng, n)
+    centre = np.array([5.0, -2.0])
+    line = (centre, np.array([0.6, 0.8])) if straight else None
+    final = finalize_columns(candidates, count, costs, centre, line)
+    for i in range(n):
+        points, sources = _rule_of_one_trial(candidates[i], count[i], costs[i], centre, line)
+        m = int(final.n_candidates[i])
+        assert m == len(points)
+        np.testing.assert_array_equal(final.candidates[i, :m], np.reshape(points, (m, 2)))
+        assert np.isnan(final.candidates[i, m:]).all()
+        assert final.source[i, :m].tolist() == sources
+        assert bool(final.draw[i]) == (m > 1)
+        assert bool(final.ambiguous[i]) == (m > 1 or straight)
+        assert bool(final.invalid[i]) == (m == 0)
+
+
+def test_a_point_near_a_dropped_one_is_kept() -> None:
+    """The merge is greedy in cost order: B is dropped for lying near A, and C, near B but
+    not near A, stays (the threshold is MERGE_RTOL times the points' spread, here 1 µm)."""
+    step = 0.6e-9 * 1000.0
+    candidates = np.array([[[1000.0, 0.0], [1000.0 + step, 0.0], [1000.0 + 2 * step, 0.0]]])
+    final = finalize_columns(candidates, np.array([3]), np.ones((1, 3)), [0.0, 0.0], None)
+    assert final.n_candidates.tolist() == [2]
+    assert final.source[0, :2].tolist() == [0, 2]
+
+
+def test_a_batch_is_its_trials_one_at_a_time() -> None:
+    rng = np.random.default_rng(23)
+    candidates, count, costs = _random_trials(rng, 200)
+    line = (np.array([1.0, 2.0]), np.array([1.0, 0.0]))
+    batch = finalize_columns(candidates, count, costs, [1.0, 2.0], line, side_prior_m=(0.0, 9.0))
+    for i in range(200):
+        one = finalize_columns(
+            candidates[i : i + 1],
+            count[i : i + 1],
+            costs[i : i + 1],
+            [1.0, 2.0],
+            line,
+            side_prior_m=(0.0, 9.0),
+        )
+        for name in ("candidates", "n_candidates", "source", "chosen", "draw", "ambiguous"):
+            np.testing.assert_array_equal(getattr(one, name)[0], getattr(batch, name)[i])
