@@ -582,19 +582,21 @@ def write_report(
         The path of ``report.html``.
     """
     folder = Path(run_dir)
-    points, experiment, run_info = _load(folder, points, experiment, run_info)
     limit = (
         configured_limit(TRIALS_CSV_LIMIT) if max_trials_csv_rows is None else max_trials_csv_rows
     )
-    layout = None
     if trials is None:
         from comparison import store
 
-        layout = store.trial_layout(folder)
-    n_rows = len(trials) if layout is None else layout.n_rows
-    # trials.csv from results.sqlite in a process of its own while the summary is worked out
-    forked = layout is not None and n_rows <= limit
+        n_rows = store.count_trials(folder)
+    else:
+        n_rows = len(trials)
+    # trials.csv from results.sqlite in a process of its own, started first: it overlaps the
+    # reading of the run and the summary
+    forked = trials is None and n_rows <= limit
     with trials_csv_forked(folder, forked) as csv_written:
+        points, experiment, run_info = _load(folder, points, experiment, run_info)
+        layout = None if trials is not None else store.trial_layout(folder)
         # the figures' columns kept from the summary's reading (matplotlib imported with them)
         summary, figure_trials = _summary(folder, trials, experiment, n_bootstrap, layout)
         write_csv(folder / "summary.csv", summary)

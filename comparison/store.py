@@ -460,6 +460,13 @@ class TrialLayout:
     orders: dict[str, tuple[str, ...]]
 
 
+def count_trials(out_dir: str | os.PathLike[str]) -> int:
+    """The trial rows of a run folder."""
+    with _reading(Path(out_dir)) as connection:
+        (n_rows,) = connection.execute("SELECT COUNT(*) FROM trials").fetchone()
+    return int(n_rows)
+
+
 def trial_layout(out_dir: str | os.PathLike[str]) -> TrialLayout:
     """Count the trial rows and trial sets of a run folder and order its labels."""
     with _reading(Path(out_dir)) as connection:

@@ -173,6 +173,7 @@ def stand_in_store(patch: pytest.MonkeyPatch, trials: pd.DataFrame) -> None:
             "estimator": tuple(pd.unique(trials["estimator"])),
         },
     )
+    patch.setattr(store, "count_trials", lambda run_dir: len(trials))
     patch.setattr(store, "trial_layout", lambda run_dir: layout)
     patch.setattr(store, "iter_trials", lambda run_dir, columns=None, **_: iter([trials.copy()]))
     patch.setattr(store, "read_trials", lambda run_dir, columns=None: trials.copy())

@@ -17,6 +17,7 @@ from comparison.experiment import load_experiment
 from comparison.metrics import SUMMARY_TRIAL_COLUMNS, summarize, summarize_chunks
 from comparison.run_folder import write_csv
 from comparison.store import (
+    count_trials,
     iter_trials,
     read_flights,
     read_points,
@@ -144,6 +145,7 @@ def test_the_fit_columns_are_stored_and_added_to_a_folder_of_an_earlier_version(
     assert (trials["fit_chi2"] > 0).all() and trials["fit_chi2"].notna().all()
     # the summary read from the store, a point at a time, judges every one of them
     layout = trial_layout(finished_run)
+    assert count_trials(finished_run) == layout.n_rows == len(trials)
     chunks = iter_trials(finished_run, SUMMARY_TRIAL_COLUMNS)
     summary = summarize_chunks(chunks, orders=layout.orders, n_trial_sets=2, n_bootstrap=20)
     assert (summary["n_fit_judged"] == TRIALS).all()
