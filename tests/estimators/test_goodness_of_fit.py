@@ -19,8 +19,10 @@ from scipy import stats
 from estimators import make_estimator
 from estimators.base import Estimate, capabilities_of
 from estimators.goodness_of_fit import (
+    FIT_TEST_LEVEL,
     fit_chi_square,
     fit_of,
+    fit_p_value,
     fit_rejected,
     fit_warning,
     with_fit,
@@ -210,3 +212,17 @@ def test_the_frames_and_modalities_used_are_the_estimators():
     assert doppler.diagnostics["fit_dof"] == beacon.n_samples - 3  # (x, y) and the offset
     failed = Estimate.failed("cls", "no answer")
     assert with_fit(make_estimator("cls"), failed, data) is failed
+
+
+def test_the_fit_test_is_scipys_chi_square_quantile_and_tail():
+    """fit_rejected's limit and fit_p_value are χ²(ν)'s quantile and tail (scipy.stats.chi2),
+    for every ν a run can hold; nothing judged where ν < 1 or χ² is not finite."""
+    rng = np.random.default_rng(17)
+    dof = rng.integers(-2, 400, 5000).astype(float)
+    value = np.where(rng.random(5000) < 0.02, np.nan, rng.uniform(-5.0, 500.0, 5000))
+    judged = np.isfinite(value) & (dof >= 1)
+    limit = stats.chi2.ppf(1.0 - FIT_TEST_LEVEL, np.where(judged, dof, 1.0))
+    np.testing.assert_array_equal(fit_rejected(value, dof), judged & (value > limit))
+    for v, d in zip(value[:500], dof[:500], strict=True):
+        expected = stats.chi2.sf(v, d) if d >= 1 and np.isfinite(v) else np.nan
+        np.testing.assert_allclose(fit_p_value(v, int(d)), expected, rtol=1e-12)
