@@ -12,13 +12,15 @@ maximum-likelihood search evaluate.
 
     P_k = P_0 - 10\,\eta\,\log_{10}(\rho_k / d_0) \quad\text{(received power, dBm)}
 
-with ``s = (x_s, y_s, z_s)`` and ``z_s`` known; the carrier offset δ and the emission time b
-are zero for a cooperative emitter and nuisance parameters otherwise (MATH §15); they enter
-linearly, with derivative 1 in their own parameter. Pure functions, vectorised:
-``position_m`` and ``velocity_mps`` have shape ``(..., N, 3)``, ``emitter_m`` has shape
-``(..., 2)``; leading axes broadcast, so one call evaluates many trials, many candidate
-emitters or many geometries. Noise-free values come out with shape ``(..., N)``, Jacobians
-with shape ``(..., N, 2)``. :func:`doppler_range_derivatives` gives the Doppler and range with
+with ``s = (x_s, y_s, z_s)``; the carrier offset δ and the emission time b are zero for a
+cooperative emitter and nuisance parameters otherwise (MATH §15); they enter linearly, with
+derivative 1 in their own parameter. Pure functions, vectorised: ``position_m`` and
+``velocity_mps`` have shape ``(..., N, 3)``, ``emitter_m`` has shape ``(..., d)``: ``d = 2``,
+``(x_s, y_s)`` with the height ``z_s = emitter_height_m`` known, or ``d = 3``, ``(x_s, y_s,
+z_s)``, the height a coordinate of the position (``emitter_height_m`` is then not read);
+leading axes broadcast, so one call evaluates many trials, many candidate emitters or many
+geometries. Noise-free values come out with shape ``(..., N)``, Jacobians (in the
+position's ``d`` coordinates) with shape ``(..., N, d)``. :func:`doppler_range_derivatives` gives the Doppler and range with
 their derivatives to third order (the frame-by-frame filters and the smoother's expansion),
 :func:`derivatives_of_offsets` the same on per-sample components in any layout (the
 maximum-likelihood search) and :func:`rss_of_ranges` the received power from them.
@@ -48,9 +50,19 @@ def _offset_components(
     emitter = np.asarray(emitter_m, dtype=float)
     dx = position[..., 0] - emitter[..., 0, None]
     dy = position[..., 1] - emitter[..., 1, None]
-    dz = position[..., 2] - np.asarray(emitter_height_m, dtype=float)
+    dz = position[..., 2] - emitter_height(emitter, emitter_height_m)
     distance = np.sqrt(dx * dx + dy * dy + dz * dz)
     return dx, dy, dz, distance
+
+
+def emitter_height(emitter_m: ArrayLike, emitter_height_m: ArrayLike = 0.0) -> FloatArray:
+    """``z_s``, broadcasting against the samples ``(..., N)``: the third coordinate of a 3-D
+    ``emitter_m`` (the height a coordinate of the position), else the known
+    ``emitter_height_m``."""
+    emitter = np.asarray(emitter_m, dtype=float)
+    if emitter.shape[-1] == 3:
+        return emitter[..., 2, None]
+    return np.asarray(emitter_height_m, dtype=float)
 
 
 def emitter_offsets_m(
@@ -118,9 +130,11 @@ def toa_jacobian(
     speed_of_light_mps: float,
     emitter_height_m: float = 0.0,
 ) -> FloatArray:
-    """``∂τ_k/∂(x_s, y_s) = −u_k,xy / c`` (MATH §8), shape ``(..., N, 2)``."""
-    dx, dy, _, distance = _offset_components(position_m, emitter_m, emitter_height_m)
-    return np.stack([-(dx / distance), -(dy / distance)], axis=-1) / speed_of_light_mps
+    """``∂τ_k/∂s = −u_k / c`` in the position's ``d`` coordinates (MATH §8), shape
+    ``(..., N, d)``."""
+    dx, dy, dz, distance = _offset_components(position_m, emitter_m, emitter_height_m)
+    offsets = (dx, dy, dz)[: np.shape(emitter_m)[-1]]
+    return np.stack([-(offset / distance) for offset in offsets], axis=-1) / speed_of_light_mps
 
 
 def doppler_jacobian(
@@ -130,10 +144,21 @@ def doppler_jacobian(
     gamma_per_m: float,
     emitter_height_m: float = 0.0,
 ) -> FloatArray:
-    """``∂f_k/∂(x_s, y_s) = γ (v_k − (v_kᵀu_k) u_k)_xy / ρ_k`` (MATH §8), shape ``(..., N, 2)``."""
-    return doppler_range_derivatives(
+    """``∂f_k/∂s = γ (v_k − (v_kᵀu_k) u_k) / ρ_k`` in the position's ``d`` coordinates
+    (MATH §8), shape ``(..., N, d)``.
+
+    The height's entry, ``γ (v_z − (vᵀu) u_z)/ρ``, is ``(γ v_z + f u_z)/ρ`` with the Doppler's
+    own value ``f = −γ vᵀu`` (:func:`doppler_range_derivatives` gives the plane's)."""
+    doppler, ranges = doppler_range_derivatives(
         position_m, velocity_mps, emitter_m, gamma_per_m, emitter_height_m, order=1
-    )[0][..., 1:]
+    )
+    if np.shape(emitter_m)[-1] != 3:
+        return doppler[..., 1:]
+    distance = ranges[..., 0]
+    dz = np.asarray(position_m, dtype=float)[..., 2] - emitter_height(emitter_m)
+    vz = np.asarray(velocity_mps, dtype=float)[..., 2]
+    height = (gamma_per_m * vz + doppler[..., 0] * dz / distance) / distance
+    return np.concatenate([doppler[..., 1:], height[..., None]], axis=-1)
 
 
 DERIVATIVE_COMPONENTS = ("", "x", "y", "xx", "xy", "yy", "xxx", "xxy", "xyy", "yyy")
@@ -252,7 +277,8 @@ def doppler_range_derivatives(
     ``∂xxx, ∂xxy, ∂xyy, ∂yyy``). Without the nuisance terms: a carrier offset δ adds to
     ``f_k`` and a range offset ``c b`` to ``ρ_k``, each with derivative 1 in its own parameter
     and none in the position (MATH §15). ``gamma_per_m`` and ``emitter_height_m`` may be
-    arrays broadcasting against ``(..., N)`` (samples of several frames at once).
+    arrays broadcasting against ``(..., N)`` (samples of several frames at once). A 3-D
+    ``emitter_m`` gives the height; the derivatives are still those in ``(x_s, y_s)``.
 
     With ``w = p_k − s``, ``ρ = ‖w‖``, ``u = w/ρ``, ``r = vᵀu``, ``t = v − r u`` and
     ``P = I − u uᵀ`` (xy parts, indices ``a, b, c``):
@@ -276,7 +302,7 @@ def doppler_range_derivatives(
     doppler, ranges = derivatives_of_offsets(
         position[..., 0] - emitter[..., 0, None],
         position[..., 1] - emitter[..., 1, None],
-        position[..., 2] - np.asarray(emitter_height_m, dtype=float),
+        position[..., 2] - emitter_height(emitter, emitter_height_m),
         (velocity[..., 0], velocity[..., 1], velocity[..., 2]),
         gamma_per_m,
         order=order,
@@ -290,18 +316,22 @@ def rss_jacobian(
     rss_model: RssModel,
     emitter_height_m: float = 0.0,
 ) -> FloatArray:
-    """``∂P_k/∂(x_s, y_s) = (10 η / ln 10) u_k,xy / ρ_k`` (MATH §8), shape ``(..., N, 2)``."""
-    dx, dy, _, distance = _offset_components(position_m, emitter_m, emitter_height_m)
-    ranges = np.stack([distance, -(dx / distance), -(dy / distance)])
-    return _first_last(rss_of_ranges(ranges, rss_model)[1:])
+    """``∂P_k/∂s = (10 η / ln 10) u_k / ρ_k`` in the position's ``d`` coordinates (MATH §8),
+    shape ``(..., N, d)``."""
+    dx, dy, dz, distance = _offset_components(position_m, emitter_m, emitter_height_m)
+    offsets = (dx, dy, dz)[: np.shape(emitter_m)[-1]]
+    ranges = np.stack([distance, *(-(offset / distance) for offset in offsets)])
+    return _first_last(rss_of_ranges(ranges, rss_model, len(offsets))[1:])
 
 
-def rss_of_ranges(ranges: FloatArray, rss_model: RssModel) -> FloatArray:
+def rss_of_ranges(ranges: FloatArray, rss_model: RssModel, dimension: int = 2) -> FloatArray:
     """The received power ``P_k = P0 − 10 η log10(ρ_k / d0)`` (MATH §1) and, when ``ranges``
     holds them, its first derivatives ``∇P_k = −(10 η / ln 10) ∇ρ_k / ρ_k`` (MATH §8), from
-    the ranges' components first (:func:`derivatives_of_offsets`): shape ``(1 or 3, ...)``."""
+    the ranges' components first (:func:`derivatives_of_offsets`, or the range and its
+    gradient in the position's ``dimension`` coordinates): shape ``(1 or 1 + dimension,
+    ...)``."""
     distance = ranges[0]
-    out = np.empty((min(len(ranges), 3), *distance.shape))
+    out = np.empty((min(len(ranges), 1 + dimension), *distance.shape))
     ten_eta = 10.0 * rss_model.path_loss_exponent
     np.subtract(
         rss_model.reference_power_dbm,
@@ -310,6 +340,8 @@ def rss_of_ranges(ranges: FloatArray, rss_model: RssModel) -> FloatArray:
     )
     if len(out) > 1:
         np.multiply(
-            ranges[1:3], -_TEN_OVER_LN10 * rss_model.path_loss_exponent / distance, out=out[1:]
+            ranges[1 : len(out)],
+            -_TEN_OVER_LN10 * rss_model.path_loss_exponent / distance,
+            out=out[1:],
         )
     return out

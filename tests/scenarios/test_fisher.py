@@ -21,6 +21,7 @@ from scenarios.fisher import (
     gram_information,
     information_at_samples,
     inverse_2x2,
+    inverse_symmetric,
     parse_modalities,
     per_sample_information,
     regular_2x2,
@@ -38,7 +39,8 @@ MODALITY_CHOICES = ["toa", "doppler", "rss", "toa+doppler", ("doppler", "toa", "
 def differenced_gradients(
     position: np.ndarray, velocity: np.ndarray, emitter: np.ndarray, data: MeasurementSet
 ) -> dict[str, np.ndarray]:
-    """``∇h_k`` of every modality, shape (N, 2), by central differences of the model."""
+    """``∇h_k`` of every modality, shape (N, d), by central differences of the model in the
+    emitter's ``d`` coordinates (``d = 3``: the height one of them)."""
     height = data.emitter_height_m
     functions = {
         "toa": lambda s: model.toa_s(position, s, data.speed_of_light_mps, height),
@@ -50,7 +52,7 @@ def differenced_gradients(
         name: np.stack(
             [
                 (h(emitter + step * unit) - h(emitter - step * unit)) / (2.0 * step)
-                for unit in np.eye(2)
+                for unit in np.eye(len(emitter))
             ],
             axis=-1,
         )
@@ -65,7 +67,7 @@ def differenced_per_sample(
     data: MeasurementSet,
     modalities: tuple[str, ...],
 ) -> np.ndarray:
-    """``J_k = Σ_m ∇h_k∇h_kᵀ/σ_m²`` from differenced gradients, shape (N, 2, 2)."""
+    """``J_k = Σ_m ∇h_k∇h_kᵀ/σ_m²`` from differenced gradients, shape (N, d, d)."""
     gradients = differenced_gradients(position, velocity, emitter, data)
     return sum(
         np.einsum("ki,kj->kij", gradients[m], gradients[m]) / data.noise.for_modality(m) ** 2
@@ -108,6 +110,29 @@ def test_information_equals_the_finite_difference_fisher_matrix(seed, modalities
     )
     assert rmse_bound_m(fisher_information(data, emitter, modalities)) == pytest.approx(
         np.sqrt(np.trace(np.linalg.inv(expected))), rel=1e-5
+    )
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("modalities", MODALITY_CHOICES)
+def test_the_information_of_a_3d_position_equals_the_finite_difference_fisher(
+    seed, modalities
+) -> None:
+    """The height a coordinate of the position (a 3-D ``emitter_m``) on a climbing flight: the
+    3×3 information against central differences of the model in (x, y, z), rtol 1e-6."""
+    data = random_data(seed, climb_mps=3.0)
+    emitter = np.array([*data.truth_emitter_m, data.emitter_height_m])
+    used = parse_modalities(modalities)
+    expected_per_sample = differenced_per_sample(
+        data.position_m, data.velocity_mps, emitter, data, used
+    )
+    per_sample = per_sample_information(
+        data.position_m, data.velocity_mps, emitter, data, modalities
+    )
+    assert per_sample.shape == (data.n_samples, 3, 3)
+    assert_matrices_close(per_sample, expected_per_sample, rtol=1e-6)
+    assert_matrices_close(
+        fisher_information(data, emitter, modalities), expected_per_sample.sum(axis=0), rtol=1e-6
     )
 
 
@@ -352,3 +377,62 @@ def test_a_missing_sigma_or_rss_model_raises() -> None:
     np.testing.assert_array_equal(
         fisher_information(without_toa, emitter, "toa"), fisher_information(data, emitter, "toa")
     )
+
+
+def test_a_3d_emitter_at_the_known_height_is_the_2d_model_and_its_plane_gradient() -> None:
+    """The same samples seen from ``(x, y)`` at the known height and from ``(x, y, z)`` with
+    ``z`` that height: the same values, and the 3-D gradients' first two columns are the 2-D
+    ones."""
+    data = random_data(3, climb_mps=-2.0)
+    plane, height = data.truth_emitter_m, data.emitter_height_m
+    solid = np.array([*plane, height])
+    p, v, c, gamma = data.position_m, data.velocity_mps, data.speed_of_light_mps, data.gamma_per_m
+    pairs = [
+        (model.toa_s(p, plane, c, height), model.toa_s(p, solid, c, 1e3)),
+        (model.doppler_hz(p, v, plane, gamma, height), model.doppler_hz(p, v, solid, gamma, 1e3)),
+        (model.rss_dbm(p, plane, data.rss_model, height), model.rss_dbm(p, solid, data.rss_model)),
+        (model.toa_jacobian(p, plane, c, height), model.toa_jacobian(p, solid, c)[..., :2]),
+        (
+            model.doppler_jacobian(p, v, plane, gamma, height),
+            model.doppler_jacobian(p, v, solid, gamma)[..., :2],
+        ),
+        (
+            model.rss_jacobian(p, plane, data.rss_model, height),
+            model.rss_jacobian(p, solid, data.rss_model)[..., :2],
+        ),
+    ]
+    for two_d, three_d in pairs:
+        np.testing.assert_allclose(three_d, two_d, rtol=1e-15, atol=0.0)
+
+
+def test_the_3d_bound_with_unknown_offset_and_emission_time_and_the_price_of_the_height() -> None:
+    """beacon-pass (carrier offset and emission time unknown): the position block of the
+    inverse of a finite-difference Fisher matrix over (x, y, z, δ, b) is the 3-D CRLB, rtol
+    1e-6; the horizontal block of that bound is at least the bound with the height known (a
+    Schur complement only loses information), strictly so here."""
+    data = noise_free(get_scenario("beacon-pass"), snr_db=20.0)
+    plane = data.truth_emitter_m
+    truth = np.array([*plane, data.emitter_height_m])
+    p, v = data.position_m, data.velocity_mps
+    sigma_f, sigma_t = data.noise.doppler_hz, data.noise.toa_s
+
+    def whitened(theta: np.ndarray) -> np.ndarray:
+        s, offset_hz, emission_s = theta[:3], theta[3], theta[4]
+        doppler = model.doppler_hz(p, v, s, data.gamma_per_m, carrier_offset_hz=offset_hz)
+        toa = model.toa_s(p, s, data.speed_of_light_mps, emission_time_s=emission_s)
+        return np.concatenate([doppler / sigma_f, toa / sigma_t])
+
+    theta = np.array([*truth, 0.0, 0.0])
+    steps = np.array([1e-3, 1e-3, 1e-3, 1e-3, 1e-12])
+    jacobian = np.column_stack(
+        [
+            (whitened(theta + h * e) - whitened(theta - h * e)) / (2.0 * h)
+            for h, e in zip(steps, np.eye(5), strict=True)
+        ]
+    )
+    expected = np.linalg.inv(jacobian.T @ jacobian)[:3, :3]
+    bound_3d = inverse_symmetric(fisher_information(data, truth))
+    assert_matrices_close(bound_3d, expected, rtol=1e-6)
+    price = bound_3d[:2, :2] - inverse_symmetric(fisher_information(data, plane))
+    assert np.linalg.eigvalsh(price).min() >= -1e-9 * np.trace(bound_3d)
+    assert np.trace(price) > 0.01 * np.trace(bound_3d[:2, :2])
