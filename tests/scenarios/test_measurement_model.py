@@ -12,6 +12,7 @@ from scenarios import measurement_model as model
 from scenarios.catalog import get_scenario
 from scenarios.simulate import noise_free
 from scenarios.types import RssModel
+from tests.scenarios.random_flights import random_data
 
 RSS = RssModel(reference_power_dbm=-30.0, reference_distance_m=2.0, path_loss_exponent=2.7)
 
@@ -318,3 +319,49 @@ def test_leading_axes_broadcast_like_a_loop() -> None:
     np.testing.assert_allclose(
         shared[1], model.doppler_hz(position[0, 0], velocity[0, 0], emitter[1], gamma, height)
     )
+
+
+def _whitened_data(data, emitter_m) -> np.ndarray:
+    """Every noise-free Doppler, ToA and RSS value of ``data``'s samples for an emitter at
+    ``emitter_m`` (three coordinates), in σ."""
+    p, v = data.position_m, data.velocity_mps
+    return np.concatenate(
+        [
+            model.doppler_hz(p, v, emitter_m, data.gamma_per_m) / data.noise.doppler_hz,
+            model.toa_s(p, emitter_m, data.speed_of_light_mps) / data.noise.toa_s,
+            model.rss_dbm(p, emitter_m, data.rss_model) / data.noise.rss_db,
+        ]
+    )
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_in_3d_a_straight_level_frame_leaves_a_circle_and_a_level_turn_a_reflection(seed) -> None:
+    """MATH §7 with the height a coordinate: one straight level frame gives the same data for
+    every rotation of the emitter about the track's line; a level turn for the reflection
+    through the flight plane; a climbing turn not for that reflection (many σ off)."""
+    rng = np.random.default_rng(seed)
+    line = random_data(seed, n_frames=1)
+    s = np.array([*line.truth_emitter_m, line.emitter_height_m])
+    start, direction = (
+        line.position_m[0],
+        line.velocity_mps[0] / np.linalg.norm(line.velocity_mps[0]),
+    )
+    along = start + np.dot(s - start, direction) * direction  # s's foot on the track's line
+    radial = s - along
+    normal = np.cross(direction, radial / np.linalg.norm(radial))
+    reference = _whitened_data(line, s)
+    for angle in rng.uniform(0.1, 2.0 * np.pi, 6):
+        rotated = along + np.cos(angle) * radial + np.sin(angle) * np.linalg.norm(radial) * normal
+        np.testing.assert_allclose(_whitened_data(line, rotated), reference, rtol=1e-12, atol=1e-9)
+
+    turn = random_data(seed, n_frames=3)
+    s = np.array([*turn.truth_emitter_m, turn.emitter_height_m])
+    plane = turn.position_m[0, 2]
+    reflected = np.array([*s[:2], 2.0 * plane - s[2]])
+    np.testing.assert_allclose(
+        _whitened_data(turn, reflected), _whitened_data(turn, s), rtol=1e-12, atol=1e-9
+    )
+
+    climb = random_data(seed, n_frames=3, climb_mps=2.0)
+    mirror = np.array([*s[:2], 2.0 * climb.position_m[:, 2].mean() - s[2]])
+    assert np.abs(_whitened_data(climb, mirror) - _whitened_data(climb, s)).max() > 1.0
