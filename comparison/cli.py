@@ -276,15 +276,22 @@ def crlb_command(
     file: MeasurementFile,
     at: Annotated[
         tuple[float, float] | None,
-        typer.Option("--at", metavar="X Y", help="Emitter position, m \\[the truth in the file]."),
+        typer.Option(
+            "--at",
+            metavar="X Y",
+            help="Emitter position, m (with the height unknown: at the file's emitter_height_m) "
+            "\\[the truth in the file].",
+        ),
     ] = None,
     as_json: JsonFlag = False,
     *,
     constants: CsvConstants,
 ) -> None:
-    """Cramér-Rao bound for (x_s, y_s) per modality set: toa, doppler, rss, toa+doppler.
+    """Cramér-Rao bound for the emitter's position per modality set: toa, doppler, rss,
+    toa+doppler.
 
-    Needs only the geometry and the σ's of the file, not the measured values (MATH §8).
+    Needs only the geometry and the σ's of the file, not the measured values (MATH §8). With
+    the height unknown the bound is 3×3, split into its horizontal and vertical parts.
     """
     from scenarios.types import MAX_COORDINATE_M
 

@@ -108,20 +108,29 @@ def print_crlb_table(table: dict[str, Any], data: MeasurementSet) -> None:
     unknowns = table["unknowns"]
     title = f"CRLB at {point_text(table['at_m'])} m, {data.n_samples} samples"
     if unknowns:
-        title += f", {' and '.join(unknowns)} unknown (MATH §15)"
-    view = Table(title=title)
-    headings = ["modalities", "√trace CRLB (m)", "CRLB (m²)"]
+        title += f", {' and '.join(unknowns)} unknown (MATH §15, §8)"
+    three_d = "vertical_rmse_bound_m" in table  # its 3×3 matrices are in --json
+    view = Table(title=title, caption="the 3×3 CRLB matrices: --json" if three_d else None)
+    headings = ["modalities", "√trace CRLB (m)"]
+    headings += ["horizontal (m)", "vertical (m)"] if three_d else ["CRLB (m²)"]
     if unknowns:
         headings += ["known: √trace CRLB (m)", "price"]
     for heading in (*headings, "note"):
         view.add_column(heading)
     for name in table["rmse_bound_m"]:
         bound, matrix = table["rmse_bound_m"][name], table["crlb_m2"][name]
-        cells = [
-            name,
-            number_text(bound),
-            "-" if matrix is None else "; ".join(" ".join(f"{v:.3g}" for v in r) for r in matrix),
-        ]
+        cells = [name, number_text(bound)]
+        if three_d:
+            cells += [
+                number_text(table["horizontal_rmse_bound_m"].get(name)),
+                number_text(table["vertical_rmse_bound_m"].get(name)),
+            ]
+        else:
+            cells.append(
+                "-"
+                if matrix is None
+                else "; ".join(" ".join(f"{v:.3g}" for v in r) for r in matrix)
+            )
         if unknowns:
             price = table["price"].get(name)
             cells += [

@@ -33,6 +33,7 @@ from scenarios.fisher import (
     rmse_bound_m,
     whitened_jacobian,
 )
+from scenarios.nuisance import position_dimension
 from scenarios.types import MeasurementSet
 
 __all__ = [
@@ -58,25 +59,35 @@ def crlb_table(data: MeasurementSet, at_m: Any) -> dict[str, Any]:
     """RMSE bound and CRLB matrix at ``at_m`` for each of ``MODALITY_SETS`` (MATH §8).
 
     A set whose σ (or RSS model) is missing, or whose information is singular, is ``None``
-    with a note saying why. With nuisance parameters in ``data.unknowns`` the bounds are those
-    with them unknown (MATH §15), and ``unknowns`` names them; ``known_rmse_bound_m`` holds the
-    bounds with them known and ``price`` the ratio of the two, per set (1 where an unknown
-    does not enter the set's modalities).
+    with a note saying why. With unknowns in ``data.unknowns`` the bounds are those with them
+    unknown (MATH §15, §8), and ``unknowns`` names them; ``known_rmse_bound_m`` holds the bounds
+    of ``(x, y)`` with every unknown known and ``price`` the ratio of the two, per set (1 where
+    an unknown does not enter the set's modalities).
+
+    With the height unknown (``at_m`` then ``(x, y, z)``, the truth of such data) the CRLB is
+    3×3 and ``horizontal_rmse_bound_m`` and ``vertical_rmse_bound_m`` split its trace; the
+    known bound then holds the height at ``at_m``'s ``z``.
     """
+    point = np.asarray(at_m, dtype=float)
+    if position_dimension(data.unknowns) == 3 and point.shape == (2,):
+        point = np.append(point, data.emitter_height_m)  # at the height the data assume
     table: dict[str, Any] = {
-        "at_m": [float(v) for v in at_m],
+        "at_m": point.tolist(),
         "n_samples": data.n_samples,
         "unknowns": list(data.unknowns),
         "rmse_bound_m": {},
         "crlb_m2": {},
         "notes": {},
     }
+    three_d = point.shape == (3,)
+    if three_d:
+        table["horizontal_rmse_bound_m"], table["vertical_rmse_bound_m"] = {}, {}
     if data.unknowns:
         table["known_rmse_bound_m"], table["price"] = {}, {}
     for name, modalities in MODALITY_SETS.items():
         try:
             with np.errstate(divide="ignore", invalid="ignore"):
-                information = fisher_information(data, at_m, modalities)
+                information = fisher_information(data, point, modalities)
         except ValueError as error:
             table["rmse_bound_m"][name] = table["crlb_m2"][name] = None
             table["notes"][name] = str(error)
@@ -87,9 +98,15 @@ def crlb_table(data: MeasurementSet, at_m: Any) -> dict[str, Any]:
             table["notes"][name] = "singular Fisher information: unobservable from these samples"
             continue
         table["rmse_bound_m"][name] = bound
-        table["crlb_m2"][name] = crlb_m2(information).tolist()
+        bound_m2 = crlb_m2(information)
+        table["crlb_m2"][name] = bound_m2.tolist()
+        if three_d:
+            table["horizontal_rmse_bound_m"][name] = math.sqrt(bound_m2[0, 0] + bound_m2[1, 1])
+            table["vertical_rmse_bound_m"][name] = math.sqrt(bound_m2[2, 2])
         if data.unknowns:
-            known = float(rmse_bound_m(fisher_information(data, at_m, modalities, unknowns=())))
+            # every unknown known: no nuisance column, and the height fixed (the (x, y) block)
+            known_information = fisher_information(data, point, modalities, unknowns=())
+            known = float(rmse_bound_m(known_information[:2, :2]))
             table["known_rmse_bound_m"][name] = known
             table["price"][name] = bound / known
     return table

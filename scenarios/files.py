@@ -19,7 +19,10 @@ log-distance model of ``rss_model`` (MATH §1). ``speed_of_light_mps`` defaults 
 ``emitter_height_m`` to 0 (MATH §0); ``noise`` holds the σ's the data were drawn with (MATH §2),
 ``truth`` the true emitter when known, and beside it the true ``carrier_offset_hz`` and
 ``emission_time_s`` of a non-cooperative emitter; ``unknowns`` lists which of those two the
-receiver does not know (MATH §15; absent or empty: both known). A modality is present when every sample has it; a
+receiver does not know (MATH §15; absent or empty: both known) and ``"emitter_height_m"`` when the
+emitter's height is unknown too (MATH §8: ``truth.emitter_m`` then has three coordinates and
+``emitter_height_m`` is the height an estimator that ignores the unknown assumes). A modality
+is present when every sample has it; a
 modality on some samples only, an unknown key (a typo), a non-finite number, a wrong length or
 type, an unknown schema, no samples, a negative σ or frames out of order are errors.
 
@@ -70,7 +73,7 @@ from scenarios.limits import (
     read_text,
     write_text_atomically,
 )
-from scenarios.nuisance import parse_unknowns
+from scenarios.nuisance import parse_unknowns, position_dimension
 from scenarios.types import SPEED_OF_LIGHT_MPS, MeasurementSet, NoiseSigmas, RssModel
 
 SCHEMA = "emitterbench.measurements/1"
@@ -250,6 +253,7 @@ def measurements_from_dict(obj: Any) -> MeasurementSet:
             "(convert the file or upgrade emitterbench)"
         )
     _check_keys(obj, "", required=_TOP_REQUIRED, optional=_TOP_OPTIONAL)
+    unknowns = parse_unknowns(obj.get("unknowns"), "unknowns")
     columns = _sample_columns_from_json(obj["samples"])
     return _measurement_set(
         columns,
@@ -260,8 +264,8 @@ def measurements_from_dict(obj: Any) -> MeasurementSet:
         emitter_height_m=_number(obj.get("emitter_height_m", 0.0), "emitter_height_m"),
         noise=_noise_from_json(obj.get("noise")),
         rss_model=_rss_model_from_json(obj.get("rss_model")),
-        **_truth_from_json(obj.get("truth")),
-        unknowns=parse_unknowns(obj.get("unknowns"), "unknowns"),
+        **_truth_from_json(obj.get("truth"), position_dimension(unknowns)),
+        unknowns=unknowns,
     )
 
 
@@ -441,14 +445,18 @@ def _rss_model_from_json(value: Any) -> RssModel | None:
     return RssModel(**{key: _number(value[key], f"rss_model.{key}") for key in _RSS_MODEL_KEYS})
 
 
-def _truth_from_json(value: Any) -> dict[str, Any]:
-    """``truth_emitter_m`` and the true nuisance values (MATH §15) of the ``truth`` object."""
+def _truth_from_json(value: Any, dimension: int) -> dict[str, Any]:
+    """``truth_emitter_m`` (``dimension`` coordinates: ``(x, y)``, or ``(x, y, z)`` with the
+    height unknown) and the true nuisance values (MATH §15) of the ``truth`` object."""
     if value is None:
         return {"truth_emitter_m": None}
+    point = "[x, y, z]" if dimension == 3 else "[x, y]"
     if not isinstance(value, dict):
-        raise ValueError(f'truth: expected an object {{"emitter_m": [x, y]}}, got {_kind(value)}')
+        raise ValueError(f'truth: expected an object {{"emitter_m": {point}}}, got {_kind(value)}')
     _check_keys(value, "truth", required=("emitter_m",), optional=_TRUTH_OPTIONAL)
-    truth: dict[str, Any] = {"truth_emitter_m": _vector(value["emitter_m"], "truth.emitter_m", 2)}
+    truth: dict[str, Any] = {
+        "truth_emitter_m": _vector(value["emitter_m"], "truth.emitter_m", dimension)
+    }
     for name in _TRUTH_OPTIONAL:
         if name in value:
             truth[f"truth_{name}"] = _number(value[name], f"truth.{name}")

@@ -68,7 +68,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from scenarios import measurement_model as model
-from scenarios.nuisance import AFFECTED_MODALITY, parse_unknowns
+from scenarios.nuisance import AFFECTED_MODALITY, nuisance_unknowns
 from scenarios.types import MODALITIES, NOISE_FIELD, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -116,7 +116,7 @@ def _whitened_blocks(
     """One ``∇h_k/σ`` block of shape ``(..., N, d)`` per modality, in the order given; the
     block of a modality with an unknown nuisance parameter centred over its samples (§15)."""
     emitter = np.asarray(emitter_m, dtype=float)
-    centred = {AFFECTED_MODALITY[name] for name in parse_unknowns(unknowns)}
+    centred = {AFFECTED_MODALITY[name] for name in nuisance_unknowns(unknowns)}
     blocks = []
     for modality in parse_modalities(modalities):
         sigma = data.noise.for_modality(modality)
@@ -423,7 +423,7 @@ def information_statistics(
     """
     chosen = parse_modalities(modalities)
     blocks = _whitened_blocks(position_m, velocity_mps, emitter_m, data, chosen)
-    centred_modalities = {AFFECTED_MODALITY[name] for name in parse_unknowns(unknowns)}
+    centred_modalities = {AFFECTED_MODALITY[name] for name in nuisance_unknowns(unknowns)}
     n = blocks[0].shape[-2]
     labels = np.zeros(n, dtype=np.int64) if groups is None else np.asarray(groups).reshape(-1)
     if len(labels) != n:

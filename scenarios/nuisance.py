@@ -25,6 +25,15 @@ from scenarios.fields import bounded
 NUISANCE_PARAMETERS: tuple[str, ...] = ("carrier_offset_hz", "emission_time_s")
 """The nuisance parameters, in the order of their columns in the Fisher information (MATH §15)."""
 
+HEIGHT_UNKNOWN = "emitter_height_m"
+"""The emitter's height as an unknown: not a nuisance parameter but a third coordinate of the
+position (MATH §7, §8), so the position has :func:`position_dimension` coordinates. With it
+unknown a measurement set's ``emitter_height_m`` is the height an estimator that ignores the
+unknown assumes (the take-off ground, 0, unless given) and the truth has three coordinates."""
+
+UNKNOWNS: tuple[str, ...] = (*NUISANCE_PARAMETERS, HEIGHT_UNKNOWN)
+"""Everything ``unknowns`` may name, in canonical order."""
+
 AFFECTED_MODALITY: dict[str, str] = {"carrier_offset_hz": "doppler", "emission_time_s": "toa"}
 """The one modality each nuisance parameter enters."""
 
@@ -36,11 +45,11 @@ MAX_EMISSION_TIME_S = 1e12
 
 
 def parse_unknowns(value: Iterable[str] | str | None, field: str = "unknowns") -> tuple[str, ...]:
-    """``value`` as a tuple of nuisance parameter names in the canonical order.
+    """``value`` as a tuple of the names of :data:`UNKNOWNS` in the canonical order.
 
-    ``None`` and an empty list mean both are known (a cooperative emitter). Raises
-    ``ValueError`` naming ``field`` for anything but a list of names of
-    :data:`NUISANCE_PARAMETERS`.
+    ``None`` and an empty list mean all are known (a cooperative emitter at a known height).
+    Raises ``ValueError`` naming ``field`` for anything but a list of names of
+    :data:`UNKNOWNS`.
     """
     if value is None:
         return ()
@@ -48,27 +57,44 @@ def parse_unknowns(value: Iterable[str] | str | None, field: str = "unknowns") -
         value = [value]
     if not isinstance(value, list | tuple | set | frozenset):
         raise ValueError(
-            f"{field}: expected a list of any of {list(NUISANCE_PARAMETERS)}, got "
-            f"{type(value).__name__}"
+            f"{field}: expected a list of any of {list(UNKNOWNS)}, got {type(value).__name__}"
         )
     names = list(value)
-    wrong = [name for name in names if not isinstance(name, str) or name not in AFFECTED_MODALITY]
+    wrong = [name for name in names if not isinstance(name, str) or name not in UNKNOWNS]
     if wrong:
-        raise ValueError(
-            f"{field}: expected a list of any of {list(NUISANCE_PARAMETERS)}, got {wrong[0]!r}"
-        )
-    return tuple(name for name in NUISANCE_PARAMETERS if name in names)
+        raise ValueError(f"{field}: expected a list of any of {list(UNKNOWNS)}, got {wrong[0]!r}")
+    return tuple(name for name in UNKNOWNS if name in names)
+
+
+def nuisance_unknowns(unknowns: Iterable[str]) -> tuple[str, ...]:
+    """The nuisance parameters among ``unknowns`` (:data:`NUISANCE_PARAMETERS`: the height,
+    a coordinate of the position, is not one)."""
+    return tuple(name for name in parse_unknowns(unknowns) if name in AFFECTED_MODALITY)
+
+
+def position_dimension(unknowns: Iterable[str]) -> int:
+    """The position's coordinates: 3, ``(x_s, y_s, z_s)``, with the height unknown, else 2."""
+    return 3 if HEIGHT_UNKNOWN in parse_unknowns(unknowns) else 2
 
 
 def unknowns_used(unknowns: Iterable[str], modalities: Iterable[str]) -> tuple[str, ...]:
-    """The unknowns that enter the given modalities (δ only with Doppler, b only with ToA)."""
+    """The unknowns that enter the given modalities (δ only with Doppler, b only with ToA, the
+    height with every one)."""
     used = set(modalities)
-    return tuple(name for name in parse_unknowns(unknowns) if AFFECTED_MODALITY[name] in used)
+    return tuple(
+        name
+        for name in parse_unknowns(unknowns)
+        if (AFFECTED_MODALITY[name] in used if name in AFFECTED_MODALITY else bool(used))
+    )
 
 
 def describe_unknowns(unknowns: Iterable[str]) -> str:
     """``"carrier offset and emission time"``: the unknowns in words, or ``"none"``."""
-    words = {"carrier_offset_hz": "carrier offset", "emission_time_s": "emission time"}
+    words = {
+        "carrier_offset_hz": "carrier offset",
+        "emission_time_s": "emission time",
+        HEIGHT_UNKNOWN: "height",
+    }
     names = [words[name] for name in parse_unknowns(unknowns)]
     return " and ".join(names) if names else "none"
 
@@ -90,11 +116,15 @@ def set_nuisance_fields(obj: Any, prefix: str, label: str) -> None:
 
 __all__ = [
     "AFFECTED_MODALITY",
+    "HEIGHT_UNKNOWN",
     "MAX_CARRIER_OFFSET_HZ",
     "MAX_EMISSION_TIME_S",
     "NUISANCE_PARAMETERS",
+    "UNKNOWNS",
     "describe_unknowns",
+    "nuisance_unknowns",
     "parse_unknowns",
+    "position_dimension",
     "set_nuisance_fields",
     "unknowns_used",
 ]

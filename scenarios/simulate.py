@@ -14,6 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from scenarios import measurement_model as model
+from scenarios.nuisance import HEIGHT_UNKNOWN
 from scenarios.types import MODALITIES, MeasurementBatch, MeasurementSet, Scenario
 
 SeedLike = int | np.random.SeedSequence
@@ -28,6 +29,10 @@ def noise_free(scenario: Scenario, *, snr_db: float = 0.0) -> MeasurementSet:
     # a known offset is corrected by the receiver: only the unknown ones reach the data (§15)
     offset_hz = scenario.carrier_offset_hz if "carrier_offset_hz" in scenario.unknowns else None
     emission_s = scenario.emission_time_s if "emission_time_s" in scenario.unknowns else None
+    # an unknown height is the truth's third coordinate; the data then say only what an
+    # estimator that ignores it assumes: the take-off ground (MATH §8)
+    height_unknown = HEIGHT_UNKNOWN in scenario.unknowns
+    truth = np.array([*emitter, height]) if height_unknown else emitter
     values = {
         "doppler": lambda: model.doppler_hz(
             position, velocity, emitter, scenario.gamma_per_m, height, offset_hz or 0.0
@@ -48,10 +53,10 @@ def noise_free(scenario: Scenario, *, snr_db: float = 0.0) -> MeasurementSet:
         rss_dbm=present["rss"],
         carrier_hz=scenario.carrier_hz,
         speed_of_light_mps=scenario.speed_of_light_mps,
-        emitter_height_m=height,
+        emitter_height_m=0.0 if height_unknown else height,
         noise=scenario.noise.at_snr(snr_db),
         rss_model=scenario.rss_model if "rss" in scenario.modalities else None,
-        truth_emitter_m=emitter,
+        truth_emitter_m=truth,
         unknowns=scenario.unknowns,
         truth_carrier_offset_hz=offset_hz,
         truth_emission_time_s=emission_s,

@@ -68,7 +68,7 @@ from scenarios.fields import (
 )
 from scenarios.geometry import KINEMATIC_RTOL as KINEMATIC_RTOL  # cited by the module text
 from scenarios.geometry import check_order, check_straight_frames
-from scenarios.nuisance import set_nuisance_fields
+from scenarios.nuisance import HEIGHT_UNKNOWN, position_dimension, set_nuisance_fields
 
 SPEED_OF_LIGHT_MPS = 299_792_458.0
 """Speed of light in vacuum, m/s: the default propagation speed (MATH §0)."""
@@ -427,6 +427,8 @@ def check_measured(
     check_magnitude(
         toa_s, "toa_s", MAX_MEASURED / c, "s", f"a range c·τ beyond {MAX_MEASURED:g} m; {fix}"
     )
+    if HEIGHT_UNKNOWN in geometry.unknowns:  # the height is unknown: any range ≥ 0 may fit
+        return
     assert geometry.noise.toa_s is not None  # checked before
     sigma_m = c * geometry.noise.toa_s
     height = np.abs(geometry.position_m[:, 2] - geometry.emitter_height_m)
@@ -465,12 +467,15 @@ class MeasurementSet:
         The σ's the data were drawn with; required for every modality present.
     rss_model : RssModel or None
         Required when ``rss_dbm`` is present.
-    truth_emitter_m : (2,) or None
-        The true emitter, when known (simulations). Estimators must not read it.
+    truth_emitter_m : (2,), (3,) or None
+        The true emitter, when known (simulations), ``(x, y)`` or, with the height unknown,
+        ``(x, y, z)``. Estimators must not read it.
     unknowns : tuple of str
-        The nuisance parameters the data carry and the receiver does not know (MATH §15):
+        What the receiver does not know (MATH §15, §8): the nuisance parameters the data carry,
         ``"carrier_offset_hz"`` (every Doppler sample is off by δ) and ``"emission_time_s"``
-        (every ToA is late by b). Empty: a cooperative emitter.
+        (every ToA is late by b), and ``"emitter_height_m"``: the height is then a third
+        coordinate of the position and ``emitter_height_m`` only the height an estimator that
+        ignores it assumes. Empty: a cooperative emitter at a known height.
     truth_carrier_offset_hz, truth_emission_time_s : float or None
         Their true values, when known (simulations). Estimators must not read them.
     """
@@ -541,7 +546,8 @@ class MeasurementSet:
             )
         check_measured(self, self.doppler_hz, self.toa_s, self.rss_dbm)
         if self.truth_emitter_m is not None:
-            truth = frozen_array(self.truth_emitter_m, "truth.emitter_m", (2,))
+            dimension = position_dimension(self.unknowns)
+            truth = frozen_array(self.truth_emitter_m, "truth.emitter_m", (dimension,))
             check_magnitude(truth, "truth.emitter_m", MAX_COORDINATE_M, "m", _FIX_POSITION)
             set_(self, "truth_emitter_m", truth)
 
@@ -628,9 +634,13 @@ class MeasurementSet:
         )
 
     def assuming_known(self) -> MeasurementSet:
-        """The same measurements with every nuisance parameter taken as known and zero: what
-        an estimator that ignores the unknowns sees (MATH §15), biased by the true offsets."""
-        return replace(self, unknowns=())
+        """The same measurements with every nuisance parameter taken as known and zero, and an
+        unknown height as ``emitter_height_m``: what an estimator that ignores the unknowns
+        sees (MATH §15, §8), biased by the true offsets and height (the truth keeps its
+        ``(x, y)``). Ranges shorter than the UAV's height above the assumed height make such
+        data physically impossible: ``ValueError`` naming the sample, as for any file."""
+        truth = self.truth_emitter_m
+        return replace(self, unknowns=(), truth_emitter_m=None if truth is None else truth[:2])
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
