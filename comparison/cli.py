@@ -276,12 +276,7 @@ def crlb_command(
     file: MeasurementFile,
     at: Annotated[
         tuple[float, float] | None,
-        typer.Option(
-            "--at",
-            metavar="X Y",
-            help="Emitter position, m (with the height unknown: at the file's emitter_height_m) "
-            "\\[the truth in the file].",
-        ),
+        typer.Option("--at", metavar="X Y", help="Emitter position, m \\[the truth in the file]."),
     ] = None,
     as_json: JsonFlag = False,
     *,
@@ -291,7 +286,8 @@ def crlb_command(
     toa+doppler.
 
     Needs only the geometry and the σ's of the file, not the measured values (MATH §8). With
-    the height unknown the bound is 3×3, split into its horizontal and vertical parts.
+    the height unknown the bound is 3×3 (horizontal and vertical parts; --at X Y is taken at
+    the file's emitter_height_m).
     """
     from scenarios.types import MAX_COORDINATE_M
 

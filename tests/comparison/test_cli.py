@@ -844,9 +844,7 @@ def test_help_says_what_to_write_for_options_and_flags() -> None:
     assert "--resume Finish an interrupted run" in help_words("run")
     assert "--json Print exactly one JSON object" in help_words("estimate")
     assert "--option KEY=VALUE Estimator option, repeatable" in help_words("estimate")
-    assert "--at X Y Emitter position, m (with the height unknown: at the file's " in help_words(
-        "crlb"
-    )
+    assert "--at X Y Emitter position, m [the truth in the file]" in help_words("crlb")
 
 
 def test_validate_help_lists_the_families() -> None:
