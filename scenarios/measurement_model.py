@@ -20,10 +20,11 @@ derivative 1 in their own parameter. Pure functions, vectorised: ``position_m`` 
 z_s)``, the height a coordinate of the position (``emitter_height_m`` is then not read);
 leading axes broadcast, so one call evaluates many trials, many candidate emitters or many
 geometries. Noise-free values come out with shape ``(..., N)``, Jacobians (in the
-position's ``d`` coordinates) with shape ``(..., N, d)``. :func:`doppler_range_derivatives` gives the Doppler and range with
-their derivatives to third order (the frame-by-frame filters and the smoother's expansion),
-:func:`derivatives_of_offsets` the same on per-sample components in any layout (the
-maximum-likelihood search) and :func:`rss_of_ranges` the received power from them.
+position's ``d`` coordinates) with shape ``(..., N, d)``. :func:`doppler_range_derivatives`
+gives the Doppler and range with their derivatives in ``(x_s, y_s)`` to third order (the
+frame-by-frame filters and the smoother's expansion), :func:`derivatives_of_offsets` the same
+on per-sample components in any layout (the maximum-likelihood search) and
+:func:`rss_of_ranges` the received power from them.
 """
 
 from __future__ import annotations

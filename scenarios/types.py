@@ -427,11 +427,11 @@ def check_measured(
     check_magnitude(
         toa_s, "toa_s", MAX_MEASURED / c, "s", f"a range c·τ beyond {MAX_MEASURED:g} m; {fix}"
     )
-    if HEIGHT_UNKNOWN in geometry.unknowns:  # the height is unknown: any range ≥ 0 may fit
-        return
     assert geometry.noise.toa_s is not None  # checked before
     sigma_m = c * geometry.noise.toa_s
     height = np.abs(geometry.position_m[:, 2] - geometry.emitter_height_m)
+    if HEIGHT_UNKNOWN in geometry.unknowns:  # any height may fit: a range only is not negative
+        height = np.zeros_like(height)
     range_m = c * toa_s
     slack = RANGE_DEFICIT_SIGMAS * sigma_m + _ROUNDING * (height + np.abs(range_m))
     short = range_m < height - slack

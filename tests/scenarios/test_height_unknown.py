@@ -132,3 +132,12 @@ def test_crlb_json_of_a_file_with_the_height_unknown_is_3x3(tmp_path: Path) -> N
     table = invoke("crlb", path)
     assert table.exit_code == 0, table.output
     assert "vertical" in table.stdout and "the 3×3 CRLB matrices: --json" in table.stdout
+
+
+def test_with_the_height_unknown_a_range_only_has_to_be_positive() -> None:
+    """No height bounds the ranges from below any more, but a negative range is still refused
+    by name."""
+    obj = json.loads(measurements_to_json(noise_free(elevated())))
+    obj["samples"][0]["toa_s"] = -1e-7
+    with pytest.raises(ValueError, match=r"^toa_s\[0\]: the range c·τ = -30 m is shorter"):
+        measurements_from_json(json.dumps(obj))
