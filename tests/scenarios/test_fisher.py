@@ -89,9 +89,12 @@ def assert_matrices_close(actual: np.ndarray, expected: np.ndarray, rtol: float)
 
 @pytest.mark.parametrize("seed", range(6))
 @pytest.mark.parametrize("modalities", MODALITY_CHOICES)
-def test_information_equals_the_finite_difference_fisher_matrix(seed, modalities) -> None:
-    data = random_data(seed)
-    emitter = data.truth_emitter_m
+@pytest.mark.parametrize("dimension", [2, 3])
+def test_information_equals_the_finite_difference_fisher_matrix(seed, modalities, dimension):
+    """The information of ``(x, y)`` on level flights, and of ``(x, y, z)`` (the height a
+    coordinate, a 3-D ``emitter_m``) on climbing ones, against central differences, rtol 1e-6."""
+    data = random_data(seed, climb_mps=0.0 if dimension == 2 else 3.0)
+    emitter = np.array([*data.truth_emitter_m, data.emitter_height_m][:dimension])
     used = parse_modalities(modalities)
     expected_per_sample = differenced_per_sample(
         data.position_m, data.velocity_mps, emitter, data, used
@@ -99,7 +102,7 @@ def test_information_equals_the_finite_difference_fisher_matrix(seed, modalities
     per_sample = per_sample_information(
         data.position_m, data.velocity_mps, emitter, data, modalities
     )
-    assert per_sample.shape == (data.n_samples, 2, 2)
+    assert per_sample.shape == (data.n_samples, dimension, dimension)
     assert_matrices_close(per_sample, expected_per_sample, rtol=1e-6)
     expected = expected_per_sample.sum(axis=0)
     assert_matrices_close(fisher_information(data, emitter, modalities), expected, rtol=1e-6)
@@ -110,29 +113,6 @@ def test_information_equals_the_finite_difference_fisher_matrix(seed, modalities
     )
     assert rmse_bound_m(fisher_information(data, emitter, modalities)) == pytest.approx(
         np.sqrt(np.trace(np.linalg.inv(expected))), rel=1e-5
-    )
-
-
-@pytest.mark.parametrize("seed", range(4))
-@pytest.mark.parametrize("modalities", MODALITY_CHOICES)
-def test_the_information_of_a_3d_position_equals_the_finite_difference_fisher(
-    seed, modalities
-) -> None:
-    """The height a coordinate of the position (a 3-D ``emitter_m``) on a climbing flight: the
-    3×3 information against central differences of the model in (x, y, z), rtol 1e-6."""
-    data = random_data(seed, climb_mps=3.0)
-    emitter = np.array([*data.truth_emitter_m, data.emitter_height_m])
-    used = parse_modalities(modalities)
-    expected_per_sample = differenced_per_sample(
-        data.position_m, data.velocity_mps, emitter, data, used
-    )
-    per_sample = per_sample_information(
-        data.position_m, data.velocity_mps, emitter, data, modalities
-    )
-    assert per_sample.shape == (data.n_samples, 3, 3)
-    assert_matrices_close(per_sample, expected_per_sample, rtol=1e-6)
-    assert_matrices_close(
-        fisher_information(data, emitter, modalities), expected_per_sample.sum(axis=0), rtol=1e-6
     )
 
 
