@@ -107,9 +107,11 @@ def print_crlb_table(table: dict[str, Any], data: MeasurementSet) -> None:
 
     unknowns = table["unknowns"]
     title = f"CRLB at {point_text(table['at_m'])} m, {data.n_samples} samples"
-    if unknowns:
-        title += f", {' and '.join(unknowns)} unknown (MATH §15, §8)"
     three_d = "vertical_rmse_bound_m" in table  # its 3×3 matrices are in --json
+    if unknowns:
+        from scenarios.nuisance import math_sections
+
+        title += f", {' and '.join(unknowns)} unknown ({math_sections(unknowns)})"
     view = Table(title=title, caption="the 3×3 CRLB matrices: --json" if three_d else None)
     headings = ["modalities", "√trace CRLB (m)"]
     headings += ["horizontal (m)", "vertical (m)"] if three_d else ["CRLB (m²)"]

@@ -68,12 +68,7 @@ from estimators.validity import (
 )
 from scenarios.fields import vector_text
 from scenarios.geometry import TrackSoFar, moves_horizontally, single_horizontal_point
-from scenarios.nuisance import (
-    HEIGHT_UNKNOWN,
-    describe_unknowns,
-    nuisance_unknowns,
-    unknowns_used,
-)
+from scenarios.nuisance import describe_unknowns, math_sections, unknowns_used
 from scenarios.types import MEASURED_FIELD, MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -358,16 +353,8 @@ def unknowns_problem(
     return (
         f"unknowns: the data declare the emitter's {describe_unknowns(missing)} unknown, but "
         f"{getattr(estimator, 'name', type(estimator).__name__)!r} takes {them} as known "
-        f"({_sections_of(missing)}); {use}ignore {them} on purpose to see the bias that costs "
+        f"({math_sections(missing)}); {use}ignore {them} on purpose to see the bias that costs "
         f"({ignore_hint})"
-    )
-
-
-def _sections_of(unknowns: Iterable[str]) -> str:
-    """Where docs/math.md treats these unknowns: §15 the nuisance parameters, §8 the height."""
-    nuisance, height = bool(nuisance_unknowns(unknowns)), HEIGHT_UNKNOWN in unknowns
-    return "MATH " + ", ".join(
-        section for section, wanted in (("§8", height), ("§15", nuisance)) if wanted
     )
 
 

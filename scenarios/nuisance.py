@@ -77,6 +77,14 @@ def position_dimension(unknowns: Iterable[str]) -> int:
     return 3 if HEIGHT_UNKNOWN in parse_unknowns(unknowns) else 2
 
 
+def math_sections(unknowns: Iterable[str]) -> str:
+    """Where docs/math.md treats these unknowns: ``"MATH §8"`` the height (a coordinate of the
+    position), ``"MATH §15"`` the nuisance parameters, ``"MATH §8, §15"`` both."""
+    names = parse_unknowns(unknowns)
+    cited = (("§8", HEIGHT_UNKNOWN in names), ("§15", bool(nuisance_unknowns(names))))
+    return "MATH " + ", ".join(section for section, wanted in cited if wanted)
+
+
 def unknowns_used(unknowns: Iterable[str], modalities: Iterable[str]) -> tuple[str, ...]:
     """The unknowns that enter the given modalities (δ only with Doppler, b only with ToA, the
     height with every one)."""
@@ -122,6 +130,7 @@ __all__ = [
     "NUISANCE_PARAMETERS",
     "UNKNOWNS",
     "describe_unknowns",
+    "math_sections",
     "nuisance_unknowns",
     "parse_unknowns",
     "position_dimension",

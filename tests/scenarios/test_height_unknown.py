@@ -20,6 +20,7 @@ from scenarios.fisher import fisher_information, inverse_symmetric
 from scenarios.nuisance import (
     HEIGHT_UNKNOWN,
     describe_unknowns,
+    math_sections,
     nuisance_unknowns,
     parse_unknowns,
     position_dimension,
@@ -47,6 +48,9 @@ def test_the_height_is_an_unknown_but_not_a_nuisance_parameter() -> None:
     assert unknowns_used([HEIGHT_UNKNOWN], {"rss"}) == (HEIGHT_UNKNOWN,)
     assert unknowns_used([HEIGHT_UNKNOWN], set()) == ()
     assert describe_unknowns([HEIGHT_UNKNOWN, "carrier_offset_hz"]) == "carrier offset and height"
+    assert math_sections([HEIGHT_UNKNOWN]) == "MATH §8"
+    assert math_sections(["emission_time_s"]) == "MATH §15"
+    assert math_sections([HEIGHT_UNKNOWN, "carrier_offset_hz"]) == "MATH §8, §15"
     with pytest.raises(ValueError, match=r"expected a list of any of .*'emitter_height_m'"):
         parse_unknowns(["height"])
 
