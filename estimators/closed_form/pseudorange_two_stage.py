@@ -18,8 +18,8 @@ relation the first stage relaxed holds in this model by construction, ``w = ρ_j
 To first order ``ŝ₂ = ŝ₁ + Δ̂`` has the error of the maximum-likelihood estimate, whose
 covariance is the CRLB; what remains is of second order in the noise.
 
-A step that does not lower the profiled cost (the linearisation out of its range, at very low
-SNR) leaves ``ŝ₁``. On one straight frame the model is symmetric about the track's vertical
+A step that raises the profiled cost (the linearisation stretched, at low SNR) is halved
+until it does not; one longer than the shortest range to the samples leaves ``ŝ₁``. On one straight frame the model is symmetric about the track's vertical
 plane, so the step maps a mirror pair to a mirror pair (MATH §7): both candidates are
 corrected.
 """
@@ -36,6 +36,9 @@ from scenarios.types import MeasurementSet
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
+
+HALVINGS = 6
+"""How many times a step that raises the profiled cost is halved before ``ŝ₁`` is kept."""
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -121,11 +124,23 @@ def linearised_correction(
     samples of ``geometry`` (samples last, broadcasting against the candidates' leading axes:
     ``(n, 1, K)`` for ``(n, c, 2)`` candidates). The emission time is unknown (the pseudo-range
     form); the carrier offset too when ``carrier_offset_unknown``.
+
+    The step ``Δ̂`` is taken whole if it lowers the profiled cost, else halved up to
+    :data:`HALVINGS` times until it does; a singular ``GᵀG`` or a step longer than the
+    shortest range from ``ŝ₁`` to the samples (the linearisation out of its range) leaves
+    ``ŝ₁``.
     """
     start = np.asarray(emitter_m, dtype=float)
+    shape = start.shape[:-1]
+    n_samples = geometry.n_samples
+    ranges = np.broadcast_to(range_m, (*shape, n_samples)).reshape(-1, n_samples)
+    doppler = None
+    if doppler_hz is not None:
+        doppler = np.broadcast_to(doppler_hz, (*shape, n_samples)).reshape(-1, n_samples)
+    start = start.reshape(-1, 2)
     options = {"carrier_offset_unknown": carrier_offset_unknown}
     with np.errstate(all="ignore"):  # NaN candidates (none found) stay NaN
-        e, G = profiled_residuals(geometry, range_m, doppler_hz, start, gradients=True, **options)
+        e, G = profiled_residuals(geometry, ranges, doppler, start, gradients=True, **options)
         assert G is not None
         a = np.sum(G[..., 0] ** 2, axis=-1)  # GᵀG = [[a, b], [b, c]], Gᵀe = (p, q)
         b = np.sum(G[..., 0] * G[..., 1], axis=-1)
@@ -134,18 +149,35 @@ def linearised_correction(
         q = np.sum(G[..., 1] * e, axis=-1)
         determinant = a * c - b * b
         step = np.stack([c * p - b * q, a * q - b * p], axis=-1) / determinant[..., None]
-        moved = start + step
-        after, _ = profiled_residuals(
-            geometry, range_m, doppler_hz, moved, gradients=False, **options
+        nearest = np.min(
+            model.slant_range_m(geometry.position_m, start, geometry.emitter_height_m), axis=-1
         )
-        cost_before = np.sum(e**2, axis=-1)
-        cost_after = np.sum(after**2, axis=-1)
-        accepted = (determinant > 0.0) & (cost_after <= cost_before)
+        cost = np.sum(e**2, axis=-1)
+        emitter = start.copy()
+        accepted = np.zeros(len(start), dtype=bool)
+        trying = np.flatnonzero((determinant > 0.0) & (np.sqrt(np.sum(step**2, -1)) <= nearest))
+        for halving in range(HALVINGS + 1):
+            moved = start[trying] + step[trying] * 0.5**halving
+            after, _ = profiled_residuals(
+                geometry,
+                ranges[trying],
+                None if doppler is None else doppler[trying],
+                moved,
+                gradients=False,
+                **options,
+            )
+            cost_after = np.sum(after**2, axis=-1)
+            lower = cost_after <= cost[trying]
+            done = trying[lower]
+            emitter[done], cost[done], accepted[done] = moved[lower], cost_after[lower], True
+            trying = trying[~lower]
+            if trying.size == 0:
+                break
     return LinearisedCorrection(
-        emitter_m=np.where(accepted[..., None], moved, start),
-        cost=np.where(accepted, cost_after, cost_before),
-        accepted=accepted,
+        emitter_m=emitter.reshape(*shape, 2),
+        cost=cost.reshape(shape),
+        accepted=accepted.reshape(shape),
     )
 
 
-__all__ = ["LinearisedCorrection", "linearised_correction", "profiled_residuals"]
+__all__ = ["HALVINGS", "LinearisedCorrection", "linearised_correction", "profiled_residuals"]
