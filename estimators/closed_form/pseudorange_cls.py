@@ -373,8 +373,9 @@ def _moments_at(
 def check_offset_method(offset_method: object) -> None:
     """One line naming the field and its values when ``offset_method`` is none of them."""
     if offset_method not in OFFSET_METHODS:
-        expected = ", ".join(repr(method) for method in OFFSET_METHODS)
-        raise ValueError(f"offset_method: expected one of {expected}, got {offset_method!r}")
+        *first, last = (repr(method) for method in OFFSET_METHODS)
+        expected = f"{', '.join(first)} or {last}"
+        raise ValueError(f"offset_method: expected {expected}, got {offset_method!r}")
 
 
 def _check_options(data: MeasurementSet, carrier_offset_unknown: bool, stages: int) -> None:
