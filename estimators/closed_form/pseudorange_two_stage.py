@@ -19,9 +19,9 @@ To first order ``ŝ₂ = ŝ₁ + Δ̂`` has the error of the maximum-likelihood 
 covariance is the CRLB; what remains is of second order in the noise.
 
 A step that raises the profiled cost (the linearisation stretched, at low SNR) is halved
-until it does not; one longer than the shortest range to the samples leaves ``ŝ₁``. On one straight frame the model is symmetric about the track's vertical
-plane, so the step maps a mirror pair to a mirror pair (MATH §7): both candidates are
-corrected.
+until it does not; one longer than the shortest range to the samples leaves ``ŝ₁``. On one
+straight frame the model is symmetric about the track's vertical plane, so the step maps a
+mirror pair to a mirror pair (MATH §7): both candidates are corrected.
 """
 
 from __future__ import annotations
