@@ -65,17 +65,15 @@ from estimators.base import (
 from estimators.batch import BatchEstimates, check_rngs
 from estimators.closed_form.cls_batch import SharedGeometry
 from estimators.convergence import DECREMENT_TOL
-from estimators.mirror_rule import finalize_columns
+from estimators.mirror_rule import STRAIGHT_TRACK_HEIGHT, finalize_columns
 from estimators.ml.minpack_batch import INFO_CODES, TERMINATION_MESSAGES, column_dot, lmder_batch
 from estimators.ml.ml_batch_audit import decrements
 from estimators.ml.ml_batch_starts import (
     COINCIDENT_RTOL,
-    DEGENERATE_3D,
     at_height,
     find_starts,
     on_start_grid,
     start_heights,
-    straight_line_3d,
 )
 from estimators.ml.ml_residuals import ResidualModel, profiled_offsets
 from estimators.ml.ml_starts import ranges_uninformative
@@ -155,7 +153,7 @@ class SharedContext:
         # the batch CLS gives every trial's starts, an unknown carrier offset projected out in
         # its rows; with an unknown emission time the pseudo-range form does (pseudo_ranges)
         batch_cls = uses_toa and "emission_time_s" not in geometry.unknowns
-        if batch_cls and batch.n_trials >= CLS_BATCH_MIN_TRIALS:
+        if batch_cls and dimension == 2 and batch.n_trials >= CLS_BATCH_MIN_TRIALS:
             try:
                 cls_geometry = SharedGeometry.of(batch, estimator.frames)
             except ValueError:  # e.g. a hovering sample: the one-trial closed form says why
@@ -166,14 +164,15 @@ class SharedContext:
         degenerate, level, heights = None, None, ()
         if dimension == 3:
             origin = np.append(origin, position[:, 2].mean())
-            if straight_line_3d(position, used.velocity_mps):
-                degenerate = DEGENERATE_3D
+            if straight_track_line(position, used.velocity_mps) is not None:
+                degenerate = STRAIGHT_TRACK_HEIGHT  # a circle of equal cost (MATH §7)
             elif np.ptp(position[:, 2]) == 0.0 and not used.velocity_mps[:, 2].any():
                 level = float(position[0, 2])
-            heights = tuple(
-                (z, cls.of(estimator, at_height(batch, z), dimension=2))
-                for z in start_heights(used)
-            )
+            if degenerate is None:
+                heights = tuple(
+                    (z, cls.of(estimator, at_height(batch, z), dimension=2))
+                    for z in start_heights(used)
+                )
         doppler = batch.doppler_hz[:, columns]
         toa = batch.toa_s[:, columns] if uses_toa else None
         rss = batch.rss_dbm[:, columns] if estimator.use_rss else None
@@ -269,6 +268,15 @@ def solve_batch(
         estimator.check_measurements(batch.toa_s is not None, batch.rss_dbm is not None)
     generators = check_rngs(rngs, batch.n_trials)
     context = SharedContext.of(estimator, batch)
+    if context.degenerate:  # no search can locate the emitter: every trial fails alike
+        columns = BatchEstimates.failed(
+            batch.n_trials,
+            context.degenerate,
+            estimator=estimator.name,
+            covariance=True,
+            dimension=context.dimension,
+        )
+        return columns, {}
     chunks = [
         _solve_trials(context, np.arange(start, min(start + CHUNK_TRIALS, batch.n_trials)))
         for start in range(0, batch.n_trials, CHUNK_TRIALS)
@@ -347,6 +355,7 @@ def _solve_trials(context: SharedContext, trials: IntArray) -> _Chunk:
             context.line,
             side_prior_m=estimator.side_prior_m,
             cost_rtol=estimator.cost_rtol,
+            ceiling_m=float(context.used.position_m[:, 2].max()),
         )
     candidates, n_kept, chosen = final.candidates, final.n_candidates, final.chosen
     draw, ambiguous = final.draw, final.ambiguous
@@ -396,7 +405,7 @@ def _solve_trials(context: SharedContext, trials: IntArray) -> _Chunk:
         failed[i] = Estimate.failed(
             estimator.name, text, dimension=context.dimension, **trial_diagnostics
         )
-    problem = baseline_problem(frozenset({"doppler", "toa"}), context.used) or context.degenerate
+    problem = baseline_problem(frozenset({"doppler", "toa"}), context.used)
     if problem is not None:  # hovering: every bearing fits (finalize_estimate's refusal)
         for i in np.flatnonzero(ok).tolist():
             trial_diagnostics = {key: _scalar(value[i]) for key, value in diagnostics.items()}

@@ -16,8 +16,7 @@ pair and the on-track minimum of MATH §5 are reachable (:func:`fold_to_one_side
 With the emitter's height unknown (MATH §8) the starts are these at a few heights
 (:func:`start_heights`: from the height the data assume, the take-off ground, up to just
 below the UAV, which the emitter is below): each height's closed form gives ``(x, y)``, the
-height the third coordinate. One straight track leaves a circle of equal cost about it
-(:func:`straight_line_3d`, MATH §7): no search can fix the height.
+height the third coordinate.
 
 Each start is then rounded to a grid of ``START_GRID`` local units (:func:`on_start_grid`,
 ~1e−6 of the length scale, far below any start's own error): the search's path is a function
@@ -59,12 +58,6 @@ HEIGHT_FRACTIONS = (0.0, 0.5, 0.9)
 """The starts' heights (height unknown) between the ground and the UAV's lowest altitude
 (:func:`start_heights`)."""
 
-DEGENERATE_3D = "degenerate geometry: one straight track cannot fix the height"
-"""The reason an estimate of the height fails on one straight track (MATH §7)."""
-
-STRAIGHT_RTOL = 1e-9
-"""Samples whose second principal spread is below this fraction of the first lie on a line."""
-
 
 def start_heights(data: MeasurementSet) -> tuple[float, ...]:
     """The heights of the starts with the height unknown (module text): ``HEIGHT_FRACTIONS``
@@ -77,23 +70,6 @@ def start_heights(data: MeasurementSet) -> tuple[float, ...]:
         xy = data.position_m[:, :2]
         depth = max(float(np.sqrt(np.mean(np.sum((xy - xy.mean(axis=0)) ** 2, axis=1)))), 1.0)
     return tuple(lowest - depth * (1.0 - fraction) for fraction in HEIGHT_FRACTIONS)
-
-
-def straight_line_3d(position_m: ArrayLike, velocity_mps: ArrayLike) -> bool:
-    """Whether every sample lies on one line in space and flies along it: the likelihood is
-    then the same on a circle about the line (MATH §7), and the height cannot be fixed."""
-    position = np.asarray(position_m, dtype=float)
-    velocity = np.asarray(velocity_mps, dtype=float)
-    spread = position - position.mean(axis=0)
-    basis = spread if spread.any() else velocity
-    if not basis.any():
-        return True
-    _, singular, vt = np.linalg.svd(basis, full_matrices=False)
-    if len(singular) > 1 and singular[1] > STRAIGHT_RTOL * singular[0]:
-        return False
-    across = velocity - np.outer(velocity @ vt[0], vt[0])
-    speed = np.linalg.norm(velocity, axis=1)
-    return not bool(np.any(np.linalg.norm(across, axis=1) > STRAIGHT_RTOL * speed))
 
 
 def at_height(batch: MeasurementBatch, height_m: float) -> MeasurementBatch:
