@@ -153,23 +153,26 @@ class _Factor:
         work = fvec
         for j in range(n):
             # the column of largest remaining norm to position j (the first on a tie)
-            kmax = np.full(k, j, dtype=np.int64)
             best = rdiag[j]
-            for col in range(j + 1, n):
-                bigger = rdiag[col] > best
-                kmax = np.where(bigger, col, kmax)
-                best = np.where(bigger, rdiag[col], best)
-            for col in range(j + 1, n):
-                swap = kmax == col
-                if swap.any():
+            if j + 1 < n:
+                kmax = np.full(k, j, dtype=np.int64)
+                for col in range(j + 1, n):
+                    bigger = rdiag[col] > best
+                    kmax = np.where(bigger, col, kmax)
+                    best = np.where(bigger, rdiag[col], best)
+                for col in range(j + 1, n):
+                    swap = kmax == col
+                    if not swap.any():
+                        continue
                     a[j], a[col] = np.where(swap, a[col], a[j]), np.where(swap, a[j], a[col])
                     for i in range(j):  # the rows of R above: MINPACK swaps whole columns
                         self.r[i, j], self.r[i, col] = (
                             np.where(swap, self.r[i, col], self.r[i, j]),
                             np.where(swap, self.r[i, j], self.r[i, col]),
                         )
-                    rdiag[col] = np.where(swap, rdiag[j], rdiag[col])
-                    wa[col] = np.where(swap, wa[j], wa[col])
+                    if j + 2 < n:  # the norms of the columns still to be pivoted
+                        rdiag[col] = np.where(swap, rdiag[j], rdiag[col])
+                        wa[col] = np.where(swap, wa[j], wa[col])
                     perm[j], perm[col] = (
                         np.where(swap, perm[col], perm[j]),
                         np.where(swap, perm[j], perm[col]),

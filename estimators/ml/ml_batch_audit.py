@@ -64,19 +64,31 @@ def _quadratic_form(
     matrix: FloatArray, vector: FloatArray, conditioning: float
 ) -> tuple[FloatArray, BoolArray]:
     """``vᵀ M⁻¹ v`` for symmetric ``M`` ``(P, d, d)`` and ``v`` ``(P, d)`` where ``M`` is
-    positive definite (every leading minor positive) with ``det > conditioning · Π diag``, and
-    where that holds; NaN elsewhere."""
+    positive definite (every pivot of its Cholesky factorisation positive) with
+    ``det > conditioning · Π diag``, and where that holds; NaN elsewhere. Elementwise over the
+    problems (``d`` is 2 or 3: a few operations per entry, no per-problem solve)."""
     d = matrix.shape[-1]
     with np.errstate(all="ignore"):
-        minors = [np.linalg.det(matrix[:, :k, :k]) for k in range(1, d + 1)]
-        diagonal = np.prod(np.diagonal(matrix, axis1=-2, axis2=-1), axis=-1)
-        ok = np.logical_and.reduce([minor > 0.0 for minor in minors])
-        ok &= minors[-1] > conditioning * diagonal
-        value = np.full(len(matrix), np.nan)
-        if ok.any():
-            solved = np.linalg.solve(matrix[ok], vector[ok][..., None])[..., 0]
-            value[ok] = np.sum(vector[ok] * solved, axis=-1)
-    return value, ok & np.isfinite(value)
+        lower: dict[tuple[int, int], FloatArray] = {}
+        pivots, solved = [], []
+        for j in range(d):
+            pivot = matrix[:, j, j] - sum((lower[j, k] ** 2 for k in range(j)), 0.0)
+            pivots.append(pivot)
+            root = np.sqrt(pivot)
+            for i in range(j + 1, d):
+                off = matrix[:, i, j] - sum((lower[i, k] * lower[j, k] for k in range(j)), 0.0)
+                lower[i, j] = off / root
+            lower[j, j] = root
+            # forward substitution of L w = v, one entry per pivot
+            entry = vector[:, j] - sum((lower[j, k] * solved[k] for k in range(j)), 0.0)
+            solved.append(entry / root)
+        positive = np.logical_and.reduce([pivot > 0.0 for pivot in pivots])
+        det = np.prod(pivots, axis=0)
+        diagonal = np.prod([matrix[:, j, j] for j in range(d)], axis=0)
+        ok = positive & (det > conditioning * diagonal)
+        value = sum(entry * entry for entry in solved)
+    ok &= np.isfinite(value)
+    return np.where(ok, value, np.nan), ok
 
 
 def _gauss_newton_decrement(jac: Sequence[FloatArray], residual: FloatArray) -> FloatArray:
