@@ -1,11 +1,13 @@
-r"""The maximum-likelihood reference estimator (MATH §10, with unknowns §15).
+r"""The maximum-likelihood reference estimator (MATH §10, with unknowns §15, the height §8).
 
 :class:`MaximumLikelihood` minimises the whitened residuals ``‖e(s)‖²`` of the raw
 measurements by Levenberg-Marquardt from every closed-form candidate; the method, its starts,
 its convergence test and its minima are in :mod:`estimators.ml.ml_batch`, vectorised over
 trials: :meth:`MaximumLikelihood.estimate` is the batch of one trial. The covariance is the
 inverse Fisher information at the estimate, ``(JᵀJ)⁻¹`` with ``J`` the whitened Jacobian
-(MATH §8): the CRLB evaluated at ``ŝ``.
+(MATH §8): the CRLB evaluated at ``ŝ``. When the data declare the emitter's height unknown the
+search, the answer and the covariance are in ``(x_s, y_s, z_s)`` (position (3,), covariance
+3 × 3; MATH §8, §10).
 """
 
 from __future__ import annotations

@@ -11,12 +11,15 @@ is, up to a constant, half the squared norm of the whitened residuals
     \hat s = \arg\min_{(x_s, y_s)} \lVert e(s)\rVert^2
 
 (Doppler with the physical sign, the RSS block optional; a nuisance parameter unknown is
-profiled out, :mod:`estimators.ml.ml_residuals`). Vectorised over trials and over each trial's
-starts:
+profiled out, :mod:`estimators.ml.ml_residuals`); with the emitter's height unknown the
+minimum is over ``(x_s, y_s, z_s)`` (MATH §8, §10), by the same steps in three coordinates.
+Vectorised over trials and over each trial's starts:
 
 1. the starts (:mod:`estimators.ml.ml_batch_starts`): every closed-form candidate, folded to
    one side of a straight track, rounded to a grid in the centred, scaled local frame of the
-   CLS;
+   CLS (the height unknown: those of a few assumed heights,
+   :func:`~estimators.ml.ml_batch_starts.start_heights`; a straight track then fails every
+   trial before any search, :data:`~estimators.mirror_rule.STRAIGHT_TRACK_HEIGHT`);
 2. Levenberg-Marquardt from every start at once (:func:`estimators.ml.minpack_batch.lmder_batch`,
    MINPACK's ``lmder`` with ``xtol = ftol = gtol = XTOL``, at most ``max_nfev`` evaluations);
 3. the convergence audit (:mod:`estimators.ml.ml_batch_audit`): a start converged when a
@@ -37,8 +40,11 @@ starts:
    costs tied within ``XTOL`` the image on the left of the track is kept), and
    minima within ``cost_rtol`` of the best joined to a better one by a flat valley (no barrier
    at the midpoint) are one; every minimum within ``cost_rtol`` of the best is a candidate (on
-   one straight frame the mirror pair has exactly equal cost, MATH §7);
-5. the mirror rule and tie-break (:func:`~estimators.batch.finalize_columns`; one
+   one straight frame the mirror pair has exactly equal cost, MATH §7); on a level flight with
+   the height unknown each minimum's reflection through the flight plane is added at its cost
+   (:func:`with_reflections`: the likelihood is symmetric about the plane, MATH §7);
+5. the mirror rule and tie-break (:func:`~estimators.mirror_rule.finalize_columns`, which
+   also drops a 3-D candidate above the UAV; one
    ``rng.integers`` per trial that draws, in trial order), the covariance, the inverse Fisher
    information ``(JᵀJ)⁻¹`` at the estimate (MATH §8: the CRLB at ``ŝ``), and the diagnostics.
 
