@@ -296,3 +296,19 @@ def test_with_the_height_known_the_search_stays_in_the_plane() -> None:
     assert known.position_m.shape == (2,) and known.covariance_m2.shape == (2, 2)
     unknown = MaximumLikelihood().estimate(height_unknown(data))
     np.testing.assert_allclose(unknown.position_m[:2], known.position_m, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["hill", "hill-climb", "roof-beacon"])
+def test_the_answer_does_not_depend_on_the_height_the_data_assume(name: str) -> None:
+    """The data's ``emitter_height_m`` (the ground an estimator ignoring the height assumes)
+    places only the lowest start: other assumed heights give the same minimum on noisy data."""
+    data = simulate_trials(get_scenario(name), snr_db=0.0, seeds=trial_seeds(9, 1)).trial(0)
+    answers = [
+        MaximumLikelihood().estimate(dataclasses.replace(data, emitter_height_m=height))
+        for height in (-200.0, 0.0, 60.0)
+    ]
+    assert all(answer.success for answer in answers)
+    for answer in answers[1:]:
+        np.testing.assert_allclose(
+            answer.position_m, answers[0].position_m, rtol=0, atol=1e-7 * scale_m(data)
+        )
