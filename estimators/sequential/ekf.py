@@ -111,6 +111,7 @@ from estimators.convergence import (
 )
 from estimators.frame_model import FrameModel, read_only
 from estimators.goodness_of_fit import with_fit
+from estimators.mirror_rule import STRAIGHT_TRACK_HEIGHT
 from estimators.sequential.mirror_hypotheses import (
     diffuse_prior_information,
     first_frame_candidates,
@@ -120,7 +121,6 @@ from estimators.sequential.mirror_hypotheses import (
     surviving_hypotheses,
     with_mirror,
 )
-from estimators.mirror_rule import STRAIGHT_TRACK_HEIGHT
 from estimators.sequential.nuisance_starts import circle_starts, straight_frame_starts
 from estimators.sequential.nuisance_states import (
     NUISANCE_UNKNOWNS,

@@ -333,10 +333,12 @@ def smoother_estimate(
     notes: list[str],
     diagnostics: dict[str, Any],
     random_walk: bool,
+    ceiling_m: float | None = None,
 ) -> Estimate:
     """:func:`hypotheses_estimate` of a smoother's state (its hypotheses' last positions,
     covariances, weights and data information), with the state's frame and iteration counts
-    in the diagnostics; shared by the cooperative and the nuisance smoother (MATH §7, §15)."""
+    in the diagnostics; shared by the cooperative and the nuisance smoother (MATH §7, §15);
+    ``ceiling_m`` as in :func:`hypotheses_estimate` (3-D)."""
     return hypotheses_estimate(
         name,
         [h.estimates_m[-1] for h in hypotheses],
@@ -353,4 +355,5 @@ def smoother_estimate(
             "iterations": state.iterations,
             "random_walk": random_walk,
         },
+        ceiling_m=ceiling_m,
     )
