@@ -299,11 +299,11 @@ class GtsamSmoother:
         (:func:`estimators.sequential.smoother_nuisance.update`)."""
         require_modalities(self, frame)
         if isinstance(state, smoother_nuisance.NuisanceSmootherState):
-            check_same_unknowns(state.frames[0].names, frame)
+            check_same_unknowns(state.frames[0].names, frame, state.frames[0].dimension)
             return smoother_nuisance.update(state, frame, self._nuisance_options())
         if nuisance_names(frame):
             if state.frames:
-                check_same_unknowns((), frame)
+                check_same_unknowns((), frame, state.frames[0].dimension)
             fresh = smoother_nuisance.NuisanceSmootherState()
             return smoother_nuisance.update(fresh, frame, self._nuisance_options())
         model = FrameModel.from_measurements(frame)
