@@ -12,7 +12,9 @@ error and Jacobian are
     \frac{c\,\nabla \tau_k}{\sigma_r}\Big]_k ,\qquad J_{\text{frame}}(s) = E^\top E
 
 (predicted minus measured, GTSAM's sign convention), ``J_frame`` being the frame's Fisher
-information of MATH §8. :class:`FrameModel` holds the frame as plain arrays, so it pickles and can
+information of MATH §8. ``s`` is ``(x_s, y_s)`` at the known height, or ``(x_s, y_s, z_s)`` when
+the frame declares the height unknown (``dimension`` 3: Jacobians ``(2K, 3)``, Hessians
+``3 × 3``). :class:`FrameModel` holds the frame as plain arrays, so it pickles and can
 be rebuilt into filter or factor-graph objects inside any worker process.
 """
 

@@ -85,6 +85,19 @@ and 0.99× at 40 dB with δ unknown; 8.6×, 4.1× and 1.02× with b unknown; 1.0
 every frame, was within 1.04× at 0 dB in all three). The UKF (``filter="ukf"``) is worse at 20 dB
 (1.7× with δ unknown, 2.5× with both) and as good at 40 dB.
 
+**The height unknown** (MATH §7, §8). When the data declare ``"emitter_height_m"`` unknown the
+state is ``(x_s, y_s, z_s)`` (then the nuisance states) and the covariance 3×3 (the frame
+model in three coordinates, :class:`~estimators.frame_model.FrameModel`). A straight track
+leaves a circle of equally likely emitters, which no Gaussian summarises: the frames of the
+first straight track wait in the state (the estimate fails with the mirror rule's one line,
+:data:`~estimators.mirror_rule.STRAIGHT_TRACK_HEIGHT`), and the first frame off the line starts
+the hypotheses from all of them at once: from points of the first frame's circle below the UAV
+(:func:`~estimators.sequential.nuisance_starts.circle_starts`), each iterated to the frames'
+maximum likelihood, the converged ones merged and pruned. In a level flight a hypothesis above
+the UAV is replaced by its reflection through the flight plane (the same likelihood), and a
+hypothesis above the UAV's highest sample is no answer ("the emitter is below the UAV").
+Later frames are the updates above in the 3-D state.
+
 The state (:class:`EkfState`) is a frozen value of plain arrays; filterpy objects live only
 inside one ``update`` call, so the state and the estimator pickle.
 """
