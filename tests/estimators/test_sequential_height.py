@@ -134,6 +134,20 @@ def test_noise_free_turns_give_the_emitter_exactly(seed, name, climb_mps, unknow
         assert chi2 > 1e3
 
 
+@pytest.mark.parametrize("scenario", ["hill", "hill-climb", "roof-beacon"])
+def test_ukf_in_3d_is_within_a_tenth_of_its_sigma_on_noise_free_data(scenario) -> None:
+    """The unscented updates (``filter="ukf"``) in the 3-D state: not exact (sigma points, not
+    a linearisation at the mode), but on noise-free data within ``0.1`` of the reported 3×3
+    covariance's standard deviations of the emitter (``1e-3`` with the height alone unknown,
+    ``0.04`` on ``roof-beacon`` with the offsets unknown too)."""
+    data = noise_free(get_scenario(scenario))
+    estimate = Ekf(filter="ukf").estimate(data)
+    assert estimate.success, estimate.message
+    assert estimate.covariance_m2.shape == (3, 3)
+    offset = estimate.position_m - data.truth_emitter_m
+    assert float(np.sqrt(offset @ np.linalg.solve(estimate.covariance_m2, offset))) < 0.1
+
+
 @pytest.mark.parametrize("name", ["ekf", "smoother"])
 def test_a_straight_track_cannot_fix_the_height(name) -> None:
     """While every frame lies on one straight track the estimate fails with the mirror rule's
