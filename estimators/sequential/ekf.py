@@ -73,7 +73,7 @@ was 26× the nuisance CRLB at 20 dB, in ``(D, R)`` 0.97×. The closed form canno
 first frame then; the linear rows and the cross-track scan of
 :mod:`estimators.sequential.nuisance_starts` do, with a diffuse prior on every state, and the first
 update is iterated to the frame's maximum likelihood as before. The reported covariance is the state
-covariance's ``(x, y)`` block; ``diagnostics`` add the returned hypothesis's ``carrier_offset_hz``
+covariance's position block; ``diagnostics`` add the returned hypothesis's ``carrier_offset_hz``
 and ``emission_time_s`` (physical values, with ``…_sigma_hz``, ``…_sigma_s``). What the filter
 cannot fix is the first frames' own non-Gaussian posterior: one straight frame with an
 unknown offset fixes the emitter only along a curve (the first frame's nuisance CRLB on

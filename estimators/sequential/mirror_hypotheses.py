@@ -19,6 +19,12 @@ emitter on the track, where the first-order cross-track information vanishes); w
 do is decided separately, from the rank of the accumulated Fisher information
 (:func:`fisher_rank`), and reported.
 
+**The height unknown** (MATH §7, §8). The hypotheses are 3-D points (their covariances and
+information 3×3); a straight track then leaves a circle, not a pair, so the estimators start
+their hypotheses only after a second heading (:func:`~estimators.sequential.nuisance_starts.
+circle_starts`), and :func:`hypotheses_estimate` drops a hypothesis above the UAV's highest
+sample (``ceiling_m``: the emitter is below the UAV).
+
 **Merging** (MATH §7). After a turn the mirror hypothesis of an iterated filter is pulled to
 the true side, but its Gaussian prior, linearised on the mirror side for every earlier frame,
 holds it short: at −20 dB on ``paper-1m-turn`` 44 % of the trials reported such a second

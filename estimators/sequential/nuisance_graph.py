@@ -7,9 +7,9 @@ one), the emitter variables ``X(t)`` as in
 nuisance parameters in the physical state of :mod:`estimators.sequential.nuisance_states` (δ in Hz,
 then ``β = c b`` in metres), with diffuse priors on ``X(0)`` and ``N(0)`` and random-walk links
 (:func:`nuisance_graph`). :func:`nuisance_fit` evaluates the same graph in numpy (dense algebra
-over its ``2V + n_u`` unknowns): cost, decrements, Laplace evidence, covariance, the data's
-``(x, y)`` information with the nuisance eliminated (MATH §15) and the Hessian that says whether
-a stationary point is a saddle.
+over its ``dV + n_u`` unknowns, ``d = 3`` with the height unknown): cost, decrements, Laplace
+evidence, covariance, the data's information about the position with the nuisance eliminated
+(MATH §15) and the Hessian that says whether a stationary point is a saddle.
 """
 
 from __future__ import annotations
@@ -138,7 +138,7 @@ class NuisanceFit:
     :class:`~estimators.sequential.smoother_graph.ChainFit`: ``chi2``, ``log_evidence``,
     ``decrement``, ``step_m`` (Newton where the Hessian is positive definite, else Gauss-Newton;
     shaped as ``θ``), ``covariance`` (the inverse Gauss-Newton information of the whole state),
-    ``data_information`` (the data's information of ``(x, y)`` with the nuisance eliminated,
+    ``data_information`` (the data's information of the position with the nuisance eliminated,
     MATH §15) and ``uniform_hessian`` (the exact Hessian for one shift of every emitter variable
     and of the nuisance)."""
 
@@ -165,7 +165,7 @@ def nuisance_fit(
     prior_sigmas: FloatArray,
 ) -> NuisanceFit:
     """Cost, decrement, evidence and covariance of the graph at ``θ`` (dense algebra over the
-    ``2V + n_u`` unknowns). Raises :class:`EstimationFailure` when the Gauss-Newton information
+    ``dV + n_u`` unknowns). Raises :class:`EstimationFailure` when the Gauss-Newton information
     is not positive definite or not finite."""
     n_u = len(frames[0].names)
     d = frames[0].dimension

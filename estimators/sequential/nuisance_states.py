@@ -41,7 +41,7 @@ and flies along it, so ``D`` and ``R`` are unchanged by the mirror reflection (M
 The physical values are read back as ``δ = D − f₀(s)``, ``β = R − ρ₀(s)``
 (:meth:`NuisanceFrame.physical_nuisance`, :meth:`NuisanceFrame.physical_covariance`).
 
-**The position's information and covariance.** The reported covariance is the ``(x, y)`` block
+**The position's information and covariance.** The reported covariance is the position's block
 of the state's; the data's information about the position is the Schur complement of the
 state's (:func:`position_information`), which over accumulated frames is the nuisance
 information of :func:`scenarios.fisher.fisher_information` (MATH §8, §15: the affected rows
