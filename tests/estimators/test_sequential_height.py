@@ -19,8 +19,9 @@ from comparison.crlb import crlb_m2
 from estimators.base import require_modalities
 from estimators.frame_model import FrameModel
 from estimators.mirror_rule import STRAIGHT_TRACK_HEIGHT
-from estimators.sequential.ekf import Ekf
+from estimators.sequential.ekf import Ekf, EkfHypothesis
 from estimators.sequential.gtsam_smoother import GtsamSmoother
+from estimators.sequential.mirror_hypotheses import hypotheses_estimate
 from scenarios import measurement_model as model
 from scenarios.catalog import get_scenario, heading_velocities_mps
 from scenarios.fisher import fisher_information
@@ -284,3 +285,45 @@ def test_smoother_is_the_batch_maximum_likelihood_on_noisy_data(seed, scenario, 
     ekf = streamed(ESTIMATORS["ekf"], data)[1][-1]
     assert ekf.success, ekf.message
     assert deviations(ekf.position_m) < 0.25
+
+
+def test_hypotheses_above_the_uav_are_no_answer() -> None:
+    """:func:`hypotheses_estimate` with 3-D means and the UAV's highest sample as ceiling: a
+    hypothesis above it weighs nothing (MATH §7), whatever its weight, and with none below the
+    estimate fails naming the rule; the EKF hypothesis's reflection through a level flight's
+    plane keeps its weight and mirrors the height's rows of its matrices."""
+    below, above = np.array([10.0, 20.0, 30.0]), np.array([12.0, 18.0, 170.0])
+    covariance = np.diag([1.0, 2.0, 3.0])
+    estimate = hypotheses_estimate(
+        "test",
+        [above, below],
+        [covariance, covariance],
+        [0.0, -5.0],
+        [np.linalg.inv(covariance)] * 2,
+        straight_track=False,
+        length_scale_m=100.0,
+        ceiling_m=100.0,
+    )
+    assert estimate.success
+    np.testing.assert_array_equal(estimate.position_m, below)
+    np.testing.assert_array_equal(estimate.candidates_m, [below])
+    none = hypotheses_estimate(
+        "test",
+        [above],
+        [covariance],
+        [0.0],
+        [np.linalg.inv(covariance)],
+        straight_track=False,
+        length_scale_m=100.0,
+        ceiling_m=100.0,
+    )
+    assert not none.success and none.message == "no hypothesis below the UAV (MATH §7)"
+    coupled = np.array([[2.0, 0.1, 0.3], [0.1, 1.0, -0.2], [0.3, -0.2, 4.0]])
+    hypothesis = EkfHypothesis(
+        mean_m=above.copy(), covariance_m2=coupled, log_weight=-1.5, data_information=coupled
+    )
+    reflected = hypothesis.reflected(100.0)
+    np.testing.assert_array_equal(reflected.mean_m, [12.0, 18.0, 30.0])
+    flip = np.diag([1.0, 1.0, -1.0])
+    np.testing.assert_array_equal(reflected.covariance_m2, flip @ coupled @ flip)
+    assert reflected.log_weight == -1.5
