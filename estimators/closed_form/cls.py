@@ -70,6 +70,7 @@ from estimators.closed_form.pseudorange_cls import (
 )
 from estimators.goodness_of_fit import FIT_KEYS, fit_of, with_fit, with_fit_columns
 from scenarios.geometry import straight_track_line
+from scenarios.nuisance import HEIGHT_UNKNOWN
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -189,6 +190,17 @@ def _constrained_ls(rows: Rows, frames: Frames, data: MeasurementSet) -> Constra
     return ConstrainedLS.in_frame(A, b, frame)
 
 
+def require_pseudorange_height_known(unknowns: Sequence[str]) -> None:
+    """Refuse the emission time and the height unknown together: the pseudo-range form
+    (MATH §15) solves for ``(x, y)`` at a known height only."""
+    if "emission_time_s" in unknowns and HEIGHT_UNKNOWN in unknowns:
+        raise ValueError(
+            "unknowns: the closed form does not yet estimate the emitter's height with the "
+            "emission time unknown (the pseudo-range form of MATH §15 is 2-D); give "
+            "the height for now (drop 'emitter_height_m' from unknowns)"
+        )
+
+
 def _check_options(frames: str, side_prior_m: object) -> None:
     if frames not in ("all", "last"):
         raise ValueError(f"frames: expected 'all' or 'last', got {frames!r}")
@@ -241,6 +253,7 @@ class _Batches(EstimatesOfColumns):
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)
         check_rng(rng)
+        require_pseudorange_height_known(data.unknowns)
         if "emission_time_s" in data.unknowns:
             return with_fit(self, self._solve_one(data, rng), data)
         return estimate_trial(
@@ -260,7 +273,7 @@ class _Batches(EstimatesOfColumns):
         return _constrained_ls(self._rows(), self.frames, data)
 
     def _fit(self, data: MeasurementSet, position_m: FloatArray) -> dict[str, Any]:
-        """The goodness of fit (MATH §17) at ``position_m`` (1, 2), as ``with_fit_columns``
+        """The goodness of fit (MATH §17) at ``position_m`` (1, d), as ``with_fit_columns``
         computes it for a batch of one (the same arrays, the same bits)."""
         value, dof = fit_of(self, data, position_m)
         return dict(zip(FIT_KEYS, (float(value[0]), int(dof)), strict=True))
@@ -283,6 +296,7 @@ class _Batches(EstimatesOfColumns):
     ) -> BatchEstimates:
         """``estimate_batch`` as columns, without an object per trial."""
         require_batch(self, batch)
+        require_pseudorange_height_known(batch.geometry.unknowns)
         if "emission_time_s" in batch.geometry.unknowns:  # MATH §15: vectorised
             columns = estimate_pseudorange_columns(
                 self.name,
@@ -364,9 +378,9 @@ class Cls(_Batches):
             batch=True,
             unit_invariant=self.weighting == "optimal",
             unknowns=frozenset(
-                {"carrier_offset_hz", "emission_time_s"}
+                {"carrier_offset_hz", "emission_time_s", HEIGHT_UNKNOWN}
                 if self.weighting == "optimal"
-                else {"carrier_offset_hz"}
+                else {"carrier_offset_hz", HEIGHT_UNKNOWN}
             ),
         )
 

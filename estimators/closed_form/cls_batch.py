@@ -48,6 +48,7 @@ from estimators.closed_form.gtrs_batch import GtrsBatch, RowBlock, solve_gtrs_ba
 from estimators.mirror_rule import finalize_columns
 from scenarios import measurement_model as model
 from scenarios.geometry import straight_track_lines
+from scenarios.nuisance import position_dimension
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -64,6 +65,9 @@ MAX_CANDIDATES = 4
 
 HARD_CASE_MESSAGE = "hard case: mirror pair (MATH §5)"
 FAILED_MESSAGE = "CLS: the GTRS has no finite minimiser (MATH §5); check the data for NaN"
+STRAIGHT_TRACK_HEIGHT = "degenerate geometry: one straight track cannot fix the height"
+"""Why the CLS fails with the height unknown on one straight track: every rotation of the
+emitter about the track explains the data (a circle of minimisers, MATH §7)."""
 
 COLLINEAR_RTOL = 1e-13
 """Samples on one line and flying along it to this relative precision: every row of the CLS
@@ -90,6 +94,7 @@ class SharedGeometry:
     mean_xy: FloatArray
     column: dict[str, FloatArray]
     offset_unknown: bool
+    dimension: int = 2
 
     @classmethod
     def of(
@@ -122,8 +127,12 @@ class SharedGeometry:
         bounds = np.append(np.flatnonzero(change), k)
         starts, counts = bounds[:-1], bounds[1:] - bounds[:-1]
         unit = velocity[:, :2] / speed[:, None]
-        dz = position[:, 2] - used.emitter_height_m
+        dimension = position_dimension(used.unknowns)
+        # with the height a coordinate (MATH §5) the rows' frame has its z at 0: the data's
+        # emitter_height_m (what an estimator ignoring the height assumes) is not read
+        dz = position[:, 2] - (used.emitter_height_m if dimension == 2 else 0.0)
         names = ("x", "y", "-2x", "-2y", "ux", "uy", "-ux", "-uy", "vx", "vy", "vz", "dz", "gv")
+        names += ("-2z", "uz", "-uz")
         per_sample = np.empty((len(names), k, 1))  # (K, 1) columns that broadcast against (K, n)
         per_sample[0:2, :, 0] = offset.T
         per_sample[2:4, :, 0] = -2.0 * offset.T
@@ -132,6 +141,9 @@ class SharedGeometry:
         per_sample[8:11, :, 0] = velocity.T
         per_sample[11, :, 0] = dz
         per_sample[12, :, 0] = used.gamma_per_m * speed
+        per_sample[13, :, 0] = -2.0 * position[:, 2]
+        per_sample[14, :, 0] = velocity[:, 2] / speed  # v_z/|v_xy|: the height's Doppler column
+        per_sample[15, :, 0] = -per_sample[14, :, 0]
         # collinear to COLLINEAR_RTOL implies straight to the default 1e-9
         line, collinear_line = straight_track_lines(position, velocity, (1e-9, COLLINEAR_RTOL))
         return cls(
@@ -151,6 +163,7 @@ class SharedGeometry:
             mean_xy=mean_xy,
             column=dict(zip(names, per_sample, strict=True)),
             offset_unknown="carrier_offset_hz" in used.unknowns,
+            dimension=dimension,
         )
 
     def frame_sums(self, values: FloatArray) -> FloatArray:
@@ -162,9 +175,10 @@ class SharedGeometry:
 class SolvedTrials:
     """What the vectorised CLS decides for each of ``n`` trials, before the tie-break draws.
 
-    ``candidates`` (n, 4, 2) holds trial ``i``'s kept candidates in its first
+    ``candidates`` (n, 4, d) holds trial ``i``'s kept candidates in its first
     ``n_candidates[i]`` slots; ``chosen`` is the returned one unless ``draw`` (a tie with no
-    prior: ``rng.integers(n_candidates)`` decides); ``failed`` trials have no finite answer.
+    prior: ``rng.integers(n_candidates)`` decides); ``failed`` trials have no finite answer,
+    ``degenerate`` ones failed because one straight track cannot fix the height (d = 3).
     ``carrier_offset_hz`` is δ at the first candidate when it is unknown (MATH §15).
     """
 
@@ -178,6 +192,7 @@ class SolvedTrials:
     multiplier: FloatArray
     rank: NDArray[np.int64]
     carrier_offset_hz: FloatArray | None
+    degenerate: NDArray[np.bool_]
 
 
 def solve_trials(
@@ -223,6 +238,9 @@ def _solve_part(
 ) -> SolvedTrials:
     """:func:`solve_trials` of one chunk (n, K)."""
     n = len(ranges)
+    d = shared.dimension
+    if d == 3 and shared.line is not None:  # a circle of minimisers (MATH §7): no answer
+        return _degenerate(n)
     if n == 1:  # numpy sums one column in another order: solve it as two, keep one
         r, f = np.repeat(ranges.T, 2, axis=1), np.repeat(doppler.T, 2, axis=1)
     else:
@@ -235,6 +253,9 @@ def _solve_part(
         count = solution.count[:n]
         if shared.line is not None:
             count = count - hard
+        # with the height a coordinate both reflections through a level flight's plane go
+        # (MATH §7); the rule drops the one above the UAV
+        ceiling = {} if d == 2 else {"ceiling_m": float(np.max(shared.z))}
         final = finalize_columns(
             world[:n],
             count,
@@ -242,10 +263,11 @@ def _solve_part(
             shared.mean_xy,
             shared.line,
             side_prior_m=side_prior_m,
+            **ceiling,
         )
     candidates = final.candidates
     if candidates.shape[1] < MAX_CANDIDATES:  # every chunk holds the same width
-        padded = np.full((n, MAX_CANDIDATES, 2), np.nan)
+        padded = np.full((n, MAX_CANDIDATES, d), np.nan)
         padded[:, : candidates.shape[1]] = candidates
         candidates = padded
     return SolvedTrials(
@@ -259,6 +281,24 @@ def _solve_part(
         solution.multiplier[:n],
         solution.rank[:n],
         None if not shared.offset_unknown else solution.nuisance[:n, 0],
+        np.zeros(n, dtype=bool),
+    )
+
+
+def _degenerate(n: int) -> SolvedTrials:
+    """``n`` trials failed for :data:`STRAIGHT_TRACK_HEIGHT`."""
+    return SolvedTrials(
+        np.full((n, MAX_CANDIDATES, 3), np.nan),
+        np.zeros(n, dtype=np.int64),
+        np.zeros(n, dtype=np.int64),
+        np.zeros(n, dtype=bool),
+        np.zeros(n, dtype=bool),
+        np.ones(n, dtype=bool),
+        np.zeros(n, dtype=bool),
+        np.full(n, np.nan),
+        np.full(n, -1, dtype=np.int64),
+        None,
+        np.ones(n, dtype=bool),
     )
 
 
@@ -307,8 +347,10 @@ def estimate_columns(
         n_candidates=np.where(ok, solved.n_candidates, 0),
         ambiguous=solved.ambiguous & ok,
         success=ok.copy(),
-        message_code=np.where(ok, np.where(solved.hard_case, 1, 0), 2).astype(np.int64),
-        messages=("", HARD_CASE_MESSAGE, FAILED_MESSAGE),
+        message_code=np.where(
+            ok, np.where(solved.hard_case, 1, 0), np.where(solved.degenerate, 3, 2)
+        ).astype(np.int64),
+        messages=("", HARD_CASE_MESSAGE, FAILED_MESSAGE, STRAIGHT_TRACK_HEIGHT),
         diagnostics=_diagnostics(solved, rows, shared),
     )
 
@@ -324,7 +366,7 @@ def estimate_trial(
 ) -> Estimate:
     """:func:`estimate_columns` of one trial, ``data``, as its :class:`Estimate`: the same
     vectorised solve (:func:`solve_trials`) on a batch of one, without the batch's columns.
-    ``fit(position (1, 2))`` gives the goodness-of-fit diagnostics of a success."""
+    ``fit(position (1, d))`` gives the goodness-of-fit diagnostics of a success."""
     shared = SharedGeometry.of(data, frames)
     ranges = shared.used.speed_of_light_mps * data.toa_s[shared.columns][None]
     solved = solve_trials(shared, rows, ranges, data.doppler_hz[shared.columns][None], side_prior_m)
@@ -332,7 +374,8 @@ def estimate_trial(
         key: value[0].item() for key, value in _diagnostics(solved, rows, shared).items()
     }
     if solved.failed[0]:
-        return Estimate.failed(name, FAILED_MESSAGE, **diagnostics)
+        message = STRAIGHT_TRACK_HEIGHT if solved.degenerate[0] else FAILED_MESSAGE
+        return Estimate.failed(name, message, **diagnostics)
     count = int(solved.n_candidates[0])
     chosen = int(solved.chosen[0])
     if solved.draw[0] and rng is not None:
@@ -372,7 +415,7 @@ def system_of_trial(
     weights_at_local_xy: FloatArray | None = None,
     last_stage: bool = False,
 ) -> tuple[FloatArray, FloatArray, FloatArray | None, float]:
-    """The stacked rows ``A`` (m, 3), ``b`` (m,) of one trial (``data``, every sample) in its
+    """The stacked rows ``A`` (m, d + 1), ``b`` (m,) of one trial (``data``, every sample) in its
     local frame, as the solver sums them, δ's column (m,) or None, and the frame's scale.
 
     The frame is the solver's (centred on the samples, scaled by the RMS of their spread and
@@ -391,12 +434,14 @@ def system_of_trial(
     rows_of = RowsOfChunk(shared, r, f, scale)
     weights_at = None
     if weights_at_local_xy is not None:
-        weights_at = tuple(np.asarray(weights_at_local_xy, dtype=float).reshape(2, 1))
+        weights_at = tuple(
+            np.asarray(weights_at_local_xy, dtype=float).reshape(shared.dimension, 1)
+        )
     elif last_stage and rows == "weighted":
         with np.errstate(all="ignore"):
             first = solve_gtrs_batch(rows_of.blocks(rows), 1)
         pick = int(_second_left(shared, first)[0])
-        weights_at = (first.x[:1, pick], first.y[:1, pick])
+        weights_at = tuple(c[:1, pick] for c in first.points)
     blocks = rows_of.blocks(rows, weights_at=weights_at)
 
     def column(values: FloatArray | None, n_rows: int) -> FloatArray:
@@ -406,7 +451,9 @@ def system_of_trial(
 
     A = np.concatenate(
         [
-            np.column_stack([column(part, block.n_rows) for part in (block.ax, block.ay, block.az)])
+            np.column_stack(
+                [column(part, block.n_rows) for part in block.columns(shared.dimension)]
+            )
             for block in blocks
         ]
     )
@@ -426,8 +473,9 @@ def _ordered_costs(costs: FloatArray, hard_case: NDArray[np.bool_]) -> FloatArra
 def solve_chunk(
     shared: SharedGeometry, rows: str, r: FloatArray, f: FloatArray
 ) -> tuple[FloatArray, GtrsBatch]:
-    """World candidates (n, 2, 2), a hard-case pair left of the last heading first, and the
-    solution of the last stage (its ``x, y`` and ``nuisance`` in the same order)."""
+    """World candidates (n, 2, d), a hard-case pair left of the last heading first (with the
+    height a coordinate, the lower first), and the solution of the last stage (its points and
+    ``nuisance`` in the same order)."""
     scale = np.sqrt(shared.spread_sq + np.add.reduce(r * r, axis=0) / len(r))  # (np.mean's bits)
     scale[~(scale > 0.0)] = 1.0  # (NaN too)
     rows_of = RowsOfChunk(shared, r, f, scale)
@@ -440,31 +488,33 @@ def solve_chunk(
         # stage 2: weights at the stage-1 estimate (MATH §6); of a hard-case pair, at the point
         # left of the last heading (on a straight track both give the same weights)
         first = _second_left(shared, solution)
-        local_x = np.where(first, solution.x[:, 1], solution.x[:, 0])
-        local_y = np.where(first, solution.y[:, 1], solution.y[:, 0])
+        local = tuple(np.where(first, c[:, 1], c[:, 0]) for c in solution.points)
         solution = solve_gtrs_batch(
-            rows_of.blocks(rows, weights_at=(local_x, local_y)),
+            rows_of.blocks(rows, weights_at=local),
             n,
             rank=True,
             rank_deficient=deficient,
         )
     swap = _second_left(shared, solution)
-    for name in ("x", "y", "costs", "nuisance") if swap.any() else ():
+    for name in ("x", "y", "z", "costs", "nuisance") if swap.any() else ():
         values = getattr(solution, name)
         if values is not None:
             values[swap] = values[swap, ::-1]
-    world = np.empty((n, 2, 2))
+    world = np.empty((n, 2, shared.dimension))
     np.multiply(solution.x, scale[:, None], out=world[..., 0])
     world[..., 0] += shared.origin[0]
     np.multiply(solution.y, scale[:, None], out=world[..., 1])
     world[..., 1] += shared.origin[1]
+    if solution.z is not None:  # the frame's z is the world's (MATH §5)
+        np.multiply(solution.z, scale[:, None], out=world[..., 2])
     return world, solution
 
 
 def candidates_of_trial(data: MeasurementSet) -> FloatArray:
     """The weighted CLS's minimisers of one trial (every sample), before the mirror rule:
-    (1, 2) or, in the hard case, the pair (2, 2), the point left of the last heading first;
-    (0, 2) when the GTRS has no finite minimiser. The same solve as a batch's
+    (1, d) or, in the hard case, the pair (2, d), the point left of the last heading first
+    (with the height a coordinate, the lower first); (0, d) when the GTRS has no finite
+    minimiser. The same solve as a batch's
     (:func:`solve_chunk`), for the starts of another estimator."""
     shared = SharedGeometry.of(data, "all")
     r = np.repeat((shared.used.speed_of_light_mps * data.toa_s)[:, None], 2, axis=1)
@@ -472,14 +522,17 @@ def candidates_of_trial(data: MeasurementSet) -> FloatArray:
     with np.errstate(all="ignore"):
         world, solution = solve_chunk(shared, "weighted", r, f)
     if solution.failed[0]:
-        return np.empty((0, 2))
+        return np.empty((0, shared.dimension))
     return world[0, : int(solution.count[0])]
 
 
 def _second_left(shared: SharedGeometry, solution: GtrsBatch) -> NDArray[np.bool_]:
     """Whether the second of each hard-case pair lies left of the last heading (False off the
     hard case): the order handed to the mirror rule, so that which point a tie-break returns
-    does not depend on the rounding of the two costs."""
+    does not depend on the rounding of the two costs. With the height a coordinate, whether
+    the second is the lower (the pair of a level flight is one above the other, MATH §7)."""
+    if solution.z is not None:
+        return solution.hard_case & (solution.z[:, 1] < solution.z[:, 0])
     velocity = shared.velocity[-1]
     across = (solution.x[:, 0] - solution.x[:, 1]) * -velocity[1] + (
         solution.y[:, 0] - solution.y[:, 1]
@@ -497,7 +550,8 @@ class RowsOfChunk:
         self.shared = shared
         self.r, self.f, self.scale = r, f, scale
         self.gamma = used.gamma_per_m
-        self.height = used.emitter_height_m
+        self.height = used.emitter_height_m if shared.dimension == 2 else 0.0
+        self.three_d = shared.dimension == 3
         velocity = shared.velocity
         self.vp = (
             velocity[:, 0] * shared.offset[:, 0]
@@ -533,11 +587,15 @@ class RowsOfChunk:
             az=np.ones((len(offset), 1)),
             b=self.toa_rhs(height_term=height_term) * (inv * inv),
             ac=np.zeros((len(offset), 1)) if zero_offset else None,
+            ah=self.shared.column["-2z"] * inv if self.three_d else None,
         )
 
     def blocks(
-        self, rows: str, *, weights_at: tuple[FloatArray, FloatArray] | None = None
+        self, rows: str, *, weights_at: tuple[FloatArray, ...] | None = None
     ) -> list[RowBlock]:
+        """The row blocks of ``rows``; ``weighted`` ones whitened at the measurements or at the
+        local point ``weights_at`` (``x, y`` or, with the height a coordinate, ``x, y, z``, each
+        (n,))."""
         shared = self.shared
         inv = 1.0 / self.scale
         if rows == "weighted":
@@ -550,9 +608,15 @@ class RowsOfChunk:
                     az=None,
                     b=self.doppler_rhs() * (inv * inv),
                     ac=None if self.offset is None else self.offset * (inv * inv),
+                    ah=shared.column["uz"] * inv if self.three_d else None,
                 ),
                 self.toa_block(zero_offset=self.offset is not None),
             ]
+        if self.three_d:
+            raise ValueError(
+                f"rows: {rows!r} rows take the emitter's height as known (MATH §3); with it "
+                "unknown use 'weighted' or 'per-sample'"
+            )
         if rows == "per-frame":
             counts = shared.frame_counts[:, None]
             starts = shared.frame_starts
@@ -586,11 +650,12 @@ class RowsOfChunk:
             ]
         raise ValueError(f"rows: unknown row variant {rows!r}")
 
-    def _whitened(self, weights_at: tuple[FloatArray, FloatArray] | None) -> list[RowBlock]:
+    def _whitened(self, weights_at: tuple[FloatArray, ...] | None) -> list[RowBlock]:
         """Per-sample Doppler and ToA rows whitened pair by pair (MATH §6).
 
         The moments are evaluated at the measured ``(r, f)`` or, with ``weights_at`` (local
-        ``x, y`` per trial), at that point. Written with in-place operations: this is the
+        ``x, y`` per trial, and ``z`` with the height a coordinate), at that point. Written with
+        in-place operations: this is the
         largest part of the batch's work.
         """
         shared, scale = self.shared, self.scale
@@ -604,7 +669,7 @@ class RowsOfChunk:
             doppler, ranges = model.derivatives_of_offsets(
                 column["x"] - weights_at[0] * scale,
                 column["y"] - weights_at[1] * scale,
-                column["dz"],
+                column["dz"] if len(weights_at) == 2 else column["dz"] - weights_at[2] * scale,
                 (column["vx"], column["vy"], column["vz"]),
                 self.gamma,
                 order=0,
@@ -640,14 +705,25 @@ class RowsOfChunk:
         toa_x = np.multiply(ratio, column["-ux"])
         toa_x += column["-2x"]
         toa_x *= toa_weight
+        doppler_h = toa_h = None
+        if self.three_d:  # the height's columns (MATH §5): v_z/|v_xy| and −2z, whitened alike
+            doppler_h = column["uz"] * weight
+            toa_h = np.multiply(ratio, column["-uz"])
+            toa_h += column["-2z"]
+            toa_h *= toa_weight
         toa_y = np.multiply(ratio, column["-uy"], out=ratio)
         toa_y += column["-2y"]
         toa_y *= toa_weight
         return [
             RowBlock(
-                ax=column["ux"] * weight, ay=column["uy"] * weight, az=None, b=beta, ac=offset_d
+                ax=column["ux"] * weight,
+                ay=column["uy"] * weight,
+                az=None,
+                b=beta,
+                ac=offset_d,
+                ah=doppler_h,
             ),
-            RowBlock(ax=toa_x, ay=toa_y, az=toa_weight * scale, b=toa_b, ac=offset_t),
+            RowBlock(ax=toa_x, ay=toa_y, az=toa_weight * scale, b=toa_b, ac=offset_t, ah=toa_h),
         ]
 
     @cached_property
