@@ -402,7 +402,7 @@ def choose_candidate(
     (:func:`estimators.sequential.mirror_hypotheses.hypotheses_estimate`).
     """
     check_rng(rng)
-    points = np.asarray(candidates_m, dtype=float).reshape(-1, 2)
+    points = candidate_points(candidates_m)
     cost = np.asarray(costs, dtype=float).reshape(-1)
     final = finalize_columns(
         points[None],
@@ -413,10 +413,23 @@ def choose_candidate(
         side_prior_m=side_prior_m,
         cost_rtol=cost_rtol,
         merge=False,
+        ceiling_m=np.inf,
     )
     chosen = _drawn(final, rng)
     kept = final.source[0, : final.n_candidates[0]]
     return int(kept[chosen]), kept
+
+
+_BELOW = {2: "", 3: " below the UAV"}
+"""What a candidate must be, besides finite, in 2-D and in 3-D (the mirror rule, MATH §7)."""
+
+
+def candidate_points(candidates_m: ArrayLike) -> FloatArray:
+    """``candidates_m`` as a (k, d) array of points, ``d`` its last axis (2, or 3 with the
+    height estimated; one point may be given flat)."""
+    points = np.asarray(candidates_m, dtype=float)
+    d = position_dimension(points.shape[-1] if points.ndim else 0, "candidates_m")
+    return points.reshape(-1, d)
 
 
 def _drawn(final: FinalizedColumns, rng: np.random.Generator | None) -> int:
@@ -507,7 +520,7 @@ def finalize_from_track(
     ``diagnostics`` gain ``straight_track``.
     """
     check_rng(rng)
-    points = np.asarray(candidates_m, dtype=float).reshape(-1, 2)
+    points = candidate_points(candidates_m)
     cost = np.asarray(costs, dtype=float).reshape(-1)
     line = track.straight
     final = finalize_columns(
@@ -518,11 +531,13 @@ def finalize_from_track(
         None if line is None else (line.origin_m, line.direction),
         side_prior_m=side_prior_m,
         cost_rtol=cost_rtol,
+        ceiling_m=track.highest_m,
     )
     if final.invalid[0]:
         return Estimate.failed(
             estimator,
-            f"no finite candidate among {len(points)} (MATH §7)",
+            final.problem
+            or f"no finite candidate{_BELOW[points.shape[1]]} among {len(points)} (MATH §7)",
             **dict(diagnostics or {}),
         )
     kept = final.candidates[0, : final.n_candidates[0]]

@@ -4,8 +4,12 @@ an answer.
 Every estimator finishes here, through :func:`estimators.base.finalize_estimate` (one trial,
 the batch of one) or :func:`finalize_columns` (many):
 
-1. on a straight track (every sample on one line, flying along it) each candidate's mirror
-   image across it is added, at the same cost: the data cannot tell the two apart;
+0. with the emitter's height estimated (3-D candidates), a candidate above the UAV's highest
+   sample is dropped: a level flight leaves the reflection through its plane at the same cost,
+   and the emitter is below the UAV; on a straight track nothing is an answer (every rotation
+   about the track fits: :data:`STRAIGHT_TRACK_HEIGHT`);
+1. on a straight track (every sample on one line, flying along it) each 2-D candidate's
+   mirror image across it is added, at the same cost: the data cannot tell the two apart;
 2. candidates closer than :data:`MERGE_RTOL` times their largest distance from the centre of
    the track are one point (the cheaper, or the first given, is kept);
 3. the candidates within ``cost_rtol`` of the best cost (:func:`cost_tie_level`) are kept,
@@ -35,6 +39,12 @@ EPS = float(np.finfo(float).eps)
 MERGE_RTOL = 1e-9
 """Candidates closer than this times the scale of the points are one."""
 
+STRAIGHT_TRACK_HEIGHT = (
+    "position_m: every sample lies on one straight track, which leaves the emitter on a circle "
+    "about it when its height is unknown (MATH §7); fly a second heading, or give the height"
+)
+"""Why a straight track locates nothing in 3-D (the one-line failure of every estimator)."""
+
 COST_TIE_ULPS = 64.0
 """Costs within this many rounding units of ``max(|best|, 1)`` above the best tie, on top of
 ``cost_rtol``: a sum of a few hundred squares carries that much rounding."""
@@ -51,11 +61,12 @@ def cost_tie_level(best: ArrayLike, cost_rtol: float) -> Any:
 class FinalizedColumns:
     """What :func:`finalize_columns` decides for each of ``n`` trials.
 
-    ``candidates`` (n, w, 2) holds trial ``i``'s kept candidates, best first, in its first
+    ``candidates`` (n, w, d) holds trial ``i``'s kept candidates, best first, in its first
     ``n_candidates[i]`` slots; ``source`` (n, w) the slot each came from (``j`` for candidate
     ``j``, ``k + j`` for the mirror image of candidate ``j`` of ``k`` slots, -1 for none).
     ``chosen`` is the returned slot unless ``draw`` (several kept, no prior: the caller draws
-    ``rng.integers(n_candidates)``). ``invalid`` trials have no finite candidate.
+    ``rng.integers(n_candidates)``). ``invalid`` trials have no finite candidate; ``problem``
+    says why when the geometry, not the candidates, leaves none (every trial then invalid).
     """
 
     candidates: FloatArray
@@ -65,6 +76,7 @@ class FinalizedColumns:
     draw: BoolArray
     ambiguous: BoolArray
     invalid: BoolArray
+    problem: str = ""
 
 
 def finalize_columns(
@@ -77,13 +89,15 @@ def finalize_columns(
     side_prior_m: ArrayLike | None = None,
     cost_rtol: float = 1e-6,
     merge: bool = True,
+    ceiling_m: float | None = None,
 ) -> FinalizedColumns:
     """The mirror rule (module text) for ``n`` trials of one geometry.
 
     Parameters
     ----------
-    candidates_m : (n, k, 2)
-        Each trial's candidates, the first ``count[i]`` given.
+    candidates_m : (n, k, d)
+        Each trial's candidates, the first ``count[i]`` given; ``d`` is 2, or 3 with the
+        emitter's height estimated.
     costs : (n, k)
     centre_m : (2,)
         The centre of the track (its mean horizontal sample position): the reference of the
@@ -91,21 +105,38 @@ def finalize_columns(
     line : the straight track's ``(origin, unit direction)``, or None.
     merge : bool
         Merge coincident candidates (step 2); off, the rule is the tie rule alone.
+    ceiling_m : float
+        In 3-D (and only there, where it is required): the UAV's highest sample height. A
+        candidate above it is not an answer (step 0 of the module text).
+    side_prior_m : (2,) or (d,)
+        A rough position; a horizontal one picks by horizontal distance.
     """
-    n, k, _ = candidates_m.shape
+    n, k, d = candidates_m.shape
+    problem = ""
+    if d == 3 and ceiling_m is None:
+        raise ValueError("ceiling_m: the 3-D mirror rule needs the UAV's highest sample height")
     # (w, n) arrays, one row per candidate slot (slot-major: numpy's loops run over the
-    # trials): the candidates, then (straight track) their mirror images at the same costs
-    x, y = candidates_m[:, :, 0].T, candidates_m[:, :, 1].T
-    valid = (np.arange(k)[:, None] < count) & np.isfinite(x + y + costs.T)
+    # trials): the candidates, then (straight track, 2-D) their mirror images at equal costs
+    coords = [candidates_m[:, :, j].T for j in range(d)]
+    valid = (np.arange(k)[:, None] < count) & np.isfinite(sum(coords) + costs.T)
+    if d == 3:
+        z = coords[2]
+        valid &= z <= ceiling_m + MERGE_RTOL * max(abs(ceiling_m), 1.0)
+        if line is not None:
+            problem = STRAIGHT_TRACK_HEIGHT
+            valid[:] = False
     cost = np.where(valid, costs.T, np.inf)
-    if line is not None:
+    if line is not None and d == 2:
+        x, y = coords
         (ox, oy), (dx, dy) = (np.asarray(v, dtype=float) for v in line)
         along = (x - ox) * dx + (y - oy) * dy
-        x = np.concatenate([x, ox + 2.0 * along * dx - (x - ox)])
-        y = np.concatenate([y, oy + 2.0 * along * dy - (y - oy)])
+        coords = [
+            np.concatenate([x, ox + 2.0 * along * dx - (x - ox)]),
+            np.concatenate([y, oy + 2.0 * along * dy - (y - oy)]),
+        ]
         cost = np.concatenate([cost, cost])
         valid = np.concatenate([valid, valid])
-    width = len(x)
+    width = len(coords[0])
     trials = np.arange(n)
 
     # stable sort by cost, unless every trial's valid costs are in slot order already
@@ -114,17 +145,25 @@ def finalize_columns(
     running = np.maximum.accumulate(np.where(valid, cost, -np.inf), axis=0)
     if not np.logical_and.reduce(cost[1:] >= running[:-1], axis=None):
         source = np.argsort(cost, axis=0, kind="stable")
-        x, y = x[source, trials], y[source, trials]
+        coords = [c[source, trials] for c in coords]
         cost, valid = cost[source, trials], valid[source, trials]
 
     kept = valid
     if merge and width > 1:  # greedy in cost order: a point near a kept one is dropped
         centre = np.asarray(centre_m, dtype=float)
-        spread = np.maximum(np.abs(x - centre[0]), np.abs(y - centre[1]))
+        # the scale: the horizontal distance from the centre, in 3-D the depth below the UAV
+        offsets = [coords[0] - centre[0], coords[1] - centre[1]]
+        if d == 3:
+            offsets.append(coords[2] - ceiling_m)
+        spread = np.maximum.reduce([np.abs(o) for o in offsets])
         scale = np.maximum.reduce(np.where(valid, spread, -np.inf), axis=0)
         threshold = MERGE_RTOL * np.maximum(scale, 1e-300)
         # close[i, j]: slot i within the threshold of slot j (every pair at once)
-        close = np.hypot(x[:, None] - x, y[:, None] - y) <= threshold
+        if d == 2:
+            gap = np.hypot(coords[0][:, None] - coords[0], coords[1][:, None] - coords[1])
+        else:
+            gap = np.sqrt(sum((c[:, None] - c) ** 2 for c in coords))
+        close = gap <= threshold
         kept = valid.copy()
         for i in range(1, width):  # slot i against the kept slots before it
             kept[i] &= ~np.logical_or.reduce(kept[:i] & close[i, :i], axis=0)
@@ -137,9 +176,9 @@ def finalize_columns(
     # the final slots moved to the front, in order
     slot, trial = np.nonzero(final)
     at = np.cumsum(final, axis=0)[slot, trial] - 1
-    out = np.full((n, width, 2), np.nan)
-    out[trial, at, 0] = x[slot, trial]
-    out[trial, at, 1] = y[slot, trial]
+    out = np.full((n, width, d), np.nan)
+    for j, c in enumerate(coords):
+        out[trial, at, j] = c[slot, trial]
     out_source = np.full((n, width), -1, dtype=np.int64)
     out_source[trial, at] = slot if source is None else source[slot, trial]
     filled = np.arange(width) < n_final[:, None]
@@ -147,8 +186,10 @@ def finalize_columns(
     chosen = np.zeros(n, dtype=np.int64)
     draw = np.zeros(n, dtype=bool)
     if side_prior_m is not None:
-        prior = np.asarray(side_prior_m, dtype=float).reshape(2)
-        distance = np.hypot(out[..., 0] - prior[0], out[..., 1] - prior[1])
+        prior = np.asarray(side_prior_m, dtype=float).reshape(-1)
+        if prior.size not in (2, d):
+            raise ValueError(f"side_prior_m: expected 2 or {d} coordinates, got {prior.size}")
+        distance = np.sqrt(sum((out[..., j] - prior[j]) ** 2 for j in range(prior.size)))
         distance = np.where(filled, distance, np.inf)
         chosen = np.argmin(distance, axis=1).astype(np.int64)
     else:
@@ -159,6 +200,7 @@ def finalize_columns(
         source=out_source,
         chosen=chosen,
         draw=draw,
-        ambiguous=(n_final > 1) | (line is not None),
+        ambiguous=(n_final > 1) | ((line is not None) & (d == 2)),
         invalid=n_final == 0,
+        problem=problem,
     )

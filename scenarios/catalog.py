@@ -5,7 +5,9 @@ The paper's scenario as printed has ``σ_τ² = 1e−6 s²``, i.e. ``c σ_τ = 3
 ``c σ_τ = 1 m`` and ``10 m``. One straight frame can never tell the side of the track (MATH §7):
 ``turn`` (two headings) and ``orbit`` resolve it, and give the LLS baselines full rank (MATH §9).
 ``beacon-pass``, ``beacon-pass-doppler`` and ``turn-noncooperative`` have a non-cooperative
-emitter, whose carrier offset and emission time are unknown (MATH §15).
+emitter, whose carrier offset and emission time are unknown (MATH §15). ``hill``,
+``hill-climb`` and ``roof-beacon`` put the emitter above the take-off ground at a height the
+receiver does not know (MATH §7, §8): the position then has three coordinates.
 """
 
 from __future__ import annotations
@@ -160,6 +162,58 @@ def noncooperative_turn_scenario() -> Scenario:
     )
 
 
+TELEMETRY_CARRIER_HZ = 433.92e6
+"""A 433 MHz ISM telemetry tag's carrier (the ``hill`` scenarios)."""
+
+
+def hill_scenario(*, climb: bool = False) -> Scenario:
+    """An emitter on a hill, 120 m above the UAV's take-off ground, its height unknown (MATH §8).
+
+    A 433.92 MHz telemetry tag at (150, 120, 120) m; the UAV at 300 m and 20 m/s, 200 m east
+    and then 200 m north, 4 frames of K = 10 samples 0.5 s apart; Doppler σ_f = 0.5 Hz and
+    c σ_τ = 10 m at 0 dB. A level turn leaves the reflection of the emitter through the flight
+    plane (at 480 m) at the same cost, which "the emitter is below the UAV" removes (MATH §7).
+    With ``climb`` (``hill-climb``) the UAV climbs at 5 m/s while it flies north (to 350 m),
+    which removes that reflection from the data themselves.
+    """
+    velocities = heading_velocities_mps(20.0, [0.0, 0.0, 90.0, 90.0])
+    if climb:
+        velocities[2:, 2] = 5.0
+    return Scenario(
+        name="hill-climb" if climb else "hill",
+        emitter_m=[150.0, 120.0],
+        emitter_height_m=120.0,
+        flight=FlightPlan(
+            start_position_m=[0.0, 0.0, 300.0],
+            frame_velocities_mps=velocities,
+            samples_per_frame=10,
+            sample_interval_s=0.5,
+        ),
+        carrier_hz=TELEMETRY_CARRIER_HZ,
+        noise=NoiseSigmas(doppler_hz=0.5, toa_s=10.0 / 299_792_458.0),
+        modalities=("doppler", "toa"),
+        unknowns=("emitter_height_m",),
+        description=(
+            "a 433.92 MHz tag 120 m up a hill, its height unknown; UAV at 300 m, east then "
+            + ("north climbing 5 m/s" if climb else "north")
+            + ", Doppler + ToA (c*sigma_tau = 10 m)"
+        ),
+    )
+
+
+def roof_beacon_scenario() -> Scenario:
+    """``beacon-pass`` with the beacon on a roof 25 m up: its carrier offset, emission time
+    and height all unknown (MATH §8, §15)."""
+    return beacon_pass_scenario(name="roof-beacon").replace(
+        emitter_height_m=25.0,
+        unknowns=("carrier_offset_hz", "emission_time_s", "emitter_height_m"),
+        description=(
+            "the 406 MHz beacon on a roof 25 m up: carrier offset, emission time and height "
+            "unknown; UAV at 100 m, 20 m/s, Doppler + ToA (c*sigma_tau = 10 m)"
+        ),
+    )
+
+
 @dataclass(frozen=True)
 class CatalogEntry:
     name: str
@@ -202,6 +256,17 @@ CATALOG: dict[str, CatalogEntry] = {
             "turn-noncooperative",
             noncooperative_turn_scenario,
             "turn with the carrier offset and emission time unknown",
+        ),
+        CatalogEntry("hill", hill_scenario, "an emitter 120 m up a hill, its height unknown"),
+        CatalogEntry(
+            "hill-climb",
+            lambda: hill_scenario(climb=True),
+            "the hill with the UAV climbing while it turns, the height unknown",
+        ),
+        CatalogEntry(
+            "roof-beacon",
+            roof_beacon_scenario,
+            "the beacon on a roof 25 m up: carrier offset, emission time and height unknown",
         ),
     )
 }

@@ -266,10 +266,10 @@ class StraightTrack:
 class TrackSoFar:
     """What the mirror rule of MATH §7 reads of the samples so far, kept frame by frame.
 
-    :func:`estimators.base.finalize_estimate` reads two things of the samples: the straight
-    track they lie on, if any (each candidate's mirror image across it is added), and their
+    :func:`estimators.base.finalize_estimate` reads three things of the samples: the straight
+    track they lie on, if any (each candidate's mirror image across it is added), their
     mean horizontal position (candidates closer than ``1e-9`` of their largest distance from it
-    are one point). A streaming estimator keeps this value in its state (:meth:`of` on the
+    are one point) and, for 3-D candidates, their highest height. A streaming estimator keeps this value in its state (:meth:`of` on the
     first frame, :meth:`extended` on each next one) and finishes its estimate with
     :func:`estimators.base.finalize_from_track`, without the samples.
 
@@ -280,11 +280,15 @@ class TrackSoFar:
         The samples' mean horizontal position.
     straight : StraightTrack or None
         The line every sample so far lies on and flies along; None once the UAV turned.
+    highest_m : float
+        The samples' highest height: with the emitter's height estimated, a candidate above it
+        is not an answer (the emitter is below the UAV, MATH §7).
     """
 
     n_samples: int
     centre_m: FloatArray
     straight: StraightTrack | None
+    highest_m: float
 
     def __post_init__(self) -> None:
         centre = np.array(self.centre_m, dtype=float).reshape(2)
@@ -299,6 +303,7 @@ class TrackSoFar:
             n_samples=len(position),
             centre_m=position[:, :2].mean(axis=0),
             straight=StraightTrack.of_samples(position, samples.velocity_mps),
+            highest_m=float(position[:, 2].max()),
         )
 
     def extended(self, frame: Any) -> TrackSoFar:
@@ -310,4 +315,5 @@ class TrackSoFar:
             n_samples=n_samples,
             centre_m=self.centre_m + step,
             straight=None if self.straight is None else self.straight.extended(frame),
+            highest_m=max(self.highest_m, float(position[:, 2].max())),
         )

@@ -430,7 +430,8 @@ def check_measured(
     assert geometry.noise.toa_s is not None  # checked before
     sigma_m = c * geometry.noise.toa_s
     height = np.abs(geometry.position_m[:, 2] - geometry.emitter_height_m)
-    if HEIGHT_UNKNOWN in geometry.unknowns:  # any height may fit: a range only is not negative
+    if HEIGHT_UNKNOWN in geometry.unknowns or geometry.height_assumed:
+        # any height may fit (or the assumed one is wrong): a range only is not negative
         height = np.zeros_like(height)
     range_m = c * toa_s
     slack = RANGE_DEFICIT_SIGMAS * sigma_m + _ROUNDING * (height + np.abs(range_m))
@@ -478,6 +479,10 @@ class MeasurementSet:
         ignores it assumes. Empty: a cooperative emitter at a known height.
     truth_carrier_offset_hz, truth_emission_time_s : float or None
         Their true values, when known (simulations). Estimators must not read them.
+    height_assumed : bool
+        The height was unknown and :meth:`assuming_known` took ``emitter_height_m`` for it: a
+        range shorter than the UAV's height above that is the assumption's error, not the
+        data's, and is not refused.
     """
 
     frame: NDArray[np.int64]
@@ -496,6 +501,7 @@ class MeasurementSet:
     unknowns: tuple[str, ...] = ()
     truth_carrier_offset_hz: float | None = None
     truth_emission_time_s: float | None = None
+    height_assumed: bool = False
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -637,10 +643,15 @@ class MeasurementSet:
         """The same measurements with every nuisance parameter taken as known and zero, and an
         unknown height as ``emitter_height_m``: what an estimator that ignores the unknowns
         sees (MATH §15, §8), biased by the true offsets and height (the truth keeps its
-        ``(x, y)``). Ranges shorter than the UAV's height above the assumed height make such
-        data physically impossible: ``ValueError`` naming the sample, as for any file."""
+        ``(x, y)``). A range shorter than the UAV's height above the assumed height is then
+        the assumption's error (``height_assumed``), not refused."""
         truth = self.truth_emitter_m
-        return replace(self, unknowns=(), truth_emitter_m=None if truth is None else truth[:2])
+        return replace(
+            self,
+            unknowns=(),
+            truth_emitter_m=None if truth is None else truth[:2],
+            height_assumed=self.height_assumed or HEIGHT_UNKNOWN in self.unknowns,
+        )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)

@@ -97,3 +97,69 @@ def test_a_batch_is_its_trials_one_at_a_time() -> None:
         )
         for name in ("candidates", "n_candidates", "source", "chosen", "draw", "ambiguous"):
             np.testing.assert_array_equal(getattr(one, name)[0], getattr(batch, name)[i])
+
+
+def test_in_3d_the_reflection_above_the_uav_goes_and_a_straight_track_locates_nothing() -> None:
+    """3-D candidates (the height estimated, MATH §7): an emitter 120 m up and its reflection
+    through a level flight at 300 m (at 480 m, the same cost) leave one answer; a point a hair
+    from the emitter is merged with it; on a straight track no candidate is an answer."""
+    emitter, reflection = np.array([40.0, -25.0, 120.0]), np.array([40.0, -25.0, 480.0])
+    hair = emitter + np.array([0.0, 0.0, 1e-8])
+    candidates = np.stack([reflection, emitter, hair])[None]
+    costs = np.array([[2.5, 2.5, 2.5 + 1e-12]])
+    final = finalize_columns(candidates, np.array([3]), costs, np.zeros(2), None, ceiling_m=300.0)
+    assert final.n_candidates.tolist() == [1] and not final.ambiguous[0]
+    np.testing.assert_array_equal(final.candidates[0, 0], emitter)
+    assert final.source[0, 0] == 1 and final.problem == ""
+
+    # the prior may be horizontal: two candidates below the UAV, the prior picks by (x, y)
+    other = np.array([-40.0, 25.0, 110.0])
+    two = finalize_columns(
+        np.stack([emitter, other])[None],
+        np.array([2]),
+        np.array([[1.0, 1.0]]),
+        np.zeros(2),
+        None,
+        ceiling_m=300.0,
+        side_prior_m=[-30.0, 20.0],
+    )
+    assert two.n_candidates[0] == 2 and two.ambiguous[0] and two.chosen[0] == 1
+
+    line = (np.zeros(2), np.array([1.0, 0.0]))
+    straight = finalize_columns(
+        candidates, np.array([3]), costs, np.zeros(2), line, ceiling_m=300.0
+    )
+    assert straight.invalid[0] and straight.n_candidates[0] == 0
+    assert straight.problem.startswith("position_m: every sample lies on one straight track")
+    with pytest.raises(ValueError, match="ceiling_m"):
+        finalize_columns(candidates, np.array([3]), costs, np.zeros(2), None)
+
+
+def test_an_estimate_of_3d_candidates_follows_the_track() -> None:
+    """``finalize_from_track`` in 3-D: the track's highest sample is the ceiling; a straight
+    track fails the estimate with the one-line reason."""
+    from estimators.base import finalize_from_track
+    from estimators.mirror_rule import STRAIGHT_TRACK_HEIGHT
+    from scenarios.geometry import TrackSoFar
+
+    class Samples:
+        def __init__(self, position, velocity):
+            self.position_m, self.velocity_mps = np.asarray(position), np.asarray(velocity)
+
+    t = np.linspace(0.0, 1.0, 5)[:, None]
+    leg = np.hstack([10.0 * t, 0.0 * t, 300.0 + 0.0 * t])
+    along = np.tile([10.0, 0.0, 0.0], (5, 1))
+    turn = np.vstack([leg, leg[-1] + np.hstack([0.0 * t, 10.0 * t, 0.0 * t])])
+    turning = TrackSoFar.of(Samples(turn, np.vstack([along, np.tile([0.0, 10.0, 0.0], (5, 1))])))
+    assert turning.highest_m == 300.0
+    candidates = [[40.0, -25.0, 480.0], [40.0, -25.0, 120.0]]
+    estimate = finalize_from_track("x", candidates, [1.0, 1.0], turning)
+    assert estimate.success and estimate.position_m.tolist() == [40.0, -25.0, 120.0]
+    assert estimate.candidates_m.shape == (1, 3) and not estimate.ambiguous
+
+    above = finalize_from_track("x", candidates[:1], [1.0], turning)
+    assert not above.success and "below the UAV" in above.message
+
+    straight = TrackSoFar.of(Samples(leg, along))
+    failed = finalize_from_track("x", candidates, [1.0, 1.0], straight)
+    assert not failed.success and failed.message == STRAIGHT_TRACK_HEIGHT

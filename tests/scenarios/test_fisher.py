@@ -12,6 +12,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from comparison.crlb import crlb_table
 from scenarios import measurement_model as model
 from scenarios.catalog import get_scenario
 from scenarios.fisher import (
@@ -416,3 +417,44 @@ def test_the_3d_bound_with_unknown_offset_and_emission_time_and_the_price_of_the
     price = bound_3d[:2, :2] - inverse_symmetric(fisher_information(data, plane))
     assert np.linalg.eigvalsh(price).min() >= -1e-9 * np.trace(bound_3d)
     assert np.trace(price) > 0.01 * np.trace(bound_3d[:2, :2])
+
+
+@pytest.mark.parametrize("name", ["hill", "hill-climb", "roof-beacon"])
+def test_the_3d_bound_of_each_elevated_scenario_is_the_finite_difference_one(name) -> None:
+    """The emitter above the ground, its height unknown (and, on roof-beacon, the carrier
+    offset and emission time): the position block of the inverse of a finite-difference Fisher
+    matrix over (x, y, z, the nuisances) is ``crlb_table``'s 3×3 ``crlb_m2``, rtol 1e-6, and
+    its horizontal and vertical parts are that matrix's."""
+    data = noise_free(get_scenario(name), snr_db=10.0)
+    truth = data.truth_emitter_m
+    assert truth.shape == (3,) and truth[2] > 0.0
+    p, v = data.position_m, data.velocity_mps
+    offset_unknown = "carrier_offset_hz" in data.unknowns
+    emission_unknown = "emission_time_s" in data.unknowns
+
+    def whitened(theta: np.ndarray) -> np.ndarray:
+        s, offset_hz, emission_s = theta[:3], theta[3], theta[4]
+        doppler = model.doppler_hz(p, v, s, data.gamma_per_m, carrier_offset_hz=offset_hz)
+        toa = model.toa_s(p, s, data.speed_of_light_mps, emission_time_s=emission_s)
+        return np.concatenate([doppler / data.noise.doppler_hz, toa / data.noise.toa_s])
+
+    used = [0, 1, 2] + [3] * offset_unknown + [4] * emission_unknown
+    steps = np.array([1e-3, 1e-3, 1e-3, 1e-3, 1e-12])
+    theta = np.array([*truth, 0.0, 0.0])
+    jacobian = np.column_stack(
+        [
+            (whitened(theta + steps[j] * e) - whitened(theta - steps[j] * e)) / (2 * steps[j])
+            for j, e in ((j, np.eye(5)[j]) for j in used)
+        ]
+    )
+    expected = np.linalg.inv(jacobian.T @ jacobian)[:3, :3]
+    table = crlb_table(data, truth)
+    bound = np.asarray(table["crlb_m2"]["toa+doppler"])
+    assert_matrices_close(bound, expected, rtol=1e-6)
+    horizontal = np.sqrt(np.trace(expected[:2, :2]))
+    np.testing.assert_allclose(
+        table["horizontal_rmse_bound_m"]["toa+doppler"], horizontal, rtol=1e-6
+    )
+    np.testing.assert_allclose(
+        table["vertical_rmse_bound_m"]["toa+doppler"], np.sqrt(expected[2, 2]), rtol=1e-6
+    )

@@ -69,10 +69,15 @@ def test_the_data_hold_the_true_emitter_in_3d_and_only_the_assumed_height() -> N
     np.testing.assert_allclose(
         data.doppler_hz, model.doppler_hz(p, v, truth, data.gamma_per_m), rtol=1e-12
     )
-    # ignoring the height assumes the take-off ground: data that contradict it (a range shorter
-    # than the UAV's height above the ground) are physically impossible and refused by name
+    # ignoring the height assumes the take-off ground: ranges shorter than the UAV's height
+    # above it are that assumption's error (the bias an experiment measures), not refused; the
+    # same values stated as a file's known height are physically impossible and refused by name
+    assumed = data.assuming_known()
+    assert assumed.height_assumed and assumed.unknowns == ()
+    np.testing.assert_array_equal(assumed.toa_s, data.toa_s)
+    assert np.any(data.speed_of_light_mps * data.toa_s < data.position_m[:, 2])
     with pytest.raises(ValueError, match=r"^toa_s\[\d+\]: the range c·τ = .* is shorter than"):
-        data.assuming_known()
+        dataclasses.replace(assumed, height_assumed=False)
     low = noise_free(get_scenario("turn").replace(unknowns=(HEIGHT_UNKNOWN,), emitter_height_m=5.0))
     ignoring = low.assuming_known()
     assert ignoring.unknowns == () and ignoring.emitter_height_m == 0.0
