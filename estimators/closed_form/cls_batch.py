@@ -45,7 +45,7 @@ from estimators.base import Estimate
 from estimators.batch import BatchEstimates, check_rngs
 from estimators.closed_form.cls_rows import horizontal_speed_mps
 from estimators.closed_form.gtrs_batch import GtrsBatch, RowBlock, solve_gtrs_batch
-from estimators.mirror_rule import finalize_columns
+from estimators.mirror_rule import STRAIGHT_TRACK_HEIGHT, finalize_columns
 from scenarios import measurement_model as model
 from scenarios.geometry import straight_track_lines
 from scenarios.nuisance import position_dimension
@@ -65,9 +65,6 @@ MAX_CANDIDATES = 4
 
 HARD_CASE_MESSAGE = "hard case: mirror pair (MATH §5)"
 FAILED_MESSAGE = "CLS: the GTRS has no finite minimiser (MATH §5); check the data for NaN"
-STRAIGHT_TRACK_HEIGHT = "degenerate geometry: one straight track cannot fix the height"
-"""Why the CLS fails with the height unknown on one straight track: every rotation of the
-emitter about the track explains the data (a circle of minimisers, MATH §7)."""
 
 COLLINEAR_RTOL = 1e-13
 """Samples on one line and flying along it to this relative precision: every row of the CLS
@@ -239,7 +236,7 @@ def _solve_part(
     """:func:`solve_trials` of one chunk (n, K)."""
     n = len(ranges)
     d = shared.dimension
-    if d == 3 and shared.line is not None:  # a circle of minimisers (MATH §7): no answer
+    if d == 3 and shared.line is not None:  # a circle of minimisers (MATH §7): no solve
         return _degenerate(n)
     if n == 1:  # numpy sums one column in another order: solve it as two, keep one
         r, f = np.repeat(ranges.T, 2, axis=1), np.repeat(doppler.T, 2, axis=1)
@@ -375,7 +372,7 @@ def estimate_trial(
     }
     if solved.failed[0]:
         message = STRAIGHT_TRACK_HEIGHT if solved.degenerate[0] else FAILED_MESSAGE
-        return Estimate.failed(name, message, **diagnostics)
+        return Estimate.failed(name, message, dimension=shared.dimension, **diagnostics)
     count = int(solved.n_candidates[0])
     chosen = int(solved.chosen[0])
     if solved.draw[0] and rng is not None:

@@ -419,7 +419,7 @@ class Spectrum:
         if index.size == self.mu[0].size:
             return self
 
-        def pick(value):  # noqa: ANN001, ANN202 (arrays and lists of them)
+        def pick(value):  # (arrays, and lists of them)
             if isinstance(value, list):
                 return [pick(item) for item in value]
             return value[index]
