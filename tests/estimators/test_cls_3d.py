@@ -281,3 +281,18 @@ def test_the_height_with_the_emission_time_unknown_is_refused_in_one_line() -> N
     batch = simulate_trials(get_scenario("roof-beacon"), snr_db=10.0, seeds=trial_seeds(1, 2))
     with pytest.raises(ValueError, match=r"^unknowns: "):
         estimator.estimate_columns(batch)
+
+
+@pytest.mark.parametrize("name", ["hill", "hill-climb"])
+def test_constrained_ls_describes_the_3d_system_the_estimate_minimises(name: str) -> None:
+    """``cls.constrained_ls(data)`` in 3-D: rows over ``(x, y, z, ‖s‖²)`` whose exact optimum
+    (MATH §5) the estimate's candidates attain, world and local points round-tripping."""
+    data = simulate(get_scenario(name), snr_db=0.0, seed=3)
+    estimator = make_estimator("cls")
+    estimate = estimator.estimate(data)
+    system = estimator.constrained_ls(data)
+    assert system.A.shape[1] == 4 and system.dimension == 3
+    optimum = solve_gtrs(system.A, system.b).costs.min()
+    np.testing.assert_allclose(system.cost(estimate.candidates_m), optimum, rtol=1e-9)
+    local = system.to_local(estimate.candidates_m)
+    np.testing.assert_allclose(system.to_world(local), estimate.candidates_m, rtol=1e-14)
