@@ -48,7 +48,7 @@ from estimators.closed_form.gtrs_batch import GtrsBatch, RowBlock, solve_gtrs_ba
 from estimators.mirror_rule import STRAIGHT_TRACK_HEIGHT, finalize_columns
 from scenarios import measurement_model as model
 from scenarios.geometry import straight_track_lines
-from scenarios.nuisance import position_dimension
+from scenarios.nuisance import HEIGHT_UNKNOWN
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -124,7 +124,7 @@ class SharedGeometry:
         bounds = np.append(np.flatnonzero(change), k)
         starts, counts = bounds[:-1], bounds[1:] - bounds[:-1]
         unit = velocity[:, :2] / speed[:, None]
-        dimension = position_dimension(used.unknowns)
+        dimension = 3 if HEIGHT_UNKNOWN in used.unknowns else 2  # (the parsed names)
         # with the height a coordinate (MATH §5) the rows' frame has its z at 0: the data's
         # emitter_height_m (what an estimator ignoring the height assumes) is not read
         dz = position[:, 2] - (used.emitter_height_m if dimension == 2 else 0.0)

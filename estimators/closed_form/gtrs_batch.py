@@ -144,18 +144,18 @@ def row_dimension(blocks: Sequence[RowBlock]) -> int:
 
 @dataclass(frozen=True, slots=True, eq=False)
 class NormalEquations:
-    """``M = AᵀA`` (``M[i, j]`` of shape (n,)), ``q = Aᵀb``, ``‖b‖²`` and the row count, per
+    """``M = AᵀA`` (``M[i][j]`` of shape (n,), lists), ``q = Aᵀb``, ``‖b‖²`` and the row count, per
     system, for ``r`` of ``dimension + 1`` entries, ``‖s‖²`` last (index ``w``).
 
     With a free unknown's column ``c`` in the rows (:attr:`RowBlock.ac`) these are of the rows
     projected off ``c`` (MATH §15): ``M − m_c m_cᵀ/‖c‖²``, ``q − m_c (cᵀb)/‖c‖²``,
-    ``‖b‖² − (cᵀb)²/‖c‖²`` with ``m_c = Aᵀc``; ``nuisance`` keeps ``m_c`` (``"c"``, (d+1, n)),
+    ``‖b‖² − (cᵀb)²/‖c‖²`` with ``m_c = Aᵀc``; ``nuisance`` keeps ``m_c`` (``"c"``, d + 1 (n,)),
     ``cᵀb`` and ``‖c‖²`` (``"cb"``, ``"cc"``) for the unknown's value at a point,
     :meth:`nuisance_at`.
     """
 
-    M: FloatArray
-    q: FloatArray
+    M: list[list[FloatArray]]
+    q: list[FloatArray]
     bb: FloatArray
     n_rows: int
     dimension: int
@@ -166,40 +166,43 @@ class NormalEquations:
         d = row_dimension(blocks)
         k = d + 1
         sums: dict[tuple[str, int, int], FloatArray] = {}
+
+        def add(key: tuple[str, int, int], left: FloatArray, right: FloatArray) -> None:
+            total = row_dot(left, right, n)
+            sums[key] = total if key not in sums else sums[key] + total
+
         for block in blocks:
             columns = block.columns(d)
             b, ac = block.b, block.ac
-            pairs = [(("bb", 0, 0), b, b)]
+            add(("bb", 0, 0), b, b)
             for i in range(k):
                 if columns[i] is None:
                     continue
-                pairs.append((("q", i, 0), columns[i], b))
-                pairs += [(("M", i, j), columns[i], columns[j]) for j in range(i, k)]
+                add(("q", i, 0), columns[i], b)
+                for j in range(i, k):
+                    if columns[j] is not None:
+                        add(("M", i, j), columns[i], columns[j])
                 if ac is not None:
-                    pairs.append((("c", i, 0), columns[i], ac))
+                    add(("c", i, 0), columns[i], ac)
             if ac is not None:
-                pairs += [(("cb", 0, 0), b, ac), (("cc", 0, 0), ac, ac)]
-            for key, left, right in pairs:
-                if right is None:
-                    continue
-                total = row_dot(left, right, n)
-                sums[key] = total if key not in sums else sums[key] + total
+                add(("cb", 0, 0), b, ac)
+                add(("cc", 0, 0), ac, ac)
         zero = np.zeros(n)
-        M = np.empty((k, k, n))
+        M = [[zero] * k for _ in range(k)]
         for i in range(k):
             for j in range(i, k):
-                M[i, j] = M[j, i] = sums.get(("M", i, j), zero)
-        q = np.stack([sums.get(("q", i, 0), zero) for i in range(k)])
-        bb = sums.get(("bb", 0, 0), zero)
+                M[i][j] = M[j][i] = sums.get(("M", i, j), zero)
+        q = [sums.get(("q", i, 0), zero) for i in range(k)]
+        bb = sums[("bb", 0, 0)]
         nuisance = None
         if ("cc", 0, 0) in sums:
-            column = np.stack([sums.get(("c", i, 0), zero) for i in range(k)])
-            cb, cc = sums.get(("cb", 0, 0), zero), sums[("cc", 0, 0)]
+            column = [sums.get(("c", i, 0), zero) for i in range(k)]
+            cb, cc = sums[("cb", 0, 0)], sums[("cc", 0, 0)]
             nuisance = {"c": column, "cb": cb, "cc": cc}
             inv = 1.0 / cc
             for i in range(k):
                 for j in range(i, k):
-                    M[i, j] = M[j, i] = M[i, j] - column[i] * column[j] * inv
+                    M[i][j] = M[j][i] = M[i][j] - column[i] * column[j] * inv
                 q[i] = q[i] - column[i] * cb * inv
             bb = bb - cb * cb * inv
         return cls(
@@ -227,9 +230,9 @@ class NormalEquations:
     @property
     def trace(self) -> FloatArray:
         """``‖A‖_F²``."""
-        total = self.M[0, 0] + self.M[1, 1]
+        total = self.M[0][0] + self.M[1][1]
         for i in range(2, self.dimension + 1):
-            total = total + self.M[i, i]
+            total = total + self.M[i][i]
         return total
 
 
@@ -375,11 +378,14 @@ class Spectrum:
     @classmethod
     def of(cls, ne: NormalEquations) -> Spectrum:
         M, q, d = ne.M, ne.q, ne.dimension
-        m_ww, q_w = M[d, d], q[d]
-        S = [[M[i, j] - M[i, d] * M[j, d] / m_ww for j in range(d)] for i in range(d)]
+        m_ww, q_w = M[d][d], q[d]
+        S = [[M[i][j] for j in range(d)] for i in range(d)]
+        for i in range(d):
+            for j in range(i, d):
+                S[i][j] = S[j][i] = M[i][j] - M[i][d] * M[j][d] / m_ww
         mu, gaps, U = eigen_symmetric(S)
-        a = [q[i] - M[i, d] * q_w / m_ww for i in range(d)]
-        h = [M[i, d] / (2.0 * m_ww) for i in range(d)]
+        a = [q[i] - M[i][d] * q_w / m_ww for i in range(d)]
+        h = [M[i][d] / (2.0 * m_ww) for i in range(d)]
 
         def rotate(values: list[FloatArray]) -> list[FloatArray]:
             out = []
@@ -468,7 +474,7 @@ def _solve(blocks: list[RowBlock], n: int, rtol: float, want_rank: bool | str) -
     sp = Spectrum.of(ne)
     d = ne.dimension
     trace = ne.trace
-    finite = np.isfinite(trace) & np.isfinite(np.sum(ne.q, axis=0) + ne.bb) & (sp.m_ww > 0.0)
+    finite = np.isfinite(trace) & np.isfinite(sum(ne.q) + ne.bb) & (sp.m_ww > 0.0)
     failed = ~finite
     mu_scale = np.maximum(np.abs(sp.mu[-1]), TINY)
     gaps_safe = [gap if (gap > 0.0).all() else np.where(gap > 0.0, gap, 1.0) for gap in sp.gaps]

@@ -62,7 +62,7 @@ def numerical_rank(
     (``σ₃ ≤ 1e-13 σ₁``: the rows of one straight track, MATH §5), which replaces ``‖A u‖``.
     """
     M = ne.M  # (the 2-D rows: r = (x, y, x² + y²))
-    m11, m12, m13, m22, m23, m33 = M[0, 0], M[0, 1], M[0, 2], M[1, 1], M[1, 2], M[2, 2]
+    m11, m12, m13, m22, m23, m33 = M[0][0], M[0][1], M[0][2], M[1][1], M[1][2], M[2][2]
     trace = ne.trace
     c11 = m22 * m33 - m23 * m23
     c22 = m11 * m33 - m13 * m13
