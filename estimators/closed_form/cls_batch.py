@@ -476,7 +476,8 @@ def solve_chunk(
     scale = np.sqrt(shared.spread_sq + np.add.reduce(r * r, axis=0) / len(r))  # (np.mean's bits)
     scale[~(scale > 0.0)] = 1.0  # (NaN too)
     rows_of = RowsOfChunk(shared, r, f, scale)
-    deficient = shared.collinear
+    # rows with an exact null vector: one straight track (2-D), a level flight (3-D, MATH §5)
+    deficient = shared.collinear if shared.dimension == 2 else bool(np.ptp(shared.z) == 0.0)
     n = r.shape[1]
     solution = solve_gtrs_batch(
         rows_of.blocks(rows), n, rank=rows != "weighted", rank_deficient=deficient

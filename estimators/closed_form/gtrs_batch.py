@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from estimators.closed_form.gtrs_rank import RANK_RTOL, numerical_rank, row_dot
+from estimators.closed_form.gtrs_rank import RANK_RTOL, numerical_rank, numerical_rank_3d, row_dot
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -556,7 +556,9 @@ def _solve(blocks: list[RowBlock], n: int, rtol: float, want_rank: bool | str) -
             deficient=want_rank == "deficient",
         )
     elif want_rank:
-        ranks = _svd_rank(blocks, n)
+        ranks = numerical_rank_3d(
+            blocks, ne, sp.mu, _svd_rank, take_systems, deficient=want_rank == "deficient"
+        )
     for values in points:
         failed |= ~np.isfinite(values[:, 0])
     failed |= ~np.isfinite(costs[:, 0])
