@@ -25,7 +25,7 @@ from scenarios.simulate import noise_free, simulate
 from scenarios.types import FlightPlan, NoiseSigmas, Scenario
 
 HEIGHT_M = 30.0
-STARTS_PER_AXIS = 5
+STARTS_PER_AXIS = 4
 
 
 def elevated(name: str = "turn", height_m: float = HEIGHT_M) -> Scenario:
@@ -140,9 +140,10 @@ def _hessian(A: np.ndarray, b: np.ndarray, s: np.ndarray) -> np.ndarray:
 
 
 def brute_force_minimum(A: np.ndarray, b: np.ndarray) -> tuple[float, np.ndarray]:
-    """The least of ``‖A (s, ‖s‖²) − b‖²`` over every start of a grid in a cube holding every
-    global minimiser (the constraint ``r_w = ‖s‖²`` substituted), by trust-exact with the exact
-    gradient and Hessian: an independent search, no eigen-decomposition, no secular equation.
+    """The least of ``‖A r − b‖²`` subject to ``r_w = ‖s‖²`` over every start of a grid in a
+    cube holding every global minimiser: SLSQP over ``r = (s, r_w)`` with the constraint, each
+    end point polished by trust-exact on the cost with the constraint substituted (exact
+    gradient and Hessian). An independent search: no eigen-decomposition, no secular equation.
 
     The cube: with ``ρ = ‖s‖``, ``‖A r‖ ≥ ρ²‖a_w‖ − ρ‖A_s‖₂`` and a minimiser costs at most the
     origin's ``‖b‖²``, so ``‖A r‖ ≤ 2‖b‖``: ``ρ`` below the positive root of the quadratic.
@@ -152,11 +153,24 @@ def brute_force_minimum(A: np.ndarray, b: np.ndarray) -> tuple[float, np.ndarray
     radius = (sigma + np.sqrt(sigma**2 + 8.0 * a_w * np.linalg.norm(b))) / (2.0 * a_w)
     axis = np.linspace(-radius, radius, STARTS_PER_AXIS)
     starts = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
+    constraint = {
+        "type": "eq",
+        "fun": lambda r: r[3] - r[:3] @ r[:3],
+        "jac": lambda r: np.append(-2.0 * r[:3], 1.0),
+    }
     best_cost, best_s = np.inf, np.zeros(3)
     for start in starts:
+        constrained = minimize(
+            lambda r: float(np.sum((A @ r - b) ** 2)),
+            _lift(start),
+            jac=lambda r: 2.0 * A.T @ (A @ r - b),
+            constraints=[constraint],
+            method="SLSQP",
+            options={"ftol": 1e-15, "maxiter": 500},
+        )
         result = minimize(
             lambda s: float(constrained_cost(A, b, s)),
-            start,
+            constrained.x[:3],
             jac=lambda s: _gradient(A, b, s),
             hess=lambda s: _hessian(A, b, s),
             method="trust-exact",
