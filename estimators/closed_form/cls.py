@@ -6,7 +6,11 @@ Three estimators share one pipeline, the vectorised solve of :mod:`estimators.cl
     The corrected method: one Doppler·range row per sample (§3), squared-range rows with the
     height term (§4), the exact GTRS solve whose hard case returns both mirror minimisers (§5),
     and two-stage optimal weighting by the exact second moments (§6), which makes it invariant
-    to the unit system, the speed and the heading.
+    to the unit system, the speed and the heading. With the emitter's height unknown the same
+    solve in three coordinates (§5): a level flight's reflection through its plane is returned
+    beside the emitter (the mirror rule keeps the one below the UAV), one straight track fails
+    in one line, and with the emission time unknown too the data are refused (the pseudo-range
+    form of §15 is 2-D).
 ``cls-paper`` (:class:`ClsPaper`)
     The paper's unweighted system with its errata fixed: one projected Doppler row per frame at
     the paper's scale ``K|v|²`` (MATH §3), the height term, the transpose, λ solved exactly.
