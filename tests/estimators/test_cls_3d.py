@@ -255,6 +255,7 @@ def test_a_system_gets_the_same_bits_alone_and_in_a_batch() -> None:
 # --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.bits("estimate is the batch of one: the same code on the same arrays")
 @pytest.mark.parametrize("name", ["turn", "hill", "hill-climb"])
 def test_estimate_is_the_batchs_row(name: str) -> None:
     """Each trial's ``estimate`` is its row of ``estimate_columns``, to the bit, in 3-D."""

@@ -90,6 +90,7 @@ def test_the_compression_keeps_the_3d_cost() -> None:
         assert np.sum((R @ r - c) ** 2) + residual_sq == pytest.approx(full, rel=1e-10)
 
 
+@pytest.mark.bits("estimate is the batch of one: the same code on the same arrays")
 @pytest.mark.parametrize("name", ["turn", "hill"])
 def test_sdp_cls_agrees_with_cls_and_a_trial_is_the_batch_of_one(name: str) -> None:
     """``sdp-cls`` in 3-D returns ``cls``'s answer to the solver's accuracy (about 1e-6 of the
