@@ -3,8 +3,10 @@ one trial at a time against the whole batch's columns.
 
 On ``beacon-pass`` (a 406 MHz beacon, 40 samples) and ``turn-noncooperative`` (the paper's turn,
 20 samples), both with the carrier offset and the emission time unknown, at 10 dB, N = 2,000
-trials, with the relaxed closed form (``offset_method="relaxed"``, the default) and with the
-profiled offset (``"profile"``: a root search over δ, one GTRS per step); and on both with the
+trials, with the relaxed closed form (``offset_method="relaxed"``, the default), with the
+profiled offset (``"profile"``: a root search over δ, one GTRS per step) and with the two-stage
+closed form (``"two-stage"``: the relaxed answer corrected by the measurement model linearised
+about it, MATH §15); and on both with the
 carrier offset alone unknown (``-offset``: δ's column of the CLS rows, projected out in the
 GTRS's normal equations, :mod:`estimators.closed_form.gtrs_batch`). The same for ``ml`` (the
 relaxed cases), whose batch takes its starts from those closed forms:
@@ -19,7 +21,9 @@ Times are CPU seconds of this process (``benchmarks/cpu_time.py``) with BLAS hel
 each path is timed three times and the best kept. The one-at-a-time path runs on the first
 ``min(N, 300)`` trials (60 for the profile; its cost per trial does not depend on N).
 Printed: microseconds per estimate, the ratio ``one-at-a-time / columns``, the successes and
-the largest distance between the two paths' positions (the same code: zero, or rounding).
+the largest distance between the two paths' positions (the same code: zero, or rounding); for
+the profile and the two-stage form also the ratio of their columns' time per estimate to the
+relaxed form's on the same trials (the two-stage form's budget: at most 2×).
 
 Run: ``python benchmarks/bench_unknowns_batch.py`` (``--trials N``).
 """
@@ -46,7 +50,8 @@ SNR_DB = 10.0
 SCENARIOS = ("beacon-pass", "turn-noncooperative")
 
 
-def bench(scenario_name: str, n: int, offset_method: str, estimator_name: str = "cls") -> None:
+def bench(scenario_name: str, n: int, offset_method: str, estimator_name: str = "cls") -> float:
+    """Print the two paths' times and agreement; return the columns' µs per estimate."""
     scenario = get_scenario(scenario_name.removesuffix("-offset"))
     if scenario_name.endswith("-offset"):  # the carrier offset alone unknown
         scenario = scenario.replace(unknowns=("carrier_offset_hz",))
@@ -54,7 +59,7 @@ def bench(scenario_name: str, n: int, offset_method: str, estimator_name: str = 
     estimator = (
         Cls(offset_method=offset_method) if estimator_name == "cls" else make_estimator("ml")
     )
-    single = min(n, PER_TRIAL if offset_method == "relaxed" else PER_TRIAL_PROFILE)
+    single = min(n, PER_TRIAL if offset_method != "profile" else PER_TRIAL_PROFILE)
     trials = [batch.trial(i) for i in range(single)]
 
     def rngs(count: int) -> list[np.random.Generator]:
@@ -81,6 +86,7 @@ def bench(scenario_name: str, n: int, offset_method: str, estimator_name: str = 
         f"(×{per_trial_us / columns_us:.1f}; success {int(result.success.sum())}/{n})\n"
         f"{'':>22}largest position difference columns vs one-at-a-time: {distance:.2e} m"
     )
+    return columns_us
 
 
 def main() -> None:
@@ -88,11 +94,14 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=2_000, help="N (default 2,000)")
     args = parser.parse_args()
     for name in SCENARIOS:
-        bench(name, args.trials, "profile")
-    for estimator_name in ("cls", "ml"):
-        for name in SCENARIOS:
-            bench(name, args.trials, "relaxed", estimator_name)
-            bench(f"{name}-offset", args.trials, "relaxed", estimator_name)
+        relaxed_us = bench(name, args.trials, "relaxed")
+        for method in ("two-stage", "profile"):
+            ratio = bench(name, args.trials, method) / relaxed_us
+            print(f"{'':>22}{method} / relaxed, columns: ×{ratio:.2f} per estimate")
+        bench(f"{name}-offset", args.trials, "relaxed")
+    for name in SCENARIOS:
+        bench(name, args.trials, "relaxed", "ml")
+        bench(f"{name}-offset", args.trials, "relaxed", "ml")
 
 
 if __name__ == "__main__":

@@ -66,18 +66,31 @@ class PointInfo:
 
     @property
     def dimension(self) -> int:
-        """``d``: the coordinates of the scenario's emitter, those the bound is of."""
-        return int(np.size(self.scenario.emitter_m))
+        """``d``: the coordinates of the scenario's emitter a receiver estimates, those the
+        bound is of (3 with the height unknown, MATH §8)."""
+        return int(np.size(self.scenario.truth_emitter_m))
 
     def rmse_bound_m(self, modalities: tuple[str, ...], frame: int, frames: Any = "all") -> float:
         """√trace(CRLB) of ``modalities`` over the frames an estimator uses up to ``frame``."""
         return bound_of(self.information.get(modalities), frame, frames, self.dimension)
 
     def bound_columns(
-        self, modalities: tuple[str, ...], frame: int, frames: Any = "all"
+        self,
+        modalities: tuple[str, ...],
+        frame: int,
+        frames: Any = "all",
+        kept: int | None = None,
     ) -> tuple[float, ...]:
         """:func:`bound_columns` of ``modalities`` over the frames an estimator uses."""
-        return bound_columns(self.information.get(modalities), frame, frames, self.dimension)
+        return bound_columns(
+            self.information.get(modalities), frame, frames, self.dimension, kept=kept
+        )
+
+
+def run_dimension(infos: Mapping[tuple[int, int], PointInfo]) -> int:
+    """The coordinates a run's tables hold (:func:`~comparison.trial_rows.trials_table`): 3
+    when an emitter's height is unknown at any point, else 2."""
+    return max((info.dimension for info in infos.values()), default=SCORED_DIMENSION)
 
 
 def information_of(
@@ -118,21 +131,40 @@ def _dimension(info: Information | None, dimension: int | None) -> int:
 
 
 def bound_of(
-    info: Information | None, frame: int, frames: Any = "all", dimension: int | None = None
+    info: Information | None,
+    frame: int,
+    frames: Any = "all",
+    dimension: int | None = None,
+    *,
+    horizontal_known: bool = False,
 ) -> float:
-    """√trace(CRLB) over the frames an estimator uses up to ``frame`` (:func:`information_of`)."""
-    return float(rmse_bound_m(information_of(info, frame, frames, dimension)))
+    """√trace(CRLB) over the frames an estimator uses up to ``frame`` (:func:`information_of`);
+    with ``horizontal_known`` that of the ``(x, y)`` block of the information, the bound with
+    the height known (MATH §8)."""
+    information = information_of(info, frame, frames, dimension)
+    if horizontal_known:
+        information = information[:2, :2]
+    return float(rmse_bound_m(information))
 
 
 def bound_columns(
-    info: Information | None, frame: int, frames: Any = "all", dimension: int | None = None
+    info: Information | None,
+    frame: int,
+    frames: Any = "all",
+    dimension: int | None = None,
+    *,
+    kept: int | None = None,
 ) -> tuple[float, ...]:
     """A row's bound columns: ``√trace(CRLB)``, then the CRLB's entries in m² in the order of
     :func:`~comparison.trial_rows.matrix_columns` (``xx, xy, yy`` for ``d = 2``: the
     :data:`~comparison.trial_rows.BOUND_COLUMNS`; for ``d = 3`` then ``xz, yz, zz``), over the
     frames an estimator uses up to ``frame`` (MATH §8); NaN where the information is singular
-    or absent (``d`` as :func:`information_of` finds it)."""
+    or absent (``d`` as :func:`information_of` finds it). ``kept`` keeps the bound of the
+    first coordinates only: ``(x, y)`` of the 3-D bound for an estimator that assumes the
+    height it does not know (its horizontal answer is scored, against what the data allow)."""
     crlb = crlb_m2(information_of(info, frame, frames, dimension))
+    if kept is not None:
+        crlb = crlb[:kept, :kept]
     entries = matrix_values(crlb)
     return (float(np.sqrt(np.trace(crlb))), *(float(value) for value in entries))
 
@@ -179,13 +211,14 @@ def point_infos(
         for p, settings in enumerate(experiment.sweep.points()):
             scenario, snr_db = experiment.point_scenario(i, p)
             data = noise_free(scenario, snr_db=snr_db)
+            truth = scenario.truth_emitter_m
             known = sorted({_modality_key(m) for m in POINT_KNOWN_CRLB_SETS.values()})
             infos[(i, p)] = PointInfo(
                 scenario=scenario,
                 snr_db=snr_db,
                 settings=settings,
-                information=information_at_truth(data, scenario.emitter_m, sorted(needed)),
-                known_information=information_at_truth(data, scenario.emitter_m, known, unknowns=())
+                information=information_at_truth(data, truth, sorted(needed)),
+                known_information=information_at_truth(data, truth, known, unknowns=())
                 if data.unknowns
                 else {},
             )
@@ -197,15 +230,19 @@ def point_rows(
 ) -> list[dict[str, Any]]:
     """The rows of the points table, by column: truth, ``range_scale_m`` (the root mean square
     slant range of the samples flown so far) and the accumulated bounds of
-    :data:`~comparison.trial_rows.POINT_CRLB_SETS`, per scenario × point × frame."""
+    :data:`~comparison.trial_rows.POINT_CRLB_SETS`, per scenario × point × frame; in a 3-D run
+    (:func:`run_dimension`) a 2-D scenario's ``truth_z_m`` is NaN, and with the height unknown
+    the known bounds are those with the height known too."""
+    dimension, nan = run_dimension(infos), math.nan
     rows = []
     for (i, p), info in infos.items():
         swept = {c: info.settings[c] for c in experiment.swept_columns}
-        truth = [float(v) for v in info.scenario.emitter_m]
+        truth = [float(v) for v in info.scenario.truth_emitter_m]
         flight = info.scenario.flight
         squared_range = (
             slant_range_m(flight.sample_positions_m(), truth, info.scenario.emitter_height_m) ** 2
         )
+        padding = dict.fromkeys(coordinate_columns("truth_{}_m", dimension)[len(truth) :], nan)
         for frame in range(info.n_frames):
             bounds = {
                 column: info.rmse_bound_m(_modality_key(modalities), frame)
@@ -214,7 +251,7 @@ def point_rows(
             for column, modalities in POINT_KNOWN_CRLB_SETS.items():
                 key = _modality_key(modalities)
                 known = info.known_information.get(key, info.information.get(key))
-                bounds[column] = bound_of(known, frame)
+                bounds[column] = bound_of(known, frame, horizontal_known=info.dimension > 2)
             scale = math.sqrt(float(np.mean(squared_range[flight.sample_frames() <= frame])))
             rows.append(
                 {
@@ -225,6 +262,7 @@ def point_rows(
                     "snr_db": info.snr_db,
                     **swept,
                     **dict(zip(coordinate_columns("truth_{}_m", len(truth)), truth, strict=True)),
+                    **padding,
                     "range_scale_m": scale,
                     **bounds,
                 }

@@ -30,7 +30,7 @@ Data flows one way: this module imports ``scenarios``, ``estimators`` and
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Collection, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -117,7 +117,7 @@ def fly_closed_loop(
     n_frames: int | None = None,
     estimate_rng: Callable[[str], np.random.Generator | None] | None = None,
     planner_rng: np.random.Generator | None = None,
-    ignoring_unknowns: Collection[str] = (),
+    assuming: Mapping[str, tuple[str, ...]] | None = None,
 ) -> ClosedLoopTrial:
     """Fly ``n_frames`` frames of ``scenario``, steering each by ``planner`` (module docstring).
 
@@ -140,9 +140,9 @@ def fly_closed_loop(
         None gives ``rng=None``.
     planner_rng : Generator, optional
         Passed to the planner (the built-ins are deterministic and do not draw from it).
-    ignoring_unknowns : collection of str
-        Labels of the estimators fed the data as if the emitter's nuisance parameters were
-        known (``MeasurementSet.assuming_known``, MATH §15).
+    assuming : mapping of label to tuple of str, optional
+        The unknowns each estimator is fed as known (``MeasurementSet.assuming_known``,
+        MATH §15, §8); none by default.
 
     Returns
     -------
@@ -179,7 +179,8 @@ def fly_closed_loop(
             data = measure_flight(scenario, flight, snr_db=snr_db, draws=draws)
         seen = data.without_truth()
         for label, estimator in estimators:
-            fed = seen.assuming_known() if label in ignoring_unknowns else seen
+            assumed = (assuming or {}).get(label, ())
+            fed = seen.assuming_known(assumed) if assumed else seen
             if label in streams:
                 newest = fed.take(fed.frame == frame)
                 results[label].append(streams[label].step(newest, rng_for(label)))

@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from comparison.bounds import CrlbKey, PointInfo, crlb_key, point_infos, point_rows
+from comparison.bounds import CrlbKey, PointInfo, crlb_key, point_infos, point_rows, run_dimension
 from comparison.execution import WORKER_WAIT_S, connect_scheduler, execute, release_workers
 from comparison.experiment import AUTO_CHUNK_SIZE, Experiment
 from comparison.progress import progress_reporter
@@ -168,6 +168,7 @@ def run_experiment(
     out = Path(out_dir)
     # everything that can fail from the experiment alone, before the folder is touched
     crlb_keys, infos, points = _worked_out(experiment)
+    dimension = run_dimension(infos)  # 3 with an emitter of unknown height (MATH §8)
     if resume:
         experiment = _stored_chunk_size(experiment, out)
     check_folder(out, experiment, resume)
@@ -189,12 +190,12 @@ def run_experiment(
         start = time.perf_counter()
         connection = stack.enter_context(closing(connect(database)))
         stack.enter_context(store_errors(database))
-        create_tables(connection, experiment)
-        write_points(connection, experiment, points)
+        create_tables(connection, experiment, dimension)
+        write_points(connection, experiment, points, dimension)
 
         # the missing trials, in tasks, stored as each finishes
         complete = complete_trials(connection, experiment, infos)
-        tasks = plan_tasks(experiment, infos, complete)
+        tasks = plan_tasks(experiment, infos, complete, dimension)
         reporter = progress_reporter(
             progress,
             stack,
@@ -207,7 +208,7 @@ def run_experiment(
         for result in results:
             folder.keep = True  # rows from here on: a failure keeps the folder for --resume
             info = infos[(result.scenario_index, result.point)]
-            write_task(connection, experiment, result, info, crlb_keys)
+            write_task(connection, experiment, result, info, crlb_keys, dimension)
             task_time_s += result.elapsed_s
             if reporter is not None:
                 reporter.advance(len(result.trials))

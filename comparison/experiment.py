@@ -38,7 +38,7 @@ A complete example (every key; the optional ones show their defaults)::
     name = "ml"
     label = "ml-rss"
     options = { use_rss = true }            # optional; keyword arguments of the estimator
-    ignore_unknowns = false                 # optional; take nuisance parameters as known (§15)
+    ignore_unknowns = false                 # optional; true or a list: unknowns taken as known
 
 ``estimators = ["cls", "ml"]`` (plain names) is shorthand for tables with only ``name``.
 

@@ -136,6 +136,7 @@ BUILTIN_DEFINITIONS: dict[str, dict[str, Any]] = {
         "estimators": [
             "cls",
             {"name": "cls", "label": "cls-profile", "options": {"offset_method": "profile"}},
+            {"name": "cls", "label": "cls-two-stage", "options": {"offset_method": "two-stage"}},
             "ml",
             {"name": "ml", "label": "ml-doppler", "options": {"use_toa": False}},
             "ekf",

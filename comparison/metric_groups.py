@@ -98,6 +98,14 @@ TRIAL_QUANTITIES: dict[str, Callable[[Groups], FloatArray]] = {
     "squared_side_error": lambda g: g.successful("error_side_resolved_m") ** 2,
     "error_x": lambda g: g.successful("x_m") - g.column("truth_x_m"),
     "error_y": lambda g: g.successful("y_m") - g.column("truth_y_m"),
+    "error_z": lambda g: g.successful("z_m") - g.column("truth_z_m"),
+    "squared_horizontal_error": lambda g: (
+        (g.successful("x_m") - g.column("truth_x_m")) ** 2
+        + (g.successful("y_m") - g.column("truth_y_m")) ** 2
+    ),
+    "squared_vertical_error": lambda g: (g.successful("z_m") - g.column("truth_z_m")) ** 2,
+    "crlb_horizontal_squared": lambda g: g.column("crlb_xx_m2") + g.column("crlb_yy_m2"),
+    "crlb_vertical_squared": lambda g: g.column("crlb_zz_m2"),
     "wrong_side": lambda g: g.successful("wrong_side"),
     "ambiguous": lambda g: g.successful("ambiguous"),
     "success": lambda g: g.success.astype(float),
@@ -108,7 +116,8 @@ TRIAL_QUANTITIES: dict[str, Callable[[Groups], FloatArray]] = {
     "crlb_squared": lambda g: g.column("crlb_rmse_m") ** 2,
 }
 """Per-trial quantities a metric may aggregate (``Metric.aggregate``): NaN on a failed trial
-for those of the successful trials only."""
+for those of the successful trials only. A summary forms those its metrics aggregate (the
+height's only in 3-D)."""
 
 SHARED_AGGREGATES: dict[str, tuple[str, Aggregation]] = {
     "mean_squared_error": ("squared_error", "mean"),
@@ -180,8 +189,12 @@ class Groups:
         self, aggregates: Mapping[str, tuple[str, Aggregation]]
     ) -> tuple[pd.DataFrame, pd.DataFrame]:
         """The aggregates per group, and the squared errors the intervals still need."""
+        used = {"squared_error", "squared_side_error", *(q for q, _ in aggregates.values())}
         work = pd.DataFrame(
-            {"group": self.group, **{name: of(self) for name, of in TRIAL_QUANTITIES.items()}},
+            {
+                "group": self.group,
+                **{name: of(self) for name, of in TRIAL_QUANTITIES.items() if name in used},
+            },
             copy=False,  # the columns as they are, not copied into one block
         )
         by_group = work.groupby("group", sort=True)

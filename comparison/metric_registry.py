@@ -56,6 +56,9 @@ class Metric:
     aggregate: tuple[str, Aggregation] | None = None
     rule: Callable[[Groups], ArrayLike] | None = None
     count: str | None = None
+    dimension: int = 2
+    """The fewest coordinates a position has for the metric to exist: 3 for those of the
+    height (a summary of a run with the emitter's height unknown, MATH §8)."""
 
     def __post_init__(self) -> None:
         if (self.aggregate is None) == (self.rule is None):
@@ -243,6 +246,41 @@ CONTRACT_METRICS: tuple[Metric, ...] = (
 
 EXTRA_METRICS: tuple[Metric, ...] = (
     Metric(
+        "bias_z_m",
+        "m",
+        "mean of z_m - truth_z_m (3-D runs: the emitter's height estimated)",
+        aggregate=("error_z", "mean"),
+        dimension=3,
+    ),
+    Metric(
+        "rmse_horizontal_m",
+        "m",
+        "RMSE of the returned position's (x, y), successful trials (3-D runs)",
+        aggregate=("squared_horizontal_error", lambda grouped: np.sqrt(grouped.mean())),
+        dimension=3,
+    ),
+    Metric(
+        "rmse_vertical_m",
+        "m",
+        "RMSE of the returned position's height z, successful trials (3-D runs)",
+        aggregate=("squared_vertical_error", lambda grouped: np.sqrt(grouped.mean())),
+        dimension=3,
+    ),
+    Metric(
+        "crlb_horizontal_m",
+        "m",
+        "√(CRLB_xx + CRLB_yy): the horizontal part of the 3-D bound (3-D runs, MATH §8)",
+        aggregate=("crlb_horizontal_squared", lambda grouped: np.sqrt(grouped.mean())),
+        dimension=3,
+    ),
+    Metric(
+        "crlb_vertical_m",
+        "m",
+        "√CRLB_zz: the vertical part of the 3-D bound (3-D runs, MATH §8)",
+        aggregate=("crlb_vertical_squared", lambda grouped: np.sqrt(grouped.mean())),
+        dimension=3,
+    ),
+    Metric(
         "n_successes",
         "count",
         "trials whose estimator returned a position",
@@ -428,7 +466,14 @@ CONTRACT_METRIC_NAMES: tuple[str, ...] = tuple(m.name for m in CONTRACT_METRICS)
 """The metric columns every summary has, in this order."""
 
 METRIC_NAMES: tuple[str, ...] = tuple(m.name for m in METRICS)
-"""Every metric column of a summary, in order (from ``n_trials`` on)."""
+"""Every metric column a summary may have, in order (from ``n_trials`` on): those of the
+height only in a 3-D run (:func:`metric_names`)."""
+
+
+def metric_names(dimension: int) -> tuple[str, ...]:
+    """The metric columns of a summary of positions of ``dimension`` coordinates, in order."""
+    return tuple(m.name for m in METRICS if m.dimension <= dimension)
+
 
 METRIC_DESCRIPTIONS: dict[str, str] = {m.name: m.description for m in METRICS}
 """One line per metric column, for captions and the report."""

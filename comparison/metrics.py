@@ -24,7 +24,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from comparison.intervals import DEFAULT_N_BOOTSTRAP
-from comparison.metric_groups import INTERVAL_SEED_ROWS, Groups
+from comparison.metric_groups import INTERVAL_SEED_ROWS, Groups, position_dimension_of
 from comparison.metric_groups import SUMMARY_TRIAL_COLUMNS as SUMMARY_TRIAL_COLUMNS
 from comparison.metric_registry import CONTRACT_METRIC_NAMES as CONTRACT_METRIC_NAMES
 from comparison.metric_registry import METRIC_NAMES as METRIC_NAMES
@@ -228,17 +228,124 @@ def _summarize_points(
     n_bootstrap: int,
     confidence: float,
 ) -> tuple[pd.DataFrame, int]:
-    """The summary rows of whole points, and how many trial sets (seeds' keys) they used."""
+    """The summary rows of whole points, and how many trial sets (seeds' keys) they used.
+
+    In a 3-D run (an emitter of unknown height) the groups whose answers are horizontal (a
+    scenario with the height known, or an estimator that assumes it) are summarised in 2-D,
+    apart from the others, each trial set keeping its seeds; the rows then come back in the
+    groups' order."""
+    horizontal = _horizontal_rows(trials, codes, planners)
+    kinds = [horizontal] if horizontal is not None and horizontal.all() else []
+    if horizontal is not None and horizontal.any() and not horizontal.all():
+        kinds = [horizontal, ~horizontal]
+    if not kinds:  # one dimension: the rows as they are
+        part, groups = _summarize_rows(
+            trials, codes, key_seeds, planners, swept, n_bootstrap, confidence
+        )
+        return part, groups.n_trial_sets
+    trial_set = _trial_set_codes(trials, codes)
+    parts, order = [], []
+    for rows in kinds:
+        flat = rows is horizontal
+        subset = trials[rows]
+        if flat:
+            subset = subset.drop(columns=[c for c in _Z_COLUMNS if c in subset.columns])
+        sets = np.unique(trial_set[rows])
+        part, groups = _summarize_rows(
+            subset,
+            {key: value[rows] for key, value in codes.items()},
+            key_seeds[:, sets],
+            planners,
+            swept,
+            n_bootstrap,
+            confidence,
+        )
+        parts.append(part)
+        first = groups.first_rows
+        order.append(
+            np.column_stack(
+                [
+                    codes["scenario"][rows][first],
+                    subset["point"].to_numpy(np.int64)[first],
+                    codes["planner"][rows][first] if planners else np.zeros(len(first), int),
+                    subset["frame"].to_numpy(np.int64)[first],
+                    codes["estimator"][rows][first],
+                ]
+            )
+        )
+    keys = np.concatenate(order)
+    merged = pd.concat(parts, ignore_index=True)
+    ranked = np.lexsort(keys.T[::-1])
+    columns = [*(c for c in merged.columns if c not in METRIC_NAMES), *METRIC_NAMES]
+    merged = merged[[c for c in columns if c in merged.columns]]
+    return merged.iloc[ranked].reset_index(drop=True), int(trial_set.max()) + 1
+
+
+_Z_COLUMNS = tuple(c for c in dimension_columns(3) if c not in dimension_columns(2))
+"""The columns a 3-D trial table adds to a 2-D one (dropped for the groups scored in 2-D)."""
+
+
+def _horizontal_rows(
+    trials: pd.DataFrame, codes: Mapping[str, NDArray[np.int64]], planners: bool
+) -> NDArray[np.bool_] | None:
+    """In a 3-D table, the rows of groups scored in 2-D: none of their rows has a height
+    (``z_m``) or a vertical bound (``crlb_zz_m2``); None in a 2-D table."""
+    if position_dimension_of(trials.columns) < 3:
+        return None
+    has_height = np.isfinite(trials["z_m"].to_numpy(dtype=float))
+    if "crlb_zz_m2" in trials.columns:
+        has_height |= np.isfinite(trials["crlb_zz_m2"].to_numpy(dtype=float))
+    group = pd.DataFrame(
+        {
+            "scenario": codes["scenario"],
+            "point": trials["point"].to_numpy(np.int64),
+            "planner": codes["planner"] if planners else 0,
+            "frame": trials["frame"].to_numpy(np.int64),
+            "estimator": codes["estimator"],
+            "height": has_height,
+        }
+    )
+    keys = ["scenario", "point", "planner", "frame", "estimator"]
+    return ~group.groupby(keys, sort=False)["height"].transform("any").to_numpy(dtype=bool)
+
+
+def _trial_set_codes(
+    trials: pd.DataFrame, codes: Mapping[str, NDArray[np.int64]]
+) -> NDArray[np.int64]:
+    """Each row's trial set (scenario, point, frame), numbered as :class:`Groups` numbers
+    them: the column of ``key_seeds`` it draws from."""
+    frame = pd.DataFrame(
+        {
+            "scenario": codes["scenario"],
+            "point": trials["point"].to_numpy(np.int64),
+            "frame": trials["frame"].to_numpy(np.int64),
+        }
+    )
+    return frame.groupby(["scenario", "point", "frame"], sort=True).ngroup().to_numpy(np.int64)
+
+
+def _summarize_rows(
+    trials: pd.DataFrame,
+    codes: Mapping[str, NDArray[np.int64]],
+    key_seeds: NDArray[np.int64],
+    planners: bool,
+    swept: Sequence[str],
+    n_bootstrap: int,
+    confidence: float,
+) -> tuple[pd.DataFrame, Groups]:
+    """The summary rows of the groups of ``trials`` (positions of one dimension)."""
+    dimension = position_dimension_of(trials.columns)
+    metrics_here = [m for m in METRICS if m.dimension <= dimension]
     groups = Groups(
         trials,
         codes,
         key_seeds,
         planners=planners,
-        aggregates={m.name: m.aggregate for m in METRICS if m.aggregate is not None},
+        aggregates={m.name: m.aggregate for m in metrics_here if m.aggregate is not None},
         n_bootstrap=n_bootstrap,
         confidence=confidence,
     )
-    for metric in METRICS:  # in order: a rule reads the metrics before it
+    for metric in metrics_here:  # in order: a rule reads the metrics before it
         groups.values[metric.name] = metric.value(groups)
     metrics = pd.DataFrame(groups.values)
     # The key columns of each group: its first row (they are constant within a group).
@@ -246,7 +353,7 @@ def _summarize_points(
     key_columns.append("estimator")
     keys = trials.iloc[groups.first_rows][key_columns]
     keys = keys.reset_index(drop=True).astype({"snr_db": float, "frame": np.int64})
-    return pd.concat([keys, metrics], axis=1), groups.n_trial_sets
+    return pd.concat([keys, metrics], axis=1), groups
 
 
 # --------------------------------------------------------------------------------------------

@@ -43,7 +43,7 @@ import pandas as pd
 from comparison import verdict_table
 from comparison.intervals import DEFAULT_N_BOOTSTRAP
 from comparison.labels import LABEL_COLUMNS, label_html, plain_label
-from comparison.metric_groups import SUMMARY_TRIAL_COLUMNS
+from comparison.metric_groups import summary_trial_columns
 from comparison.metric_registry import METRIC_NAMES, METRICS, UNITS
 from comparison.metrics import (
     format_number,
@@ -71,6 +71,16 @@ MAX_TABLE_ROWS = 1000
 """Most summary rows of one scenario printed as tables in report.html. A scenario with more
 (a dense sweep) gets one line per estimator instead: its verdicts counted and the range of
 its judged efficiency; every row stays in summary.csv."""
+
+HEIGHT_COLUMNS: tuple[str, ...] = (
+    "rmse_horizontal_m",
+    "crlb_horizontal_m",
+    "rmse_vertical_m",
+    "crlb_vertical_m",
+    "bias_z_m",
+)
+"""The summary table's columns of a 3-D run (the height estimated, MATH §8), before
+``efficiency``."""
 
 COMPACT_COLUMNS: tuple[str, ...] = (
     "n_trials",
@@ -206,7 +216,8 @@ def _summary(
     from comparison.report_figures import figure_trial_columns
 
     closed = any(label != "" for label in layout.orders["planner"])
-    columns = [c for c in SUMMARY_TRIAL_COLUMNS if closed or c != "planner"]
+    readable = summary_trial_columns(layout.dimension)
+    columns = [c for c in readable if closed or c != "planner"]
     shown = figure_trial_columns(closed_loop=closed)
     kept: list[pd.DataFrame] = []
 
@@ -317,6 +328,9 @@ def _summary_tables(summary: pd.DataFrame, metrics: Sequence[str] | None = None)
         raise ValueError(
             f"metrics: unknown metric columns {unknown}; choose from {', '.join(METRIC_NAMES)}"
         )
+    if metrics is None:  # a 3-D run's horizontal and vertical parts beside the 3-D ones
+        chosen[chosen.index("efficiency") : chosen.index("efficiency")] = HEIGHT_COLUMNS
+    chosen = [m for m in chosen if m in summary.columns]  # the height's only in 3-D runs
     swept = summary_swept_columns(summary)
     planner = ["planner"] if "planner" in summary.columns else []
     key_columns = ["snr_db", *swept, "frame", *planner, "estimator"]

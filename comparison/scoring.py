@@ -14,6 +14,7 @@ closed loop, that of the first frame the estimator uses (:func:`ambiguity_track`
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from collections.abc import Mapping, Sequence
@@ -27,6 +28,7 @@ from comparison.trial_rows import (
     ESTIMATE_COLUMNS,
     SCORED_DIMENSION,
     coordinate_columns,
+    dimension_columns,
     matrix_columns,
     matrix_values,
 )
@@ -76,12 +78,13 @@ def estimate_columns(
     truth_m: np.ndarray,
     track: Track | None,
     runtime_s: float,
+    columns: Sequence[str] = ESTIMATE_COLUMNS,
 ) -> tuple[Any, ...]:
-    """The per-estimate columns of a trial row, in the order of
-    :data:`~comparison.trial_rows.ESTIMATE_COLUMNS`: :func:`score_outcomes` of one estimate
+    """The per-estimate ``columns`` of a trial row (by default
+    :data:`~comparison.trial_rows.ESTIMATE_COLUMNS`): :func:`score_outcomes` of one estimate
     (a closed-loop frame, which is scored as it is flown)."""
     outcomes = Outcomes.of_estimates([(estimate, runtime_s)], dimension=np.size(truth_m))
-    return score_outcomes(outcomes, truth_m, track)[0]
+    return score_outcomes(outcomes, truth_m, track, columns)[0]
 
 
 def jsonable(value: Any) -> Any:
@@ -195,11 +198,17 @@ class Outcomes:
         when they are not of the scored ``dimension``, the emitter's coordinates:
         :data:`~comparison.trial_rows.SCORED_DIMENSION` at a known height)."""
         if columns.position_m.shape[1] != dimension:
-            columns = BatchEstimates.failed(
+            failed = BatchEstimates.failed(
                 len(columns),
                 dimension_message(columns.position_m.shape[1], dimension),
                 estimator=columns.estimator,
                 dimension=dimension,
+            )
+            # a failure has no position: it keeps its own message in any dimension
+            columns = dataclasses.replace(
+                failed,
+                message_code=np.where(columns.success, len(columns.messages), columns.message_code),
+                messages=(*columns.messages, failed.messages[0]),
             )
         return cls(columns, np.full(len(columns), float(runtime_s)))
 
@@ -218,7 +227,12 @@ class Outcomes:
             estimate
             if len(estimate.position_m) == d
             else Estimate.failed(
-                estimate.estimator, dimension_message(len(estimate.position_m), d), dimension=d
+                estimate.estimator,
+                # a failure has no position: it keeps its own message in any dimension
+                estimate.message
+                if not estimate.success
+                else dimension_message(len(estimate.position_m), d),
+                dimension=d,
             )
             for estimate, _ in results
         ]
@@ -258,10 +272,14 @@ class Outcomes:
 
 
 def score_outcomes(
-    outcomes: Outcomes, truth_m: ArrayLike, track: Track | None
+    outcomes: Outcomes,
+    truth_m: ArrayLike,
+    track: Track | None,
+    columns: Sequence[str] = ESTIMATE_COLUMNS,
 ) -> list[tuple[Any, ...]]:
-    """The per-estimate columns of every trial of ``outcomes`` (one row each, in the order of
-    :data:`~comparison.trial_rows.ESTIMATE_COLUMNS`), computed on columns.
+    """The per-estimate ``columns`` of every trial of ``outcomes`` (one row each, by default
+    :data:`~comparison.trial_rows.ESTIMATE_COLUMNS`), computed on columns; those of a larger
+    dimension than the truth's (``z_m`` of a horizontal answer in a 3-D run) are NaN.
 
     The position has the truth's ``d`` coordinates (those of ``outcomes``, built with that
     ``dimension``); errors are Euclidean in ``d`` (:func:`distance_m`), the NEES has ``d``
@@ -280,6 +298,7 @@ def score_outcomes(
     :class:`~estimators.batch.BatchEstimates` is built): every success has a finite position
     among its finite candidates.
     """
+    names = columns
     columns = outcomes.columns
     n = len(columns)
     if n == 0:
@@ -370,7 +389,11 @@ def score_outcomes(
             else _diagnostics_texts(columns, success)
         ),
     }
-    return list(zip(*(values[column] for column in ESTIMATE_COLUMNS), strict=True))
+    absent = [nan] * n
+    unknown = [c for c in names if c not in values and c not in dimension_columns(3)]
+    if unknown:
+        raise ValueError(f"columns: {unknown} are not estimate columns")
+    return list(zip(*(values.get(column, absent) for column in names), strict=True))
 
 
 def _coordinate_values(template: str, points: NDArray[np.float64]) -> dict[str, list[float]]:

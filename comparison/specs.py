@@ -17,7 +17,7 @@ from __future__ import annotations
 import importlib.util
 import inspect
 import re
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -26,6 +26,7 @@ from estimators.base import Estimator, capabilities_of, unknowns_problem
 from estimators.registry import make_estimator
 from scenarios import fields
 from scenarios.fields import FrozenDict, thaw
+from scenarios.nuisance import parse_unknowns
 from scenarios.planners import Planner, get_planner
 
 ESTIMATOR_KEYS = ("name", "label", "options", "ignore_unknowns")
@@ -81,23 +82,36 @@ class EstimatorSpec:
         different options.
     options : mapping
         Keyword arguments of the estimator's constructor (lists become tuples).
-    ignore_unknowns : bool
-        Feed it the data as if the emitter's nuisance parameters were known and zero (MATH
-        §15), even where a scenario declares them unknown: to show the bias that costs. Without
-        it an estimator that does not estimate a scenario's unknowns is refused at load.
+    ignore_unknowns : bool or list of str
+        Feed it the data as if the emitter's unknowns were known (MATH §15, §8): the nuisance
+        parameters zero, the height that of the take-off ground; ``true`` every one a scenario
+        declares, or a list of those to assume (``["emitter_height_m"]``: the height only,
+        the others estimated). To show the bias that costs. Without it an estimator that does
+        not estimate a scenario's unknowns is refused at load.
     """
 
     name: str
     label: str | None = None
     options: Mapping[str, Any] = field(default_factory=FrozenDict)
-    ignore_unknowns: bool = False
+    ignore_unknowns: bool | tuple[str, ...] = False
 
     def __post_init__(self) -> None:
         _check_spec_fields(self)
-        if not isinstance(self.ignore_unknowns, bool):
+        value = self.ignore_unknowns
+        if isinstance(value, list | tuple):
+            value = parse_unknowns(value, "ignore_unknowns")
+            object.__setattr__(self, "ignore_unknowns", value or False)
+        elif not isinstance(value, bool):
             raise ValueError(
-                f"ignore_unknowns: expected true or false, got {self.ignore_unknowns!r}"
+                "ignore_unknowns: expected true, false or a list of unknowns such as "
+                f'["emitter_height_m"], got {value!r}'
             )
+
+    def assumed(self, unknowns: Iterable[str]) -> tuple[str, ...]:
+        """Which of a scenario's ``unknowns`` the estimator is fed as known."""
+        if self.ignore_unknowns is True:
+            return tuple(unknowns)
+        return tuple(u for u in unknowns if u in (self.ignore_unknowns or ()))
 
     def build(self) -> Estimator:
         """A new estimator object (:func:`estimators.registry.make_estimator`)."""
@@ -106,7 +120,8 @@ class EstimatorSpec:
     def to_dict(self) -> dict[str, Any]:
         raw = {"name": self.name, "label": self.label, "options": thaw(self.options)}
         if self.ignore_unknowns:
-            raw["ignore_unknowns"] = True
+            value = self.ignore_unknowns
+            raw["ignore_unknowns"] = True if value is True else list(value)
         return raw
 
     @classmethod
@@ -244,9 +259,9 @@ def check_estimator_fits(
                 f"{path}: {spec.label!r} needs {', '.join(missing)} measurements, "
                 f"which scenario {name!r} does not simulate; drop one of the two"
             )
-        if spec.ignore_unknowns:
-            continue
+        assumed = spec.assumed(scenario.unknowns)
+        unknowns = [u for u in scenario.unknowns if u not in assumed]
         used = capabilities.modalities & set(scenario.modalities)
-        problem = unknowns_problem(estimator, scenario.unknowns, used, ignore_hint=hint)
+        problem = unknowns_problem(estimator, unknowns, used, ignore_hint=hint)
         if problem is not None:
             raise ValueError(f"{path}: scenario {name!r}: {problem}")

@@ -54,19 +54,22 @@ from comparison.run_folder import (
 )
 from comparison.tasks import TaskResult
 from comparison.trial_rows import (
-    BOUND_COLUMNS,
-    ESTIMATE_COLUMNS,
     FLIGHT_VALUE_COLUMNS,
     FLIGHTS,
-    POINT_COLUMNS,
     POINTS,
     SCORED_DIMENSION,
     TRIALS,
     Table,
+    bound_columns_of,
     coordinate_columns,
+    estimate_columns_of,
     matrix_columns,
+    padded,
+    points_table,
+    trials_table,
     with_swept,
 )
+from scenarios.nuisance import HEIGHT_UNKNOWN
 
 _ADDED_LATER: tuple[tuple[Table, tuple[str, ...]], ...] = (
     (
@@ -94,7 +97,7 @@ def _readable(
     as when the run is resumed (:func:`create_tables`), so that a run of an earlier version can
     still be reported."""
     present = {row[1] for row in connection.execute(f"PRAGMA table_info({table.name})")}
-    later = {name for added_to, names in _ADDED_LATER if added_to is table for name in names}
+    later = {name for added, names in _ADDED_LATER if added.name == table.name for name in names}
     return [
         f"NULL AS {_quote(n)}" if n in later and n not in present else f"{alias}{_quote(n)}"
         for n in names
@@ -237,11 +240,14 @@ def _create(connection: sqlite3.Connection, table: Table, swept: Sequence[str] =
     )
 
 
-def create_tables(connection: sqlite3.Connection, experiment: Experiment) -> None:
-    """Create the tables, or add what an older file lacks."""
+def create_tables(
+    connection: sqlite3.Connection, experiment: Experiment, dimension: int = SCORED_DIMENSION
+) -> None:
+    """Create the tables of positions of ``dimension`` coordinates
+    (:func:`comparison.bounds.run_dimension`), or add what an older file lacks."""
     with connection:
-        _create(connection, TRIALS)
-        _create(connection, POINTS, experiment.swept_columns)
+        _create(connection, trials_table(dimension))
+        _create(connection, points_table(dimension), experiment.swept_columns)
         connection.execute(
             "CREATE TABLE IF NOT EXISTS tasks (scenario TEXT, point INTEGER, "
             "first_trial INTEGER, n_trials INTEGER, elapsed_s REAL, finished_utc TEXT)"
@@ -264,10 +270,13 @@ def _insert(table: Table, columns: Sequence[str], *, replace: bool = False) -> s
 
 
 def write_points(
-    connection: sqlite3.Connection, experiment: Experiment, rows: Sequence[Mapping[str, Any]]
+    connection: sqlite3.Connection,
+    experiment: Experiment,
+    rows: Sequence[Mapping[str, Any]],
+    dimension: int = SCORED_DIMENSION,
 ) -> None:
     """Replace the points table by ``rows`` (:func:`comparison.bounds.point_rows`)."""
-    columns = [name for name, _ in POINTS.stored(experiment.swept_columns)]
+    columns = [name for name, _ in points_table(dimension).stored(experiment.swept_columns)]
     values = [tuple(row[c] for c in columns) for row in rows]
     with connection:
         connection.execute(f"DELETE FROM {POINTS.name}")
@@ -316,6 +325,7 @@ def write_task(
     result: TaskResult,
     info: PointInfo,
     crlb_keys: Sequence[CrlbKey],
+    dimension: int = SCORED_DIMENSION,
 ) -> None:
     """One task's rows, flights and log entry, in one transaction.
 
@@ -326,9 +336,11 @@ def write_task(
     labels = experiment.labels
     planners = experiment.planner_labels or ("",)
     bounds: dict[tuple[int, int], tuple[float, ...]] = {}
-    trial_columns = [name for name, _ in TRIALS.stored()]
+    table = trials_table(dimension)
+    trial_columns = [name for name, _ in table.stored()]
+    estimate_names, bound_names = estimate_columns_of(dimension), bound_columns_of(dimension)
     # each row's fields in this order, then picked in the table's order
-    fields = (*_ROW_KEYS, *ESTIMATE_COLUMNS, *BOUND_COLUMNS)
+    fields = (*_ROW_KEYS, *estimate_names, *bound_names)
     pick = operator.itemgetter(*(fields.index(c) for c in trial_columns))
     rows = []
     for row in result.rows:
@@ -337,11 +349,14 @@ def write_task(
             key = (row.estimator_index, row.frame)
             if key not in bounds:
                 modalities, frames = crlb_keys[row.estimator_index]
-                bounds[key] = info.bound_columns(modalities, row.frame, frames)
+                spec = experiment.estimators[row.estimator_index]
+                kept = 2 if HEIGHT_UNKNOWN in spec.assumed(info.scenario.unknowns) else None
+                bound = info.bound_columns(modalities, row.frame, frames, kept=kept)
+                bounds[key] = padded(bound, bound_names)
             bound = bounds[key]
-        if len(row.values) != len(ESTIMATE_COLUMNS):
+        if len(row.values) != len(estimate_names):
             raise ValueError(
-                f"a row of {len(row.values)} estimate columns, not {len(ESTIMATE_COLUMNS)}"
+                f"a row of {len(row.values)} estimate columns, not {len(estimate_names)}"
             )
         keys = (
             scenario,
@@ -370,7 +385,7 @@ def write_task(
         }
         flights.append(tuple(fields[c] for c in flight_columns))
     with connection:
-        connection.executemany(_insert(TRIALS, trial_columns, replace=True), rows)
+        connection.executemany(_insert(table, trial_columns, replace=True), rows)
         if flights:
             connection.executemany(_insert(FLIGHTS, flight_columns, replace=True), flights)
         connection.execute(
@@ -453,11 +468,14 @@ class TrialLayout:
     orders : dict
         ``scenario``, ``planner``, ``estimator``: the labels in the experiment's order (the
         order of :func:`read_trials`' rows).
+    dimension : int
+        The coordinates of the positions the tables hold (:func:`stored_dimension`).
     """
 
     n_rows: int
     n_trial_sets: int
     orders: dict[str, tuple[str, ...]]
+    dimension: int = SCORED_DIMENSION
 
 
 def count_trials(out_dir: str | os.PathLike[str]) -> int:
@@ -480,7 +498,8 @@ def trial_layout(out_dir: str | os.PathLike[str]) -> TrialLayout:
             query = f"SELECT DISTINCT {index}, {key} FROM trials ORDER BY {index}, {key}"
             labels = [label for _, label in connection.execute(query)]
             orders[key] = tuple(dict.fromkeys(labels))
-    return TrialLayout(int(n_rows), int(n_sets), orders)
+        dimension = stored_dimension(connection)
+    return TrialLayout(int(n_rows), int(n_sets), orders, dimension)
 
 
 def iter_trials(
@@ -503,17 +522,20 @@ def iter_trials(
     out = Path(out_dir)
     experiment = read_experiment(out)
     swept = list(experiment.swept_columns)
-    names = list(TRIALS.names(swept))
+    with _reading(out) as connection:
+        dimension = stored_dimension(connection)
+    trials, points = trials_table(dimension), points_table(dimension)
+    names = list(trials.names(swept))
     wanted = names if columns is None else [c for c in names if c in {*columns, *swept}]
     unknown = sorted(set(columns or ()) - set(names))
     if unknown:
         raise ValueError(f"columns: {unknown} are not trial columns; choose from {names}")
-    joined = set(with_swept(POINT_COLUMNS, swept))
+    joined = set(with_swept([c.name for c in trials.columns if c.source == "points"], swept))
     # the point's key always, to cut chunks between points
     fetched = [c for c in names if c in wanted or c in ("scenario", "point")]
     fetched = [c for c in fetched if c != "experiment"]
-    on = " AND ".join(f"t.{key} = p.{key}" for key in POINTS.keys())
-    kinds = {c: TRIALS.dtypes(swept).get(c) for c in fetched}  # None: text
+    on = " AND ".join(f"t.{key} = p.{key}" for key in points.keys())
+    kinds = {c: trials.dtypes(swept).get(c) for c in fetched}  # None: text
     labels: dict[str, str] = {}
 
     def fill(columns: dict[str, np.ndarray], at: int, rows: list[tuple[Any, ...]]) -> None:
@@ -538,14 +560,14 @@ def iter_trials(
 
     with _reading(out) as connection:
         connection.execute("BEGIN")  # one snapshot for the sizes and the rows
-        own = _readable(connection, TRIALS, fetched, "t.")
+        own = _readable(connection, trials, fetched, "t.")
         selected = ", ".join(
             f"p.{_quote(c)}" if c in joined else column
             for c, column in zip(fetched, own, strict=True)
         )
         query = (
             f"SELECT {selected} FROM trials t JOIN points p ON {on} "
-            f"ORDER BY {_order_by(TRIALS, 't.')}"
+            f"ORDER BY {_order_by(trials, 't.')}"
         )
         if whole_points:  # the chunks' sizes: whole points, chunk_rows or more
             sizes = [0]
@@ -598,11 +620,19 @@ def read_points(out_dir: str | os.PathLike[str]) -> pd.DataFrame:
     experiment = read_experiment(out)
     swept = list(experiment.swept_columns)
     with _reading(out) as connection:
-        selected = ", ".join(_readable(connection, POINTS, POINTS.names(swept)))
-        query = f"SELECT {selected} FROM points ORDER BY {_order_by(POINTS)}"
+        points = points_table(stored_dimension(connection))
+        selected = ", ".join(_readable(connection, points, points.names(swept)))
+        query = f"SELECT {selected} FROM points ORDER BY {_order_by(points)}"
         frame = pd.read_sql_query(query, connection)
     frame.insert(0, "experiment", experiment.name)
-    return frame.astype(POINTS.dtypes(swept)).reset_index(drop=True)
+    return frame.astype(points.dtypes(swept)).reset_index(drop=True)
+
+
+def stored_dimension(connection: sqlite3.Connection) -> int:
+    """The coordinates of the positions a store holds: 3 when its points table has
+    ``truth_z_m`` (a run with an emitter of unknown height), else 2."""
+    present = {row[1] for row in connection.execute("PRAGMA table_info(points)")}
+    return 3 if "truth_z_m" in present else SCORED_DIMENSION
 
 
 def read_flights(out_dir: str | os.PathLike[str]) -> pd.DataFrame:

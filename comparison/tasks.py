@@ -78,8 +78,15 @@ from comparison.scoring import (
     score_outcomes,
 )
 from comparison.specs import EstimatorSpec, PlannerSpec
-from comparison.trial_rows import FLIGHT_VALUE_COLUMNS
+from comparison.trial_rows import (
+    FLIGHT_VALUE_COLUMNS,
+    SCORED_DIMENSION,
+    bound_columns_of,
+    estimate_columns_of,
+    padded,
+)
 from estimators.base import Estimator, capabilities_of
+from scenarios.nuisance import HEIGHT_UNKNOWN
 from scenarios.planners import Planner
 from scenarios.simulate import simulate_trials
 from scenarios.types import MeasurementBatch, MeasurementSet, Scenario
@@ -125,6 +132,14 @@ class Task:
     planners: tuple[PlannerSpec, ...] = ()
     steering: tuple[str, ...] = ()
     time_limit_s: float | None = None  # per estimator call (None: no limit)
+    dimension: int = SCORED_DIMENSION  # the run's tables' coordinates (bounds.run_dimension)
+
+    def scored_dimension(self, spec: EstimatorSpec) -> int:
+        """The coordinates an estimator's answer is scored in: the scenario's (3 with the
+        height unknown), 2 for one that assumes the unknowns known (its horizontal answer)."""
+        if HEIGHT_UNKNOWN in spec.assumed(self.scenario.unknowns):
+            return SCORED_DIMENSION
+        return self.scenario.truth_emitter_m.size
 
 
 class ScoredRow(NamedTuple):
@@ -234,9 +249,11 @@ def plan_tasks(
     experiment: Experiment,
     infos: Mapping[tuple[int, int], PointInfo],
     complete: Mapping[tuple[int, int], set[int]],
+    dimension: int = SCORED_DIMENSION,
 ) -> list[Task]:
     """Chunks of ``chunk_size`` trials per (scenario, point), without the ``complete`` ones
-    (``chunk_size`` a number: :func:`auto_chunk_size` resolves ``"auto"`` first)."""
+    (``chunk_size`` a number: :func:`auto_chunk_size` resolves ``"auto"`` first), their rows
+    of positions of ``dimension`` coordinates."""
     tasks = []
     size = experiment.chunk_size
     if not isinstance(size, int):
@@ -262,6 +279,7 @@ def plan_tasks(
                         planners=experiment.planners,
                         steering=steering,
                         time_limit_s=experiment.time_limit_s,
+                        dimension=dimension,
                     )
                 )
     return tasks
@@ -295,24 +313,25 @@ def _run_open_loop_task(task: Task) -> TaskResult:
     simulated = simulate_trials(task.scenario, snr_db=task.snr_db, seeds=seeds)
     # estimators never see the truth
     batch = dataclasses.replace(simulated, geometry=simulated.geometry.without_truth())
-    truth = np.asarray(task.scenario.emitter_m, dtype=float)
+    truth = task.scenario.truth_emitter_m
+    names = estimate_columns_of(task.dimension)
     frames = [int(f) for f in batch.geometry.frames]
     eval_frames = frames if task.per_frame else frames[-1:]
     tracks = {frame: frame_track(batch.geometry, frame) for frame in eval_frames}
     data = _TaskData(batch)
-    assuming_known = None  # the same data with the nuisance parameters taken as known (§15)
+    # the same data with some unknowns taken as known (MATH §15, §8), by the unknowns assumed
+    assuming: dict[tuple[str, ...], _TaskData] = {(): data}
     rows: list[ScoredRow] = []
     for index, spec in enumerate(task.estimators):
         estimator = estimator_of(spec)
-        fed = data
-        if spec.ignore_unknowns and batch.geometry.unknowns:
-            if assuming_known is None:
-                assuming_known = _TaskData(
-                    dataclasses.replace(batch, geometry=batch.geometry.assuming_known())
-                )
-            fed = assuming_known
-        for frame, outcomes in _run_estimator(estimator, spec.label, task, fed, eval_frames):
-            scored = score_outcomes(outcomes, truth, tracks[frame])
+        assumed = spec.assumed(batch.geometry.unknowns)
+        if assumed not in assuming:
+            geometry = batch.geometry.assuming_known(assumed)
+            assuming[assumed] = _TaskData(dataclasses.replace(batch, geometry=geometry))
+        fed = assuming[assumed]
+        d = task.scored_dimension(spec)
+        for frame, outcomes in _run_estimator(estimator, spec.label, task, fed, eval_frames, d):
+            scored = score_outcomes(outcomes, truth[:d], tracks[frame], names)
             rows.extend(
                 ScoredRow(0, index, frame, trial, None, values)
                 for trial, values in zip(task.trials, scored, strict=True)
@@ -365,8 +384,10 @@ def _run_estimator(
     task: Task,
     data: _TaskData,
     eval_frames: list[int],
+    dimension: int,
 ) -> list[tuple[int, Outcomes]]:
-    """``[(frame, outcomes of every trial)]`` for one estimator on one task.
+    """``[(frame, outcomes of every trial)]`` for one estimator on one task, its answers of
+    ``dimension`` coordinates (another number is a failed estimate).
 
     ``estimate_columns`` when the estimator declares ``batch`` and has it, else
     ``estimate_batch``, else (or when the batch call fails) one call per trial.
@@ -386,23 +407,24 @@ def _run_estimator(
             for frame in eval_frames:
                 newest = trial_data.take(trial_data.frame == frame)
                 streamed[frame].append(stream.step(newest, rng(task.trials[position])))
-        return [(frame, Outcomes.of_estimates(streamed[frame])) for frame in eval_frames]
+        return [(frame, Outcomes.of_estimates(streamed[frame], dimension)) for frame in eval_frames]
     columnar = capabilities.batch and callable(getattr(estimator, "estimate_columns", None))
     out = []
     for frame in eval_frames:
         outcomes = None
         if columnar:
             columns = call_columns(estimator, data.batch(frame), rngs())
-            outcomes = None if columns is None else Outcomes.of_columns(*columns)
+            outcomes = None if columns is None else Outcomes.of_columns(*columns, dimension)
         elif capabilities.batch:
             estimates = call_batch(estimator, data.batch(frame), rngs())
-            outcomes = None if estimates is None else Outcomes.of_estimates(estimates)
+            outcomes = None if estimates is None else Outcomes.of_estimates(estimates, dimension)
         if outcomes is None:
             outcomes = Outcomes.of_estimates(
                 [
                     call_estimate(estimator, trial_data, rng=trial_rng)
                     for trial_data, trial_rng in zip(data.trials(frame), rngs(), strict=True)
-                ]
+                ],
+                dimension,
             )
         out.append((frame, outcomes))
     return out
@@ -420,7 +442,9 @@ def run_closed_loop_task(task: Task) -> TaskResult:
     estimator's modalities and frames (MATH §8).
     """
     start = time.perf_counter()
-    truth = np.asarray(task.scenario.emitter_m, dtype=float)
+    truth = task.scenario.truth_emitter_m
+    names, bound_names = estimate_columns_of(task.dimension), bound_columns_of(task.dimension)
+    kept = [task.scored_dimension(spec) for spec in task.estimators]
     estimators = [(spec.label, estimator_of(spec)) for spec in task.estimators]
     crlb_keys = [crlb_key(estimator) for _, estimator in estimators]
     rows: list[ScoredRow] = []
@@ -438,7 +462,7 @@ def run_closed_loop_task(task: Task) -> TaskResult:
                 seed=trial_seed(task.seed, *key),
                 estimate_rng=lambda label, key=key: tie_rng(task.seed, *key, label),
                 planner_rng=tie_rng(task.seed, *key, f"planner:{planner_spec.label}"),
-                ignoring_unknowns={s.label for s in task.estimators if s.ignore_unknowns},
+                assuming={s.label: s.assumed(task.scenario.unknowns) for s in task.estimators},
             )
             information = information_at_truth(flown.data, truth, {m for m, _ in crlb_keys})
             for frame in range(flown.n_frames):
@@ -446,8 +470,10 @@ def run_closed_loop_task(task: Task) -> TaskResult:
                     estimate, runtime_s = flown.estimates[label][frame]
                     modalities, frames = crlb_keys[index]
                     track = ambiguity_track(flown.data, frame, frames)
-                    bound = bound_columns(information.get(modalities), frame, frames)
-                    values = estimate_columns(estimate, truth, track, runtime_s)
+                    d = kept[index]
+                    bound = bound_columns(information.get(modalities), frame, frames, kept=d)
+                    bound = padded(bound, bound_names)
+                    values = estimate_columns(estimate, truth[:d], track, runtime_s, names)
                     rows.append(ScoredRow(planner_index, index, frame, trial, bound, values))
             flights.extend(_flight_rows(planner_index, trial, flown))
     return TaskResult(

@@ -18,15 +18,17 @@ The dimension ``d`` of a position (MATH §8: ``(x_s, y_s)`` at a known emitter h
 height estimated ``(x_s, y_s, z_s)``) names its columns here and nowhere else: one column per
 coordinate (:func:`coordinate_columns`: ``truth_x_m``, ``x_m``, ``x_side_resolved_m`` ...) and
 per entry of the upper triangle of a covariance or CRLB (:func:`matrix_columns`: ``cov_xx_m2``,
-``crlb_xy_m2`` ...; :func:`matrix_values` and :func:`matrix_of_values` convert). The tables hold
-``d = 2``; a 3-D table keeps these columns, bytes and order, and adds ``truth_z_m``, ``z_m``,
-``z_side_resolved_m``, ``cov_xz_m2, cov_yz_m2, cov_zz_m2`` and ``crlb_xz_m2, crlb_yz_m2,
-crlb_zz_m2`` after their 2-D namesakes.
+``crlb_xy_m2`` ...; :func:`matrix_values` and :func:`matrix_of_values` convert). The tables of
+a run whose scenarios all have the height known hold ``d = 2`` (:data:`TRIALS`,
+:data:`POINTS`); a run with an emitter of unknown height has 3-D tables
+(:func:`trials_table`, :func:`points_table` of ``3``), which keep these columns in their order
+and add ``truth_z_m``, ``z_m``, ``z_side_resolved_m``, ``cov_xz_m2, cov_yz_m2, cov_zz_m2`` and
+``crlb_xz_m2, crlb_yz_m2, crlb_zz_m2`` after their 2-D namesakes (NaN in the rows of a 2-D
+scenario or of an estimator that assumes the height).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -176,6 +178,12 @@ def dimension_columns(dimension: int) -> tuple[str, ...]:
     )
 
 
+def padded(values: Sequence[float], names: Sequence[str]) -> tuple[float, ...]:
+    """The leading ``values`` of columns ``names`` (a 2-D row's of a 3-D table: the CRLB's
+    ``xx, xy, yy`` of ``xx, xy, yy, xz, yz, zz``), NaN for the rest."""
+    return (*values, *[float("nan")] * (len(names) - len(values)))
+
+
 def matrix_values(matrix: ArrayLike) -> list[NDArray[np.float64]]:
     """The entries of symmetric matrices ``(..., d, d)`` in the order of
     :func:`matrix_columns`, each of shape ``(...)``."""
@@ -225,86 +233,105 @@ POINT_KNOWN_CRLB_SETS: dict[str, tuple[str, ...]] = {
 
 _SCENARIO_INDEX = Column("scenario_index", "INTEGER")
 
-POINTS = Table(
-    "points",
-    (
-        Column("scenario", "TEXT", None, "key"),
-        Column("point", "INTEGER", "int64", "key"),
-        _real("snr_db"),
-        Column("frame", "INTEGER", "int64", "key"),
-        *(_real(name) for name in coordinate_columns("truth_{}_m", SCORED_DIMENSION)),
-        _real("range_scale_m"),
-        *(_real(name) for name in POINT_CRLB_SETS),
-        *(_real(name, required=False) for name in POINT_KNOWN_CRLB_SETS),
-    ),
-    indexes=(_SCENARIO_INDEX,),
-)
-"""One row per scenario × point × frame: truth, accumulated CRLB, the size of the geometry."""
 
-_POINT = {column.name: column for column in POINTS.columns}
+@functools.cache
+def points_table(dimension: int = SCORED_DIMENSION) -> Table:
+    """The points table of positions of ``dimension`` coordinates (:data:`POINTS` at 2)."""
+    return Table(
+        "points",
+        (
+            Column("scenario", "TEXT", None, "key"),
+            Column("point", "INTEGER", "int64", "key"),
+            _real("snr_db"),
+            Column("frame", "INTEGER", "int64", "key"),
+            *(_real(name) for name in coordinate_columns("truth_{}_m", dimension)),
+            _real("range_scale_m"),
+            *(_real(name) for name in POINT_CRLB_SETS),
+            *(_real(name, required=False) for name in POINT_KNOWN_CRLB_SETS),
+        ),
+        indexes=(_SCENARIO_INDEX,),
+    )
+
+
+POINTS = points_table()
+"""One row per scenario × point × frame: truth, accumulated CRLB, the size of the geometry."""
 
 
 def _joined(name: str) -> Column:
     """A trial column taken from the points table."""
-    return dataclasses.replace(_POINT[name], source="points")
+    return Column(name, "REAL", "float64", "points")
 
 
 def _estimate(name: str, sql: str, dtype: str | None, *, required: bool = True) -> Column:
     return Column(name, sql, dtype, "estimate", required)
 
 
-TRIALS = Table(
-    "trials",
-    (
-        Column("experiment", "", None, "run", required=False),
-        Column("scenario", "TEXT", None, "key"),
-        Column("point", "INTEGER", "int64", "key"),
-        _joined("snr_db"),
-        Column("planner", "TEXT NOT NULL DEFAULT ''", None, "key", required=False),
-        Column("estimator", "TEXT", None, "key"),
-        Column("frame", "INTEGER", "int64", "key"),
-        Column("trial", "INTEGER", "int64", "key", required=False),
-        *(_joined(name) for name in coordinate_columns("truth_{}_m", SCORED_DIMENSION)),
-        *(_real(name, "estimate") for name in coordinate_columns("{}_m", SCORED_DIMENSION)),
-        _real("error_m", "estimate"),
-        _real("error_side_resolved_m", "estimate"),
-        *(
-            _real(name, "estimate", required=False)
-            for name in coordinate_columns("{}_side_resolved_m", SCORED_DIMENSION)
+@functools.cache
+def trials_table(dimension: int = SCORED_DIMENSION) -> Table:
+    """The trials table of positions of ``dimension`` coordinates (:data:`TRIALS` at 2; at 3
+    the same columns with each coordinate's and matrix entry's after their 2-D namesakes)."""
+    return Table(
+        "trials",
+        (
+            Column("experiment", "", None, "run", required=False),
+            Column("scenario", "TEXT", None, "key"),
+            Column("point", "INTEGER", "int64", "key"),
+            _joined("snr_db"),
+            Column("planner", "TEXT NOT NULL DEFAULT ''", None, "key", required=False),
+            Column("estimator", "TEXT", None, "key"),
+            Column("frame", "INTEGER", "int64", "key"),
+            Column("trial", "INTEGER", "int64", "key", required=False),
+            *(_joined(name) for name in coordinate_columns("truth_{}_m", dimension)),
+            *(_real(name, "estimate") for name in coordinate_columns("{}_m", dimension)),
+            _real("error_m", "estimate"),
+            _real("error_side_resolved_m", "estimate"),
+            *(
+                _real(name, "estimate", required=False)
+                for name in coordinate_columns("{}_side_resolved_m", dimension)
+            ),
+            _real("wrong_side", "estimate"),
+            _estimate("ambiguous", "INTEGER", "bool"),
+            _estimate("success", "INTEGER", "bool"),
+            _estimate("n_candidates", "INTEGER", "int64", required=False),
+            _estimate("candidates_json", "TEXT", None, required=False),
+            *(_real(name, "estimate", required=False) for name in matrix_columns("cov", dimension)),
+            _real("nees", "estimate"),
+            _real("nees_side_resolved", "estimate"),
+            _real("fit_chi2", "estimate", required=False),
+            _real("fit_dof", "estimate", required=False),
+            _real("crlb_rmse_m", "bound"),
+            *(_real(name, "bound", required=False) for name in matrix_columns("crlb", dimension)),
+            _real("runtime_s", "estimate"),
+            _estimate("message", "TEXT", None, required=False),
+            _estimate("diagnostics_json", "TEXT", None, required=False),
         ),
-        _real("wrong_side", "estimate"),
-        _estimate("ambiguous", "INTEGER", "bool"),
-        _estimate("success", "INTEGER", "bool"),
-        _estimate("n_candidates", "INTEGER", "int64", required=False),
-        _estimate("candidates_json", "TEXT", None, required=False),
-        *(
-            _real(name, "estimate", required=False)
-            for name in matrix_columns("cov", SCORED_DIMENSION)
+        indexes=(
+            _SCENARIO_INDEX,
+            Column("planner_index", "INTEGER NOT NULL DEFAULT 0"),
+            Column("estimator_index", "INTEGER"),
         ),
-        _real("nees", "estimate"),
-        _real("nees_side_resolved", "estimate"),
-        _real("fit_chi2", "estimate", required=False),
-        _real("fit_dof", "estimate", required=False),
-        _real("crlb_rmse_m", "bound"),
-        *(
-            _real(name, "bound", required=False)
-            for name in matrix_columns("crlb", SCORED_DIMENSION)
-        ),
-        _real("runtime_s", "estimate"),
-        _estimate("message", "TEXT", None, required=False),
-        _estimate("diagnostics_json", "TEXT", None, required=False),
-    ),
-    indexes=(
-        _SCENARIO_INDEX,
-        Column("planner_index", "INTEGER NOT NULL DEFAULT 0"),
-        Column("estimator_index", "INTEGER"),
-    ),
-)
+    )
+
+
+TRIALS = trials_table()
 """The trial-row contract: one row per scenario × point × planner × estimator × frame ×
 trial. ``planner`` is empty in an open-loop run; ``runtime_s`` is the only column that is not
 a function of the experiment. ``fit_chi2`` and ``fit_dof`` are the goodness of fit of the answer
 (MATH §17; ``estimators.goodness_of_fit``), NaN for a failed estimate or an estimator that does
 not report it."""
+
+
+@functools.cache
+def estimate_columns_of(dimension: int = SCORED_DIMENSION) -> tuple[str, ...]:
+    """The columns computed from one estimate at ``dimension`` (:data:`ESTIMATE_COLUMNS`)."""
+    return tuple(c.name for c in trials_table(dimension).columns if c.source == "estimate")
+
+
+@functools.cache
+def bound_columns_of(dimension: int = SCORED_DIMENSION) -> tuple[str, ...]:
+    """The bound columns at ``dimension`` (:data:`BOUND_COLUMNS`)."""
+    return tuple(c.name for c in trials_table(dimension).columns if c.source == "bound")
+
 
 TRIAL_COLUMNS: tuple[str, ...] = TRIALS.names()
 """Every fixed column of a trial frame; the swept-parameter columns come on top of these.
@@ -313,10 +340,10 @@ TRIAL_COLUMNS: tuple[str, ...] = TRIALS.names()
 REQUIRED_TRIAL_COLUMNS: tuple[str, ...] = tuple(c.name for c in TRIALS.columns if c.required)
 """The trial columns :func:`comparison.metrics.summarize` reads."""
 
-ESTIMATE_COLUMNS: tuple[str, ...] = tuple(c.name for c in TRIALS.columns if c.source == "estimate")
+ESTIMATE_COLUMNS: tuple[str, ...] = estimate_columns_of()
 """The columns computed from one estimate (:func:`comparison.scoring.estimate_columns`)."""
 
-BOUND_COLUMNS: tuple[str, ...] = tuple(c.name for c in TRIALS.columns if c.source == "bound")
+BOUND_COLUMNS: tuple[str, ...] = bound_columns_of()
 """The CRLB an estimate is scored against (MATH §8): ``√trace`` first, then the matrix's
 entries ``xx, xy, yy`` (m², :func:`matrix_columns`), from which the verdicts take its principal
 axes."""

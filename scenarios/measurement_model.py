@@ -30,6 +30,8 @@ on per-sample components in any layout (the maximum-likelihood search) and
 from __future__ import annotations
 
 from collections.abc import Sequence
+from itertools import combinations_with_replacement
+from math import comb
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -175,11 +177,46 @@ def _first_last(array: FloatArray) -> FloatArray:
     return array.transpose((*range(1, array.ndim), 0))
 
 
-_PAIRS = (np.array([0, 0, 1]), np.array([0, 1, 1]))
-"""``(a, b)`` of ``xx, xy, yy``; the component of a pair is ``a + b``."""
+def _index_sets(
+    dimension: int,
+) -> tuple[tuple[FloatArray, ...], tuple[FloatArray, ...], FloatArray]:
+    """``(a, b)`` of the unique second derivatives (``xx, xy, yy`` in 2-D; ``xx, xy, xz, yy,
+    yz, zz`` in 3-D), ``(a, b, c)`` of the third, and the slot of the pair ``(a, b)`` among the
+    second (symmetric): the order of :data:`DERIVATIVE_COMPONENTS` and
+    :func:`derivative_components`."""
+    pairs = list(combinations_with_replacement(range(dimension), 2))
+    triples = list(combinations_with_replacement(range(dimension), 3))
+    slot = np.zeros((dimension, dimension), dtype=np.intp)
+    for index, (a, b) in enumerate(pairs):
+        slot[a, b] = slot[b, a] = index
+    return (
+        tuple(np.array(column) for column in zip(*pairs, strict=True)),
+        tuple(np.array(column) for column in zip(*triples, strict=True)),
+        slot,
+    )
 
-_TRIPLES = (np.array([0, 0, 0, 1]), np.array([0, 0, 1, 1]), np.array([0, 1, 1, 1]))
-"""``(a, b, c)`` of ``xxx, xxy, xyy, yyy``."""
+
+_INDEX_SETS = {2: _index_sets(2), 3: _index_sets(3)}
+""":func:`_index_sets` of the two position dimensions."""
+
+
+def derivative_components(dimension: int = 2) -> tuple[str, ...]:
+    """The last axis of :func:`doppler_range_derivatives` in ``dimension`` coordinates: the
+    value, then the unique partial derivatives of each order (:data:`DERIVATIVE_COMPONENTS` in
+    2-D; ``"", "x", "y", "z", "xx", "xy", "xz", "yy", …, "zzz"`` in 3-D)."""
+    axes = "xyz"[:dimension]
+    derivatives = (
+        "".join(axes[i] for i in combination)
+        for order in (1, 2, 3)
+        for combination in combinations_with_replacement(range(dimension), order)
+    )
+    return ("", *derivatives)
+
+
+def n_components(order: int, dimension: int = 2) -> int:
+    """How many components the derivatives up to ``order`` fill in ``dimension`` coordinates
+    (:data:`N_COMPONENTS_TO_ORDER` in 2-D; 1, 4, 10, 20 in 3-D)."""
+    return comb(dimension + order, order)
 
 
 def derivatives_of_offsets(
@@ -191,19 +228,24 @@ def derivatives_of_offsets(
     *,
     order: int = 1,
     values: bool = True,
+    dimension: int = 2,
 ) -> tuple[FloatArray, FloatArray]:
     """:func:`doppler_range_derivatives` from the components of ``w = p_k − s`` and of ``v_k``
     (``velocity_mps``: three arrays), all broadcasting together like ``gamma_per_m``, in any
     layout: for the callers that keep samples in their own (the maximum-likelihood search, rows
     first). Returns ``(doppler, ranges)``, each ``(n, ...)``, components first: component
     ``j`` of :data:`DERIVATIVE_COMPONENTS` is a contiguous array of the broadcast shape.
-    ``values=False`` leaves the Doppler's value ``doppler[0]`` uncomputed (a Jacobian alone)."""
+    ``values=False`` leaves the Doppler's value ``doppler[0]`` uncomputed (a Jacobian alone).
+    ``dimension=3``: the derivatives in ``(x_s, y_s, z_s)``, :func:`derivative_components`
+    (``offset_z_m`` then holds ``p_z − z_s`` of the unknown height, like the other two)."""
     if order not in (0, 1, 2, 3):
         raise ValueError(f"order: expected 0, 1, 2 or 3, got {order!r}")
+    if dimension not in (2, 3):
+        raise ValueError(f"dimension: expected 2 or 3, got {dimension!r}")
     dx, dy = np.asarray(offset_x_m, dtype=float), np.asarray(offset_y_m, dtype=float)
     dz, gamma = np.asarray(offset_z_m, dtype=float), np.asarray(gamma_per_m, dtype=float)
     vx, vy, vz = velocity_mps
-    width = N_COMPONENTS_TO_ORDER[order]
+    width = n_components(order, dimension)
     shape = np.broadcast(dx, dz).shape
     ranges = np.empty((width, *shape))
     distance = np.multiply(dx, dx, out=ranges[0])
@@ -226,37 +268,41 @@ def derivatives_of_offsets(
     if order < 1:
         return doppler, ranges
     neg_inverse = np.divide(-1.0, distance)  # −1/ρ: multiplications from here on
-    minus_ux = np.multiply(dx, neg_inverse, out=ranges[1])  # ∇ρ = −u
-    minus_uy = np.multiply(dy, neg_inverse, out=ranges[2])
+    offsets, speeds = (dx, dy, dz)[:dimension], (vx, vy, vz)[:dimension]
+    gradient = slice(1, 1 + dimension)
+    for i, offset in enumerate(offsets):  # ∇ρ = −u
+        np.multiply(offset, neg_inverse, out=ranges[1 + i])
     radial *= neg_inverse  # −vᵀu
     # −t = −(v − (vᵀu) u) from −vᵀu and −u, in place in the Doppler's gradient at order 1
-    t = np.empty((2, *radial.shape)) if order > 1 else doppler[1:3]
-    tx, ty = t
-    np.subtract(np.multiply(radial, minus_ux, out=tx), vx, out=tx)
-    np.subtract(np.multiply(radial, minus_uy, out=ty), vy, out=ty)
+    t = np.empty((dimension, *radial.shape)) if order > 1 else doppler[gradient]
+    for i, speed in enumerate(speeds):
+        np.subtract(np.multiply(radial, ranges[1 + i], out=t[i]), speed, out=t[i])
     scale = np.multiply(neg_inverse, gamma, out=None if gamma.ndim else neg_inverse)  # −γ/ρ
-    np.multiply(t, scale, out=doppler[1:3])  # γ t/ρ
+    np.multiply(t, scale, out=doppler[gradient])  # γ t/ρ
     if order < 2:
         return doppler, ranges
-    u = -ranges[1:3]  # u_xy
+    (a, b), triples, slot = _INDEX_SETS[dimension]
+    second = slice(1 + dimension, 1 + dimension + len(a))
+    u = -ranges[gradient]
     np.negative(t, out=t)
     np.negative(radial, out=radial)  # vᵀu
-    a, b = _PAIRS
     p = u[a] * u[b]
     np.negative(p, out=p)
-    p[0] += 1.0
-    p[2] += 1.0  # P = I − u uᵀ: xx, xy, yy
+    for i in range(dimension):
+        p[slot[i, i]] += 1.0  # P = I − u uᵀ: xx, xy, yy (xx, xy, xz, yy, yz, zz)
     g2 = gamma / distance**2
-    np.multiply(g2, t[a] * u[b] + t[b] * u[a] + radial * p, out=doppler[3:6])
-    np.divide(p, distance, out=ranges[3:6])
+    np.multiply(g2, t[a] * u[b] + t[b] * u[a] + radial * p, out=doppler[second])
+    np.divide(p, distance, out=ranges[second])
     if order < 3:
         return doppler, ranges
-    a, b, c = _TRIPLES
-    sum_pu = p[a + b] * u[c] + p[a + c] * u[b] + p[b + c] * u[a]
+    a, b, c = triples
+    ab, ac, bc = slot[a, b], slot[a, c], slot[b, c]
+    sum_pu = p[ab] * u[c] + p[ac] * u[b] + p[bc] * u[a]
     sum_tuu = t[a] * u[b] * u[c] + t[b] * u[a] * u[c] + t[c] * u[a] * u[b]
-    sum_tp = t[a] * p[b + c] + t[b] * p[a + c] + t[c] * p[a + b]
-    np.multiply(g2 / distance, 2.0 * sum_tuu + 2.0 * radial * sum_pu - sum_tp, out=doppler[6:])
-    np.divide(sum_pu, distance**2, out=ranges[6:])
+    sum_tp = t[a] * p[bc] + t[b] * p[ac] + t[c] * p[ab]
+    third = slice(second.stop, None)
+    np.multiply(g2 / distance, 2.0 * sum_tuu + 2.0 * radial * sum_pu - sum_tp, out=doppler[third])
+    np.divide(sum_pu, distance**2, out=ranges[third])
     return doppler, ranges
 
 
@@ -268,6 +314,7 @@ def doppler_range_derivatives(
     emitter_height_m: ArrayLike = 0.0,
     *,
     order: int = 1,
+    dimension: int = 2,
 ) -> tuple[FloatArray, FloatArray]:
     r"""The noise-free Doppler ``f_k`` (Hz) and slant range ``ρ_k = c τ_k`` (m) with their
     partial derivatives in ``(x_s, y_s)`` up to ``order`` (0 to 3), from one pass over the
@@ -279,10 +326,12 @@ def doppler_range_derivatives(
     ``f_k`` and a range offset ``c b`` to ``ρ_k``, each with derivative 1 in its own parameter
     and none in the position (MATH §15). ``gamma_per_m`` and ``emitter_height_m`` may be
     arrays broadcasting against ``(..., N)`` (samples of several frames at once). A 3-D
-    ``emitter_m`` gives the height; the derivatives are still those in ``(x_s, y_s)``.
+    ``emitter_m`` gives the height; the derivatives are those in ``(x_s, y_s)`` unless
+    ``dimension=3``: then in ``(x_s, y_s, z_s)`` (:func:`derivative_components`, ``n`` = 1, 4,
+    10 or 20), the formulas below with the indices over three axes.
 
     With ``w = p_k − s``, ``ρ = ‖w‖``, ``u = w/ρ``, ``r = vᵀu``, ``t = v − r u`` and
-    ``P = I − u uᵀ`` (xy parts, indices ``a, b, c``):
+    ``P = I − u uᵀ`` (xy parts, or xyz with ``dimension=3``; indices ``a, b, c``):
 
     .. math::
 
@@ -307,6 +356,7 @@ def doppler_range_derivatives(
         (velocity[..., 0], velocity[..., 1], velocity[..., 2]),
         gamma_per_m,
         order=order,
+        dimension=dimension,
     )
     return _first_last(doppler), _first_last(ranges)
 

@@ -32,7 +32,7 @@ def noise_free(scenario: Scenario, *, snr_db: float = 0.0) -> MeasurementSet:
     # an unknown height is the truth's third coordinate; the data then say only what an
     # estimator that ignores it assumes: the take-off ground (MATH §8)
     height_unknown = HEIGHT_UNKNOWN in scenario.unknowns
-    truth = np.array([*emitter, height]) if height_unknown else emitter
+    truth = scenario.truth_emitter_m
     values = {
         "doppler": lambda: model.doppler_hz(
             position, velocity, emitter, scenario.gamma_per_m, height, offset_hz or 0.0

@@ -48,7 +48,7 @@ Every refusal is a ``ValueError`` whose message starts with the field and the sa
 from __future__ import annotations
 
 import copy
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -68,7 +68,12 @@ from scenarios.fields import (
 )
 from scenarios.geometry import KINEMATIC_RTOL as KINEMATIC_RTOL  # cited by the module text
 from scenarios.geometry import check_order, check_straight_frames
-from scenarios.nuisance import HEIGHT_UNKNOWN, position_dimension, set_nuisance_fields
+from scenarios.nuisance import (
+    HEIGHT_UNKNOWN,
+    parse_unknowns,
+    position_dimension,
+    set_nuisance_fields,
+)
 
 SPEED_OF_LIGHT_MPS = 299_792_458.0
 """Speed of light in vacuum, m/s: the default propagation speed (MATH §0)."""
@@ -348,6 +353,14 @@ class Scenario:
     def gamma_per_m(self) -> float:
         """``γ = f0 / c`` (MATH §0)."""
         return self.carrier_hz / self.speed_of_light_mps
+
+    @property
+    def truth_emitter_m(self) -> FloatArray:
+        """The emitter's coordinates a receiver estimates: ``(x, y)`` at a known height,
+        ``(x, y, z)`` with the height unknown (MATH §8); the simulated data's truth."""
+        if HEIGHT_UNKNOWN in self.unknowns:
+            return np.array([*self.emitter_m, self.emitter_height_m])
+        return np.array(self.emitter_m)
 
     def replace(self, **changes: Any) -> Scenario:
         """A copy with some fields changed (validated again)."""
@@ -639,18 +652,21 @@ class MeasurementSet:
             self, truth_emitter_m=None, truth_carrier_offset_hz=None, truth_emission_time_s=None
         )
 
-    def assuming_known(self) -> MeasurementSet:
-        """The same measurements with every nuisance parameter taken as known and zero, and an
-        unknown height as ``emitter_height_m``: what an estimator that ignores the unknowns
-        sees (MATH §15, §8), biased by the true offsets and height (the truth keeps its
-        ``(x, y)``). A range shorter than the UAV's height above the assumed height is then
-        the assumption's error (``height_assumed``), not refused."""
+    def assuming_known(self, unknowns: Iterable[str] | None = None) -> MeasurementSet:
+        """The same measurements with the ``unknowns`` named (default: every one the data
+        declare) taken as known: a nuisance parameter as zero, the height as
+        ``emitter_height_m``. What an estimator that ignores them sees (MATH §15, §8), biased by
+        their true values; the truth loses its height when the height is assumed. A range
+        shorter than the UAV's height above the assumed height is then the assumption's
+        error (``height_assumed``), not refused."""
+        assumed = set(self.unknowns if unknowns is None else parse_unknowns(unknowns))
         truth = self.truth_emitter_m
+        height = HEIGHT_UNKNOWN in assumed and HEIGHT_UNKNOWN in self.unknowns
         return replace(
             self,
-            unknowns=(),
-            truth_emitter_m=None if truth is None else truth[:2],
-            height_assumed=self.height_assumed or HEIGHT_UNKNOWN in self.unknowns,
+            unknowns=tuple(u for u in self.unknowns if u not in assumed),
+            truth_emitter_m=truth[:2] if truth is not None and height else truth,
+            height_assumed=self.height_assumed or height,
         )
 
 

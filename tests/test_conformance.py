@@ -538,7 +538,8 @@ def test_parametrize_with_checks_ids_and_strict_xfails() -> None:
     assert mark.args[0] == "estimator, check"
     params = {param.id: param for param in mark.args[1]}
     assert "Cls(weighting='none')-check_pickle_round_trip" in params
-    assert len(params) == len(CHECK_NAMES) - 3  # no streaming or unit checks (cls has a batch path)
+    # no streaming, unit or height checks (cls has a batch path, takes the height as known)
+    assert len(params) == len(CHECK_NAMES) - 5
     (xfail,) = params["Cls(weighting='none')-check_exact_with_climb"].marks
     assert xfail.name == "xfail"
     assert xfail.kwargs == {"strict": True, "reason": "a recorded reason"}

@@ -18,8 +18,8 @@ A check is a function ``check_<what>(estimator)`` that returns nothing or raises
 ``AssertionError`` whose message names the problem and the fix. :func:`estimator_checks`
 yields the checks that apply: the batch check only when the estimator has ``estimate_batch``,
 the streaming checks only for a :class:`~estimators.base.SequentialEstimator`, the unit
-check only when it claims ``unit_invariant`` and the two-headings check only when it uses
-every frame. What an estimator uses and claims is read from its declared
+check only when it claims ``unit_invariant``, the two-headings check only when it uses
+every frame and the height checks only when it estimates the emitter's height. What an estimator uses and claims is read from its declared
 :class:`~estimators.base.Capabilities` (:func:`~estimators.base.capabilities_of`), and the
 checks hold it to that declaration. A check that an estimator fails *by design* is recorded
 with its reason in ``expected_failed_checks={"check_name": "reason"}``; it then must fail (a
@@ -32,7 +32,8 @@ Where things are
     :mod:`~estimators.checks.forward_model`: how well a candidate reproduces data, and the CRLB;
     :mod:`~estimators.checks.results`: running an estimator and judging its result; the checks by
     theme, :mod:`~estimators.checks.contract`, :mod:`~estimators.checks.exactness`,
-    :mod:`~estimators.checks.invariance`, :mod:`~estimators.checks.noisy` and
+    :mod:`~estimators.checks.invariance`, :mod:`~estimators.checks.noisy`,
+    :mod:`~estimators.checks.height` and
     :mod:`~estimators.checks.batch_and_streaming`; :mod:`~estimators.checks.runner`: which checks
     apply, :func:`run_checks`, :func:`check_estimator`, :func:`parametrize_with_checks`.
     Everything public is importable from ``estimators.checks``.
@@ -71,6 +72,10 @@ from estimators.checks.exactness import (
     check_not_ambiguous_with_two_headings,
 )
 from estimators.checks.forward_model import crlb_rmse_m, data_misfit, whitened_misfit
+from estimators.checks.height import (
+    check_exact_with_the_height_unknown,
+    check_straight_track_cannot_fix_the_height,
+)
 from estimators.checks.invariance import (
     check_equivariant_under_rigid_motions,
     check_unit_invariant,
@@ -88,6 +93,7 @@ from estimators.checks.noisy import (
 from estimators.checks.reference_problems import (
     CHECK_SEED_ENV,
     DATA_SEED,
+    HEIGHT_PROBLEMS,
     NOISE_FREE_SNR_DB,
     NOISY_SNR_DB,
     ON_TRACK_START_SHORTFALL_M,
@@ -149,6 +155,7 @@ __all__ = [
     "EXACT_RTOL",
     "EXACT_TOLERANCE_M",
     "FIELD_OF_MODALITY",
+    "HEIGHT_PROBLEMS",
     "MAX_NOISE_FREE_TOLERANCE",
     "MISFIT_LIMIT",
     "NOISE_FREE_SNR_DB",
@@ -178,6 +185,7 @@ __all__ = [
     "check_exact_on_straight_frames",
     "check_exact_on_turn",
     "check_exact_with_climb",
+    "check_exact_with_the_height_unknown",
     "check_failed_estimate_is_data",
     "check_leaves_the_track",
     "check_mirror_pair_reproduces_data",
@@ -191,6 +199,7 @@ __all__ = [
     "check_result_types",
     "check_seed",
     "check_sequential_update_is_pure",
+    "check_straight_track_cannot_fix_the_height",
     "check_streaming_matches_estimate",
     "check_unit_invariant",
     "check_unused_modalities_ignored",

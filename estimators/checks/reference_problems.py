@@ -26,6 +26,19 @@ one does) and at least 20 m from every frame's track, and a random problem has a
 range of at least 65 m (the fixed ones: 60.7 m on ``turn`` to 134 m on ``far-turn``), so that
 its tolerance cap is never below the fixed problems'.
 
+Three more have the emitter's height unknown (:data:`HEIGHT_PROBLEMS`, MATH §7, §8), for an
+estimator whose ``Capabilities.unknowns`` contains ``"emitter_height_m"``: their optima have
+three coordinates ``(x, y, z)``, and the minimisers are not those of the known height:
+
+- ``climb-height``: ``climb`` with the height unknown; optimum (−60, 80, 25) m (the change of
+  altitude leaves one minimum);
+- ``turn-height``: the emitter 20 m high under the level ``turn`` at 50 m, its height unknown;
+  optimum (35, 15, 20) m; its reflection through the flight plane, (35, 15, 80) m, fits the
+  data equally but is above the UAV (the mirror rule drops it);
+- ``climb-straight-height``: the straight frame of ``climb-straight`` with the height unknown:
+  the emitter anywhere on a circle about the track, no optimum (the estimate fails in one
+  line).
+
 One more data set is not a reference problem (its optimum is not the emitter): the trap of
 ``check_leaves_the_track`` (:func:`on_track_start_data`), whose first frame alone puts the
 closed form's candidate on the track (MATH §5) while the truth is 15 m off it.
@@ -49,6 +62,7 @@ from numpy.typing import NDArray
 
 from scenarios.catalog import CATALOG, get_scenario, heading_velocities_mps
 from scenarios.geometry import mirror_across_line, straight_track_line
+from scenarios.nuisance import HEIGHT_UNKNOWN, position_dimension
 from scenarios.simulate import noise_free, simulate, simulate_trials
 from scenarios.types import (
     SPEED_OF_LIGHT_MPS,
@@ -79,6 +93,12 @@ CHECK_SEED_ENV = "EMITTERBENCH_CHECK_SEED"
 
 REFERENCE_PROBLEMS = ("paper-1m", "turn", "far-turn", "climb", "climb-straight")
 """The fixed reference problems; :data:`RANDOM_PROBLEMS` are drawn from the check seed."""
+
+HEIGHT_PROBLEMS = ("climb-height", "turn-height", "climb-straight-height")
+"""The fixed reference problems with the emitter's height unknown (module text)."""
+
+TURN_HEIGHT_M = 20.0
+"""The emitter's height in ``turn-height``, under the UAV's 50 m."""
 
 RANDOM_PROBLEMS = ("random-straight", "random-turn")
 """The reference problems drawn anew on every run (from :func:`check_seed`)."""
@@ -122,9 +142,11 @@ class ReferenceProblem:
     name : str
     scenario : Scenario
         Emitter, flight and constants; it simulates Doppler, ToA and RSS.
-    optima_m : (n, 2)
+    optima_m : (n, 2) or (n, 3)
         Every minimiser on noise-free data from all frames: the emitter, and on one straight
-        frame also its mirror image across the track (MATH §7).
+        frame also its mirror image across the track (MATH §7); ``(x, y, z)`` when the
+        scenario declares the emitter's height unknown (:attr:`dimension`), none on a straight
+        track then (MATH §7).
     source : str
         Where the optimum comes from.
     seed : int or None
@@ -138,7 +160,7 @@ class ReferenceProblem:
     seed: int | None = None
 
     def __post_init__(self) -> None:
-        optima = np.array(self.optima_m, dtype=float).reshape(-1, 2)
+        optima = np.array(self.optima_m, dtype=float).reshape(-1, self.dimension)
         optima.flags.writeable = False
         object.__setattr__(self, "optima_m", optima)
 
@@ -150,8 +172,17 @@ class ReferenceProblem:
         return f"'{self.name}' (check seed {self.seed}; replay with {CHECK_SEED_ENV}={self.seed})"
 
     @property
+    def dimension(self) -> int:
+        """The position's coordinates: 3 when the scenario declares the height unknown."""
+        return position_dimension(self.scenario.unknowns)
+
+    @property
     def emitter_m(self) -> FloatArray:
-        return np.array(self.scenario.emitter_m, dtype=float)
+        """The emitter ``(x, y)``, or ``(x, y, z)`` with the height unknown."""
+        emitter = np.array(self.scenario.emitter_m, dtype=float)
+        if self.dimension == 3:
+            return np.append(emitter, self.scenario.emitter_height_m)
+        return emitter
 
     @property
     def straight(self) -> bool:
@@ -187,7 +218,8 @@ class ReferenceProblem:
         """The optima on the noise-free data of ``frames`` (an estimator's declared frames).
 
         Every frame: :attr:`optima_m`. A subset that is one straight frame: the emitter and its
-        mirror image across that frame's track; any other subset: the emitter.
+        mirror image across that frame's track (with the height unknown: none, MATH §7); any
+        other subset: the emitter.
         """
         if frames == "all":
             return self.optima_m
@@ -197,6 +229,8 @@ class ReferenceProblem:
         line = straight_track_line(used.position_m, used.velocity_mps)
         if line is None:
             return self.emitter_m[None, :]
+        if self.dimension == 3:
+            return np.empty((0, 3))
         return np.vstack([self.emitter_m, mirror_across_line(self.emitter_m, *line)])
 
 
@@ -250,6 +284,12 @@ def _climb_scenario(n_frames: int = 2) -> Scenario:
     )
 
 
+def _height_unknown(scenario: Scenario, name: str, height_m: float | None = None) -> Scenario:
+    """``scenario`` renamed, its emitter's height (``height_m``, or its own) declared unknown."""
+    height = scenario.emitter_height_m if height_m is None else height_m
+    return scenario.replace(name=name, unknowns=(HEIGHT_UNKNOWN,), emitter_height_m=height)
+
+
 FIXED_PROBLEMS: dict[str, Callable[[], ReferenceProblem]] = {
     "paper-1m": lambda: ReferenceProblem(
         name="paper-1m",
@@ -283,6 +323,28 @@ FIXED_PROBLEMS: dict[str, Callable[[], ReferenceProblem]] = {
             "the emitter and its mirror image across the track through (0, 0) along "
             "(0.6, 0.8): 2 (s·d) d − s = (93.6, −35.2)"
         ),
+    ),
+    "climb-height": lambda: ReferenceProblem(
+        name="climb-height",
+        scenario=_height_unknown(_climb_scenario(2), "climb-height"),
+        optima_m=[[-60.0, 80.0, 25.0]],
+        source="the emitter, 25 m high, its height unknown; the change of altitude and the "
+        "second heading leave one minimum",
+    ),
+    "turn-height": lambda: ReferenceProblem(
+        name="turn-height",
+        scenario=_height_unknown(get_scenario("turn"), "turn-height", TURN_HEIGHT_M),
+        optima_m=[[35.0, 15.0, TURN_HEIGHT_M]],
+        source=(
+            "the emitter 20 m high under the level turn at 50 m, its height unknown; its "
+            "reflection (35, 15, 80) m fits equally but is above the UAV (MATH §7)"
+        ),
+    ),
+    "climb-straight-height": lambda: ReferenceProblem(
+        name="climb-straight-height",
+        scenario=_height_unknown(_climb_scenario(1), "climb-straight-height"),
+        optima_m=np.empty((0, 3)),
+        source="one straight track with the height unknown: a circle about it (MATH §7)",
     ),
 }
 
@@ -394,7 +456,7 @@ def reference_problem(name: str, *, seed: int | None = None) -> ReferenceProblem
     if name in RANDOM_PROBLEMS:
         chosen = check_seed() if seed is None else seed
         return random_problem(chosen, straight=name == "random-straight")
-    known = ", ".join(REFERENCE_PROBLEMS + RANDOM_PROBLEMS)
+    known = ", ".join(REFERENCE_PROBLEMS + RANDOM_PROBLEMS + HEIGHT_PROBLEMS)
     raise ValueError(f"problem: unknown reference problem {name!r}; known: {known}")
 
 

@@ -38,6 +38,10 @@ from estimators.checks.exactness import (
     check_mirror_pair_reproduces_data,
     check_not_ambiguous_with_two_headings,
 )
+from estimators.checks.height import (
+    check_exact_with_the_height_unknown,
+    check_straight_track_cannot_fix_the_height,
+)
 from estimators.checks.invariance import (
     check_equivariant_under_rigid_motions,
     check_unit_invariant,
@@ -50,6 +54,7 @@ from estimators.checks.noisy import (
     check_noisy_error_near_crlb,
 )
 from estimators.checks.results import constructor_parameters, is_sequential, same_value
+from scenarios.nuisance import HEIGHT_UNKNOWN
 
 Check = Callable[[Any], None]
 
@@ -70,6 +75,8 @@ CHECKS: tuple[Check, ...] = (
     check_exact_on_random_geometry,
     check_mirror_pair_reproduces_data,
     check_not_ambiguous_with_two_headings,
+    check_exact_with_the_height_unknown,
+    check_straight_track_cannot_fix_the_height,
     check_equivariant_under_rigid_motions,
     check_unit_invariant,
     check_unused_modalities_ignored,
@@ -94,13 +101,17 @@ _BATCH_CHECKS = frozenset({"check_batch_matches_single"})
 _SEQUENTIAL_CHECKS = frozenset(
     {"check_streaming_matches_estimate", "check_sequential_update_is_pure"}
 )
+_HEIGHT_CHECKS = frozenset(
+    {"check_exact_with_the_height_unknown", "check_straight_track_cannot_fix_the_height"}
+)
 
 
 def estimator_checks(estimator: Any) -> Iterator[Check]:
     """The checks that apply to ``estimator``: the batch and streaming ones only when it has
     those methods, the unit check only when it claims ``unit_invariant``, the two-headings
-    check only when it declares ``frames="all"`` (a broken ``capabilities()`` runs them all
-    but the unit check, and ``check_capabilities_declared`` reports it)."""
+    check only when it declares ``frames="all"``, the height checks only when its
+    ``Capabilities.unknowns`` contains ``"emitter_height_m"`` (a broken ``capabilities()`` runs
+    them all but the unit and height checks, and ``check_capabilities_declared`` reports it)."""
     if isinstance(estimator, type):
         raise TypeError(
             f"estimator: got the class {estimator.__name__}; pass an instance, e.g. "
@@ -118,6 +129,10 @@ def estimator_checks(estimator: Any) -> Iterator[Check]:
         if check.__name__ in _SEQUENTIAL_CHECKS and not sequential:
             continue
         if check is check_unit_invariant and not (capabilities and capabilities.unit_invariant):
+            continue
+        if check.__name__ in _HEIGHT_CHECKS and not (
+            capabilities and HEIGHT_UNKNOWN in capabilities.unknowns
+        ):
             continue
         if (
             check is check_not_ambiguous_with_two_headings

@@ -8,7 +8,9 @@ trial at once in :mod:`~estimators.closed_form.gtrs_batch`; :func:`solve_gtrs` i
 one for a given system, :func:`cls_rows` one trial's rows.
 With an unknown emission time (§15) the pseudo-range form,
 :mod:`~estimators.closed_form.pseudorange_cls`, and its indefinite GTRS,
-:mod:`~estimators.closed_form.gtrs_indefinite`, are likewise vectorised over trials.
+:mod:`~estimators.closed_form.gtrs_indefinite`, are likewise vectorised over trials, and so is
+the second stage of its two-stage form (``offset_method="two-stage"``),
+:mod:`~estimators.closed_form.pseudorange_two_stage`.
 The reference path is the batch: ``Cls.estimate`` is the batch of one trial.
 
 With the emitter's height among the data's unknowns, ``cls`` solves the same GTRS in one more
@@ -22,6 +24,7 @@ from estimators.closed_form.constrained_ls import ConstrainedLS
 from estimators.closed_form.gtrs import solve_gtrs
 from estimators.closed_form.gtrs_indefinite import solve_gtrs_indefinite_batch
 from estimators.closed_form.pseudorange_cls import solve_pseudorange_batch, solve_pseudorange_cls
+from estimators.closed_form.pseudorange_two_stage import linearised_correction
 
 __all__ = [
     "Cls",
@@ -30,6 +33,7 @@ __all__ = [
     "ConstrainedLS",
     "LocalFrame",
     "cls_rows",
+    "linearised_correction",
     "solve_gtrs",
     "solve_gtrs_indefinite_batch",
     "solve_pseudorange_batch",

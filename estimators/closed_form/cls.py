@@ -69,6 +69,7 @@ from estimators.closed_form.cls_rows import (
 from estimators.closed_form.constrained_ls import ConstrainedLS
 from estimators.closed_form.pseudorange_cls import (
     OffsetMethod,
+    check_offset_method,
     estimate_pseudorange_columns,
     solve_pseudorange_cls,
 )
@@ -343,11 +344,13 @@ class Cls(_Batches):
         Use every frame so far, or only the last (as the paper does).
     side_prior_m : (x, y) or None
         A rough emitter position; picks the nearer mirror candidate (MATH §7).
-    offset_method : {"relaxed", "profile"}
+    offset_method : {"relaxed", "profile", "two-stage"}
         With both the carrier offset and the emission time unknown (MATH §15): ``relaxed`` is
         the closed form (``w = ρ_j δ`` relaxed and projected out), ``profile`` minimises the
         exact cost over δ by a scalar search, one GTRS per step: no longer closed form, but
-        without the relaxation's price.
+        without the relaxation's price; ``two-stage`` corrects the relaxed answer by a second
+        closed-form stage, the measurement model linearised about it: closed form, without
+        the price.
 
     An unknown carrier offset is projected out of the rows; an unknown emission time turns the
     ranges into pseudo-ranges, whose differences give the indefinite GTRS of MATH §15
@@ -365,10 +368,7 @@ class Cls(_Batches):
     def __post_init__(self) -> None:
         if self.weighting not in ("optimal", "none"):
             raise ValueError(f"weighting: expected 'optimal' or 'none', got {self.weighting!r}")
-        if self.offset_method not in ("relaxed", "profile"):
-            raise ValueError(
-                f"offset_method: expected 'relaxed' or 'profile', got {self.offset_method!r}"
-            )
+        check_offset_method(self.offset_method)
         _check_options(self.frames, self.side_prior_m)
 
     def _rows(self) -> Rows:

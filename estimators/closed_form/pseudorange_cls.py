@@ -40,6 +40,10 @@ their maximum-likelihood values given ``ŝ``. On one straight frame the rows ann
 ``offset_method="profile"`` undoes the relaxation: with δ given, ``w = ρ_jδ`` makes the rows
 the b-only rows of ``f_k − δ``, so the exact GLS cost is a GTRS per δ, minimised over δ by a
 scalar search (:func:`profile_offset`). Not a closed form any more, but efficient.
+
+``offset_method="two-stage"`` keeps the closed form and re-imposes what the relaxation freed in
+a second stage: the measurement model linearised about the relaxed estimate, one weighted least
+squares in the correction, δ and β (:mod:`estimators.closed_form.pseudorange_two_stage`).
 """
 
 from __future__ import annotations
@@ -61,6 +65,7 @@ from estimators.closed_form.gtrs_indefinite import (
     solve_gtrs_indefinite_batch,
     stationary_points,
 )
+from estimators.closed_form.pseudorange_two_stage import linearised_correction
 from estimators.mirror_rule import finalize_columns
 from scenarios import measurement_model as model
 from scenarios.fisher import gram_information
@@ -71,7 +76,9 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 Reference = Literal["centre", "first"] | int
-OffsetMethod = Literal["relaxed", "profile"]
+OffsetMethod = Literal["relaxed", "profile", "two-stage"]
+OFFSET_METHODS: tuple[OffsetMethod, ...] = ("relaxed", "profile", "two-stage")
+"""The values of ``offset_method`` (module text, MATH §15)."""
 
 HYPERBOLOID = np.array([1.0, 1.0, -1.0])
 """The diagonal of D for ``θ = (x', y', ρ_j)``."""
@@ -157,6 +164,12 @@ class PseudorangeBatch:
     profiled, profile_evaluations : (n,), (n,)
         With ``offset_method="profile"``: the trials whose δ is the profile's (the others keep
         the relaxed estimate) and the slope evaluations of each search.
+    corrected : (n,)
+        With ``offset_method="two-stage"``: the trials whose every returned point is the second
+        stage's (:mod:`~estimators.closed_form.pseudorange_two_stage`; a step that did not lower
+        the cost leaves the relaxed point). ``points``, the candidates and their nuisance
+        estimates are then the second stage's, ``costs`` its profiled cost; ``A``, ``b`` and
+        ``gtrs`` stay the relaxed stage's.
     """
 
     reference_sample: int
@@ -178,6 +191,7 @@ class PseudorangeBatch:
     reference_range_m: FloatArray
     profiled: BoolArray
     profile_evaluations: IntArray
+    corrected: BoolArray
 
     @property
     def on_physical_sheet(self) -> BoolArray:
@@ -356,6 +370,14 @@ def _moments_at(
     return ranges[0], None if f is None else doppler[0]
 
 
+def check_offset_method(offset_method: object) -> None:
+    """One line naming the field and its values when ``offset_method`` is none of them."""
+    if offset_method not in OFFSET_METHODS:
+        *first, last = (repr(method) for method in OFFSET_METHODS)
+        expected = f"{', '.join(first)} or {last}"
+        raise ValueError(f"offset_method: expected {expected}, got {offset_method!r}")
+
+
 def _check_options(data: MeasurementSet, carrier_offset_unknown: bool, stages: int) -> None:
     if data.toa_s is None:
         raise ValueError("toa_s: the pseudo-range closed form needs ToA measurements (MATH §15)")
@@ -393,10 +415,12 @@ def solve_pseudorange_batch(
     whose global minimisers all lie on the wrong sheet gets the lowest-cost stationary point on
     the physical one, and a trial without a minimiser stops at the stage it reached. With δ
     unknown and ``offset_method="profile"`` the last stage's rows then go to
-    :func:`profile_offset` (every trial at once), from the relaxed (δ, w).
+    :func:`profile_offset` (every trial at once), from the relaxed (δ, w); with
+    ``offset_method="two-stage"`` every returned point goes to the second stage,
+    :func:`~estimators.closed_form.pseudorange_two_stage.linearised_correction` (every trial
+    and candidate at once), whose profiled cost becomes the candidate's cost.
     """
-    if offset_method not in ("relaxed", "profile"):
-        raise ValueError(f"offset_method: expected 'relaxed' or 'profile', got {offset_method!r}")
+    check_offset_method(offset_method)
     if int(stages) != stages or stages < 1:
         raise ValueError(f"stages: must be a whole number >= 1, got {stages!r}")
     # C order: a trial's rows then reduce in the same order in a batch of any size
@@ -491,6 +515,17 @@ def solve_pseudorange_batch(
         residual = points @ np.swapaxes(last["A"], -1, -2) - last["b"][:, None, :]
         costs = np.where(valid, np.sum(residual**2, axis=-1), np.nan)
         candidates = points[..., :2] * frame.scale_m + frame.origin_m
+        corrected = np.zeros(n, dtype=bool)
+        if offset_unknown and offset_method == "two-stage" and trials.size:
+            second = linearised_correction(
+                geometry, ranges[trials, None], doppler[trials, None], candidates[trials]
+            )
+            candidates[trials] = second.emitter_m
+            costs[trials] = second.cost
+            local = (second.emitter_m - frame.origin_m) / frame.scale_m
+            points[trials, :, :2] = local
+            points[trials, :, 2] = np.sqrt(np.sum(local**2, axis=-1) + rows.h_ref**2)
+            corrected[trials] = np.all(second.accepted | ~valid[trials], axis=1)
         emission, offset = _nuisance_estimates(
             geometry, ranges, doppler, candidates, offset_unknown
         )
@@ -516,6 +551,7 @@ def solve_pseudorange_batch(
         reference_range_m=points[..., 2] * frame.scale_m,
         profiled=profiled,
         profile_evaluations=evaluations,
+        corrected=corrected,
     )
 
 
@@ -544,11 +580,12 @@ def solve_pseudorange_cls(
         Weighting stages (1: moments at the frame scale; 2+: at the previous estimate).
     reference : "centre", "first" or int
         The reference sample j.
-    offset_method : "relaxed" or "profile"
+    offset_method : "relaxed", "profile" or "two-stage"
         With δ unknown: ``"relaxed"`` is the closed form, (δ, w) free and projected out;
         ``"profile"`` then restores ``w = ρ_jδ`` and minimises the exact GLS cost over δ
         (:func:`profile_offset`, a scalar root search, one GTRS per step), with the weights
-        of the last relaxed stage.
+        of the last relaxed stage; ``"two-stage"`` corrects the relaxed candidates by the
+        second stage of :mod:`~estimators.closed_form.pseudorange_two_stage` (closed form).
 
     If the global minimiser lies on the wrong sheet (``ρ_j < 0``, possible only at high
     noise) the lowest-cost stationary point on the physical sheet is returned instead and
@@ -597,7 +634,9 @@ def solve_pseudorange_cls(
     }
     if offset_unknown and offset_method == "profile" and not profiled:
         diagnostics["offset_method"] = "relaxed (profile failed)"
-    if offset_unknown and len(points) and not profiled:
+    if offset_unknown and offset_method == "two-stage":
+        diagnostics["second_stage_accepted"] = bool(batch.corrected[0])
+    elif offset_unknown and len(points) and not profiled:
         relaxed = np.linalg.lstsq(N, b_full - A_full @ points[0], rcond=None)[0]
         diagnostics["relaxed_carrier_offset_hz"] = float(relaxed[0])
         diagnostics["relaxation_gap_hz"] = float(relaxed[1] / points[0, 2] - relaxed[0])

@@ -1,12 +1,15 @@
-r"""MINPACK's Levenberg-Marquardt for many two-unknown least-squares problems at once.
+r"""MINPACK's Levenberg-Marquardt for many small least-squares problems at once.
 
 ``lmder`` of MINPACK (More 1978; ``x_scale="jac"``, ``factor=100``, the method
 ``scipy.optimize.least_squares(method="lm")`` calls): QR with column pivoting of the Jacobian
 (``qrfac``), the Levenberg-Marquardt parameter by Newton's method on the trust-region equation
 (``lmpar``, at most 10 iterations), the damped system by Givens rotations (``qrsolv``), and the
 step bound, acceptance and the ``ftol``/``xtol``/``gtol`` tests, with the problems along the
-first axis of every array: two unknowns make every matrix 2 × 2 and every loop of ``lmpar`` and
-``qrsolv`` a fixed sequence of elementwise operations. Residuals are kept rows first,
+first axis of every array: with ``n`` unknowns (2 or 3: the emitter's ``(x, y)``, or
+``(x, y, z)`` with its height unknown) every matrix is ``n × n`` and every loop of ``qrfac``,
+``lmpar`` and ``qrsolv`` runs over the ``n`` unknowns as MINPACK's does, each step an
+elementwise operation over the problems (a problem's own column order, its pivoting, is an
+index per problem). Residuals are kept rows first,
 ``(m, P)``. This is the reference solver of ``ml`` (one trial is a batch of one); scipy's
 ``least_squares`` is its cross-check in the tests, at a tolerance. Norms are plain
 ``√Σ v²`` (MINPACK's ``enorm`` scales only components below ``3.8e-20`` or above
@@ -16,7 +19,7 @@ non-finite stops there (``info`` 0).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,9 +30,9 @@ IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
 Residuals = Callable[[IntArray, FloatArray], FloatArray]
-"""``(problems (k,), points (k, 2)) -> residuals (m, k)``."""
-Jacobian = Callable[[IntArray, FloatArray], tuple[FloatArray, FloatArray]]
-"""``(problems (k,), points (k, 2)) -> (∂e/∂x₁, ∂e/∂x₂)``, each ``(m, k)``."""
+"""``(problems (k,), points (k, n)) -> residuals (m, k)``."""
+Jacobian = Callable[[IntArray, FloatArray], Sequence[FloatArray]]
+"""``(problems (k,), points (k, n)) -> (∂e/∂x₁, ..., ∂e/∂xₙ)``, each ``(m, k)``."""
 
 EPSMCH = 2.220446049250313e-16
 DWARF = 2.2250738585072014e-308
@@ -78,9 +81,13 @@ def enorm_rows(values: FloatArray) -> tuple[FloatArray, BoolArray]:
     return norm, ~np.isfinite(norm)
 
 
-def enorm2(a: FloatArray, b: FloatArray) -> tuple[FloatArray, BoolArray]:
-    """The norm of the 2-vectors ``(a, b)``, and where it is not finite."""
-    norm = np.sqrt(a * a + b * b)
+def enorm_list(components: Sequence[FloatArray]) -> tuple[FloatArray, BoolArray]:
+    """The norm of the vectors of ``components`` (one array per component, summed in
+    order), and where it is not finite."""
+    total = components[0] * components[0]
+    for value in components[1:]:
+        total = total + value * value
+    norm = np.sqrt(total)
     return norm, ~np.isfinite(norm)
 
 
@@ -95,7 +102,7 @@ class LmderBatch:
 
     Attributes
     ----------
-    x : (P, 2)
+    x : (P, n)
         The returned point.
     fvec : (m, P)
         The residuals there (``least_squares``'s ``fun``).
@@ -115,50 +122,98 @@ class LmderBatch:
     odd: BoolArray
 
 
-def _pick(flag: BoolArray, if_true: FloatArray, if_false: FloatArray) -> FloatArray:
-    return np.where(flag, if_true, if_false)
+def _permuted(order: IntArray, values: Sequence[FloatArray]) -> FloatArray:
+    """``values[order[i]][i]`` for each problem ``i``: the entry of each problem's own column
+    ``order`` (a selection, exact)."""
+    if len(values) == 2:
+        return np.where(order == 1, values[1], values[0])
+    return np.choose(order, values)
 
 
 class _Factor:
-    """``qrfac`` and the ``Qᵀf`` of ``lmder`` for some problems: the pivoted ``R``, ``Qᵀf``.
+    """``qrfac`` with column pivoting and the ``Qᵀf`` of ``lmder`` for some problems.
 
-    Columns ``c0, c1`` of the Jacobian and the residuals ``fvec`` are ``(m, k)``."""
+    ``columns`` (``n`` arrays ``(m, k)``) are the Jacobian's, ``fvec`` ``(m, k)`` the residuals.
+    ``r`` ``(n, n, k)`` holds the upper triangle of the pivoted ``R`` (row ``i``, column
+    ``j``), ``perm`` ``(n, k)`` the original column of each pivoted one (MINPACK's ``ipvt``),
+    ``q`` ``(n, k)`` the first ``n`` entries of ``Qᵀf``, ``acnorm`` the columns' norms."""
 
-    def __init__(self, c0: FloatArray, c1: FloatArray, fvec: FloatArray) -> None:
-        norm0, odd0 = enorm_rows(c0)
-        norm1, odd1 = enorm_rows(c1)
-        self.acnorm = (norm0, norm1)
-        pivot = norm1 > norm0
-        self.pivot = pivot
-        a0 = _pick(pivot, c1, c0)
-        a1 = _pick(pivot, c0, c1)
-        ajnorm = _pick(pivot, norm1, norm0)
-        self.odd = odd0 | odd1
-        safe = np.where(ajnorm == 0.0, 1.0, ajnorm)
-        safe = np.where(a0[0] < 0.0, -safe, safe)
-        a0 = a0 / safe
-        a0[0] = a0[0] + 1.0
-        temp = column_dot(a0, a1) / a0[0]
-        a1 = a1 - temp * a0
-        self.r00 = -safe
-        self.r01 = a1[0].copy()
-        tail = a1[1:]
-        ajnorm1, odd2 = enorm_rows(tail)
-        self.odd |= odd2
-        full = ajnorm1 != 0.0
-        signed = np.where(tail[0] < 0.0, -ajnorm1, ajnorm1)
-        signed = np.where(full, signed, 1.0)
-        tail = tail / signed
-        tail[0] = tail[0] + 1.0
-        self.r11 = np.where(full, -signed, -ajnorm1)
-        # Qᵀf with the Householder vectors, as lmder forms qtf
-        temp = -column_dot(a0, fvec) / a0[0]
-        work = fvec + a0 * temp
-        self.q0 = work[0].copy()
-        rest = work[1:]
-        temp = -column_dot(tail, rest) / tail[0]
-        rest = rest + tail * temp
-        self.q1 = np.where(full, rest[0], work[1])
+    def __init__(self, columns: Sequence[FloatArray], fvec: FloatArray) -> None:
+        n = len(columns)
+        k = fvec.shape[1]
+        found = [enorm_rows(column) for column in columns]
+        self.acnorm = [norm for norm, _ in found]
+        self.odd = np.logical_or.reduce([odd for _, odd in found])
+        a = list(columns)
+        rdiag = list(self.acnorm)
+        wa = list(self.acnorm)
+        perm = [np.full(k, j, dtype=np.int64) for j in range(n)]
+        self.r = np.zeros((n, n, k))
+        self.q = np.zeros((n, k))
+        work = fvec
+        for j in range(n):
+            # the column of largest remaining norm to position j (the first on a tie)
+            best = rdiag[j]
+            if j + 1 < n:
+                kmax = np.full(k, j, dtype=np.int64)
+                for col in range(j + 1, n):
+                    bigger = rdiag[col] > best
+                    kmax = np.where(bigger, col, kmax)
+                    best = np.where(bigger, rdiag[col], best)
+                for col in range(j + 1, n):
+                    swap = kmax == col
+                    if not swap.any():
+                        continue
+                    a[j], a[col] = np.where(swap, a[col], a[j]), np.where(swap, a[j], a[col])
+                    for i in range(j):  # the rows of R above: MINPACK swaps whole columns
+                        self.r[i, j], self.r[i, col] = (
+                            np.where(swap, self.r[i, col], self.r[i, j]),
+                            np.where(swap, self.r[i, j], self.r[i, col]),
+                        )
+                    if j + 2 < n:  # the norms of the columns still to be pivoted
+                        rdiag[col] = np.where(swap, rdiag[j], rdiag[col])
+                        wa[col] = np.where(swap, wa[j], wa[col])
+                    perm[j], perm[col] = (
+                        np.where(swap, perm[col], perm[j]),
+                        np.where(swap, perm[j], perm[col]),
+                    )
+            # the Householder vector of column j, rows j..m
+            if j == 0:
+                ajnorm = best  # the chosen column's whole norm, computed above
+            else:
+                ajnorm, odd = enorm_rows(a[j])
+                self.odd |= odd
+            full = ajnorm != 0.0
+            signed = np.where(a[j][0] < 0.0, -ajnorm, ajnorm)
+            signed = np.where(full, signed, 1.0)
+            v = a[j] / signed
+            v[0] = v[0] + 1.0
+            self.r[j, j] = np.where(full, -signed, -ajnorm)
+            for col in range(j + 1, n):
+                temp = column_dot(v, a[col]) / v[0]
+                updated = a[col] - temp * v
+                if not full.all():
+                    updated = np.where(full, updated, a[col])
+                self.r[j, col] = updated[0]
+                if j + 2 < n and col > j:  # the norms that choose the next pivots
+                    known = rdiag[col] != 0.0
+                    ratio = updated[0] / rdiag[col]
+                    down = rdiag[col] * np.sqrt(np.fmax(0.0, 1.0 - ratio * ratio))
+                    again = known & (0.05 * (down / wa[col]) ** 2 <= EPSMCH)
+                    if again.any():
+                        fresh, odd = enorm_rows(updated[1:])
+                        self.odd |= odd & again
+                        down = np.where(again, fresh, down)
+                        wa[col] = np.where(again, fresh, wa[col])
+                    rdiag[col] = np.where(known, down, rdiag[col])
+                a[col] = updated[1:]
+            # Qᵀf with the Householder vectors, as lmder forms qtf
+            temp = -column_dot(v, work) / v[0]
+            moved = work + v * temp
+            self.q[j] = np.where(full, moved[0], work[0])
+            if j + 1 < n:
+                work = (moved if full.all() else np.where(full, moved, work))[1:]
+        self.perm = np.array(perm)
 
 
 class _LatestResiduals:
@@ -200,126 +255,149 @@ def _givens(rkk: FloatArray, sk: FloatArray) -> tuple[FloatArray, FloatArray]:
     tan = sk / rkk
     cos_b = 0.5 / np.sqrt(0.25 + 0.25 * (tan * tan))
     sin_b = cos_b * tan
-    return _pick(use_cot, cos_a, cos_b), _pick(use_cot, sin_a, sin_b)
+    return np.where(use_cot, cos_a, cos_b), np.where(use_cot, sin_a, sin_b)
 
 
 def _qrsolv(
-    r00: FloatArray,
-    r01: FloatArray,
-    r11: FloatArray,
-    pivot: BoolArray,
-    d0: FloatArray,
-    d1: FloatArray,
-    q0: FloatArray,
-    q1: FloatArray,
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, BoolArray]:
-    """``qrsolv`` for n = 2: ``x`` (original order), ``sdiag`` and the rotated ``r₁₀``."""
-    dp0 = _pick(pivot, d1, d0)
-    dp1 = _pick(pivot, d0, d1)
-    wa0, wa1 = q0, q1
-    r10 = r01
-    # column 0: the diagonal entry dp0 against r00, then what it leaves against r11
-    s0, s1, qtbpj = dp0, np.zeros_like(dp0), np.zeros_like(dp0)
-    cs, sn = _givens(r00, s0)
-    rot00 = r00 * cs
-    rot00 = rot00 + sn * s0
-    temp = cs * wa0 + sn * qtbpj
-    qtbpj = -sn * wa0 + cs * qtbpj
-    wa0 = temp
-    temp = cs * r10 + sn * s1
-    s1 = -sn * r10 + cs * s1
-    r10 = temp
-    more = s1 != 0.0
-    cs, sn = _givens(r11, s1)
-    rot11 = r11 * cs
-    rot11 = rot11 + sn * s1
-    temp = cs * wa1 + sn * qtbpj
-    rot11 = _pick(more, rot11, r11)
-    wa1 = _pick(more, temp, wa1)
-    sdiag0 = rot00
-    # column 1: the diagonal entry dp1 against the rotated r11
-    zero = np.zeros_like(dp1)
-    cs, sn = _givens(rot11, dp1)
-    last = rot11 * cs
-    last = last + sn * dp1
-    wa1 = cs * wa1 + sn * zero
-    sdiag1 = last
-    odd = ~np.isfinite(sdiag0) | ~np.isfinite(sdiag1)
-    wa1 = (wa1 - 0.0) / sdiag1
-    wa0 = (wa0 - (0.0 + r10 * wa1)) / sdiag0
-    return _pick(pivot, wa1, wa0), _pick(pivot, wa0, wa1), sdiag0, sdiag1, r10, odd
+    r: FloatArray, perm: IntArray, diag: Sequence[FloatArray], qtb: FloatArray
+) -> tuple[list[FloatArray], list[FloatArray], FloatArray, BoolArray]:
+    """``qrsolv``: the solution ``x`` of ``min ‖(R; D P) x − (Qᵀb; 0)‖`` (original order),
+    ``sdiag`` and the rotated strict lower triangle ``s`` (``s[i, j]``, ``i > j``), and where
+    it was odd. ``r`` ``(n, n, k)`` upper, ``diag`` the ``n`` scalings in original order."""
+    n = len(qtb)
+    s = r.copy()  # s[i, j], i > j: the rotated lower triangle; s[j, j]: the rotated diagonal
+    wa = [qtb[j] for j in range(n)]
+    sdiag: list[FloatArray] = [np.zeros_like(qtb[0])] * n
+    for j in range(n):
+        for i in range(j + 1, n):
+            s[i, j] = r[j, i]
+    for j in range(n):
+        row = [np.zeros_like(qtb[0]) for _ in range(n)]
+        row[j] = _permuted(perm[j], diag)
+        qtbpj = np.zeros_like(qtb[0])
+        for kk in range(j, n):
+            more = row[kk] != 0.0
+            cs, sn = _givens(s[kk, kk], row[kk])
+            rotated = s[kk, kk] * cs
+            rotated = rotated + sn * row[kk]
+            temp = cs * wa[kk] + sn * qtbpj
+            qtbpj = np.where(more, -sn * wa[kk] + cs * qtbpj, qtbpj)
+            s[kk, kk] = np.where(more, rotated, s[kk, kk])
+            wa[kk] = np.where(more, temp, wa[kk])
+            for i in range(kk + 1, n):
+                temp = cs * s[i, kk] + sn * row[i]
+                row[i] = np.where(more, -sn * s[i, kk] + cs * row[i], row[i])
+                s[i, kk] = np.where(more, temp, s[i, kk])
+        sdiag[j] = s[j, j].copy()
+    odd = np.logical_or.reduce([~np.isfinite(value) for value in sdiag])
+    # back substitution; a zero sdiag zeroes its entry and the ones after it (MINPACK's nsing)
+    singular = np.zeros_like(odd)
+    for j in range(n):
+        singular = singular | (sdiag[j] == 0.0)
+        wa[j] = np.where(singular, 0.0, wa[j])
+    for j in reversed(range(n)):
+        total = np.zeros_like(wa[j])
+        for i in range(j + 1, n):
+            total = total + s[i, j] * wa[i]
+        solved = (wa[j] - total) / sdiag[j]
+        wa[j] = np.where(sdiag[j] == 0.0, wa[j], solved) if singular.any() else solved
+    x = _unpermuted(perm, wa)
+    return x, sdiag, s, odd
+
+
+def _unpermuted(perm: IntArray, values: Sequence[FloatArray]) -> list[FloatArray]:
+    """``x[perm[j]] = values[j]``: pivoted entries back in the original order."""
+    n = len(values)
+    if n == 2:
+        return [
+            np.where(perm[0] == 1, values[1], values[0]),
+            np.where(perm[0] == 1, values[0], values[1]),
+        ]
+    inverse = np.argsort(perm, axis=0)
+    return [np.choose(inverse[col], values) for col in range(n)]
 
 
 def _lmpar(
-    factors: dict[str, NDArray],
+    r: FloatArray,
+    perm: IntArray,
+    q: FloatArray,
     diag: FloatArray,
     delta: FloatArray,
     par: FloatArray,
-) -> tuple[FloatArray, FloatArray, FloatArray, BoolArray]:
-    """``lmpar`` from the pivoted ``R`` and ``Qᵀf`` in ``factors``: the solution ``x`` (original
-    order; the step is ``−x``), the parameter, and where it was odd."""
-    r00, r01, r11 = factors["r00"], factors["r01"], factors["r11"]
-    q0, q1, pivot = factors["q0"], factors["q1"], factors["pivot"]
-    d0, d1 = diag[:, 0], diag[:, 1]
-    dp0 = _pick(pivot, d1, d0)
-    dp1 = _pick(pivot, d0, d1)
-    full = r11 != 0.0
-    w1 = np.where(full, q1 / r11, 0.0)
-    w0 = np.where(full, (q0 - r01 * w1) / r00, q0 / r00)
-    x0 = _pick(pivot, w1, w0)
-    x1 = _pick(pivot, w0, w1)
-    e0, e1 = d0 * x0, d1 * x1
-    dxnorm, odd = enorm2(e0, e1)
+) -> tuple[list[FloatArray], FloatArray, BoolArray]:
+    """``lmpar`` from the pivoted ``R`` (``(n, n, k)``), ``perm`` and ``Qᵀf`` (``q``,
+    ``(n, k)``): the solution ``x`` (original order; the step is ``−x``), the parameter, and
+    where it was odd. ``diag`` is ``(k, n)``."""
+    n = len(q)
+    d = [diag[:, col] for col in range(n)]
+    dp = [_permuted(perm[j], d) for j in range(n)]
+    # the Gauss-Newton direction; a zero diagonal of R zeroes its entry and the later ones
+    rank = np.ones(len(delta), dtype=bool)
+    ranks = []
+    for j in range(n):
+        rank = rank & (r[j, j] != 0.0)
+        ranks.append(rank)
+    full = ranks[-1]
+    w = [np.where(ranks[j], q[j], 0.0) for j in range(n)]
+    for j in reversed(range(n)):
+        solved = w[j] / r[j, j]
+        w[j] = np.where(ranks[j], solved, w[j])
+        for i in range(j):
+            w[i] = np.where(ranks[j], w[i] - r[i, j] * w[j], w[i])
+    x = _unpermuted(perm, w)
+    e = [d[col] * x[col] for col in range(n)]
+    dxnorm, odd = enorm_list(e)
     fp = dxnorm - delta
     newton = ~(fp <= 0.1 * delta)
     par = np.where(newton, par, 0.0)
     idx = np.flatnonzero(newton)
     if idx.size == 0:
-        return x0, x1, par, odd
+        return x, par, odd
     # lower bound parl (zero without full rank), upper bound paru
-    r00, r01, r11, q0, q1 = r00[idx], r01[idx], r11[idx], q0[idx], q1[idx]
-    pv, full_i = pivot[idx], full[idx]
-    dd0, dd1, dp0i, dp1i = d0[idx], d1[idx], dp0[idx], dp1[idx]
+    r_i, q_i, perm_i, full_i = r[..., idx], q[:, idx], perm[:, idx], full[idx]
+    d_i = [value[idx] for value in d]
+    dp_i = [value[idx] for value in dp]
     dx, fpi, dl = dxnorm[idx], fp[idx], delta[idx]
-    ep0 = _pick(pv, e1[idx], e0[idx])
-    ep1 = _pick(pv, e0[idx], e1[idx])
-    v0 = dp0i * (ep0 / dx)
-    v1 = dp1i * (ep1 / dx)
-    v0 = (v0 - 0.0) / r00
-    v1 = (v1 - (0.0 + r01 * v0)) / r11
-    temp, odd_t = enorm2(v0, v1)
+    e_i = [value[idx] for value in e]
+    v = [dp_i[j] * (_permuted(perm_i[j], e_i) / dx) for j in range(n)]
+    for j in range(n):
+        total = np.zeros_like(dx)
+        for i in range(j):
+            total = total + r_i[i, j] * v[i]
+        v[j] = (v[j] - total) / r_i[j, j]
+    temp, odd_t = enorm_list(v)
     parl = np.where(full_i, ((fpi / dl) / temp) / temp, 0.0)
-    g0 = (0.0 + r00 * q0) / dp0i
-    g1 = ((0.0 + r01 * q0) + r11 * q1) / dp1i
-    gnorm, odd_g = enorm2(g0, g1)
+    g = []
+    for j in range(n):
+        total = np.zeros_like(dx)
+        for i in range(j + 1):
+            total = total + r_i[i, j] * q_i[i]
+        g.append(total / dp_i[j])
+    gnorm, odd_g = enorm_list(g)
     paru = gnorm / dl
     paru = np.where(paru == 0.0, DWARF / np.fmin(dl, 0.1), paru)
     p = np.fmin(np.fmax(par[idx], parl), paru)
     p = np.where(p == 0.0, gnorm / dx, p)
     bad = (odd_t & full_i) | odd_g
-    out0, out1, outp = x0[idx].copy(), x1[idx].copy(), p.copy()
+    out = [value[idx].copy() for value in x]
+    outp = p.copy()
     # Newton's iteration on ‖D x(par)‖ = Δ, each problem until its own exit
     live = np.arange(idx.size)
     for iteration in range(1, LMPAR_ITERATIONS + 1):
         p_l = p[live]
         p_l = np.where(p_l == 0.0, np.fmax(DWARF, paru[live] * 0.001), p_l)
         root = np.sqrt(p_l)
-        a0, a1, s0, s1, r10, odd_q = _qrsolv(
-            r00[live],
-            r01[live],
-            r11[live],
-            pv[live],
-            root * dd0[live],
-            root * dd1[live],
-            q0[live],
-            q1[live],
+        a, sdiag, s, odd_q = _qrsolv(
+            r_i[..., live], perm_i[:, live], [root * value[live] for value in d_i], q_i[:, live]
         )
-        e0l, e1l = dd0[live] * a0, dd1[live] * a1
-        dxl, odd_d = enorm2(e0l, e1l)
+        el = [d_i[col][live] * a[col] for col in range(n)]
+        dxl, odd_d = enorm_list(el)
         bad[live] |= odd_q | odd_d
         old = fpi[live]
         fpl = dxl - dl[live]
-        out0[live], out1[live], outp[live] = a0, a1, p_l
+        for col in range(n):
+            out[col][live] = a[col]
+        outp[live] = p_l
         done = (
             (np.abs(fpl) <= 0.1 * dl[live])
             | ((parl[live] == 0.0) & (fpl <= old) & (old < 0.0))
@@ -330,15 +408,17 @@ def _lmpar(
         if not keep.any():
             break
         live, p_l, fpl = live[keep], p_l[keep], fpl[keep]
-        pv_l = pv[live]
-        e0l, e1l, dxl = e0l[keep], e1l[keep], dxl[keep]
-        s0, s1, r10 = s0[keep], s1[keep], r10[keep]
-        u0 = dp0i[live] * (_pick(pv_l, e1l, e0l) / dxl)
-        u1 = dp1i[live] * (_pick(pv_l, e0l, e1l) / dxl)
-        u0 = u0 / s0
-        u1 = u1 - r10 * u0
-        u1 = u1 / s1
-        temp, odd_u = enorm2(u0, u1)
+        perm_l = perm_i[:, live]
+        el = [value[keep] for value in el]
+        dxl = dxl[keep]
+        sdiag = [value[keep] for value in sdiag]
+        s = s[..., keep]
+        u = [dp_i[j][live] * (_permuted(perm_l[j], el) / dxl) for j in range(n)]
+        for j in range(n):
+            u[j] = u[j] / sdiag[j]
+            for i in range(j + 1, n):
+                u[i] = u[i] - s[i, j] * u[j]
+        temp, odd_u = enorm_list(u)
         parc = ((fpl / dl[live]) / temp) / temp
         bad[live] |= odd_u
         pl = parl[live]
@@ -346,9 +426,11 @@ def _lmpar(
         parl[live] = np.where(fpl > 0.0, np.fmax(pl, p_l), pl)
         paru[live] = np.where(fpl < 0.0, np.fmin(pu, p_l), pu)
         p[live] = np.fmax(parl[live], p_l + parc)
-    x0[idx], x1[idx], par[idx] = out0, out1, outp
+    for col in range(n):
+        x[col][idx] = out[col]
+    par[idx] = outp
     odd[idx] |= bad
-    return x0, x1, par, odd
+    return x, par, odd
 
 
 def lmder_batch(
@@ -381,8 +463,8 @@ def _lmder(
     max_nfev: int,
 ) -> LmderBatch:
     """:func:`lmder_batch`, under its ``np.errstate``."""
-    n = len(x0)
-    x = np.array(x0, dtype=float).reshape(n, 2)
+    n, d = np.shape(x0)
+    x = np.array(x0, dtype=float).reshape(n, d)
     everyone = np.arange(n)
     fvec = np.array(residuals(everyone, x))
     fnorm, odd = enorm_rows(fvec)
@@ -394,58 +476,53 @@ def _lmder(
     delta = np.zeros(n)
     xnorm = np.zeros(n)
     gnorm = np.zeros(n)
-    diag = np.zeros((n, 2))
+    diag = np.zeros((n, d))
     need_jacobian = np.ones(n, dtype=bool)
-    names = ("r00", "r01", "r11", "q0", "q1", "pivot")
-    stored = {name: np.zeros(n, dtype=bool if name == "pivot" else float) for name in names}
+    stored_r = np.zeros((d, d, n))
+    stored_q = np.zeros((d, n))
+    stored_perm = np.zeros((d, n), dtype=np.int64)
     active = ~odd
     while True:
         idx = np.flatnonzero(active & need_jacobian)
         if idx.size:
-            factor = _Factor(*jacobian(idx, x[idx]), latest.take(idx))
-            for name in names:
-                stored[name][idx] = getattr(factor, name)
-            acn0, acn1 = factor.acnorm
+            factor = _Factor(list(jacobian(idx, x[idx])), latest.take(idx))
+            stored_r[..., idx], stored_q[:, idx] = factor.r, factor.q
+            stored_perm[:, idx] = factor.perm
+            acnorm = factor.acnorm
             odd[idx] |= factor.odd
             init = idx[first[idx]]
             pos = np.searchsorted(idx, init)
-            d_init = np.column_stack(
-                [
-                    np.where(acn0[pos] == 0.0, 1.0, acn0[pos]),
-                    np.where(acn1[pos] == 0.0, 1.0, acn1[pos]),
-                ]
-            )
+            d_init = np.column_stack([np.where(a[pos] == 0.0, 1.0, a[pos]) for a in acnorm])
             diag[init] = d_init
-            xn, odd_x = enorm2(d_init[:, 0] * x[init, 0], d_init[:, 1] * x[init, 1])
+            xn, odd_x = enorm_list([d_init[:, col] * x[init, col] for col in range(d)])
             odd[init] |= odd_x
             xnorm[init] = xn
             dl = FACTOR * xn
             delta[init] = np.where(dl == 0.0, FACTOR, dl)
             fn = fnorm[idx]
             g = np.zeros(idx.size)
-            r00, r01, r11 = factor.r00, factor.r01, factor.r11
-            q0, q1, pivot = factor.q0, factor.q1, factor.pivot
-            l0 = _pick(pivot, acn1, acn0)
-            l1 = _pick(pivot, acn0, acn1)
-            s0 = 0.0 + r00 * (q0 / fn)
-            s1 = (0.0 + r01 * (q0 / fn)) + r11 * (q1 / fn)
-            g = np.where((fn != 0.0) & (l0 != 0.0), np.fmax(g, np.abs(s0 / l0)), g)
-            g = np.where((fn != 0.0) & (l1 != 0.0), np.fmax(g, np.abs(s1 / l1)), g)
+            r, q, perm = factor.r, factor.q, factor.perm
+            for j in range(d):
+                norm_j = _permuted(perm[j], acnorm)
+                total = np.zeros(idx.size)
+                for i in range(j + 1):
+                    total = total + r[i, j] * (q[i] / fn)
+                g = np.where((fn != 0.0) & (norm_j != 0.0), np.fmax(g, np.abs(total / norm_j)), g)
             gnorm[idx] = g
             info[idx] = np.where(g <= gtol, 4, info[idx])
-            diag[idx, 0] = np.fmax(diag[idx, 0], acn0)
-            diag[idx, 1] = np.fmax(diag[idx, 1], acn1)
+            for col in range(d):
+                diag[idx, col] = np.fmax(diag[idx, col], acnorm[col])
             need_jacobian[idx] = False
             active &= (info == 0) & ~odd
         idx = np.flatnonzero(active)
         if idx.size == 0:
             break
-        factors = {name: stored[name][idx] for name in names}
-        sx0, sx1, p, odd_p = _lmpar(factors, diag[idx], delta[idx], par[idx])
+        r, q, perm = stored_r[..., idx], stored_q[:, idx], stored_perm[:, idx]
+        sx, p, odd_p = _lmpar(r, perm, q, diag[idx], delta[idx], par[idx])
         odd[idx] |= odd_p
-        w0, w1 = -sx0, -sx1
-        xt = np.column_stack([x[idx, 0] + w0, x[idx, 1] + w1])
-        pnorm, odd_n = enorm2(diag[idx, 0] * w0, diag[idx, 1] * w1)
+        w = [-value for value in sx]
+        xt = np.column_stack([x[idx, col] + w[col] for col in range(d)])
+        pnorm, odd_n = enorm_list([diag[idx, col] * w[col] for col in range(d)])
         odd[idx] |= odd_n
         dl = np.where(first[idx], np.fmin(delta[idx], pnorm), delta[idx])
         ft = residuals(idx, xt)
@@ -455,12 +532,13 @@ def _lmder(
         fn = fnorm[idx]
         quotient = fnorm1 / fn
         actred = np.where(0.1 * fnorm1 < fn, 1.0 - quotient * quotient, -1.0)
-        pivot = factors["pivot"]
-        t0 = _pick(pivot, w1, w0)
-        t1 = _pick(pivot, w0, w1)
-        wa30 = (0.0 + factors["r00"] * t0) + factors["r01"] * t1
-        wa31 = 0.0 + factors["r11"] * t1
-        norm3, odd_3 = enorm2(wa30, wa31)
+        # R Pᵀ w, as lmder forms wa3
+        wa3 = [np.zeros(idx.size) for _ in range(d)]
+        for j in range(d):
+            t = _permuted(perm[j], w)
+            for i in range(j + 1):
+                wa3[i] = wa3[i] + r[i, j] * t
+        norm3, odd_3 = enorm_list(wa3)
         odd[idx] |= odd_3
         temp1 = norm3 / fn
         temp2 = (np.sqrt(p) * pnorm) / fn
@@ -480,7 +558,7 @@ def _lmder(
         moved = idx[accept]
         x[moved] = xt[accept]
         latest.accept(moved, ft.take(np.flatnonzero(accept), axis=1))
-        xn, odd_x = enorm2(diag[moved, 0] * x[moved, 0], diag[moved, 1] * x[moved, 1])
+        xn, odd_x = enorm_list([diag[moved, col] * x[moved, col] for col in range(d)])
         odd[moved] |= odd_x
         xnorm[moved] = xn
         fnorm[moved] = fnorm1[accept]

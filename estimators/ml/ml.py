@@ -1,15 +1,18 @@
-r"""The maximum-likelihood reference estimator (MATH §10, with unknowns §15).
+r"""The maximum-likelihood reference estimator (MATH §10, with unknowns §15, the height §8).
 
 :class:`MaximumLikelihood` minimises the whitened residuals ``‖e(s)‖²`` of the raw
 measurements by Levenberg-Marquardt from every closed-form candidate; the method, its starts,
 its convergence test and its minima are in :mod:`estimators.ml.ml_batch`, vectorised over
 trials: :meth:`MaximumLikelihood.estimate` is the batch of one trial. The covariance is the
 inverse Fisher information at the estimate, ``(JᵀJ)⁻¹`` with ``J`` the whitened Jacobian
-(MATH §8): the CRLB evaluated at ``ŝ``.
+(MATH §8): the CRLB evaluated at ``ŝ``. When the data declare the emitter's height unknown the
+search, the answer and the covariance are in ``(x_s, y_s, z_s)`` (position (3,), covariance
+3 × 3; MATH §8, §10).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import ClassVar, Literal
@@ -22,7 +25,7 @@ from estimators.batch import BatchEstimates, EstimatesOfColumns
 from estimators.goodness_of_fit import with_fit, with_fit_columns
 from estimators.ml.ml_batch import solve_batch
 from estimators.ml.ml_residuals import ResidualModel
-from scenarios.nuisance import NUISANCE_PARAMETERS
+from scenarios.nuisance import HEIGHT_UNKNOWN, NUISANCE_PARAMETERS
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -38,28 +41,37 @@ def whitened_residuals(
 
     Rows are ordered Doppler block, ToA block, then the RSS block when ``use_rss``; each block
     has one row per sample. Measured minus predicted, Doppler with the physical sign (MATH §1).
-    Vectorised: ``emitter_m`` of shape ``(..., 2)`` gives residuals of shape ``(..., n_rows)``.
+    Vectorised: ``emitter_m`` of shape ``(..., d)`` gives residuals of shape ``(..., n_rows)``;
+    ``d = 3`` is ``(x_s, y_s, z_s)``, the height a coordinate (MATH §8).
     """
     emitter = np.asarray(emitter_m, dtype=float)
     rss = data.rss_dbm if use_rss else None
-    blocks = ResidualModel.of(data).residuals(
-        emitter[..., 0, None], emitter[..., 1, None], data.doppler_hz, data.toa_s, rss
-    )
+    point = [emitter[..., axis, None] for axis in range(emitter.shape[-1])]
+    blocks = _model(data, emitter).residuals(point, data.doppler_hz, data.toa_s, rss)
     return np.concatenate(blocks, axis=-1)
 
 
 def whitened_residual_jacobian(
     data: MeasurementSet, emitter_m: ArrayLike, *, use_rss: bool = False
 ) -> FloatArray:
-    """``∂e/∂(x_s, y_s) = −[∇f_k/σ_f; ∇τ_k/σ_τ; ∇P_k/σ_P]`` (MATH §8, §10).
+    """``∂e/∂s = −[∇f_k/σ_f; ∇τ_k/σ_τ; ∇P_k/σ_P]`` (MATH §8, §10).
 
-    Shape ``(..., n_rows, 2)`` for ``emitter_m`` of shape ``(..., 2)``: minus the rows of
-    :func:`scenarios.fisher.whitened_jacobian`, so its Gram matrix ``JᵀJ`` is the Fisher
-    information of MATH §8 at ``emitter_m``.
+    Shape ``(..., n_rows, d)`` for ``emitter_m`` of shape ``(..., d)`` (``d = 3``: the height
+    a coordinate): minus the rows of :func:`scenarios.fisher.whitened_jacobian`, so its Gram
+    matrix ``JᵀJ`` is the Fisher information of MATH §8 at ``emitter_m``.
     """
     emitter = np.asarray(emitter_m, dtype=float)
-    columns = ResidualModel.of(data).jacobian(emitter[..., 0, None], emitter[..., 1, None], use_rss)
+    point = [emitter[..., axis, None] for axis in range(emitter.shape[-1])]
+    columns = _model(data, emitter).jacobian(point, use_rss)
     return np.stack([np.concatenate(c, axis=-1) for c in columns], axis=-1)
+
+
+def _model(data: MeasurementSet, emitter: FloatArray) -> ResidualModel:
+    """The data's residual model for emitters of ``emitter.shape[-1]`` coordinates."""
+    model = ResidualModel.of(data)
+    if model.dimension != emitter.shape[-1]:
+        model = dataclasses.replace(model, dimension=emitter.shape[-1])
+    return model
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -136,7 +148,8 @@ class MaximumLikelihood(EstimatesOfColumns):
             frames=self.frames,
             batch=True,
             unit_invariant=True,
-            unknowns=frozenset(NUISANCE_PARAMETERS),  # profiled out (MATH §15)
+            # the nuisance parameters profiled out (MATH §15), the height estimated (MATH §8)
+            unknowns=frozenset({*NUISANCE_PARAMETERS, HEIGHT_UNKNOWN}),
         )
 
     def estimate_columns(self, batch: MeasurementBatch, *, rngs: Rngs = None) -> BatchEstimates:

@@ -11,12 +11,15 @@ is, up to a constant, half the squared norm of the whitened residuals
     \hat s = \arg\min_{(x_s, y_s)} \lVert e(s)\rVert^2
 
 (Doppler with the physical sign, the RSS block optional; a nuisance parameter unknown is
-profiled out, :mod:`estimators.ml.ml_residuals`). Vectorised over trials and over each trial's
-starts:
+profiled out, :mod:`estimators.ml.ml_residuals`); with the emitter's height unknown the
+minimum is over ``(x_s, y_s, z_s)`` (MATH §8, §10), by the same steps in three coordinates.
+Vectorised over trials and over each trial's starts:
 
 1. the starts (:mod:`estimators.ml.ml_batch_starts`): every closed-form candidate, folded to
    one side of a straight track, rounded to a grid in the centred, scaled local frame of the
-   CLS;
+   CLS (the height unknown: those of a few assumed heights,
+   :func:`~estimators.ml.ml_batch_starts.start_heights`; a straight track then fails every
+   trial before any search, :data:`~estimators.mirror_rule.STRAIGHT_TRACK_HEIGHT`);
 2. Levenberg-Marquardt from every start at once (:func:`estimators.ml.minpack_batch.lmder_batch`,
    MINPACK's ``lmder`` with ``xtol = ftol = gtol = XTOL``, at most ``max_nfev`` evaluations);
 3. the convergence audit (:mod:`estimators.ml.ml_batch_audit`): a start converged when a
@@ -37,8 +40,11 @@ starts:
    costs tied within ``XTOL`` the image on the left of the track is kept), and
    minima within ``cost_rtol`` of the best joined to a better one by a flat valley (no barrier
    at the midpoint) are one; every minimum within ``cost_rtol`` of the best is a candidate (on
-   one straight frame the mirror pair has exactly equal cost, MATH §7);
-5. the mirror rule and tie-break (:func:`~estimators.batch.finalize_columns`; one
+   one straight frame the mirror pair has exactly equal cost, MATH §7); on a level flight with
+   the height unknown each minimum's reflection through the flight plane is added at its cost
+   (:func:`with_reflections`: the likelihood is symmetric about the plane, MATH §7);
+5. the mirror rule and tie-break (:func:`~estimators.mirror_rule.finalize_columns`, which
+   also drops a 3-D candidate above the UAV; one
    ``rng.integers`` per trial that draws, in trial order), the covariance, the inverse Fisher
    information ``(JᵀJ)⁻¹`` at the estimate (MATH §8: the CRLB at ``ŝ``), and the diagnostics.
 
@@ -65,14 +71,21 @@ from estimators.base import (
 from estimators.batch import BatchEstimates, check_rngs
 from estimators.closed_form.cls_batch import SharedGeometry
 from estimators.convergence import DECREMENT_TOL
-from estimators.mirror_rule import finalize_columns
+from estimators.mirror_rule import STRAIGHT_TRACK_HEIGHT, finalize_columns
 from estimators.ml.minpack_batch import INFO_CODES, TERMINATION_MESSAGES, column_dot, lmder_batch
 from estimators.ml.ml_batch_audit import decrements
-from estimators.ml.ml_batch_starts import COINCIDENT_RTOL, find_starts, on_start_grid
+from estimators.ml.ml_batch_starts import (
+    COINCIDENT_RTOL,
+    at_height,
+    find_starts,
+    on_start_grid,
+    start_heights,
+)
 from estimators.ml.ml_residuals import ResidualModel, profiled_offsets
 from estimators.ml.ml_starts import ranges_uninformative
 from scenarios.fisher import inverse_symmetric
 from scenarios.geometry import cross_track_m, mirror_across_line, straight_track_line
+from scenarios.nuisance import position_dimension
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 if TYPE_CHECKING:
@@ -122,10 +135,20 @@ class SharedContext:
     line: tuple[FloatArray, FloatArray] | None
     uses_toa: bool
     doppler_start: bool
+    dimension: int  # 3: the height a coordinate of the emitter (MATH §8)
+    heights: tuple[tuple[float, SharedContext], ...]  # the starts' heights (dimension 3)
+    degenerate: str | None  # why the geometry cannot fix the emitter (dimension 3)
+    flight_plane_m: float | None  # the altitude of a level flight (dimension 3)
 
     @classmethod
-    def of(cls, estimator: MaximumLikelihood, batch: MeasurementBatch) -> SharedContext:
+    def of(
+        cls, estimator: MaximumLikelihood, batch: MeasurementBatch, dimension: int | None = None
+    ) -> SharedContext:
+        """The context of ``batch``; ``dimension`` 2 on data whose height is unknown: the
+        search at the data's height (the starts at a height, :func:`start_heights`)."""
         geometry = batch.geometry
+        if dimension is None:
+            dimension = position_dimension(geometry.unknowns)
         used = geometry.select_frames(estimator.frames)
         if estimator.frames == "last":
             columns = np.flatnonzero(geometry.frame == geometry.frame[-1])
@@ -136,7 +159,7 @@ class SharedContext:
         # the batch CLS gives every trial's starts, an unknown carrier offset projected out in
         # its rows; with an unknown emission time the pseudo-range form does (pseudo_ranges)
         batch_cls = uses_toa and "emission_time_s" not in geometry.unknowns
-        if batch_cls and batch.n_trials >= CLS_BATCH_MIN_TRIALS:
+        if batch_cls and dimension == 2 and batch.n_trials >= CLS_BATCH_MIN_TRIALS:
             try:
                 cls_geometry = SharedGeometry.of(batch, estimator.frames)
             except ValueError:  # e.g. a hovering sample: the one-trial closed form says why
@@ -144,11 +167,24 @@ class SharedContext:
         position = used.position_m
         origin = position[:, :2].mean(axis=0)
         spread_sq = float(np.mean(np.sum((position[:, :2] - origin) ** 2, axis=1)))
+        degenerate, level, heights = None, None, ()
+        if dimension == 3:
+            origin = np.append(origin, position[:, 2].mean())
+            if straight_track_line(position, used.velocity_mps) is not None:
+                degenerate = STRAIGHT_TRACK_HEIGHT  # a circle of equal cost (MATH §7)
+            elif np.ptp(position[:, 2]) == 0.0 and not used.velocity_mps[:, 2].any():
+                level = float(position[0, 2])
+            if degenerate is None:
+                heights = tuple(
+                    (z, cls.of(estimator, at_height(batch, z), dimension=2))
+                    for z in start_heights(used)
+                )
         doppler = batch.doppler_hz[:, columns]
         toa = batch.toa_s[:, columns] if uses_toa else None
         rss = batch.rss_dbm[:, columns] if estimator.use_rss else None
         option = estimator.doppler_start
-        model = dataclasses.replace(ResidualModel.of(used), toa=uses_toa).by_sample()
+        model = ResidualModel.of(used)
+        model = dataclasses.replace(model, toa=uses_toa, dimension=dimension).by_sample()
         return cls(
             estimator=estimator,
             batch=batch,
@@ -166,7 +202,12 @@ class SharedContext:
             line=straight_track_line(position, used.velocity_mps),
             uses_toa=uses_toa,
             doppler_start=uses_toa
+            and dimension == 2
             and (option is True or (option == "auto" and ranges_uninformative(used))),
+            dimension=dimension,
+            heights=heights,
+            degenerate=degenerate,
+            flight_plane_m=level,
         )
 
     def trial_data(self, trial: int) -> MeasurementSet:
@@ -190,20 +231,20 @@ class SharedContext:
         return np.where(scale > 0.0, scale, 1.0)
 
     def residuals(self, trials: IntArray, world: FloatArray) -> FloatArray:
-        """The whitened residuals of trials ``trials`` at ``world`` (k, 2), rows first:
+        """The whitened residuals of trials ``trials`` at ``world`` (k, d), rows first:
         ``(m, k)``."""
         rss = None if self.rss_t is None else self.rss_t.take(trials, axis=1)
         toa = None if self.toa_t is None else self.toa_t.take(trials, axis=1)
         out = np.empty((self.n_rows, len(trials)))
         doppler = self.doppler_t.take(trials, axis=1)
-        self.model.residuals(world[:, 0], world[:, 1], doppler, toa, rss, out=out)
+        self.model.residuals(list(world.T), doppler, toa, rss, out=out)
         return out
 
-    def jacobian(self, world: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """The whitened residuals' Jacobian at ``world`` (k, 2): its two columns, each
+    def jacobian(self, world: FloatArray) -> tuple[FloatArray, ...]:
+        """The whitened residuals' Jacobian at ``world`` (k, d): its d columns, each
         ``(m, k)``."""
-        out = (np.empty((self.n_rows, len(world))), np.empty((self.n_rows, len(world))))
-        self.model.jacobian(world[:, 0], world[:, 1], self.rss_t is not None, out=out)
+        out = tuple(np.empty((self.n_rows, len(world))) for _ in range(self.dimension))
+        self.model.jacobian(list(world.T), self.rss_t is not None, out=out)
         return out
 
     @property
@@ -233,6 +274,15 @@ def solve_batch(
         estimator.check_measurements(batch.toa_s is not None, batch.rss_dbm is not None)
     generators = check_rngs(rngs, batch.n_trials)
     context = SharedContext.of(estimator, batch)
+    if context.degenerate:  # no search can locate the emitter: every trial fails alike
+        columns = BatchEstimates.failed(
+            batch.n_trials,
+            context.degenerate,
+            estimator=estimator.name,
+            covariance=True,
+            dimension=context.dimension,
+        )
+        return columns, {}
     chunks = [
         _solve_trials(context, np.arange(start, min(start + CHUNK_TRIALS, batch.n_trials)))
         for start in range(0, batch.n_trials, CHUNK_TRIALS)
@@ -249,12 +299,12 @@ def solve_batch(
 class _Chunk:
     """What a chunk's trials found, before the draws."""
 
-    candidates: FloatArray  # (n, k, 2)
+    candidates: FloatArray  # (n, k, d)
     n_kept: IntArray
     chosen: IntArray
     draw: BoolArray
     ambiguous: BoolArray
-    covariance: FloatArray  # (n, k, 2, 2): at each candidate, NaN where singular
+    covariance: FloatArray  # (n, k, d, d): at each candidate, NaN where singular
     diagnostics: dict[str, NDArray[Any]]
     message: ObjectArray
     failed: dict[int, Estimate]  # by index in the chunk
@@ -275,7 +325,7 @@ def _solve_trials(context: SharedContext, trials: IntArray) -> _Chunk:
     points, costs, info, nfev, decrement = _search(
         context, trials[problem_trial], gridded[problem_trial, problem_slot], scale[problem_trial]
     )
-    point_of = np.full((n, width, 2), np.nan)
+    point_of = np.full((n, width, context.dimension), np.nan)
     cost_of = np.full((n, width), np.inf)
     info_of = np.zeros((n, width), dtype=np.int64)
     nfev_of = np.zeros((n, width), dtype=np.int64)
@@ -297,6 +347,10 @@ def _solve_trials(context: SharedContext, trials: IntArray) -> _Chunk:
     with np.errstate(invalid="ignore"):  # no minimum: best is inf
         below = unconverged_best < best - estimator.cost_rtol * np.abs(best)
     ok = (count > 0) & (n_minima > 0) & ~below
+    if context.flight_plane_m is not None:  # level: the reflections at the same costs
+        minima, minimum_costs, n_minima = with_reflections(
+            minima, minimum_costs, n_minima, context.flight_plane_m
+        )
     k = max(int(n_minima.max(initial=1)), 1)
     with np.errstate(all="ignore"):
         final = finalize_columns(
@@ -307,6 +361,7 @@ def _solve_trials(context: SharedContext, trials: IntArray) -> _Chunk:
             context.line,
             side_prior_m=estimator.side_prior_m,
             cost_rtol=estimator.cost_rtol,
+            ceiling_m=float(context.used.position_m[:, 2].max()),
         )
     candidates, n_kept, chosen = final.candidates, final.n_candidates, final.chosen
     draw, ambiguous = final.draw, final.ambiguous
@@ -341,7 +396,9 @@ def _solve_trials(context: SharedContext, trials: IntArray) -> _Chunk:
     failed = {}
     for i in np.flatnonzero(~ok).tolist():
         if count[i] == 0:
-            failed[i] = Estimate.failed(estimator.name, f"no starting point: {note[i]}")
+            failed[i] = Estimate.failed(
+                estimator.name, f"no starting point: {note[i]}", dimension=context.dimension
+            )
             continue
         text = f"least squares did not converge from any start: {reasons[i] or 'no start'}"
         if n_minima[i] and below[i]:
@@ -351,13 +408,17 @@ def _solve_trials(context: SharedContext, trials: IntArray) -> _Chunk:
                 f"not reached ({reasons[i]})"
             )
         trial_diagnostics = {key: _scalar(value[i]) for key, value in search.items()}
-        failed[i] = Estimate.failed(estimator.name, text, **trial_diagnostics)
+        failed[i] = Estimate.failed(
+            estimator.name, text, dimension=context.dimension, **trial_diagnostics
+        )
     problem = baseline_problem(frozenset({"doppler", "toa"}), context.used)
     if problem is not None:  # hovering: every bearing fits (finalize_estimate's refusal)
         for i in np.flatnonzero(ok).tolist():
             trial_diagnostics = {key: _scalar(value[i]) for key, value in diagnostics.items()}
             trial_diagnostics.pop("straight_track")
-            failed[i] = Estimate.failed(estimator.name, problem, **trial_diagnostics)
+            failed[i] = Estimate.failed(
+                estimator.name, problem, dimension=context.dimension, **trial_diagnostics
+            )
     return _Chunk(
         candidates=candidates,
         n_kept=n_kept,
@@ -432,15 +493,15 @@ def _search(
     if len(trial) == 0:
         empty = np.empty(0)
         integers = empty.astype(np.int64)
-        return np.empty((0, 2)), empty, integers, integers, empty
+        return np.empty((0, context.dimension)), empty, integers, integers, empty
     origin = context.origin
 
     def residuals(index: IntArray, local: FloatArray) -> FloatArray:
         return context.residuals(trial[index], local * scale[index, None] + origin)
 
-    def jacobian(index: IntArray, local: FloatArray) -> tuple[FloatArray, FloatArray]:
-        jx, jy = context.jacobian(local * scale[index, None] + origin)
-        return jx * scale[index], jy * scale[index]
+    def jacobian(index: IntArray, local: FloatArray) -> list[FloatArray]:
+        columns = context.jacobian(local * scale[index, None] + origin)
+        return [column * scale[index] for column in columns]
 
     result = lmder_batch(
         residuals,
@@ -486,8 +547,7 @@ def distinct_minima(
         merged = np.zeros(n, dtype=bool)
         for j in range(i):
             compared = valid[:, i] & kept[j] & ~merged
-            dx, dy = points[:, i, 0] - points[:, j, 0], points[:, i, 1] - points[:, j, 1]
-            close = compared & (np.sqrt(dx * dx + dy * dy) <= threshold)
+            close = compared & (_distance(points[:, i], points[:, j]) <= threshold)
             # the first close one takes this point's place if it is an earlier start at a tie
             tie = costs[:, i] <= costs[:, j] + XTOL * np.abs(costs[:, j])
             take = np.flatnonzero(close & (start[:, i] < start[:, j]) & tie)
@@ -499,13 +559,13 @@ def distinct_minima(
             merged |= close
             if context.line is not None:  # the mirror image of a kept minimum: the same one
                 origin, direction = context.line
-                mirror = mirror_across_line(points[:, j], origin, direction)
-                dx, dy = points[:, i, 0] - mirror[:, 0], points[:, i, 1] - mirror[:, 1]
-                twin = compared & (np.sqrt(dx * dx + dy * dy) <= threshold)
+                mirror = points[:, j].copy()  # across the track's vertical plane
+                mirror[:, :2] = mirror_across_line(points[:, j, :2], origin, direction)
+                twin = compared & (_distance(points[:, i], mirror) <= threshold)
                 # of two images at a tie the one on the starts' side (left) is kept: which
                 # ends cheaper is rounding, and it orders the mirror rule's candidates
-                left = cross_track_m(points[:, i], origin, direction) >= 0.0
-                right = cross_track_m(points[:, j], origin, direction) < 0.0
+                left = cross_track_m(points[:, i, :2], origin, direction) >= 0.0
+                right = cross_track_m(points[:, j, :2], origin, direction) < 0.0
                 take = np.flatnonzero(twin & tie & left & right)
                 points[take, j], costs[take, j], start[take, j] = (
                     points[take, i],
@@ -536,6 +596,33 @@ def distinct_minima(
     return points, costs, valid.sum(axis=1)
 
 
+def _distance(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``‖a − b‖`` of points ``(n, d)``, the squares summed in coordinate order."""
+    total = (a[:, 0] - b[:, 0]) * (a[:, 0] - b[:, 0])
+    for axis in range(1, a.shape[1]):
+        total = total + (a[:, axis] - b[:, axis]) * (a[:, axis] - b[:, axis])
+    return np.sqrt(total)
+
+
+def with_reflections(
+    points: FloatArray, costs: FloatArray, count: IntArray, plane_z_m: float
+) -> tuple[FloatArray, FloatArray, IntArray]:
+    """Each trial's minima ``(n, k, 3)`` and, after them, their reflections through the
+    horizontal plane ``z = plane_z_m`` of a level flight at the same costs: the likelihood is
+    exactly symmetric there (MATH §7), so each is a minimum too; the mirror rule keeps those
+    below the UAV."""
+    width = points.shape[1]
+    reflected = points.copy()
+    reflected[..., 2] = 2.0 * plane_z_m - points[..., 2]
+    valid = np.arange(width)[None, :] < count[:, None]
+    joined, joined_costs, keep = _compact(
+        np.concatenate([points, reflected], axis=1),
+        np.concatenate([costs, costs], axis=1),
+        np.concatenate([valid, valid], axis=1),
+    )
+    return joined, joined_costs, keep.sum(axis=1)
+
+
 def _compact(
     points: FloatArray, costs: FloatArray, keep: BoolArray
 ) -> tuple[FloatArray, FloatArray, BoolArray]:
@@ -555,16 +642,15 @@ def _covariances(
     residuals' Jacobian, summed as :func:`~estimators.ml.minpack_batch.column_sums` sums) at
     each kept candidate of the ``wanted`` trials; NaN where it is singular
     (:func:`scenarios.fisher.inverse_symmetric`)."""
-    n, width, _ = candidates.shape
-    covariance = np.full((n, width, 2, 2), np.nan)
+    n, width, d = candidates.shape
+    covariance = np.full((n, width, d, d), np.nan)
     slots = (np.arange(width)[None, :] < count[:, None]) & wanted[:, None]
     if slots.any():
-        jx, jy = context.jacobian(candidates[slots])
-        cross = column_dot(jx, jy)
-        information = np.stack(
-            [np.stack([column_dot(jx, jx), cross], -1), np.stack([cross, column_dot(jy, jy)], -1)],
-            axis=-2,
-        )
+        columns = context.jacobian(candidates[slots])
+        information = np.empty((len(columns[0][0]), d, d))
+        for i in range(d):
+            for j in range(i, d):
+                information[:, i, j] = information[:, j, i] = column_dot(columns[i], columns[j])
         covariance[slots] = inverse_symmetric(information)
     return covariance
 

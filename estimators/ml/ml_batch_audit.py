@@ -12,6 +12,7 @@ every search at once.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -25,15 +26,16 @@ if TYPE_CHECKING:
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
 
 HESSIAN_STEP_RTOL = 1e-6
 """Central-difference step of the exact Hessian (module text), relative to the length scale."""
 WELL_CONDITIONED = 1e-6
-"""``JᵀJ`` with ``det > WELL_CONDITIONED · J₁₁ J₂₂`` (condition number below ~4e6) gives the
-Gauss-Newton decrement from its normal equations."""
+"""``JᵀJ`` with ``det > WELL_CONDITIONED · Π diag`` (two unknowns: a condition number below
+~4e6) gives the Gauss-Newton decrement from its normal equations."""
 RANK_RTOL = 1e-10
-"""A Jacobian whose second column, orthogonalised, is below this fraction of the first has
-rank one."""
+"""A Jacobian column that, orthogonalised against the larger ones, is below this fraction of
+the largest adds no rank."""
 
 
 def decrements(
@@ -41,7 +43,7 @@ def decrements(
     trial: IntArray,
     world: FloatArray,
     scale: FloatArray,
-    jacobian: tuple[FloatArray, FloatArray],
+    jacobian: Sequence[FloatArray],
     residual: FloatArray,
 ) -> FloatArray:
     """The decrement (module text) at each search's end point ``world`` (trials ``trial``,
@@ -58,45 +60,81 @@ def decrements(
     return np.where(np.isnan(decrement), np.inf, decrement)
 
 
-def _gauss_newton_decrement(jac: tuple[FloatArray, FloatArray], residual: FloatArray) -> FloatArray:
+def _quadratic_form(
+    matrix: FloatArray, vector: FloatArray, conditioning: float
+) -> tuple[FloatArray, BoolArray]:
+    """``vᵀ M⁻¹ v`` for symmetric ``M`` ``(P, d, d)`` and ``v`` ``(P, d)`` where ``M`` is
+    positive definite (every pivot of its Cholesky factorisation positive) with
+    ``det > conditioning · Π diag``, and where that holds; NaN elsewhere. Elementwise over the
+    problems (``d`` is 2 or 3: a few operations per entry, no per-problem solve)."""
+    d = matrix.shape[-1]
+    with np.errstate(all="ignore"):
+        lower: dict[tuple[int, int], FloatArray] = {}
+        pivots, solved = [], []
+        for j in range(d):
+            pivot = matrix[:, j, j] - sum((lower[j, k] ** 2 for k in range(j)), 0.0)
+            pivots.append(pivot)
+            root = np.sqrt(pivot)
+            for i in range(j + 1, d):
+                off = matrix[:, i, j] - sum((lower[i, k] * lower[j, k] for k in range(j)), 0.0)
+                lower[i, j] = off / root
+            lower[j, j] = root
+            # forward substitution of L w = v, one entry per pivot
+            entry = vector[:, j] - sum((lower[j, k] * solved[k] for k in range(j)), 0.0)
+            solved.append(entry / root)
+        positive = np.logical_and.reduce([pivot > 0.0 for pivot in pivots])
+        det = np.prod(pivots, axis=0)
+        diagonal = np.prod([matrix[:, j, j] for j in range(d)], axis=0)
+        ok = positive & (det > conditioning * diagonal)
+        value = sum(entry * entry for entry in solved)
+    ok &= np.isfinite(value)
+    return np.where(ok, value, np.nan), ok
+
+
+def _gauss_newton_decrement(jac: Sequence[FloatArray], residual: FloatArray) -> FloatArray:
     """``‖P_J e‖²`` per problem; ``J``'s columns and ``e`` are ``(m, k)``.
 
-    From the normal equations, ``gᵀ(JᵀJ)⁻¹g`` with ``g = Jᵀe`` (five sums), where ``JᵀJ`` is
-    well conditioned (its rounding then moves the value by ~1e-8 relative); the rest by
+    From the normal equations, ``gᵀ(JᵀJ)⁻¹g`` with ``g = Jᵀe``, where ``JᵀJ`` is well
+    conditioned (its rounding then moves the value by ~1e-8 relative); the rest by
     orthogonalising the columns (:func:`_orthogonal_decrement`).
     """
-    c0, c1 = jac
-    a, b, d = column_dot(c0, c0), column_dot(c0, c1), column_dot(c1, c1)
-    g0, g1 = column_dot(c0, residual), column_dot(c1, residual)
-    with np.errstate(all="ignore"):
-        det = a * d - b * b
-        value = (d * g0 * g0 - 2.0 * b * g0 * g1 + a * g1 * g1) / det
-    well = (det > WELL_CONDITIONED * a * d) & np.isfinite(value)
+    d = len(jac)
+    information = np.empty((residual.shape[1], d, d))
+    for i in range(d):
+        for j in range(i, d):
+            information[:, i, j] = information[:, j, i] = column_dot(jac[i], jac[j])
+    gradient = np.column_stack([column_dot(column, residual) for column in jac])
+    value, well = _quadratic_form(information, gradient, WELL_CONDITIONED)
     rest = np.flatnonzero(~well)
     if rest.size:
         value[rest] = _orthogonal_decrement(
-            c0.take(rest, axis=1), c1.take(rest, axis=1), residual.take(rest, axis=1)
+            [column.take(rest, axis=1) for column in jac], residual.take(rest, axis=1)
         )
     return value
 
 
-def _orthogonal_decrement(c0: FloatArray, c1: FloatArray, residual: FloatArray) -> FloatArray:
-    """:func:`_gauss_newton_decrement` by Gram-Schmidt on the two columns (twice), for a
-    Jacobian of rank one or close to it."""
-    n0, n1 = np.sqrt(column_dot(c0, c0)), np.sqrt(column_dot(c1, c1))
-    swap = n1 > n0
-    a = np.where(swap, c1, c0)
-    b = np.where(swap, c0, c1)
-    norm = np.maximum(n0, n1)
+def _orthogonal_decrement(columns: Sequence[FloatArray], residual: FloatArray) -> FloatArray:
+    """:func:`_gauss_newton_decrement` by Gram-Schmidt on the columns (each twice), largest
+    first, for a Jacobian of deficient rank or close to it: the squared projections of ``e``
+    on the orthonormal directions of the columns that add rank (``RANK_RTOL``)."""
+    norms = np.array([np.sqrt(column_dot(c, c)) for c in columns])  # (d, k)
+    order = np.argsort(-norms, axis=0, kind="stable")
+    largest = np.max(norms, axis=0)
+    total = np.zeros(residual.shape[1])
+    basis: list[FloatArray] = []
     with np.errstate(all="ignore"):
-        unit = a / norm
-        v = b - column_dot(unit, b) * unit
-        v = v - column_dot(unit, v) * unit
-        r22 = np.sqrt(column_dot(v, v))
-        first = column_dot(unit, residual)
-        second = column_dot(v, residual) / r22
-    rank_two = r22 > RANK_RTOL * norm
-    return np.where(norm > 0.0, first * first, 0.0) + np.where(rank_two, second * second, 0.0)
+        for rank in range(len(columns)):
+            v = np.choose(order[rank][None, :], columns)
+            for _ in range(2):
+                for unit in basis:
+                    v = v - column_dot(unit, v) * unit
+            size = np.sqrt(column_dot(v, v))
+            adds = (size > RANK_RTOL * largest) & (largest > 0.0)
+            unit = np.where(adds, v / size, 0.0)
+            projection = column_dot(unit, residual)
+            total = total + np.where(adds, projection * projection, 0.0)
+            basis.append(unit)
+    return total
 
 
 def _newton_decrement(
@@ -111,14 +149,10 @@ def _newton_decrement(
 
     step = HESSIAN_STEP_RTOL * scale
     columns = []
-    for axis in np.eye(2):
+    for axis in np.eye(world.shape[1]):
         shift = step[:, None] * axis
         columns.append((gradient(world + shift) - gradient(world - shift)) / (2.0 * step[:, None]))
     hessian = np.stack(columns, axis=-1)
     hessian = 0.5 * (hessian + np.swapaxes(hessian, -1, -2))
-    g = gradient(world)
-    a, b, d = hessian[:, 0, 0], hessian[:, 0, 1], hessian[:, 1, 1]
-    with np.errstate(all="ignore"):
-        det = a * d - b * b
-        value = (d * g[:, 0] ** 2 - 2.0 * b * g[:, 0] * g[:, 1] + a * g[:, 1] ** 2) / det
-    return np.where((a > 0.0) & (det > 0.0) & np.isfinite(value), value, np.inf)
+    value, positive = _quadratic_form(hessian, gradient(world), 0.0)
+    return np.where(positive, value, np.inf)

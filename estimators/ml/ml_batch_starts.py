@@ -13,6 +13,11 @@ mirror minima are added by the mirror rule); a start on the track's vertical pla
 cross-track gradient vanishes, gets a second start off it, so that both the off-track mirror
 pair and the on-track minimum of MATH §5 are reachable (:func:`fold_to_one_side`).
 
+With the emitter's height unknown (MATH §8) the starts are these at a few heights
+(:func:`start_heights`: from the height the data assume, the take-off ground, up to just
+below the UAV, which the emitter is below): each height's closed form gives ``(x, y)``, the
+height the third coordinate.
+
 Each start is then rounded to a grid of ``START_GRID`` local units (:func:`on_start_grid`,
 ~1e−6 of the length scale, far below any start's own error): the search's path is a function
 of the data, not of the last bits of the closed-form solve.
@@ -20,6 +25,7 @@ of the data, not of the last bits of the closed-form solve.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -29,7 +35,7 @@ from estimators.baselines.lls import solve_lls_toa
 from estimators.closed_form.cls_batch import candidates_of_trial, solve_chunk
 from estimators.closed_form.pseudorange_cls import solve_pseudorange_batch, solve_pseudorange_cls
 from estimators.ml.ml_starts import doppler_grid_starts
-from scenarios.types import MeasurementSet
+from scenarios.types import MeasurementBatch, MeasurementSet
 
 if TYPE_CHECKING:
     from estimators.ml.ml_batch import SharedContext
@@ -46,6 +52,31 @@ ON_TRACK_RTOL = 1e-6
 """A start this close (relative) to a straight track's vertical plane gets a second start off it."""
 START_GRID = 2.0**-16
 """Starts are rounded to this grid in local units (module text)."""
+
+
+HEIGHT_FRACTIONS = (0.0, 0.5, 0.9)
+"""The starts' heights (height unknown) between the ground and the UAV's lowest altitude
+(:func:`start_heights`)."""
+
+
+def start_heights(data: MeasurementSet) -> tuple[float, ...]:
+    """The heights of the starts with the height unknown (module text): ``HEIGHT_FRACTIONS``
+    of the way from the ground the data assume (``emitter_height_m``, the take-off ground, a
+    guess only) to the lowest altitude of the UAV; when the UAV is not above that ground, as
+    far below its lowest altitude as the track's horizontal spread (at least 1 m)."""
+    lowest = float(np.min(data.position_m[:, 2]))
+    depth = lowest - data.emitter_height_m
+    if not depth > 0.0:
+        xy = data.position_m[:, :2]
+        depth = max(float(np.sqrt(np.mean(np.sum((xy - xy.mean(axis=0)) ** 2, axis=1)))), 1.0)
+    return tuple(lowest - depth * (1.0 - fraction) for fraction in HEIGHT_FRACTIONS)
+
+
+def at_height(batch: MeasurementBatch, height_m: float) -> MeasurementBatch:
+    """``batch`` with the emitter's assumed height ``height_m`` (its unknowns kept): the
+    closed-form starts at that height."""
+    geometry = dataclasses.replace(batch.geometry, emitter_height_m=height_m)
+    return dataclasses.replace(batch, geometry=geometry)
 
 
 def on_start_grid(local_xy: ArrayLike) -> FloatArray:
@@ -115,8 +146,10 @@ def pseudorange_starts(
 def find_starts(
     context: SharedContext, trials: IntArray, scale: FloatArray
 ) -> tuple[FloatArray, IntArray, NDArray[np.object_], NDArray[np.object_]]:
-    """Each trial's starts in world coordinates (module text): ``(starts (n, S, 2), count,
+    """Each trial's starts in world coordinates (module text): ``(starts (n, S, d), count,
     start method (n,), note (n,))``, the first ``count[i]`` slots of trial ``i`` valid."""
+    if context.dimension == 3:
+        return _starts_at_heights(context, trials, scale)
     n = len(trials)
     method = np.full(n, "cls", dtype=object)
     note = np.full(n, "", dtype=object)
@@ -157,6 +190,30 @@ def find_starts(
     order = np.argsort(~valid, axis=1, kind="stable")
     points = np.take_along_axis(points, order[..., None], axis=1)
     return points, valid.sum(axis=1), method, note
+
+
+def _starts_at_heights(
+    context: SharedContext, trials: IntArray, scale: FloatArray
+) -> tuple[FloatArray, IntArray, NDArray[np.object_], NDArray[np.object_]]:
+    """:func:`find_starts` with the height unknown: the starts of each of the context's
+    heights (:func:`start_heights`), that height their third coordinate, in height order; the
+    method and note of the first height that gives a start."""
+    n = len(trials)
+    parts, valid = [], []
+    method = np.full(n, "none", dtype=object)
+    note = np.full(n, "", dtype=object)
+    for height, at in context.heights:
+        points, count, found, said = find_starts(at, trials, scale)
+        parts.append(np.concatenate([points, np.full((*points.shape[:2], 1), height)], axis=-1))
+        valid.append(np.arange(points.shape[1])[None, :] < count[:, None])
+        first = (method == "none") & (count > 0)
+        method[first], note[first] = found[first], said[first]
+        unset = (method == "none") & (note == "")
+        note[unset] = said[unset]
+    points, present = np.concatenate(parts, axis=1), np.concatenate(valid, axis=1)
+    order = np.argsort(~present, axis=1, kind="stable")
+    points = np.take_along_axis(points, order[..., None], axis=1)
+    return points, present.sum(axis=1), method, note
 
 
 def fold_to_one_side(

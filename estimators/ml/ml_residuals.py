@@ -2,7 +2,7 @@
 
 :class:`ResidualModel` evaluates the forward model of :mod:`scenarios.measurement_model`
 (MATH §1, §8) for the maximum-likelihood search: the residuals ``e`` of
-:func:`estimators.ml.ml.whitened_residuals` and ``∂e/∂(x_s, y_s)``, one pass over per-sample
+:func:`estimators.ml.ml.whitened_residuals` and ``∂e/∂s``, one pass over per-sample
 constants with no layout-dependent kernel. A value therefore depends on its inputs alone:
 residuals last (constants ``(N,)``, :func:`~estimators.ml.ml.whitened_residuals`) and rows
 first (:meth:`ResidualModel.by_sample`, constants ``(N, 1)``, one trial per column, the search
@@ -16,11 +16,17 @@ Jacobian (the centring is linear and does not depend on the emitter). The search
 ``(x_s, y_s)`` is then the search over ``(x_s, y_s, δ, b)`` (variable projection), and the
 Gram matrix of the centred Jacobian is the nuisance Fisher information of MATH §15. Rows first,
 the centring sums each column in order (:func:`~estimators.ml.minpack_batch.column_sums`).
+
+With the emitter's height unknown (MATH §8, ``dimension`` 3) the emitter is ``(x_s, y_s, z_s)``:
+the height is a coordinate of every evaluation (``z_k − z_s`` from the samples' ``pz``), the
+Jacobian has a third column, ``∂ρ_k/∂z_s = −(z_k − z_s)/ρ_k`` and
+``∂f_k/∂z_s = (γ v_z + f_k (z_k − z_s)/ρ_k)/ρ_k`` (:func:`scenarios.measurement_model.doppler_jacobian`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -29,6 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from estimators.ml.minpack_batch import column_sums
 from scenarios import measurement_model as model
+from scenarios.nuisance import position_dimension
 from scenarios.types import MeasurementSet, RssModel
 
 FloatArray = NDArray[np.float64]
@@ -42,12 +49,14 @@ class ResidualModel:
     :func:`~scenarios.measurement_model.rss_of_ranges` (MATH §1, §8) on per-sample constants:
     a row's value depends on its inputs alone, whatever the layout
     (:mod:`estimators.ml.ml_batch` keeps rows first, :meth:`by_sample`). The constants have
-    shape ``(N,)``; emitter coordinates ``x, y`` broadcast against them.
+    shape ``(N,)``; an emitter ``point``, its coordinates ``(x, y)`` or ``(x, y, z)``
+    (``dimension``), broadcasts against them.
     """
 
     px: FloatArray
     py: FloatArray
-    dz: FloatArray  # z_k − z_s
+    pz: FloatArray
+    dz: FloatArray  # z_k − z_s with the height known (dimension 2)
     vx: FloatArray
     vy: FloatArray
     vz: FloatArray
@@ -58,6 +67,7 @@ class ResidualModel:
     centred: tuple[bool, bool] = (False, False)  # Doppler, ToA blocks profiled (MATH §15)
     sample_axis: int = -1
     toa: bool = True  # a ToA block (False: Doppler alone, MATH §15)
+    dimension: int = 2  # 3: the height a coordinate of the emitter (MATH §8)
 
     @classmethod
     def of(cls, data: MeasurementSet) -> ResidualModel:
@@ -65,6 +75,7 @@ class ResidualModel:
         return cls(
             px=position[:, 0],
             py=position[:, 1],
+            pz=position[:, 2],
             dz=position[:, 2] - data.emitter_height_m,
             vx=velocity[:, 0],
             vy=velocity[:, 1],
@@ -78,11 +89,12 @@ class ResidualModel:
                 "emission_time_s" in data.unknowns,
             ),
             toa=data.toa_s is not None,
+            dimension=position_dimension(data.unknowns),
         )
 
     def by_sample(self) -> ResidualModel:
         """The same constants as columns ``(N, 1)``: rows first, emitters along the last axis."""
-        names = ("px", "py", "dz", "vx", "vy", "vz")
+        names = ("px", "py", "pz", "dz", "vx", "vy", "vz")
         changes = {n: getattr(self, n)[:, None] for n in names}
         return dataclasses.replace(self, **changes, sample_axis=0)
 
@@ -97,18 +109,23 @@ class ResidualModel:
                     block -= block.mean(axis=self.sample_axis, keepdims=True)
         return blocks
 
-    def _model(self, x: ArrayLike, y: ArrayLike, order: int) -> tuple[FloatArray, FloatArray]:
-        """Doppler and range (order 0), or their first derivatives (order 1) with the range,
-        components first (:func:`scenarios.measurement_model.derivatives_of_offsets`)."""
-        return model.derivatives_of_offsets(
-            self.px - x,
-            self.py - y,
-            self.dz,
+    def _model(
+        self, point: Sequence[ArrayLike], order: int
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Doppler and range (order 0), or their first derivatives in ``(x_s, y_s)`` (order 1)
+        with the range and (``dimension`` 3) the Doppler's value, components first
+        (:func:`scenarios.measurement_model.derivatives_of_offsets`); and ``z_k − z_s``."""
+        dz = self.dz if self.dimension == 2 else self.pz - point[2]
+        doppler, ranges = model.derivatives_of_offsets(
+            self.px - point[0],
+            self.py - point[1],
+            dz,
             (self.vx, self.vy, self.vz),
             self.gamma,
             order=order,
-            values=order == 0,
+            values=order == 0 or self.dimension == 3,
         )
+        return doppler, ranges, dz
 
     def _blocks(self, out: FloatArray | None, count: int, shape: tuple[int, ...]) -> list[Any]:
         """``count`` outputs of ``shape``: consecutive row slices of ``out`` (rows first,
@@ -120,18 +137,17 @@ class ResidualModel:
 
     def residuals(
         self,
-        x: ArrayLike,
-        y: ArrayLike,
+        point: Sequence[ArrayLike],
         doppler: ArrayLike,
         toa: ArrayLike,
         rss: ArrayLike | None,
         *,
         out: FloatArray | None = None,
     ) -> list[FloatArray]:
-        """The Doppler, ToA and (``rss`` given) RSS blocks of ``e`` at ``(x, y)``, measured
-        minus predicted over σ; with ``out`` (rows first) written into its consecutive row
-        slices."""
-        predicted, ranges = self._model(x, y, 0)
+        """The Doppler, ToA and (``rss`` given) RSS blocks of ``e`` at ``point`` (its
+        coordinates), measured minus predicted over σ; with ``out`` (rows first) written into
+        its consecutive row slices."""
+        predicted, ranges, _ = self._model(point, 0)
         sigma_f, sigma_t, sigma_p = self.sigma
         count = 1 + self.toa + (rss is not None)
         slots = self._blocks(out, count, ranges.shape[1:])
@@ -146,36 +162,43 @@ class ResidualModel:
 
     def jacobian(
         self,
-        x: ArrayLike,
-        y: ArrayLike,
+        point: Sequence[ArrayLike],
         use_rss: bool,
         *,
-        out: tuple[FloatArray, FloatArray] | None = None,
-    ) -> tuple[list[FloatArray], list[FloatArray]]:
-        """``∂e/∂x_s`` and ``∂e/∂y_s`` (``−∇h/σ``), each as the blocks of :meth:`residuals`;
-        with ``out`` (two rows-first arrays) written into their consecutive row slices."""
-        doppler, ranges = self._model(x, y, 1)
+        out: Sequence[FloatArray] | None = None,
+    ) -> tuple[list[FloatArray], ...]:
+        """``∂e/∂x_s``, ``∂e/∂y_s`` (and ``∂e/∂z_s``, ``dimension`` 3), each ``−∇h/σ`` as the
+        blocks of :meth:`residuals`; with ``out`` (one rows-first array per coordinate)
+        written into their consecutive row slices."""
+        doppler, ranges, dz = self._model(point, 1)
         sigma_f, sigma_t, sigma_p = self.sigma
         count = 1 + self.toa + use_rss
         shape = ranges.shape[1:]
-        slots = (
-            self._blocks(None if out is None else out[0], count, shape),
-            self._blocks(None if out is None else out[1], count, shape),
-        )
+        d = self.dimension
+        slots = [
+            self._blocks(None if out is None else out[axis], count, shape) for axis in range(d)
+        ]
+        doppler_gradient, range_gradient = [doppler[1], doppler[2]], [ranges[1], ranges[2]]
+        if d == 3:  # the height's entries (module text)
+            distance = ranges[0]
+            minus_uz = np.negative(dz) / distance
+            range_gradient.append(minus_uz)
+            doppler_gradient.append((self.gamma * self.vz - doppler[0] * minus_uz) / distance)
         power = None
         if use_rss:
             assert self.rss_model is not None
-            power = model.rss_of_ranges(ranges, self.rss_model)
-        columns: tuple[list[FloatArray], list[FloatArray]] = ([], [])
+            stacked = ranges if d == 2 else np.stack([ranges[0], *range_gradient])
+            power = model.rss_of_ranges(stacked, self.rss_model, d)
+        columns: tuple[list[FloatArray], ...] = tuple([] for _ in range(d))
         for axis, (into, slot) in enumerate(zip(columns, slots, strict=True)):
-            into.append(np.multiply(doppler[1 + axis], -1.0 / sigma_f, out=slot[0]))
+            into.append(np.multiply(doppler_gradient[axis], -1.0 / sigma_f, out=slot[0]))
             if self.toa:
                 scale = -1.0 / (self.light * sigma_t)
-                into.append(np.multiply(ranges[1 + axis], scale, out=slot[1]))
+                into.append(np.multiply(range_gradient[axis], scale, out=slot[1]))
             if power is not None:
                 into.append(np.multiply(power[1 + axis], -1.0 / sigma_p, out=slot[-1]))
         if any(self.centred):
-            return self._profiled(columns[0]), self._profiled(columns[1])
+            return tuple(self._profiled(column) for column in columns)
         return columns
 
 

@@ -10,6 +10,8 @@ are in :mod:`estimators.ml.ml_batch_starts`.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -55,8 +57,8 @@ def doppler_grid_starts(data: MeasurementSet) -> FloatArray:
     half = 2.0 * max(float(np.ptp(xy, axis=0).max()), height, 1.0)
     axis = np.linspace(-half, half, GRID_POINTS)
     x, y = np.meshgrid(centre[0] + axis, centre[1] + axis, indexing="ij")
-    model = ResidualModel.of(data)
-    (block,) = model.residuals(x[..., None], y[..., None], data.doppler_hz, None, None)
+    model = dataclasses.replace(ResidualModel.of(data), dimension=2)  # at the data's height
+    (block,) = model.residuals((x[..., None], y[..., None]), data.doppler_hz, None, None)
     cost = np.sum(block**2, axis=-1)
     padded = np.pad(cost, 1, constant_values=np.inf)
     neighbours = np.stack(

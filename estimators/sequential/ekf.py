@@ -73,7 +73,7 @@ was 26× the nuisance CRLB at 20 dB, in ``(D, R)`` 0.97×. The closed form canno
 first frame then; the linear rows and the cross-track scan of
 :mod:`estimators.sequential.nuisance_starts` do, with a diffuse prior on every state, and the first
 update is iterated to the frame's maximum likelihood as before. The reported covariance is the state
-covariance's ``(x, y)`` block; ``diagnostics`` add the returned hypothesis's ``carrier_offset_hz``
+covariance's position block; ``diagnostics`` add the returned hypothesis's ``carrier_offset_hz``
 and ``emission_time_s`` (physical values, with ``…_sigma_hz``, ``…_sigma_s``). What the filter
 cannot fix is the first frames' own non-Gaussian posterior: one straight frame with an
 unknown offset fixes the emitter only along a curve (the first frame's nuisance CRLB on
@@ -84,6 +84,19 @@ and 0.99× at 40 dB with δ unknown; 8.6×, 4.1× and 1.02× with b unknown; 1.0
 1.00× with both (the smoother, :mod:`estimators.sequential.smoother_nuisance`, which relinearises
 every frame, was within 1.04× at 0 dB in all three). The UKF (``filter="ukf"``) is worse at 20 dB
 (1.7× with δ unknown, 2.5× with both) and as good at 40 dB.
+
+**The height unknown** (MATH §7, §8). When the data declare ``"emitter_height_m"`` unknown the
+state is ``(x_s, y_s, z_s)`` (then the nuisance states) and the covariance 3×3 (the frame
+model in three coordinates, :class:`~estimators.frame_model.FrameModel`). A straight track
+leaves a circle of equally likely emitters, which no Gaussian summarises: the frames of the
+first straight track wait in the state (the estimate fails with the mirror rule's one line,
+:data:`~estimators.mirror_rule.STRAIGHT_TRACK_HEIGHT`), and the first frame off the line starts
+the hypotheses from all of them at once: from points of the first frame's circle below the UAV
+(:func:`~estimators.sequential.nuisance_starts.circle_starts`), each iterated to the frames'
+maximum likelihood, the converged ones merged and pruned. In a level flight a hypothesis above
+the UAV is replaced by its reflection through the flight plane (the same likelihood), and a
+hypothesis above the UAV's highest sample is no answer ("the emitter is below the UAV").
+Later frames are the updates above in the 3-D state.
 
 The state (:class:`EkfState`) is a frozen value of plain arrays; filterpy objects live only
 inside one ``update`` call, so the state and the estimator pickle.
@@ -111,6 +124,7 @@ from estimators.convergence import (
 )
 from estimators.frame_model import FrameModel, read_only
 from estimators.goodness_of_fit import with_fit
+from estimators.mirror_rule import STRAIGHT_TRACK_HEIGHT
 from estimators.sequential.mirror_hypotheses import (
     diffuse_prior_information,
     first_frame_candidates,
@@ -120,7 +134,7 @@ from estimators.sequential.mirror_hypotheses import (
     surviving_hypotheses,
     with_mirror,
 )
-from estimators.sequential.nuisance_starts import straight_frame_starts
+from estimators.sequential.nuisance_starts import circle_starts, straight_frame_starts
 from estimators.sequential.nuisance_states import (
     NUISANCE_UNKNOWNS,
     NuisanceFrame,
@@ -136,6 +150,7 @@ from estimators.sequential.nuisance_states import (
     reference_sample,
 )
 from scenarios.geometry import StraightTrack
+from scenarios.nuisance import HEIGHT_UNKNOWN, position_dimension
 from scenarios.types import MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -159,6 +174,9 @@ def ukf_sigma_points(n: int) -> dict[str, float]:
 
 FIRST_FRAME_ITERATIONS = 50
 """Gauss-Newton iterations of the first frame's update (to its maximum likelihood), at most."""
+
+LEVEL_RTOL = 1e-9
+"""A flight is level when its sample heights spread less than ``LEVEL_RTOL ×`` the range."""
 
 
 def update_diagnostics(reports: list[SolverReport]) -> dict[str, Any]:
@@ -192,8 +210,9 @@ class EkfHypothesis:
     Attributes
     ----------
     mean_m : (n,)
-        The state: ``(x_s, y_s)``, then the unknown nuisance parameters if any (δ in Hz,
-        ``β = c b`` in metres; :mod:`estimators.sequential.nuisance_states`, MATH §15).
+        The state: ``(x_s, y_s)`` (``(x_s, y_s, z_s)`` with the height unknown), then the
+        unknown nuisance parameters if any (δ in Hz, ``β = c b`` in metres;
+        :mod:`estimators.sequential.nuisance_states`, MATH §15).
     covariance_m2 : (n, n)
     log_weight : float
         Sum of the frames' log predictive likelihoods (up to a constant shared by all).
@@ -221,6 +240,21 @@ class EkfHypothesis:
             data_information=mirror_matrix(track, self.data_information),
         )
 
+    def reflected(self, height_m: float) -> EkfHypothesis:
+        """The reflection through the horizontal plane at ``height_m`` of a 3-D state
+        (``z_s ↦ 2h − z_s``): same likelihood for a level flight at that height (MATH §7; the
+        referenced nuisance states, of a level reference sample, unchanged)."""
+        flip = np.ones(len(self.mean_m))
+        flip[2] = -1.0
+        mean = self.mean_m.copy()
+        mean[2] = 2.0 * height_m - mean[2]
+        return EkfHypothesis(
+            mean_m=mean,
+            covariance_m2=flip[:, None] * self.covariance_m2 * flip,
+            log_weight=self.log_weight,
+            data_information=flip[:, None] * self.data_information * flip,
+        )
+
 
 @dataclass(frozen=True, slots=True, eq=False)
 class EkfState:
@@ -232,6 +266,11 @@ class EkfState:
     empty for a cooperative emitter), as offset measurements at the ``reference`` sample (the
     first frame's mean; :mod:`estimators.sequential.nuisance_states`); ``speed_of_light_mps``
     converts ``β`` to ``b``.
+
+    With the height unknown (``dimension`` 3) the frames of the first straight track wait in
+    ``pending`` (no hypothesis yet: a straight track cannot fix the height) until a frame
+    leaves the line; ``highest_m`` is the UAV's highest sample height so far (MATH §7: a
+    hypothesis above it is no answer).
     """
 
     hypotheses: tuple[EkfHypothesis, ...] = ()
@@ -245,6 +284,9 @@ class EkfState:
     nuisance: tuple[str, ...] = ()
     reference: FrameModel | None = None
     speed_of_light_mps: float = math.nan
+    dimension: int = 2
+    pending: tuple[FrameModel | NuisanceFrame, ...] = ()
+    highest_m: float = -math.inf
 
     def all_hypotheses(self) -> tuple[EkfHypothesis, ...]:
         """The explicit hypotheses plus, on a straight track, the mirror of the first."""
@@ -461,7 +503,7 @@ class Ekf:
             modules=self.required_modules,
             sequential=True,
             unit_invariant=self.process_noise_mps == 0.0,  # q is in m/s
-            unknowns=NUISANCE_UNKNOWNS,
+            unknowns=NUISANCE_UNKNOWNS | {HEIGHT_UNKNOWN},
         )
 
     # -- the SequentialEstimator pair ----------------------------------------------------------
@@ -475,18 +517,22 @@ class Ekf:
         nuisance parameters (``frame.unknowns``, MATH §15) are carried as constant states."""
         require_modalities(self, frame)
         names = nuisance_names(frame)
+        dimension = position_dimension(frame.unknowns)
         if state.n_frames:
-            check_same_unknowns(state.nuisance, frame)
+            check_same_unknowns(state.nuisance, frame, state.dimension)
         reference = state.reference
         if names and reference is None:
             reference = reference_sample(frame)
         model = frame_model(frame, names, reference)
         if state.failure:
             return replace(state, n_frames=state.n_frames + 1)
+        highest = max(state.highest_m, float(np.max(model.position_m[:, 2])))
         try:
+            if dimension == 3 and (state.n_frames == 0 or state.pending):
+                return self._straight_update(state, frame, model, highest)
             if state.n_frames == 0:
                 return self._first_update(frame, model)
-            return self._next_update(state, model)
+            return replace(self._next_update(state, model), highest_m=highest)
         except (EstimationFailure, np.linalg.LinAlgError) as error:
             return replace(
                 state,
@@ -495,6 +541,8 @@ class Ekf:
                 nuisance=names,
                 reference=reference,
                 speed_of_light_mps=frame.speed_of_light_mps,
+                dimension=dimension,
+                pending=(),
             )
 
     def estimate_state(
@@ -505,6 +553,9 @@ class Ekf:
             return Estimate.failed(self.name, state.failure, frames=state.n_frames)
         if state.n_frames == 0:
             return Estimate.failed(self.name, "no frame has been processed yet", frames=0)
+        if state.pending:  # the height unknown and every frame on one straight track
+            return Estimate.failed(self.name, STRAIGHT_TRACK_HEIGHT, frames=state.n_frames)
+        d = state.dimension
         hypotheses = state.all_hypotheses()
         notes = []
         fallback = state.diagnostics.get("fallback", "none")
@@ -515,11 +566,12 @@ class Ekf:
             )
         estimate = hypotheses_estimate(
             self.name,
-            [h.mean_m[:2] for h in hypotheses],
-            [h.covariance_m2[:2, :2] for h in hypotheses],
+            [h.mean_m[:d] for h in hypotheses],
+            [h.covariance_m2[:d, :d] for h in hypotheses],
             [h.log_weight for h in hypotheses],
-            [position_information(h.data_information) for h in hypotheses],
+            [position_information(h.data_information, d) for h in hypotheses],
             straight_track=state.track is not None,
+            ceiling_m=state.highest_m if d == 3 else None,
             length_scale_m=state.length_scale_m,
             rng=rng,
             notes=notes,
@@ -534,7 +586,7 @@ class Ekf:
             return estimate
         # the returned hypothesis's physical nuisance values δ, b (MATH §15)
         chosen = min(
-            hypotheses, key=lambda h: float(np.linalg.norm(h.mean_m[:2] - estimate.position_m))
+            hypotheses, key=lambda h: float(np.linalg.norm(h.mean_m[:d] - estimate.position_m))
         )
         values, covariance = physical_nuisance(
             state.reference, state.nuisance, chosen.mean_m, chosen.covariance_m2
@@ -598,11 +650,124 @@ class Ekf:
             speed_of_light_mps=frame.speed_of_light_mps,
         )
 
+    def _straight_update(
+        self,
+        state: EkfState,
+        frame: MeasurementSet,
+        model: FrameModel | NuisanceFrame,
+        highest_m: float,
+    ) -> EkfState:
+        """The height unknown, no hypothesis yet: a frame on the first straight track waits
+        (MATH §7: the track leaves a circle); the first frame off it starts the hypotheses
+        from the waiting frames and itself at once (:meth:`_height_start`)."""
+        if state.n_frames == 0:
+            track = StraightTrack.of_frame(model)
+        else:
+            assert state.track is not None  # frames wait only while the track is straight
+            track = state.track.extended(model)
+        pending = (*state.pending, model)
+        names = model.names if isinstance(model, NuisanceFrame) else ()
+        if track is not None:
+            return replace(
+                state,
+                track=track,
+                time_s=model.time_s,
+                n_frames=state.n_frames + 1,
+                nuisance=names,
+                reference=model.reference if isinstance(model, NuisanceFrame) else None,
+                speed_of_light_mps=frame.speed_of_light_mps,
+                dimension=3,
+                pending=pending,
+                highest_m=highest_m,
+            )
+        return self._height_start(pending, frame, highest_m)
+
+    def _height_start(
+        self,
+        pending: tuple[FrameModel | NuisanceFrame, ...],
+        frame: MeasurementSet,
+        highest_m: float,
+    ) -> EkfState:
+        """The hypotheses with the height unknown, from the frames of the first straight
+        track and the first frame off it solved as one (the emitter static over them): from
+        the starts on the first frame's ambiguity circle
+        (:func:`~estimators.sequential.nuisance_starts.circle_starts`), each iterated to their
+        maximum likelihood with a diffuse prior; those that converge are the hypotheses,
+        merged and pruned as after a turn (MATH §7). In a level flight a hypothesis above the
+        UAV is replaced by its reflection through the flight plane (same likelihood)."""
+        first = pending[0]
+        if isinstance(first, NuisanceFrame):
+            model: FrameModel | NuisanceFrame = NuisanceFrame(
+                FrameModel.stacked([m.base for m in pending]),  # type: ignore[union-attr]
+                first.names,
+                first.speed_of_light_mps,
+                reference=first.reference,
+            )
+        else:
+            model = FrameModel.stacked(pending)  # type: ignore[arg-type]
+        starts = circle_starts(first)
+        length_scale = model.mean_range_m(starts[0])
+        if isinstance(model, NuisanceFrame):
+            prior_information = diffuse_information(model, length_scale)
+        else:
+            prior_information = diffuse_prior_information(length_scale, 3)
+        heights = model.position_m[:, 2]
+        level = float(np.ptp(heights)) <= LEVEL_RTOL * length_scale
+        hypotheses = []
+        reports = []
+        for start in starts:
+            mean, information, log_likelihood, report = iterated_update(
+                model, start, prior_information, max_iterations=FIRST_FRAME_ITERATIONS
+            )
+            reports.append(report)
+            if not report.converged:
+                continue
+            hypothesis = EkfHypothesis(
+                mean_m=mean,
+                covariance_m2=symmetric_inverse(information),
+                log_weight=log_likelihood,
+                data_information=model.information(mean),
+            )
+            if level and mean[2] > heights[0]:
+                hypothesis = hypothesis.reflected(float(np.mean(heights)))
+            hypotheses.append(hypothesis)
+        if not hypotheses:
+            raise EstimationFailure(f"frames 0-{len(pending) - 1}: {reports[0].reason}")
+        kept, log_weights = surviving_hypotheses(
+            [h.mean_m[:3] for h in hypotheses],
+            [h.log_weight for h in hypotheses],
+            length_scale,
+            [h.covariance_m2[:3, :3] for h in hypotheses],
+        )
+        top = float(log_weights[0])
+        return EkfState(
+            hypotheses=tuple(
+                replace(hypotheses[i], log_weight=float(w) - top)
+                for i, w in zip(kept, log_weights, strict=True)
+            ),
+            track=None,
+            length_scale_m=length_scale,
+            time_s=pending[-1].time_s,
+            n_frames=len(pending),
+            iterations=max(r.iterations for r in reports),
+            diagnostics={
+                "first_frame_candidates": len(starts),
+                **update_diagnostics(reports),
+                "fallbacks": int(any(r.fallback for r in reports)),
+            },
+            nuisance=first.names if isinstance(first, NuisanceFrame) else (),
+            reference=first.reference if isinstance(first, NuisanceFrame) else None,
+            speed_of_light_mps=frame.speed_of_light_mps,
+            dimension=3,
+            highest_m=highest_m,
+        )
+
     def _next_update(self, state: EkfState, model: FrameModel | NuisanceFrame) -> EkfState:
         track = None if state.track is None else state.track.extended(model)
         hypotheses = state.hypotheses if track is not None else state.all_hypotheses()
+        d = state.dimension
         step_m = self.process_noise_mps * abs(model.time_s - state.time_s)
-        process_covariance = step_m**2 * np.eye(2)
+        process_covariance = step_m**2 * np.eye(d)
         updated = []
         reports = []
         for hypothesis in hypotheses:
@@ -616,8 +781,8 @@ class Ekf:
                 prior_covariance = hypothesis.covariance_m2 + process_covariance
             # sigma points spread along a direction the data do not yet fix would sample the
             # diffuse prior hundreds of kilometres away: linearise (IEKF) until the data do
-            information = position_information(hypothesis.data_information)
-            if self.filter == "ukf" and fisher_rank(information) == 2:
+            information = position_information(hypothesis.data_information, d)
+            if self.filter == "ukf" and fisher_rank(information) == d:
                 mean, covariance, log_likelihood = ukf_update(model, prior_mean, prior_covariance)
                 report = SolverReport(1, 1, float("nan"), True)
             else:
@@ -647,10 +812,10 @@ class Ekf:
             # off the line: near-duplicates (one mode reached from both sides) merge by
             # covariance as well as by position (estimators.sequential.mirror_hypotheses, "Merging")
             kept, log_weights = surviving_hypotheses(
-                [h.mean_m[:2] for h in updated],
+                [h.mean_m[:d] for h in updated],
                 [h.log_weight for h in updated],
                 state.length_scale_m,
-                [h.covariance_m2[:2, :2] for h in updated],
+                [h.covariance_m2[:d, :d] for h in updated],
             )
             top = float(log_weights[0])
             updated = [

@@ -19,6 +19,12 @@ emitter on the track, where the first-order cross-track information vanishes); w
 do is decided separately, from the rank of the accumulated Fisher information
 (:func:`fisher_rank`), and reported.
 
+**The height unknown** (MATH §7, §8). The hypotheses are 3-D points (their covariances and
+information 3×3); a straight track then leaves a circle, not a pair, so the estimators start
+their hypotheses only after a second heading (:func:`~estimators.sequential.nuisance_starts.
+circle_starts`), and :func:`hypotheses_estimate` drops a hypothesis above the UAV's highest
+sample (``ceiling_m``: the emitter is below the UAV).
+
 **Merging** (MATH §7). After a turn the mirror hypothesis of an iterated filter is pulled to
 the true side, but its Gaussian prior, linearised on the mirror side for every earlier frame,
 holds it short: at −20 dB on ``paper-1m-turn`` 44 % of the trials reported such a second
@@ -67,13 +73,14 @@ RIDGELINE_POINTS = 513
 """Points along the ridgeline at which :func:`single_mode` evaluates the mixture density."""
 
 
-def diffuse_prior_information(length_scale_m: float) -> FloatArray:
-    """``I / σ_d²`` with ``σ_d = DIFFUSE_PRIOR_SCALE × length_scale_m`` (see the module text)."""
-    return np.eye(2) / (DIFFUSE_PRIOR_SCALE * length_scale_m) ** 2
+def diffuse_prior_information(length_scale_m: float, dimension: int = 2) -> FloatArray:
+    """``I / σ_d²`` with ``σ_d = DIFFUSE_PRIOR_SCALE × length_scale_m`` (see the module text),
+    ``dimension × dimension``."""
+    return np.eye(dimension) / (DIFFUSE_PRIOR_SCALE * length_scale_m) ** 2
 
 
 def fisher_rank(information: ArrayLike) -> int:
-    """Numerical rank of a 2×2 Fisher information (eigenvalues below ``RANK_RTOL × max`` are 0)."""
+    """Numerical rank of a Fisher information (eigenvalues below ``RANK_RTOL × max`` are 0)."""
     eigenvalues = np.linalg.eigvalsh(np.asarray(information, dtype=float))
     top = float(eigenvalues[-1])
     if not top > 0.0:
@@ -159,7 +166,8 @@ def single_mode(
     interior point below the maxima on both sides, beyond rounding). False when a mean or a
     weight is not finite, or a covariance not finite and positive definite.
     """
-    means = np.array([mean_a, mean_b], dtype=float).reshape(2, 2)
+    means = np.array([mean_a, mean_b], dtype=float).reshape(2, -1)
+    dimension = means.shape[1]
     if not (np.all(np.isfinite(means)) and np.isfinite(log_weight_a) and np.isfinite(log_weight_b)):
         return False
     precisions = []
@@ -174,7 +182,9 @@ def single_mode(
             return False
         inverse_factor = np.linalg.inv(factor)
         precisions.append(inverse_factor.T @ inverse_factor)
-        log_norms.append(-float(np.sum(np.log(np.diag(factor)))) - np.log(2.0 * np.pi))
+        log_norms.append(
+            -float(np.sum(np.log(np.diag(factor)))) - 0.5 * dimension * np.log(2.0 * np.pi)
+        )
     alpha = np.linspace(0.0, 1.0, RIDGELINE_POINTS)[:, None, None]
     blend = (1.0 - alpha) * precisions[0] + alpha * precisions[1]
     rhs = (1.0 - alpha[:, :, 0]) * (precisions[0] @ means[0]) + alpha[:, :, 0] * (
@@ -211,8 +221,8 @@ def surviving_hypotheses(
     the weights added. Then every hypothesis whose normalised weight is below ``PRUNE_WEIGHT``
     is dropped (MATH §7: the geometry has decided).
     """
-    means = np.asarray(means_m, dtype=float).reshape(-1, 2)
     log_w = np.asarray(log_weights, dtype=float).reshape(-1)
+    means = np.asarray(means_m, dtype=float).reshape(len(log_w), -1) if len(log_w) else log_w
     order = np.argsort(-log_w, kind="stable")
     kept: list[int] = []
     merged: list[float] = []
@@ -252,6 +262,7 @@ def hypotheses_estimate(
     rng: np.random.Generator | None = None,
     diagnostics: dict[str, Any] | None = None,
     notes: Sequence[str] = (),
+    ceiling_m: float | None = None,
 ) -> Estimate:
     """The :class:`Estimate` of a set of weighted hypotheses (MATH §7).
 
@@ -265,10 +276,19 @@ def hypotheses_estimate(
     hypothesis is rank-deficient, because then the data do not determine the emitter to first
     order and any finite covariance would be the diffuse prior's, not the data's.
     ``notes`` (e.g. a solver fallback) go into ``message``. A non-finite candidate is a failed
-    estimate, never a success.
+    estimate, never a success. With the height estimated (3-D means) ``ceiling_m`` is the UAV's
+    highest sample height: a hypothesis above it is no answer (the mirror rule, MATH §7).
     """
     check_rng(rng)
-    means = np.asarray(means_m, dtype=float).reshape(-1, 2)
+    means = np.asarray(means_m, dtype=float).reshape(len(covariances_m2), -1)
+    dimension = means.shape[1]
+    log_weights = np.asarray(log_weights, dtype=float).reshape(-1)
+    if ceiling_m is not None:  # those above the UAV weigh nothing
+        log_weights = np.where(means[:, 2] > ceiling_m, -np.inf, log_weights)
+        if not np.any(np.isfinite(log_weights)):
+            return Estimate.failed(
+                name, "no hypothesis below the UAV (MATH §7)", **dict(diagnostics or {})
+            )
     kept, log_w = surviving_hypotheses(
         means, log_weights, length_scale_m, None if straight_track else covariances_m2
     )
@@ -282,13 +302,13 @@ def hypotheses_estimate(
     # the tie rule of finalize_estimate: the heaviest, an exact tie broken by rng
     index, _ = choose_candidate(means[kept], log_w[0] - log_w, rng=rng, cost_rtol=0.0)
     chosen = kept[index]
-    information = np.asarray(data_information, dtype=float).reshape(-1, 2, 2)[chosen]
-    rank = fisher_rank(information)
-    covariance = np.asarray(covariances_m2[chosen], dtype=float) if rank == 2 else None
+    information = np.asarray(data_information, dtype=float).reshape(-1, dimension, dimension)
+    rank = fisher_rank(information[chosen])
+    covariance = np.asarray(covariances_m2[chosen], dtype=float) if rank == dimension else None
     messages = list(notes)
-    if rank < 2:
+    if rank < dimension:
         messages.append(
-            f"Fisher information of the data has rank {rank} < 2: the emitter is not "
+            f"Fisher information of the data has rank {rank} < {dimension}: the emitter is not "
             "determined to first order (e.g. it lies on the track); covariance not reported"
         )
     message = "; ".join(messages)
@@ -319,10 +339,12 @@ def smoother_estimate(
     notes: list[str],
     diagnostics: dict[str, Any],
     random_walk: bool,
+    ceiling_m: float | None = None,
 ) -> Estimate:
     """:func:`hypotheses_estimate` of a smoother's state (its hypotheses' last positions,
     covariances, weights and data information), with the state's frame and iteration counts
-    in the diagnostics; shared by the cooperative and the nuisance smoother (MATH §7, §15)."""
+    in the diagnostics; shared by the cooperative and the nuisance smoother (MATH §7, §15);
+    ``ceiling_m`` as in :func:`hypotheses_estimate` (3-D)."""
     return hypotheses_estimate(
         name,
         [h.estimates_m[-1] for h in hypotheses],
@@ -339,4 +361,5 @@ def smoother_estimate(
             "iterations": state.iterations,
             "random_walk": random_walk,
         },
+        ceiling_m=ceiling_m,
     )

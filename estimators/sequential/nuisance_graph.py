@@ -7,9 +7,9 @@ one), the emitter variables ``X(t)`` as in
 nuisance parameters in the physical state of :mod:`estimators.sequential.nuisance_states` (δ in Hz,
 then ``β = c b`` in metres), with diffuse priors on ``X(0)`` and ``N(0)`` and random-walk links
 (:func:`nuisance_graph`). :func:`nuisance_fit` evaluates the same graph in numpy (dense algebra
-over its ``2V + n_u`` unknowns): cost, decrements, Laplace evidence, covariance, the data's
-``(x, y)`` information with the nuisance eliminated (MATH §15) and the Hessian that says whether
-a stationary point is a saddle.
+over its ``dV + n_u`` unknowns, ``d = 3`` with the height unknown): cost, decrements, Laplace
+evidence, covariance, the data's information about the position with the nuisance eliminated
+(MATH §15) and the Hessian that says whether a stationary point is a saddle.
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from estimators.sequential.nuisance_states import (
     position_information,
     stacked_frames,
 )
+from estimators.sequential.smoother_graph import point_at
 
 FloatArray = NDArray[np.float64]
 
@@ -39,18 +40,22 @@ FloatArray = NDArray[np.float64]
 
 def nuisance_factor(frame: NuisanceFrame, position_key: int, nuisance_key: int) -> Any:
     """ONE ``CustomFactor`` on ``[position_key, nuisance_key]`` for a frame's stacked whitened
-    residuals (unit noise). Both Jacobian blocks are set as 2-D arrays, ``(2K, 2)`` and
+    residuals (unit noise); the position a ``Point2``, or a ``Point3`` with the height unknown.
+    Both Jacobian blocks are set as 2-D arrays, ``(2K, d)`` and
     ``(2K, n_u)``: GTSAM 4.3 segfaults on a 1-D one and accepts a wrong width silently
     (a trap of GTSAM 4.3's Python bindings)."""
     import gtsam
 
+    d = frame.dimension
+
     def error(this: Any, values: Any, jacobians: Any) -> FloatArray:
-        state = np.concatenate([values.atPoint2(position_key), values.atVector(nuisance_key)])
+        position = point_at(values, position_key, d)
+        state = np.concatenate([position, values.atVector(nuisance_key)])
         if jacobians is None:
             return np.ascontiguousarray(frame.whitened_error(state))
         e, E = frame.whitened_error_and_jacobian(state)
-        jacobians[0] = np.ascontiguousarray(E[:, :2])
-        jacobians[1] = np.ascontiguousarray(E[:, 2:])
+        jacobians[0] = np.ascontiguousarray(E[:, :d])
+        jacobians[1] = np.ascontiguousarray(E[:, d:])
         return np.ascontiguousarray(e)
 
     noise = gtsam.noiseModel.Unit.Create(frame.n_rows)
@@ -73,16 +78,19 @@ def nuisance_graph(
     import gtsam
     from gtsam.symbol_shorthand import N, X
 
+    d = frames[0].dimension
+    prior = gtsam.PriorFactorPoint3 if d == 3 else gtsam.PriorFactorPoint2
+    between = gtsam.BetweenFactorPoint3 if d == 3 else gtsam.BetweenFactorPoint2
     graph = gtsam.NonlinearFactorGraph()
     if first == 0:
         graph.add(
-            gtsam.PriorFactorPoint2(
-                X(0), np.array(prior_state[:2]), gtsam.noiseModel.Diagonal.Sigmas(prior_sigmas[:2])
+            prior(
+                X(0), np.array(prior_state[:d]), gtsam.noiseModel.Diagonal.Sigmas(prior_sigmas[:d])
             )
         )
         graph.add(
             gtsam.PriorFactorVector(
-                N(0), np.array(prior_state[2:]), gtsam.noiseModel.Diagonal.Sigmas(prior_sigmas[2:])
+                N(0), np.array(prior_state[d:]), gtsam.noiseModel.Diagonal.Sigmas(prior_sigmas[d:])
             )
         )
     if not random_walk:  # every frame on X(0): one factor, one callback per evaluation
@@ -92,28 +100,30 @@ def nuisance_graph(
     for t in range(first, len(frames)):
         graph.add(nuisance_factor(frames[t], X(t), N(0)))
         if t > 0:
-            noise = gtsam.noiseModel.Isotropic.Sigma(2, float(steps[t - 1]))
-            graph.add(gtsam.BetweenFactorPoint2(X(t - 1), X(t), np.zeros(2), noise))
+            noise = gtsam.noiseModel.Isotropic.Sigma(d, float(steps[t - 1]))
+            graph.add(between(X(t - 1), X(t), np.zeros(d), noise))
     return graph
 
 
-def nuisance_values(theta: FloatArray, n_variables: int) -> Any:
-    """``gtsam.Values`` of a flat state ``θ = (X(0), …, X(V−1), N(0))``."""
+def nuisance_values(theta: FloatArray, n_variables: int, dimension: int = 2) -> Any:
+    """``gtsam.Values`` of a flat state ``θ = (X(0), …, X(V−1), N(0))``, each ``X`` of
+    ``dimension`` coordinates."""
     import gtsam
     from gtsam.symbol_shorthand import N, X
 
+    d = dimension
     values = gtsam.Values()
     for i in range(n_variables):
-        values.insert(X(i), np.array(theta[2 * i : 2 * i + 2]))
-    values.insert(N(0), np.array(theta[2 * n_variables :]))
+        values.insert(X(i), np.array(theta[d * i : d * i + d]))
+    values.insert(N(0), np.array(theta[d * n_variables :]))
     return values
 
 
-def read_values(values: Any, n_variables: int) -> FloatArray:
+def read_values(values: Any, n_variables: int, dimension: int = 2) -> FloatArray:
     """The flat state of ``values`` (:func:`nuisance_values`)."""
     from gtsam.symbol_shorthand import N, X
 
-    positions = [values.atPoint2(X(i)) for i in range(n_variables)]
+    positions = [point_at(values, X(i), dimension) for i in range(n_variables)]
     return np.concatenate([*positions, values.atVector(N(0))]).astype(float)
 
 
@@ -128,7 +138,7 @@ class NuisanceFit:
     :class:`~estimators.sequential.smoother_graph.ChainFit`: ``chi2``, ``log_evidence``,
     ``decrement``, ``step_m`` (Newton where the Hessian is positive definite, else Gauss-Newton;
     shaped as ``θ``), ``covariance`` (the inverse Gauss-Newton information of the whole state),
-    ``data_information`` (the data's information of ``(x, y)`` with the nuisance eliminated,
+    ``data_information`` (the data's information of the position with the nuisance eliminated,
     MATH §15) and ``uniform_hessian`` (the exact Hessian for one shift of every emitter variable
     and of the nuisance)."""
 
@@ -155,32 +165,33 @@ def nuisance_fit(
     prior_sigmas: FloatArray,
 ) -> NuisanceFit:
     """Cost, decrement, evidence and covariance of the graph at ``θ`` (dense algebra over the
-    ``2V + n_u`` unknowns). Raises :class:`EstimationFailure` when the Gauss-Newton information
+    ``dV + n_u`` unknowns). Raises :class:`EstimationFailure` when the Gauss-Newton information
     is not positive definite or not finite."""
     n_u = len(frames[0].names)
-    n_var = (len(theta) - n_u) // 2
+    d = frames[0].dimension
+    n_var = (len(theta) - n_u) // d
     size = len(theta)
-    nuisance = slice(2 * n_var, size)
+    nuisance = slice(d * n_var, size)
     information = np.zeros((size, size))
     curvature = np.zeros((size, size))
     gradient = np.zeros(size)
-    data = np.zeros((2 + n_u, 2 + n_u))
+    data = np.zeros((d + n_u, d + n_u))
     chi2 = 0.0
     if random_walk:
         groups = list(enumerate(frames))
     else:  # every frame on X(0): one stacked evaluation (physical state: no reference)
         groups = [(0, stacked_frames(frames))]
     for variable, frame in groups:
-        state = np.concatenate([theta[2 * variable : 2 * variable + 2], theta[nuisance]])
+        state = np.concatenate([theta[d * variable : d * variable + d], theta[nuisance]])
         e, E = frame.whitened_error_and_jacobian(state)
-        index = np.r_[2 * variable, 2 * variable + 1, 2 * n_var : size]
+        index = np.r_[d * variable : d * variable + d, d * n_var : size]
         block = E.T @ E
         information[np.ix_(index, index)] += block
         curvature[np.ix_(index, index)] += np.sum(frame.curvature_terms(state, e), axis=0)
         gradient[index] += E.T @ e
         data += block
         chi2 += float(e @ e)
-    prior_index = np.r_[0, 1, 2 * n_var : size]
+    prior_index = np.r_[0:d, d * n_var : size]
     weights = 1.0 / np.asarray(prior_sigmas, dtype=float) ** 2
     offset = theta[prior_index] - prior_state
     chi2 += float(np.sum(weights * offset**2))
@@ -189,11 +200,11 @@ def nuisance_fit(
     if random_walk:
         for t in range(1, n_var):
             w = 1.0 / float(step_sigmas[t - 1]) ** 2
-            a, b = slice(2 * t - 2, 2 * t), slice(2 * t, 2 * t + 2)
+            a, b = slice(d * t - d, d * t), slice(d * t, d * t + d)
             link = theta[b] - theta[a]
             chi2 += w * float(link @ link)
             for i, j, sign in ((a, a, 1.0), (b, b, 1.0), (a, b, -1.0), (b, a, -1.0)):
-                information[i, j] += sign * w * np.eye(2)
+                information[i, j] += sign * w * np.eye(d)
             gradient[b] += w * link
             gradient[a] -= w * link
     try:
@@ -219,15 +230,15 @@ def nuisance_fit(
             step, decrement = newton_step, min(decrement, newton)
     except np.linalg.LinAlgError:
         pass
-    uniform = np.zeros((size, 2 + n_u))  # every emitter variable and the nuisance shifted
-    uniform[: 2 * n_var, :2] = np.tile(np.eye(2), (n_var, 1))
-    uniform[2 * n_var :, 2:] = np.eye(n_u)
+    uniform = np.zeros((size, d + n_u))  # every emitter variable and the nuisance shifted
+    uniform[: d * n_var, :d] = np.tile(np.eye(d), (n_var, 1))
+    uniform[d * n_var :, d:] = np.eye(n_u)
     return NuisanceFit(
         chi2=chi2,
         log_evidence=float(-0.5 * chi2 - 0.5 * log_det),
         decrement=decrement,
         step_m=step,
         covariance=0.5 * (covariance + covariance.T),
-        data_information=position_information(data),
+        data_information=position_information(data, d),
         uniform_hessian=uniform.T @ hessian @ uniform,
     )

@@ -29,16 +29,26 @@ trials of ``turn`` at 20 dB). So :func:`profile_scan` also searches the cross-tr
 on a grid with the nuisance values profiled out (:func:`profiled_errors`), and the lower of the
 two points starts (:func:`straight_frame_starts`), with its mirror image (MATH §7). The first
 update then iterates to the frame's maximum likelihood (MATH §10).
+
+**The height unknown** (MATH §7, §8). A straight track leaves the emitter on a circle about
+it: the data fix its along-track coordinate and its distance ``R`` from the track, not the
+angle. :func:`circle_starts` finds ``(a, R)`` as above with the emitter assumed at the UAV's
+own (mean) height, where the horizontal cross-track distance is ``R`` itself, and puts starts
+on the circle's lower half, at the depressions :data:`START_DEPRESSIONS_DEG` below the UAV on
+both sides of the track (the emitter is below the UAV, MATH §7); the frames after a second
+heading decide among them (:mod:`estimators.sequential.ekf`).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from estimators.convergence import EstimationFailure
+from estimators.frame_model import FrameModel
 from estimators.sequential.nuisance_states import NuisanceFrame, profile_nuisance
 
 FloatArray = NDArray[np.float64]
@@ -48,6 +58,10 @@ SCAN_POINTS = 64
 
 SCAN_STEPS = 12
 """Gauss-Newton steps in the along-track coordinate at each point of :func:`profile_scan`."""
+
+START_DEPRESSIONS_DEG = (10.0, 30.0, 50.0, 70.0)
+"""Angles below the horizontal through the track of the 3-D starts on the ambiguity circle
+(:func:`circle_starts`), on each side."""
 
 
 def _track_frame(frame: NuisanceFrame) -> tuple[FloatArray, FloatArray, FloatArray, float]:
@@ -187,3 +201,30 @@ def straight_frame_starts(frame: NuisanceFrame) -> FloatArray:
     mirrored = best - 2.0 * cross * normal
     pair = [best, mirrored] if cross != 0.0 else [best]
     return np.array([frame.state(p, profile_nuisance([frame], p)) for p in pair])
+
+
+def circle_starts(frame: FrameModel | NuisanceFrame) -> FloatArray:
+    """Starting states ``(n_starts, n)`` with the height unknown (module text): the points of
+    the first straight frame's ambiguity circle at :data:`START_DEPRESSIONS_DEG` below the
+    UAV on both sides of the track, with the profiled nuisance values (if any) in the frame's
+    state. ``frame`` is a 3-D model (``dimension == 3``). Raises :class:`EstimationFailure`
+    without horizontal motion."""
+    nuisance = isinstance(frame, NuisanceFrame)
+    base = frame.base if nuisance else frame
+    height = float(np.mean(base.position_m[:, 2]))
+    plane = NuisanceFrame(
+        replace(base, dimension=2, emitter_height_m=height),
+        frame.names if nuisance else (),
+        frame.speed_of_light_mps if nuisance else math.nan,
+    )
+    origin, along, normal, _ = _track_frame(plane)
+    best = straight_frame_starts(plane)[0]  # (x, y, physical nuisance values) at the UAV height
+    offset = best[:2] - origin
+    a, radius = float(offset @ along), abs(float(offset @ normal))
+    starts = []
+    for side in (1.0, -1.0):
+        for depression in np.radians(START_DEPRESSIONS_DEG):
+            horizontal = origin + a * along + side * radius * math.cos(depression) * normal
+            position = np.append(horizontal, height - radius * math.sin(depression))
+            starts.append(frame.state(position, best[2:]) if nuisance else position)
+    return np.array(starts)

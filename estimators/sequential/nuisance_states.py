@@ -41,7 +41,7 @@ and flies along it, so ``D`` and ``R`` are unchanged by the mirror reflection (M
 The physical values are read back as ``δ = D − f₀(s)``, ``β = R − ρ₀(s)``
 (:meth:`NuisanceFrame.physical_nuisance`, :meth:`NuisanceFrame.physical_covariance`).
 
-**The position's information and covariance.** The reported covariance is the ``(x, y)`` block
+**The position's information and covariance.** The reported covariance is the position's block
 of the state's; the data's information about the position is the Schur complement of the
 state's (:func:`position_information`), which over accumulated frames is the nuisance
 information of :func:`scenarios.fisher.fisher_information` (MATH §8, §15: the affected rows
@@ -67,7 +67,12 @@ from estimators.frame_model import FrameModel, read_only
 from estimators.sequential.mirror_hypotheses import DIFFUSE_PRIOR_SCALE
 from scenarios.fisher import gram_information
 from scenarios.geometry import StraightTrack
-from scenarios.nuisance import unknowns_used
+from scenarios.nuisance import (
+    HEIGHT_UNKNOWN,
+    nuisance_unknowns,
+    position_dimension,
+    unknowns_used,
+)
 from scenarios.types import MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -83,8 +88,9 @@ _ROW = {"carrier_offset_hz": 0, "emission_time_s": 1}
 
 
 def nuisance_names(data: MeasurementSet) -> tuple[str, ...]:
-    """The unknown nuisance parameters of ``data`` that enter Doppler or ToA, in state order."""
-    return unknowns_used(data.unknowns, FRAME_MODALITIES)
+    """The unknown nuisance parameters of ``data`` that enter Doppler or ToA, in state order
+    (the height, a coordinate of the position, is not one)."""
+    return unknowns_used(nuisance_unknowns(data.unknowns), FRAME_MODALITIES)
 
 
 def reference_sample(frame: MeasurementSet) -> FrameModel:
@@ -102,6 +108,7 @@ def reference_sample(frame: MeasurementSet) -> FrameModel:
         gamma_per_m=frame.gamma_per_m,
         emitter_height_m=frame.emitter_height_m,
         time_s=float(np.mean(frame.time_s)),
+        dimension=position_dimension(frame.unknowns),
     )
 
 
@@ -128,12 +135,14 @@ def stacked_frames(frames: Sequence[NuisanceFrame]) -> NuisanceFrame:
     return NuisanceFrame(base, frames[0].names, frames[0].speed_of_light_mps)
 
 
-def check_same_unknowns(names: tuple[str, ...], frame: MeasurementSet) -> None:
-    """Raise ``ValueError`` when a later frame declares other unknowns than the first."""
-    if nuisance_names(frame) != names:
+def check_same_unknowns(names: tuple[str, ...], frame: MeasurementSet, dimension: int = 2) -> None:
+    """Raise ``ValueError`` when a later frame declares other unknowns than the first (the
+    nuisance ``names``; the height unknown when the position had ``dimension`` 3)."""
+    if nuisance_names(frame) != names or position_dimension(frame.unknowns) != dimension:
         raise ValueError(
             f"unknowns: this frame declares {list(frame.unknowns)} but the earlier frames "
-            f"declared {list(names)}; the nuisance parameters are constant over a pass (MATH §15)"
+            f"declared {list(names) + ([HEIGHT_UNKNOWN] if dimension == 3 else [])}; the "
+            "unknowns are the same over a pass (MATH §8, §15)"
         )
 
 
@@ -227,9 +236,14 @@ class NuisanceFrame:
         return len(self.base.position_m)
 
     @property
+    def dimension(self) -> int:
+        """The emitter's coordinates ``d``: 2, or 3 with the height unknown (MATH §8)."""
+        return self.base.dimension
+
+    @property
     def n_state(self) -> int:
-        """``2 +`` the number of nuisance states."""
-        return 2 + len(self.names)
+        """``d +`` the number of nuisance states."""
+        return self.base.dimension + len(self.names)
 
     def columns(self) -> FloatArray:
         """``A``, shape ``(2K, n_u)``: the nuisance states' 0/1 columns, 1 on the Doppler rows
@@ -244,7 +258,7 @@ class NuisanceFrame:
         return reference_offsets(self.reference, self.names, position_m)
 
     def offsets_jacobian(self, position_m: ArrayLike) -> FloatArray:
-        """``∂g/∂s``, shape ``(..., n_u, 2)`` (:func:`reference_offsets_jacobian`)."""
+        """``∂g/∂s``, shape ``(..., n_u, d)`` (:func:`reference_offsets_jacobian`)."""
         return reference_offsets_jacobian(self.reference, self.names, position_m)
 
     # -- the model ------------------------------------------------------------------------------
@@ -261,14 +275,15 @@ class NuisanceFrame:
         if key is not None and last[0] == key and (last[2] is not None or not with_jacobian):
             return last[1], last[2] if with_jacobian else None
         model = self.base if self._joint is None else self._joint
-        doppler, ranges = model.components(theta[..., :2], int(with_jacobian))
+        d = self.dimension
+        doppler, ranges = model.components(theta[..., :d], int(with_jacobian))
         k = self.n_samples
         blocks = (doppler, ranges)
-        rows = np.concatenate([doppler[..., :k], ranges[..., :k]], axis=-1)  # value, ∂x, ∂y
+        rows = np.concatenate([doppler[..., :k], ranges[..., :k]], axis=-1)  # value, ∂x, ∂y(, ∂z)
         for j, name in enumerate(self.names):
             row = _ROW[name]
             block = rows[..., row * k : (row + 1) * k]
-            shift = theta[..., 2 + j]
+            shift = theta[..., d + j]
             if self._joint is not None:
                 reference = blocks[row][..., k]  # the reference sample's value and gradient
                 shift = shift - reference[0]
@@ -278,9 +293,9 @@ class NuisanceFrame:
         jacobian = None
         if with_jacobian:
             jacobian = np.empty((*predicted.shape, self.n_state))
-            jacobian[..., 0] = rows[1]
-            jacobian[..., 1] = rows[2]
-            jacobian[..., 2:] = self._columns
+            for i in range(d):
+                jacobian[..., i] = rows[1 + i]
+            jacobian[..., d:] = self._columns
         if key is not None:
             read_only(predicted, *(() if jacobian is None else (jacobian,)))
             last[:] = [key, predicted, jacobian]
@@ -316,17 +331,18 @@ class NuisanceFrame:
 
     def hessian(self, state: ArrayLike) -> FloatArray:
         """``∂²h/∂θ²`` of every row, shape ``(2K, n, n)``: MATH §8's (minus the reference's,
-        in the referenced state) in the ``(x, y)`` block, zero elsewhere (the nuisance states
-        enter linearly)."""
+        in the referenced state) in the position's ``d × d`` block, zero elsewhere (the nuisance
+        states enter linearly)."""
         theta = np.asarray(state, dtype=float)
+        d = self.dimension
         hessian = np.zeros((self.n_rows, self.n_state, self.n_state))
         if self._joint is None:
-            hessian[:, :2, :2] = self.base.hessian(theta[:2])
+            hessian[:, :d, :d] = self.base.hessian(theta[:d])
         else:
-            joint = self._joint.hessian(theta[:2])
-            hessian[:, :2, :2] = joint[self._base_rows]
-            reference = joint[self._reference_rows]  # (n_u, 2, 2)
-            hessian[:, :2, :2] -= np.einsum("kj,jab->kab", self._columns, reference)
+            joint = self._joint.hessian(theta[:d])
+            hessian[:, :d, :d] = joint[self._base_rows]
+            reference = joint[self._reference_rows]  # (n_u, d, d)
+            hessian[:, :d, :d] -= np.einsum("kj,jab->kab", self._columns, reference)
         return hessian
 
     def curvature_terms(self, state: ArrayLike, error: ArrayLike) -> FloatArray:
@@ -341,7 +357,7 @@ class NuisanceFrame:
 
     def mean_range_m(self, state: ArrayLike) -> float:
         """Mean slant range to the emitter: the frame's length scale."""
-        return self.base.mean_range_m(np.asarray(state, dtype=float)[:2])
+        return self.base.mean_range_m(np.asarray(state, dtype=float)[: self.dimension])
 
     def doppler_scale_hz(self) -> float:
         """``γ max|v_k|``: the largest Doppler shift the frame can show."""
@@ -357,10 +373,11 @@ class NuisanceFrame:
         return np.concatenate([position, values], axis=-1)
 
     def position_map(self, state: ArrayLike) -> FloatArray:
-        """``∂θ/∂s`` at fixed physical nuisance, shape ``(n, 2)``: ``[I; ∂g/∂s]``. A random
+        """``∂θ/∂s`` at fixed physical nuisance, shape ``(n, d)``: ``[I; ∂g/∂s]``. A random
         step ``ν`` of the emitter moves the state by ``M ν`` (the EKF's process noise)."""
         theta = np.asarray(state, dtype=float)
-        return np.vstack([np.eye(2), self.offsets_jacobian(theta[:2])])
+        d = self.dimension
+        return np.vstack([np.eye(d), self.offsets_jacobian(theta[:d])])
 
 
 def reference_offsets(
@@ -377,10 +394,10 @@ def reference_offsets(
 def reference_offsets_jacobian(
     reference: FrameModel | None, names: tuple[str, ...], position_m: ArrayLike
 ) -> FloatArray:
-    """``∂g/∂s`` of :func:`reference_offsets`, shape ``(..., n_u, 2)`` (MATH §8)."""
+    """``∂g/∂s`` of :func:`reference_offsets`, shape ``(..., n_u, d)`` (MATH §8)."""
     position = np.asarray(position_m, dtype=float)
     if reference is None:
-        return np.zeros((*position.shape[:-1], len(names), 2))
+        return np.zeros((*position.shape[:-1], len(names), position.shape[-1]))
     return reference.jacobian(position)[..., [_ROW[name] for name in names], :]
 
 
@@ -393,10 +410,11 @@ def physical_nuisance(
     """The physical ``(δ, β)`` of a state and their covariance: ``θ_n − g(s)`` and the
     nuisance block of ``T C Tᵀ``, ``T = [[I, 0], [−∂g/∂s, I]]`` (module text)."""
     theta = np.asarray(state, dtype=float)
+    d = len(theta) - len(names)
     transform = np.eye(len(theta))
-    transform[2:, :2] = -reference_offsets_jacobian(reference, names, theta[:2])
+    transform[d:, :d] = -reference_offsets_jacobian(reference, names, theta[:d])
     full = transform @ np.asarray(covariance, dtype=float) @ transform.T
-    return theta[2:] - reference_offsets(reference, names, theta[:2]), full[2:, 2:]
+    return theta[d:] - reference_offsets(reference, names, theta[:d]), full[d:, d:]
 
 
 # --------------------------------------------------------------------------------------------
@@ -404,24 +422,27 @@ def physical_nuisance(
 # --------------------------------------------------------------------------------------------
 
 
-def position_information(information: ArrayLike) -> FloatArray:
-    """``J_ss − J_sn J_nn⁻¹ J_ns``: the information left for ``(x, y)`` once the nuisance
-    states are estimated too (MATH §15); a 2×2 input is returned as it is."""
+def position_information(information: ArrayLike, dimension: int = 2) -> FloatArray:
+    """``J_ss − J_sn J_nn⁻¹ J_ns``: the information left for the position's ``dimension``
+    coordinates once the nuisance states are estimated too (MATH §15); a ``d × d`` input is
+    returned as it is."""
     J = np.asarray(information, dtype=float)
-    if J.shape == (2, 2):
+    d = dimension
+    if J.shape == (d, d):
         return J
     try:
-        coupling = np.linalg.solve(J[2:, 2:], J[2:, :2])
+        coupling = np.linalg.solve(J[d:, d:], J[d:, :d])
     except np.linalg.LinAlgError:
-        return np.full((2, 2), np.nan)
-    schur = J[:2, :2] - J[:2, 2:] @ coupling
+        return np.full((d, d), np.nan)
+    schur = J[:d, :d] - J[:d, d:] @ coupling
     return 0.5 * (schur + schur.T)
 
 
 def mirror_state(track: StraightTrack, state: ArrayLike) -> FloatArray:
     """The reflection of a state across a straight track (MATH §7): the position mirrored, the
     nuisance states unchanged (the measurements, and the reference on the track, are the
-    same). A 2-vector as :meth:`StraightTrack.mirror_point`."""
+    same; so is a height, the third coordinate of a 3-D position). A 2-vector as
+    :meth:`StraightTrack.mirror_point`."""
     theta = np.asarray(state, dtype=float)
     if theta.shape[-1] == 2:
         return track.mirror_point(theta)
@@ -429,8 +450,8 @@ def mirror_state(track: StraightTrack, state: ArrayLike) -> FloatArray:
 
 
 def mirror_matrix(track: StraightTrack, matrix: ArrayLike) -> FloatArray:
-    """``M C Mᵀ`` with ``M = diag(reflection, I)``: a state covariance or information mirrored.
-    A 2×2 as :meth:`StraightTrack.mirror_covariance`."""
+    """``M C Mᵀ`` with ``M = diag(reflection, I)``: a state covariance or information mirrored
+    (the height's row, in 3-D, unchanged). A 2×2 as :meth:`StraightTrack.mirror_covariance`."""
     C = np.asarray(matrix, dtype=float)
     if C.shape == (2, 2):
         return track.mirror_covariance(C)
@@ -488,7 +509,7 @@ def profile_nuisance(frames: Iterable[NuisanceFrame], position_m: ArrayLike) -> 
 def diffuse_sigmas(frame: NuisanceFrame, length_scale_m: float) -> FloatArray:
     """The diffuse prior's σ of each state (module text): ``DIFFUSE_PRIOR_SCALE ×`` the length
     scale (position, β or R) or ``γ max|v|`` (δ or D)."""
-    scales = [length_scale_m, length_scale_m]
+    scales = [length_scale_m] * frame.dimension
     for name in frame.names:
         scales.append(frame.doppler_scale_hz() if name == "carrier_offset_hz" else length_scale_m)
     return DIFFUSE_PRIOR_SCALE * np.asarray(scales)

@@ -32,6 +32,7 @@ from estimators.sequential.smoother_graph import (
     graph_part,
     marginal_covariance,
     newton_descent,
+    point_at,
     values_of,
 )
 from estimators.sequential.smoother_hypotheses import SmootherHypothesis
@@ -113,9 +114,10 @@ def lm_solve(
     result, start_error, end_error, iterations = gtsam_levenberg_marquardt(
         graph, values_of(initial_m), max_iterations
     )
-    estimates = np.array([result.atPoint2(X(i)) for i in range(n_variables)])
+    d = frames[0].dimension
+    estimates = np.array([point_at(result, X(i), d) for i in range(n_variables)])
     covariance = marginal_covariance(
-        lambda: gtsam.Marginals(graph, result).marginalCovariance(X(n_variables - 1))
+        lambda: gtsam.Marginals(graph, result).marginalCovariance(X(n_variables - 1)), d
     )
     hypothesis = SmootherHypothesis.fitted(
         frames,
@@ -194,7 +196,7 @@ def _polished(
     values = values_of(estimates)
     last = X(len(estimates) - 1)
     covariance = marginal_covariance(
-        lambda: gtsam.Marginals(graph, values).marginalCovariance(last)
+        lambda: gtsam.Marginals(graph, values).marginalCovariance(last), frames[0].dimension
     )
     polished = SmootherHypothesis.fitted(
         frames,
@@ -264,7 +266,7 @@ def _escape_start(
         return None
     length = prior_sigma_m / DIFFUSE_PRIOR_SCALE
     best, best_chi2 = None, hypothesis.chi2
-    for shift in escape_probes(np.zeros(2), direction, length):
+    for shift in escape_probes(np.zeros(len(direction)), direction, length):
         trial = estimates + shift
         try:
             chi2 = fit(trial).chi2

@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from itertools import combinations_with_replacement
 from typing import Any
 
 import numpy as np
@@ -57,7 +58,9 @@ def frame_factor(
 ) -> Any:
     """ONE ``CustomFactor`` for a frame's stacked whitened residuals ``e(s)`` (unit noise).
 
-    The Jacobian is set as a 2-D ``(2K, 2)`` array: GTSAM 4.3 segfaults on a 1-D one and
+    The variable is a ``Point2``, or a ``Point3`` with the height unknown (the frame's
+    ``dimension``). The Jacobian is set as a 2-D ``(2K, d)`` array: GTSAM 4.3 segfaults on a
+    1-D one and
     accepts a wrong width silently (GTSAM 4.3's Python bindings). ``linearised[index]``, if given and not
     None, holds ``(point, e, E)`` already evaluated (the streaming smoother evaluates every
     frame of a relinearised variable in one vectorised pass, :func:`expansion_terms`); it is
@@ -65,10 +68,12 @@ def frame_factor(
     """
     import gtsam
 
+    d = frame.dimension
+
     def error(this: Any, values: Any, jacobians: Any) -> FloatArray:
-        emitter = values.atPoint2(key)
+        emitter = point_at(values, key, d)
         cached = None if linearised is None else linearised[index]
-        if cached is not None and cached[0][0] == emitter[0] and cached[0][1] == emitter[1]:
+        if cached is not None and all(cached[0][i] == emitter[i] for i in range(d)):
             e, E = cached[1], cached[2]
         elif jacobians is None:
             return np.ascontiguousarray(frame.whitened_error(emitter))
@@ -79,6 +84,11 @@ def frame_factor(
         return np.ascontiguousarray(e)
 
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(frame.n_rows), [key], error)
+
+
+def point_at(values: Any, key: int, dimension: int) -> FloatArray:
+    """The emitter variable ``key`` of ``values``: a ``Point2``, or a ``Point3`` in 3-D."""
+    return values.atPoint3(key) if dimension == 3 else values.atPoint2(key)
 
 
 def variable_of_frame(n_frames: int, random_walk: bool) -> NDArray[np.int64]:
@@ -113,33 +123,38 @@ def graph_part(
     import gtsam
     from gtsam.symbol_shorthand import X
 
+    d = frames[0].dimension
+    prior = gtsam.PriorFactorPoint3 if d == 3 else gtsam.PriorFactorPoint2
+    between = gtsam.BetweenFactorPoint3 if d == 3 else gtsam.BetweenFactorPoint2
     graph = gtsam.NonlinearFactorGraph()
     if prior_mean_m is not None:
         graph.add(
-            gtsam.PriorFactorPoint2(
-                X(0), np.asarray(prior_mean_m), gtsam.noiseModel.Isotropic.Sigma(2, prior_sigma_m)
+            prior(
+                X(0), np.asarray(prior_mean_m), gtsam.noiseModel.Isotropic.Sigma(d, prior_sigma_m)
             )
         )
     for t in range(first, stop):
         graph.add(frame_factor(frames[t], X(t if random_walk else 0), linearised, t))
         if random_walk and t > 0:
-            noise = gtsam.noiseModel.Isotropic.Sigma(2, float(step_sigmas[t - 1]))
-            graph.add(gtsam.BetweenFactorPoint2(X(t - 1), X(t), np.zeros(2), noise))
+            noise = gtsam.noiseModel.Isotropic.Sigma(d, float(step_sigmas[t - 1]))
+            graph.add(between(X(t - 1), X(t), np.zeros(d), noise))
     return graph
 
 
 def values_of(estimates_m: ArrayLike, first: int = 0) -> Any:
-    """``gtsam.Values`` with ``X(first + i) = estimates_m[i]``."""
+    """``gtsam.Values`` with ``X(first + i) = estimates_m[i]`` (rows of 2 or 3 coordinates: a
+    ``Point2`` or a ``Point3``)."""
     import gtsam
     from gtsam.symbol_shorthand import X
 
     values = gtsam.Values()
-    for i, point in enumerate(np.asarray(estimates_m, dtype=float).reshape(-1, 2)):
+    points = np.asarray(estimates_m, dtype=float)
+    for i, point in enumerate(points.reshape(-1, points.shape[-1] if points.ndim > 1 else 2)):
         values.insert(X(first + i), np.array(point))
     return values
 
 
-def marginal_covariance(compute: Any) -> FloatArray:
+def marginal_covariance(compute: Any, dimension: int = 2) -> FloatArray:
     """GTSAM's marginal covariance, or NaN where GTSAM finds the system indeterminate.
 
     GTSAM raises a bare ``RuntimeError`` ("Indeterminate linear system") when the information
@@ -150,7 +165,7 @@ def marginal_covariance(compute: Any) -> FloatArray:
     try:
         return np.asarray(compute(), dtype=float)
     except RuntimeError:
-        return np.full((2, 2), np.nan)
+        return np.full((dimension, dimension), np.nan)
 
 
 # --------------------------------------------------------------------------------------------
@@ -227,8 +242,10 @@ class VariableSums:
 def data_sums(
     frames: Sequence[FrameModel], estimates_m: ArrayLike, *, random_walk: bool
 ) -> VariableSums:
-    """:class:`VariableSums` of every frame evaluated at its variable (all at once)."""
-    estimates = np.asarray(estimates_m, dtype=float).reshape(-1, 2)
+    """:class:`VariableSums` of every frame evaluated at its variable (all at once), in the
+    frames' ``d`` coordinates."""
+    d = frames[0].dimension
+    estimates = np.asarray(estimates_m, dtype=float).reshape(-1, d)
     n = len(estimates)
     variables = variable_of_frame(len(frames), random_walk)
     stacked = FrameModel.stacked(frames)
@@ -241,15 +258,15 @@ def data_sums(
         chi2 = np.array([float(e @ e)])
     else:
         chi2 = np.bincount(row_variable, weights=e * e, minlength=n)
-    information = np.zeros((n, 2, 2))
-    curvature = np.zeros((n, 2, 2))
-    gradient = np.zeros((n, 2))
-    for i, j in ((0, 0), (0, 1), (1, 1)):
+    information = np.zeros((n, d, d))
+    curvature = np.zeros((n, d, d))
+    gradient = np.zeros((n, d))
+    for i, j in combinations_with_replacement(range(d), 2):
         information[:, i, j] = np.bincount(row_variable, weights=E[:, i] * E[:, j], minlength=n)
         curvature[:, i, j] = np.bincount(row_variable, weights=terms[:, i, j], minlength=n)
-    information[:, 1, 0] = information[:, 0, 1]
-    curvature[:, 1, 0] = curvature[:, 0, 1]
-    for i in (0, 1):
+        information[:, j, i] = information[:, i, j]
+        curvature[:, j, i] = curvature[:, i, j]
+    for i in range(d):
         gradient[:, i] = np.bincount(row_variable, weights=E[:, i] * e, minlength=n)
     return VariableSums(chi2, gradient, information, curvature)
 
@@ -303,7 +320,8 @@ def fit_from_sums(
     ``S_t = D_t − w_t² S_{t−1}⁻¹`` and ``y_t = g_t + w_t S_{t−1}⁻¹ y_{t−1}`` give
     ``log det = Σ log det S_t`` and ``gᵀ(·)⁻¹g = Σ y_tᵀ S_t⁻¹ y_t`` (``w_t = 1/σ_t²``, the
     link's information)."""
-    estimates = np.asarray(estimates_m, dtype=float).reshape(-1, 2)
+    d = sums.gradient.shape[-1]
+    estimates = np.asarray(estimates_m, dtype=float).reshape(-1, d)
     n = len(estimates)
     prior_information = 1.0 / prior_sigma_m**2
     offset = estimates[0] - np.asarray(prior_mean_m, dtype=float)
@@ -312,15 +330,15 @@ def fit_from_sums(
     blocks = np.array(sums.information, dtype=float)
     gradient = np.array(sums.gradient, dtype=float)
     curvature = sums.curvature
-    blocks[0] += prior_information * np.eye(2)
+    blocks[0] += prior_information * np.eye(d)
     gradient[0] += prior_information * offset
     links = np.zeros(max(n - 1, 0))
     if random_walk:
         links = 1.0 / np.asarray(step_sigmas, dtype=float)[: n - 1] ** 2
         steps = np.diff(estimates, axis=0)
         chi2 += float(np.sum(links * np.sum(steps**2, axis=1)))
-        blocks[:-1] += links[:, None, None] * np.eye(2)
-        blocks[1:] += links[:, None, None] * np.eye(2)
+        blocks[:-1] += links[:, None, None] * np.eye(d)
+        blocks[1:] += links[:, None, None] * np.eye(d)
         gradient[1:] += links[:, None] * steps
         gradient[:-1] -= links[:, None] * steps
     log_det, gauss_newton, last_information, gn_solution = _block_elimination(
@@ -336,7 +354,7 @@ def fit_from_sums(
         data_information=data_information,
         uniform_hessian=data_information
         + np.sum(curvature, axis=0)
-        + prior_information * np.eye(2),
+        + prior_information * np.eye(d),
         gauss_newton_decrement=gauss_newton,
         newton_decrement=newton,
         last_information=last_information,
@@ -352,9 +370,11 @@ def _block_elimination(
     substitution ``x_t = S_t⁻¹(y_t + w_{t+1} x_{t+1})``. ``S_last``, the last Schur complement,
     is the marginal information of the last variable. NaN (and an infinite decrement) if ``A``
     is not positive definite. 2×2 blocks in closed form, on Python floats: two passes over the
-    variables.
+    variables. 3×3 blocks (the height unknown) by :func:`_block_elimination_general`.
     """
     n = len(blocks)
+    if np.shape(blocks)[-1] != 2:
+        return _block_elimination_general(blocks, links, gradient)
     failed = (math.nan, math.inf, np.full((2, 2), np.nan), np.full((n, 2), np.nan))
     diagonal = np.asarray(blocks, dtype=float).reshape(n, 4)[:, [0, 1, 3]].tolist()
     weights = [*np.asarray(links, dtype=float).tolist(), 0.0]
@@ -395,6 +415,50 @@ def _block_elimination(
         decrement if math.isfinite(decrement) else math.inf,
         last,
         np.array(solution, dtype=float).reshape(n, 2),
+    )
+
+
+def _block_elimination_general(
+    blocks: FloatArray, links: FloatArray, gradient: FloatArray
+) -> tuple[float, float, FloatArray, FloatArray]:
+    """:func:`_block_elimination` for ``d × d`` blocks, by Cholesky factors: the same
+    recursion ``S_t = D_t − w_t² S_{t−1}⁻¹``, ``y_t = g_t + w_t S_{t−1}⁻¹ y_{t−1}``, back
+    substitution ``x_t = S_t⁻¹(y_t + w_{t+1} x_{t+1})``."""
+    n, d = len(blocks), np.shape(blocks)[-1]
+    failed = (math.nan, math.inf, np.full((d, d), np.nan), np.full((n, d), np.nan))
+    weights = [*np.asarray(links, dtype=float).tolist(), 0.0]
+    rhs = np.asarray(gradient, dtype=float)
+    schur, eliminated = [], []
+    log_det = decrement = 0.0
+    S, y = np.array(blocks[0], dtype=float), rhs[0].copy()
+    for t in range(n):
+        try:
+            factor = np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:
+            return failed
+        if not np.all(np.isfinite(factor)):
+            return failed
+        inverse = np.linalg.inv(S)
+        schur.append((S, inverse))
+        eliminated.append(y)
+        log_det += 2.0 * float(np.sum(np.log(np.diag(factor))))
+        u = inverse @ y
+        decrement += float(y @ u)
+        if t + 1 < n:
+            w = weights[t]
+            S = blocks[t + 1] - w * w * inverse
+            y = rhs[t + 1] + w * u
+    solution = np.zeros((n, d))
+    x = np.zeros(d)
+    for t in range(n - 1, -1, -1):
+        w = weights[t] if t + 1 < n else 0.0
+        x = schur[t][1] @ (eliminated[t] + w * x)
+        solution[t] = x
+    return (
+        log_det,
+        decrement if math.isfinite(decrement) else math.inf,
+        np.array(schur[-1][0]),
+        solution,
     )
 
 

@@ -213,14 +213,15 @@ class SmootherHypothesis:
         the emitter, the inverse of the fit's marginal information (the same matrix, from the
         QR-free 2×2 block elimination: GTSAM's Cholesky calls a diffuse prior against a tight
         random-walk link indeterminate)."""
+        d = len(fit.data_information)
         if covariance is None:
-            covariance = np.full((2, 2), np.nan)
+            covariance = np.full((d, d), np.nan)
         covariance = np.asarray(covariance, dtype=float)
-        if not np.all(np.isfinite(covariance)) and fisher_rank(fit.data_information) == 2:
+        if not np.all(np.isfinite(covariance)) and fisher_rank(fit.data_information) == d:
             try:
                 covariance = np.linalg.inv(fit.last_information)
             except np.linalg.LinAlgError:
-                covariance = np.full((2, 2), np.nan)
+                covariance = np.full((d, d), np.nan)
             if not (np.all(np.isfinite(covariance)) and np.all(np.linalg.eigvalsh(covariance) > 0)):
                 raise EstimationFailure("GTSAM could not compute the marginal covariance")
         return cls(
@@ -230,7 +231,7 @@ class SmootherHypothesis:
             data_information=fit.data_information,
             prior_mean_m=np.asarray(prior_mean_m, dtype=float),
             start_frames=start_frames,
-            start_values_m=np.empty((0, 2)) if start_values_m is None else start_values_m,
+            start_values_m=np.empty((0, d)) if start_values_m is None else start_values_m,
             token=token,
             chi2=fit.chi2,
             decrement=fit.decrement,

@@ -71,6 +71,7 @@ from estimators.convergence import (
     EstimationFailure,
     escape_probes,
 )
+from estimators.mirror_rule import STRAIGHT_TRACK_HEIGHT
 from estimators.sequential.mirror_hypotheses import (
     DIFFUSE_PRIOR_SCALE,
     MERGE_RTOL,
@@ -84,7 +85,7 @@ from estimators.sequential.nuisance_graph import (
     nuisance_values,
     read_values,
 )
-from estimators.sequential.nuisance_starts import straight_frame_starts
+from estimators.sequential.nuisance_starts import circle_starts, straight_frame_starts
 from estimators.sequential.nuisance_states import (
     NuisanceFrame,
     diffuse_sigmas,
@@ -137,12 +138,18 @@ class NuisanceHypothesis:
     token: str = ""
 
     @property
+    def dimension(self) -> int:
+        """The emitter variables' coordinates: 2, or 3 with the height unknown."""
+        return (len(self.theta) - len(self.nuisance_covariance)) // self.n_variables
+
+    @property
     def estimates_m(self) -> FloatArray:
-        return self.theta[: 2 * self.n_variables].reshape(-1, 2)
+        d = self.dimension
+        return self.theta[: d * self.n_variables].reshape(-1, d)
 
     @property
     def nuisance(self) -> FloatArray:
-        return self.theta[2 * self.n_variables :]
+        return self.theta[self.dimension * self.n_variables :]
 
     def mirrored(self, track: StraightTrack) -> NuisanceHypothesis:
         """The reflection across a straight track (MATH §7): positions mirrored, δ and β not."""
@@ -188,6 +195,11 @@ class Problem:
     def n_variables(self) -> int:
         return len(self.frames) if self.random_walk else 1
 
+    @property
+    def dimension(self) -> int:
+        """The emitter variables' coordinates: 2, or 3 with the height unknown."""
+        return self.frames[0].dimension
+
     def graph(self, prior_state: FloatArray, first: int = 0) -> Any:
         """The factor graph of ``frames[first:]`` (:func:`nuisance_graph`)."""
         return nuisance_graph(
@@ -227,17 +239,17 @@ def lm_solve(
     """Levenberg-Marquardt on the whole graph from the flat state ``start``, checked (module
     text). Returns ``(hypothesis, iterations, fallback)`` (``""``, ``"newton"`` or
     ``"saddle-escape"``); raises :class:`EstimationFailure` when it did not converge."""
-    n_var = problem.n_variables
+    n_var, d = problem.n_variables, problem.dimension
     graph = problem.graph(prior_state)
     result, start_error, end_error, iterations = gtsam_levenberg_marquardt(
         graph,
-        nuisance_values(start, n_var),
+        nuisance_values(start, n_var, d),
         problem.max_iterations,
         relative_error_tol=LM_RELATIVE_ERROR_TOL,
     )
     if not end_error <= start_error * (1.0 + COST_RISE_RTOL):
         raise EstimationFailure("Levenberg-Marquardt raised the cost")
-    theta = read_values(result, n_var)
+    theta = read_values(result, n_var, d)
     fit = problem.fit(theta, prior_state)
     fallback = ""
     if not _converged(fit):  # finish it by Newton's method on the whole graph
@@ -256,7 +268,7 @@ def lm_solve(
         saddle = "the solve stopped at a saddle point of the cost (negative curvature)"
         if not escape:
             raise EstimationFailure(saddle)
-        full = np.concatenate([np.tile(direction[:2], n_var), direction[2:]])
+        full = np.concatenate([np.tile(direction[:d], n_var), direction[d:]])
         length = float(problem.prior_sigmas[0]) / DIFFUSE_PRIOR_SCALE
         best, best_chi2 = None, fit.chi2
         for probe in escape_probes(theta, full, length):
@@ -286,10 +298,10 @@ def _hypothesis(
     import gtsam
     from gtsam.symbol_shorthand import X
 
-    n_var = problem.n_variables
-    last = slice(2 * n_var - 2, 2 * n_var)
+    n_var, d = problem.n_variables, problem.dimension
+    last = slice(d * n_var - d, d * n_var)
     covariance = fit.covariance[last, last]
-    if np.array_equal(theta, read_values(result, n_var)):
+    if np.array_equal(theta, read_values(result, n_var, d)):
         try:
             covariance = np.asarray(
                 gtsam.Marginals(graph, result).marginalCovariance(X(n_var - 1)), dtype=float
@@ -300,7 +312,7 @@ def _hypothesis(
         theta=np.array(theta, dtype=float),
         n_variables=n_var,
         covariance_m2=0.5 * (covariance + covariance.T),
-        nuisance_covariance=fit.covariance[2 * n_var :, 2 * n_var :],
+        nuisance_covariance=fit.covariance[d * n_var :, d * n_var :],
         log_weight=fit.log_evidence,
         data_information=fit.data_information,
         prior_state=np.array(prior_state, dtype=float),
@@ -494,8 +506,9 @@ def _problem(
     return Problem(frames, steps, prior_sigmas, random_walk, options["max_iterations"])
 
 
-def _flat_start(state: FloatArray, n_variables: int) -> FloatArray:
-    return np.concatenate([np.tile(state[:2], n_variables), state[2:]])
+def _flat_start(state: FloatArray, n_variables: int, dimension: int = 2) -> FloatArray:
+    d = dimension
+    return np.concatenate([np.tile(state[:d], n_variables), state[d:]])
 
 
 MISFIT_ALPHA = 1e-3
@@ -545,6 +558,12 @@ def estimate(
     ``max_iterations``."""
     names = nuisance_names(data)
     frames = tuple(frame_model(frame, names) for frame in data.iter_frames())
+    if frames[0].dimension == 3:  # the height unknown
+        try:
+            state = height_start(frames, options, mode="batch")  # type: ignore[arg-type]
+        except EstimationFailure as error:
+            return Estimate.failed(options["name"], str(error), frames=len(frames))
+        return estimate_state(state, options, rng)
     try:
         starts = straight_frame_starts(frames[0])
         length_scale = frames[0].mean_range_m(starts[0])
@@ -602,6 +621,8 @@ def update(
     if state.failure:
         return replace(state, frames=frames)
     try:
+        if model.dimension == 3:
+            return _height_update(state, frames, options)
         if not state.frames:
             starts = straight_frame_starts(model)
             length_scale = model.mean_range_m(starts[0])
@@ -659,6 +680,9 @@ def estimate_state(
         return Estimate.failed(name, state.failure, frames=state.n_frames)
     if not state.frames:
         return Estimate.failed(name, "no frame has been processed yet", frames=0)
+    height = state.frames[0].dimension == 3
+    if height and not state.hypotheses:  # every frame so far on one straight track
+        return Estimate.failed(name, STRAIGHT_TRACK_HEIGHT, frames=state.n_frames)
     hypotheses = state.all_hypotheses()
     diagnostics: dict[str, Any] = {"mode": "streaming", **state.diagnostics}
     notes = [diagnostics["misfit_restart"]] if diagnostics.get("misfit_restart") else []
@@ -681,6 +705,7 @@ def estimate_state(
         notes=notes,
         diagnostics=diagnostics,
         random_walk=options["process_noise_mps"] > 0.0,
+        ceiling_m=max(float(f.position_m[:, 2].max()) for f in state.frames) if height else None,
     )
     if not result.success:
         return result
@@ -694,3 +719,84 @@ def estimate_state(
         state.frames[0].speed_of_light_mps,
     )
     return replace(result, diagnostics={**result.diagnostics, **extra})
+
+
+# --------------------------------------------------------------------------------------------
+# the height unknown (MATH §7, §8)
+# --------------------------------------------------------------------------------------------
+
+
+def height_start(
+    frames: tuple[NuisanceFrame, ...], options: dict[str, Any], *, mode: str
+) -> NuisanceSmootherState:
+    """The hypotheses with the height unknown too: Levenberg-Marquardt on the whole graph (a
+    ``Point3`` and the nuisance vector) from each start on the first frame's ambiguity circle
+    below the UAV (:func:`~estimators.sequential.nuisance_starts.circle_starts`); the converged
+    ones, merged and pruned. Raises :class:`EstimationFailure` on a straight track
+    (:data:`~estimators.mirror_rule.STRAIGHT_TRACK_HEIGHT`) or when no solve converged."""
+    track = StraightTrack.of_frame(frames[0])
+    for frame in frames[1:]:
+        track = None if track is None else track.extended(frame)
+    if track is not None:
+        raise EstimationFailure(STRAIGHT_TRACK_HEIGHT)
+    starts = circle_starts(frames[0])
+    length_scale = frames[0].mean_range_m(starts[0])
+    sigmas = diffuse_sigmas(frames[0], length_scale)
+    problem = _problem(frames, sigmas, options)
+    hypotheses, fallbacks, reasons, iterations = [], [], [], 0
+    for start in starts:
+        try:
+            hypothesis, n, fallback = lm_solve(
+                problem, _flat_start(start, problem.n_variables, 3), start
+            )
+        except EstimationFailure as error:
+            reasons.append(str(error))
+            continue
+        hypotheses.append(hypothesis)
+        fallbacks.append(fallback)
+        iterations = max(iterations, n)
+    if not hypotheses:
+        raise EstimationFailure(f"batch solve: {'; '.join(dict.fromkeys(reasons))}")
+    return NuisanceSmootherState(
+        frames=frames,
+        hypotheses=tuple(pruned_hypotheses(hypotheses, length_scale)),
+        track=None,
+        length_scale_m=length_scale,
+        prior_sigmas=sigmas,
+        iterations=iterations,
+        diagnostics={
+            "mode": mode,
+            "max_iterations": options["max_iterations"],
+            "decrement": max(h.decrement for h in hypotheses),
+            "lm_fallback": "+".join(dict.fromkeys(f for f in fallbacks if f)) or "none",
+        },
+    )
+
+
+def _height_update(
+    state: NuisanceSmootherState, frames: tuple[NuisanceFrame, ...], options: dict[str, Any]
+) -> NuisanceSmootherState:
+    """A streaming update with the height unknown (as the cooperative smoother's): the frames
+    of the first straight track wait, the first frame off it starts the hypotheses
+    (:func:`height_start`), a later frame re-solves each hypothesis's whole graph by checked
+    Levenberg-Marquardt from its previous optimum."""
+    if not state.hypotheses:
+        if len(frames) == 1:
+            track = StraightTrack.of_frame(frames[0])
+        else:
+            track = None if state.track is None else state.track.extended(frames[-1])
+        if track is not None:
+            return replace(state, frames=frames, track=track)
+        return height_start(frames, options, mode="streaming")
+    problem = _problem(frames, state.prior_sigmas, options)
+    solved = [
+        lm_solve(problem, h.extended(problem.random_walk), h.prior_state) for h in state.hypotheses
+    ]
+    updated = [hypothesis for hypothesis, _, _ in solved]
+    return replace(
+        state,
+        frames=frames,
+        hypotheses=tuple(pruned_hypotheses(updated, state.length_scale_m)),
+        iterations=max(n for _, n, _ in solved),
+        diagnostics={**state.diagnostics, "decrement": max(h.decrement for h in updated)},
+    )

@@ -31,6 +31,7 @@ from comparison.metric_groups import (
     position_dimension_of,
     summary_trial_columns,
 )
+from comparison.metric_registry import metric_names
 from comparison.metrics import summarize, swept_columns_of
 from comparison.scoring import Outcomes, normalized_error_squared, score_outcomes
 from comparison.trial_rows import (
@@ -331,8 +332,16 @@ def test_the_summary_of_3d_rows() -> None:
     summary = summarize(rows, n_bootstrap=50)
     assert len(summary) == 1
     flat = summarize(trial_rows(errors[:, :2]), n_bootstrap=50)
-    assert list(summary.columns) == list(flat.columns)  # the z columns are no swept parameter
+    # the z columns are no swept parameter; the height's metrics join the 2-D ones
+    keys = list(flat.columns[: -len(metric_names(2))])
+    assert list(summary.columns) == [*keys, *metric_names(3)]
     row = summary.iloc[0]
+    assert row["bias_z_m"] == pytest.approx(errors[:, 2].mean(), rel=1e-12)
+    horizontal = math.sqrt(np.mean(errors[:, 0] ** 2 + errors[:, 1] ** 2))
+    assert row["rmse_horizontal_m"] == pytest.approx(horizontal, rel=1e-12)
+    assert row["rmse_vertical_m"] == pytest.approx(math.sqrt(np.mean(errors[:, 2] ** 2)), rel=1e-12)
+    assert row["crlb_horizontal_m"] == pytest.approx(math.sqrt(2.5), rel=1e-12)
+    assert row["crlb_vertical_m"] == pytest.approx(1.0, rel=1e-12)
     assert row["n_nees"] == n
     assert row["nees_band_low"] == pytest.approx(stats.chi2.ppf(0.025, 3 * n) / n, rel=1e-12)
     assert row["nees_band_high"] == pytest.approx(stats.chi2.ppf(0.975, 3 * n) / n, rel=1e-12)
@@ -346,6 +355,31 @@ def test_the_summary_of_3d_rows() -> None:
         math.sqrt(np.mean(errors[:, 0] ** 2) / 0.5), rel=1e-12
     )
     assert row["rmse_m"] == pytest.approx(math.sqrt(np.mean(np.sum(errors**2, axis=1))), rel=1e-12)
+
+
+def test_a_3d_run_summarises_horizontal_answers_in_2d_beside_the_3d_ones() -> None:
+    """A 3-D table holding an estimator of 3-D answers and one that assumes the height (its
+    rows without z and vertical bound): the second's summary row is, to the bit, the summary
+    of its rows in a 2-D table (the same trials keep their bootstrap seeds), without the
+    height's metrics; the first's is that of its rows alone; the rows keep the groups' order."""
+    rng = np.random.default_rng(23)
+    n = 200
+    errors = rng.multivariate_normal([0.0, 0.0, 0.0], COVARIANCE_3D, size=n)
+    crlb = np.diag([0.5, 2.0, 1.0])
+    height = trial_rows_3d(errors, crlb, COVARIANCE_3D)
+    assumed = trial_rows(errors[:, :2] + 3.0, estimator="assumes")
+    for name in height.columns.difference(assumed.columns):
+        assumed[name] = np.nan
+    assumed["truth_z_m"] = 7.0
+    mixed = pd.concat([assumed, height[assumed.columns]], ignore_index=True)
+    summary = summarize(mixed, n_bootstrap=50)
+    assert summary["estimator"].tolist() == ["assumes", "est"]
+    alone = summarize(trial_rows(errors[:, :2] + 3.0, estimator="assumes"), n_bootstrap=50)
+    left = summary.iloc[[0]][alone.columns].reset_index(drop=True)
+    pd.testing.assert_frame_equal(left, alone, check_exact=True)
+    assert summary.iloc[0][list(set(metric_names(3)) - set(metric_names(2)))].isna().all()
+    own = summarize(height[assumed.columns], n_bootstrap=50)
+    pd.testing.assert_frame_equal(summary.iloc[[1]].reset_index(drop=True), own, check_exact=True)
 
 
 # --------------------------------------------------------------------------------------------

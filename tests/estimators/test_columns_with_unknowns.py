@@ -46,6 +46,7 @@ SCENARIOS = {
 ESTIMATORS = {
     "cls": ("cls", {}),
     "cls-profile": ("cls", {"offset_method": "profile"}),
+    "cls-two-stage": ("cls", {"offset_method": "two-stage"}),
     "cls-last": ("cls", {"frames": "last"}),
     "cls-paper": ("cls-paper", {}),
     "cls-as-printed": ("cls-as-printed", {}),

@@ -4,12 +4,15 @@ information against the CRLB's (MATH §8)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from comparison.crlb import fisher_information
 from estimators.frame_model import FrameModel
 from scenarios import measurement_model as model
+from scenarios.catalog import get_scenario
 from scenarios.simulate import noise_free, simulate
 from tests.estimators.test_ekf import EAST_THEN_NORTH, flight_scenario
 
@@ -93,5 +96,76 @@ def test_frame_information_sums_to_the_crlb_fisher_information() -> None:
     data = noise_free(flight_scenario(EAST_THEN_NORTH))
     frames = [FrameModel.from_measurements(f) for f in data.iter_frames()]
     truth = np.array([35.0, 15.0])
+    total = sum(frame.information(truth) for frame in frames)
+    np.testing.assert_allclose(total, fisher_information(data, truth, "toa+doppler"), rtol=1e-12)
+
+
+# --------------------------------------------------------------------------------------------
+# the height unknown: a 3-D emitter (MATH §8)
+# --------------------------------------------------------------------------------------------
+
+
+def height_frames(seed: int = 1) -> list[FrameModel]:
+    """The frames of ``hill-climb`` (the height unknown: 3-D models), noisy."""
+    data = simulate(get_scenario("hill-climb"), seed=seed)
+    return [FrameModel.from_measurements(frame) for frame in data.iter_frames()]
+
+
+@pytest.mark.parametrize("frame_index", [0, 3])
+def test_3d_frame_jacobian_and_hessian_match_central_differences(frame_index: int) -> None:
+    """With the height unknown (``dimension`` 3) ``E(s)`` is ``(2K, 3)`` and ``∂²h/∂s²`` is
+    ``(2K, 3, 3)``: against central differences of the error and of the Jacobian in
+    ``(x, y, z)``, one emitter and per sample (what the smoother's stacked frames use)."""
+    frame = height_frames()[frame_index]
+    assert frame.dimension == 3
+    step = 1e-4
+    for point in np.array([[150.0, 120.0, 120.0], [100.0, -40.0, 10.0], [170.0, 0.0, 250.0]]):
+        analytic = frame.whitened_jacobian(point)
+        assert analytic.shape == (frame.n_rows, 3)
+        numeric = np.column_stack(
+            [
+                (
+                    frame.whitened_error(point + step * axis)
+                    - frame.whitened_error(point - step * axis)
+                )
+                / (2 * step)
+                for axis in np.eye(3)
+            ]
+        )
+        np.testing.assert_allclose(analytic, numeric, rtol=1e-6, atol=1e-9 * np.abs(analytic).max())
+        hessian = frame.hessian(point)
+        numeric = np.stack(
+            [
+                (frame.jacobian(point + step * axis) - frame.jacobian(point - step * axis))
+                / (2 * step)
+                for axis in np.eye(3)
+            ],
+            axis=-1,
+        )
+        np.testing.assert_allclose(hessian, numeric, rtol=1e-6, atol=1e-9 * np.abs(hessian).max())
+        tiled = np.tile(point, (len(frame.position_m), 1))
+        np.testing.assert_allclose(frame.hessian(tiled, per_sample=True), hessian, rtol=1e-12)
+        e, E = frame.whitened_error_and_jacobian_per_sample(tiled)
+        np.testing.assert_allclose(e, frame.whitened_error(point), rtol=1e-13, atol=1e-12)
+        np.testing.assert_allclose(E, analytic, rtol=1e-12)
+
+
+def test_3d_frame_at_the_known_height_is_the_2d_frame() -> None:
+    """A 3-D model evaluated at ``(x, y, z_s)`` is the 2-D model of the same frame with the
+    height ``z_s`` known: the same values, the ``(x, y)`` columns of its Jacobian and the
+    ``(x, y)`` block of its Hessian (two code paths: rtol 1e-12); its information sums to the
+    3-D Fisher information of MATH §8."""
+    data = noise_free(get_scenario("hill"))
+    truth = data.truth_emitter_m
+    frames = [FrameModel.from_measurements(frame) for frame in data.iter_frames()]
+    for frame in frames:
+        plane = replace(frame, dimension=2, emitter_height_m=truth[2])
+        np.testing.assert_allclose(frame.predicted(truth), plane.predicted(truth[:2]), rtol=1e-12)
+        np.testing.assert_allclose(
+            frame.jacobian(truth)[:, :2], plane.jacobian(truth[:2]), rtol=1e-12, atol=1e-15
+        )
+        np.testing.assert_allclose(
+            frame.hessian(truth)[:, :2, :2], plane.hessian(truth[:2]), rtol=1e-12, atol=1e-18
+        )
     total = sum(frame.information(truth) for frame in frames)
     np.testing.assert_allclose(total, fisher_information(data, truth, "toa+doppler"), rtol=1e-12)

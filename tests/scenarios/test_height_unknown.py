@@ -12,6 +12,7 @@ import pytest
 
 from comparison.crlb import crlb_table
 from estimators import make_estimator
+from estimators.interface import capabilities_of
 from estimators.registry import BUILTIN
 from scenarios import get_scenario
 from scenarios import measurement_model as model
@@ -97,12 +98,12 @@ def test_a_file_round_trips_the_3d_truth_and_a_2d_one_is_refused_naming_it() -> 
         measurements_from_json(json.dumps(flat))
 
 
-ESTIMATING_THE_HEIGHT = {"cls", "sdp-cls"}
-"""The built-ins that estimate the height (tests/estimators/test_cls_3d.py, test_sdp_3d.py)."""
-
-
-@pytest.mark.parametrize("name", sorted(set(BUILTIN) - ESTIMATING_THE_HEIGHT))
+@pytest.mark.parametrize(
+    "name",
+    sorted(n for n in BUILTIN if HEIGHT_UNKNOWN not in capabilities_of(make_estimator(n)).unknowns),
+)
 def test_every_builtin_refuses_an_unknown_height_in_one_line(name) -> None:
+    """Every built-in that does not declare the height in its ``Capabilities.unknowns``."""
     data = simulate(elevated(), snr_db=20.0, seed=1)
     with pytest.raises(ValueError) as caught:
         make_estimator(name).estimate(data)

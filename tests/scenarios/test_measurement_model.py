@@ -185,6 +185,85 @@ def test_doppler_range_derivatives_match_finite_differences(geometry, order) -> 
             )
 
 
+def central_difference_3d(function, emitter: np.ndarray, step: float) -> np.ndarray:
+    """``∂h/∂(x_s, y_s, z_s)`` by central differences, shape (N, ..., 3)."""
+    columns = []
+    for axis in range(3):
+        delta = np.zeros(3)
+        delta[axis] = step
+        columns.append((function(emitter + delta) - function(emitter - delta)) / (2.0 * step))
+    return np.stack(columns, axis=-1)
+
+
+@settings(max_examples=100, deadline=None, database=None)
+@given(geometries(), st.sampled_from([1, 2, 3]))
+def test_derivatives_in_three_coordinates_match_finite_differences(geometry, order) -> None:
+    """``dimension=3`` (the height unknown): every component of order ``k`` (named by its
+    axes, :func:`derivative_components`) is the central difference along its last axis of the
+    component of order ``k − 1`` without that axis, to ``1e-6 ×`` its scale as in the 2-D
+    test; every mixed component is thereby checked against the differences of another."""
+    position, velocity, emitter_xy, height, gamma = geometry
+    emitter = np.append(emitter_xy, height)  # the height a coordinate of the position
+    names = model.derivative_components(3)
+    assert len(names) == model.n_components(3, 3) == 20
+    ranges = model.slant_range_m(position, emitter)
+    step = 1e-4 * ranges.min()
+    analytic = model.doppler_range_derivatives(
+        position, velocity, emitter, gamma, order=3, dimension=3
+    )
+    speed = max(np.max(np.linalg.norm(velocity, axis=1)), 1e-3)
+    scales = (gamma * speed / ranges.min() ** order, ranges.min() ** (1 - order))
+    for index, scale in enumerate(scales):
+
+        def at(s, index=index):
+            return model.doppler_range_derivatives(
+                position, velocity, s, gamma, order=order - 1, dimension=3
+            )[index]
+
+        numeric = central_difference_3d(at, emitter, step)  # (N, n_lower, 3)
+        for column, name in enumerate(names):
+            if len(name) != order:
+                continue
+            lower = names.index(name[:-1])
+            np.testing.assert_allclose(
+                analytic[index][:, column],
+                numeric[:, lower, "xyz".index(name[-1])],
+                rtol=1e-6,
+                atol=1e-6 * scale,
+                err_msg=f"component {name!r} of {('doppler', 'range')[index]}",
+            )
+
+
+def test_derivatives_in_three_coordinates_extend_the_plane_ones() -> None:
+    """Of a 3-D emitter, ``dimension=3``'s ``(x, y)`` components are ``dimension=2``'s and its
+    gradient the Jacobians of :func:`doppler_jacobian`, :func:`toa_jacobian` (two code paths:
+    rtol 1e-12); the lower orders are the leading columns of the higher ones."""
+    rng = np.random.default_rng(6)
+    position = rng.uniform(-300.0, 300.0, (9, 3))
+    velocity = rng.uniform(-20.0, 20.0, (9, 3))
+    emitter, gamma, c = np.array([40.0, -70.0, 12.0]), 2.5, 3e8
+    full = model.doppler_range_derivatives(position, velocity, emitter, gamma, order=3, dimension=3)
+    plane = model.doppler_range_derivatives(position, velocity, emitter, gamma, order=3)
+    names3, names2 = model.derivative_components(3), model.derivative_components(2)
+    assert names2 == model.DERIVATIVE_COMPONENTS
+    columns = [names3.index(name) for name in names2]
+    for three, two in zip(full, plane, strict=True):
+        np.testing.assert_allclose(three[:, columns], two, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(
+        full[0][:, 1:4], model.doppler_jacobian(position, velocity, emitter, gamma), rtol=1e-12
+    )
+    np.testing.assert_allclose(
+        full[1][:, 1:4], c * model.toa_jacobian(position, emitter, c), rtol=1e-12
+    )
+    for order in (0, 1, 2):
+        lower = model.doppler_range_derivatives(
+            position, velocity, emitter, gamma, order=order, dimension=3
+        )
+        width = model.n_components(order, 3)
+        np.testing.assert_array_equal(lower[0], full[0][:, :width])
+        np.testing.assert_array_equal(lower[1], full[1][:, :width])
+
+
 def test_doppler_range_derivatives_agree_with_the_values_and_jacobians() -> None:
     """Order 0 and 1 are :func:`doppler_hz`, :func:`slant_range_m` and the Jacobians
     (``∇ρ = c∇τ``); the lower orders are the leading columns of the higher ones."""
