@@ -75,7 +75,7 @@ from estimators.closed_form.pseudorange_cls import (
 )
 from estimators.goodness_of_fit import FIT_KEYS, fit_of, with_fit, with_fit_columns
 from scenarios.geometry import straight_track_line
-from scenarios.nuisance import HEIGHT_UNKNOWN
+from scenarios.nuisance import HEIGHT_UNKNOWN, position_dimension
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -106,6 +106,7 @@ def cls_rows(
         origin_m=frame.origin_m,
         scale_m=frame.scale_m,
         weights_at_local_xy=weights_at_local_xy,
+        dimension=position_dimension(data.unknowns),
     )
     return (A, b) if offset is None else project_out(A, b, offset)
 
@@ -188,7 +189,9 @@ def _constrained_ls(rows: Rows, frames: Frames, data: MeasurementSet) -> Constra
             "(x, y, ρ_j) (MATH §15), not the paraboloid GTRS of §5 that constrained_ls describes"
         )
     used = data.select_frames(frames)
-    A, b, offset, scale = system_of_trial(used, rows, last_stage=True)
+    A, b, offset, scale = system_of_trial(
+        used, rows, last_stage=True, dimension=position_dimension(data.unknowns)
+    )
     if offset is not None:
         A, b = project_out(A, b, offset)
     frame = LocalFrame(origin_m=used.position_m[:, :2].mean(axis=0), scale_m=scale)

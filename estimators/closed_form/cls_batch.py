@@ -48,7 +48,7 @@ from estimators.closed_form.gtrs_batch import GtrsBatch, RowBlock, solve_gtrs_ba
 from estimators.mirror_rule import STRAIGHT_TRACK_HEIGHT, finalize_columns
 from scenarios import measurement_model as model
 from scenarios.geometry import straight_track_lines
-from scenarios.nuisance import HEIGHT_UNKNOWN
+from scenarios.nuisance import position_dimension
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -100,9 +100,15 @@ class SharedGeometry:
         frames: str,
         *,
         origin_m: FloatArray | None = None,
+        dimension: int = 2,
     ) -> SharedGeometry:
         """The samples of ``frames`` of a batch's geometry, or of one trial's; the local
-        frame's origin is their mean horizontal position unless ``origin_m`` is given."""
+        frame's origin is their mean horizontal position unless ``origin_m`` is given.
+
+        ``dimension`` 3: the emitter's height a coordinate (the rows of MATH §3-§5 in three
+        coordinates; ``cls`` asks for it when the data declare the height unknown); 2: the
+        height the data give, ``emitter_height_m`` (with the height unknown, the height a
+        caller assumes: the starts of ``ml`` at assumed heights)."""
         geometry = batch.geometry if isinstance(batch, MeasurementBatch) else batch
         used = geometry.select_frames(frames)
         if frames == "last":
@@ -124,7 +130,6 @@ class SharedGeometry:
         bounds = np.append(np.flatnonzero(change), k)
         starts, counts = bounds[:-1], bounds[1:] - bounds[:-1]
         unit = velocity[:, :2] / speed[:, None]
-        dimension = 3 if HEIGHT_UNKNOWN in used.unknowns else 2  # (the parsed names)
         # with the height a coordinate (MATH §5) the rows' frame has its z at 0: the data's
         # emitter_height_m (what an estimator ignoring the height assumes) is not read
         dz = position[:, 2] - (used.emitter_height_m if dimension == 2 else 0.0)
@@ -328,7 +333,7 @@ def estimate_columns(
     """The CLS estimates of every trial of ``batch``, as columns (see module docstring)."""
     n = batch.n_trials
     generators = check_rngs(rngs, n)
-    shared = SharedGeometry.of(batch, frames)
+    shared = SharedGeometry.of(batch, frames, dimension=position_dimension(batch.geometry.unknowns))
     speed_of_light = shared.used.speed_of_light_mps
     ranges = speed_of_light * batch.toa_s[:, shared.columns]
     doppler = batch.doppler_hz[:, shared.columns]
@@ -364,7 +369,7 @@ def estimate_trial(
     """:func:`estimate_columns` of one trial, ``data``, as its :class:`Estimate`: the same
     vectorised solve (:func:`solve_trials`) on a batch of one, without the batch's columns.
     ``fit(position (1, d))`` gives the goodness-of-fit diagnostics of a success."""
-    shared = SharedGeometry.of(data, frames)
+    shared = SharedGeometry.of(data, frames, dimension=position_dimension(data.unknowns))
     ranges = shared.used.speed_of_light_mps * data.toa_s[shared.columns][None]
     solved = solve_trials(shared, rows, ranges, data.doppler_hz[shared.columns][None], side_prior_m)
     diagnostics = {
@@ -411,6 +416,7 @@ def system_of_trial(
     scale_m: float | None = None,
     weights_at_local_xy: FloatArray | None = None,
     last_stage: bool = False,
+    dimension: int = 2,
 ) -> tuple[FloatArray, FloatArray, FloatArray | None, float]:
     """The stacked rows ``A`` (m, d + 1), ``b`` (m,) of one trial (``data``, every sample) in its
     local frame, as the solver sums them, δ's column (m,) or None, and the frame's scale.
@@ -418,9 +424,10 @@ def system_of_trial(
     The frame is the solver's (centred on the samples, scaled by the RMS of their spread and
     ranges) unless ``origin_m`` and ``scale_m`` are given. ``weighted`` rows are whitened at the
     measurements, at ``weights_at_local_xy``, or (``last_stage``) at the stage-1 estimate: the
-    system whose minimisers ``estimate`` returns.
+    system whose minimisers ``estimate`` returns. ``dimension`` as for
+    :meth:`SharedGeometry.of` (3: rows over ``(x, y, z, ‖s‖²)``).
     """
-    shared = SharedGeometry.of(data, "all", origin_m=origin_m)
+    shared = SharedGeometry.of(data, "all", origin_m=origin_m, dimension=dimension)
     r = (shared.used.speed_of_light_mps * data.toa_s)[:, None]
     f = data.doppler_hz[:, None]
     if scale_m is None:
@@ -508,13 +515,14 @@ def solve_chunk(
     return world, solution
 
 
-def candidates_of_trial(data: MeasurementSet) -> FloatArray:
+def candidates_of_trial(data: MeasurementSet, *, dimension: int = 2) -> FloatArray:
     """The weighted CLS's minimisers of one trial (every sample), before the mirror rule:
     (1, d) or, in the hard case, the pair (2, d), the point left of the last heading first
     (with the height a coordinate, the lower first); (0, d) when the GTRS has no finite
     minimiser. The same solve as a batch's
-    (:func:`solve_chunk`), for the starts of another estimator."""
-    shared = SharedGeometry.of(data, "all")
+    (:func:`solve_chunk`), for the starts of another estimator. ``dimension`` as for
+    :meth:`SharedGeometry.of` (2 by default: at the data's ``emitter_height_m``)."""
+    shared = SharedGeometry.of(data, "all", dimension=dimension)
     r = np.repeat((shared.used.speed_of_light_mps * data.toa_s)[:, None], 2, axis=1)
     f = np.repeat(data.doppler_hz[:, None], 2, axis=1)  # two columns: a batch's sums
     with np.errstate(all="ignore"):

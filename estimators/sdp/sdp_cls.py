@@ -108,7 +108,7 @@ from estimators.sdp.sdp_solvers import (
     solve_ladders,
     solver_attempts,
 )
-from scenarios.nuisance import HEIGHT_UNKNOWN
+from scenarios.nuisance import HEIGHT_UNKNOWN, position_dimension
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 
@@ -418,7 +418,9 @@ def _solve_batch(
     """Every stage of every trial, chunk by chunk, then the mirror rule and the draws."""
     n = batch.n_trials
     generators = check_rngs(rngs, n)
-    shared = SharedGeometry.of(batch, estimator.frames)
+    shared = SharedGeometry.of(
+        batch, estimator.frames, dimension=position_dimension(batch.geometry.unknowns)
+    )
     assert batch.toa_s is not None and batch.doppler_hz is not None
     ranges = shared.used.speed_of_light_mps * batch.toa_s[:, shared.columns]
     doppler = batch.doppler_hz[:, shared.columns]

@@ -81,7 +81,7 @@ def test_a_noise_free_climbing_flight_gives_the_emitter_alone(seed: int) -> None
     data = noise_free(random_flight(seed, climb=True))
     truth = data.truth_emitter_m
     scale = np.max(np.abs(data.position_m)) + np.max(np.abs(truth))
-    candidates = candidates_of_trial(data)
+    candidates = candidates_of_trial(data, dimension=3)
     assert candidates.shape == (1, 3)
     np.testing.assert_allclose(candidates[0], truth, rtol=0.0, atol=1e-9 * scale)
     estimate = make_estimator("cls").estimate(data)
@@ -100,7 +100,7 @@ def test_a_noise_free_level_flight_gives_the_emitter_and_its_reflection(seed: in
     truth = data.truth_emitter_m
     height = data.position_m[0, 2]
     scale = np.max(np.abs(data.position_m)) + np.max(np.abs(truth))
-    candidates = candidates_of_trial(data)
+    candidates = candidates_of_trial(data, dimension=3)
     assert candidates.shape == (2, 3)
     np.testing.assert_allclose(candidates[0], truth, rtol=0.0, atol=1e-9 * scale)
     np.testing.assert_allclose(candidates[1], reflection(truth, height), atol=1e-9 * scale)
@@ -112,7 +112,7 @@ def test_a_noise_free_level_flight_gives_the_emitter_and_its_reflection(seed: in
 
 def test_the_catalogs_level_turn_gives_both_reflections() -> None:
     """``turn`` (level at 50 m) with the emitter 30 m up: (35, 15, 30) and (35, 15, 70)."""
-    candidates = candidates_of_trial(noise_free(elevated()))
+    candidates = candidates_of_trial(noise_free(elevated()), dimension=3)
     np.testing.assert_allclose(candidates, [[35.0, 15.0, 30.0], [35.0, 15.0, 70.0]], atol=1e-9)
     estimate = make_estimator("cls").estimate(noise_free(elevated()))
     np.testing.assert_allclose(estimate.position_m, [35.0, 15.0, 30.0], atol=1e-9)
@@ -205,7 +205,7 @@ def test_noisy_trials_attain_the_brute_force_minimum_of_the_weighted_cost(seed, 
     flights: the closed form's minimisers are the global minimum of the same cost; the
     estimate returns one of them (in world metres); a level flight's pair costs the same."""
     data = simulate(random_flight(seed, climb=climb), snr_db=0.0, seed=seed)
-    A, b, offset, scale = system_of_trial(data, "weighted", last_stage=True)
+    A, b, offset, scale = system_of_trial(data, "weighted", last_stage=True, dimension=3)
     assert offset is None and A.shape[1] == 4
     points = assert_global_minimum(A, b)
     if not climb:
@@ -332,3 +332,15 @@ def test_the_certified_rank_is_the_svd_rank(rank: int) -> None:
     for deficient in (False, rank == 3):
         certified = solve_gtrs_batch(rows, n, rank=True, rank_deficient=deficient).rank
         np.testing.assert_array_equal(certified, singular)
+
+
+def test_the_2d_solve_at_an_assumed_height_stays_available() -> None:
+    """With the height unknown, ``candidates_of_trial`` without ``dimension`` is the 2-D CLS at
+    the height the data give (what ``ml``'s starts at assumed heights use): at the true height
+    its answer is the emitter's (x, y), noise-free."""
+    import dataclasses
+
+    data = noise_free(elevated())
+    at_truth = dataclasses.replace(data, emitter_height_m=HEIGHT_M)
+    np.testing.assert_allclose(candidates_of_trial(at_truth), [[35.0, 15.0]], atol=1e-9)
+    assert candidates_of_trial(at_truth, dimension=3).shape == (2, 3)

@@ -33,7 +33,7 @@ POINT_ATOL = 1e-3
 
 def rows_of(data):
     """The weighted rows of the last stage (MATH §6), as ``cls`` solves them: (m, 4)."""
-    A, b, offset, _ = system_of_trial(data, "weighted", last_stage=True)
+    A, b, offset, _ = system_of_trial(data, "weighted", last_stage=True, dimension=3)
     assert offset is None and A.shape[1] == 4
     return A, b
 
