@@ -21,9 +21,11 @@ from estimators.ml.ml import MaximumLikelihood, whitened_residual_jacobian, whit
 from scenarios import get_scenario
 from scenarios.fisher import fisher_information, inverse_symmetric, terrain_row
 from scenarios.simulate import noise_free, simulate_trials, trial_seeds
-from scenarios.terrain import offset_above_surface_m
+from scenarios.terrain import Terrain, offset_above_surface_m
 from scenarios.types import MeasurementSet
 from tests.estimators.batch_support import generators
+from tests.estimators.test_ml_height import height_unknown
+from tests.scenarios.random_flights import random_data
 
 
 def surface_through_emitter(snr_db: float = 20.0) -> MeasurementSet:
@@ -163,3 +165,30 @@ def test_the_map_is_pulled_toward_the_ground_by_the_predicted_bias() -> None:
     standard_error = errors.std(axis=0, ddof=1) / np.sqrt(len(errors))
     assert np.all(np.abs(errors.mean(axis=0) - pull) <= 4.0 * standard_error)
     assert pull[2] < -8.0 * standard_error[2]
+
+
+@pytest.mark.parametrize("seed", range(8))
+@pytest.mark.parametrize("climb_mps", [0.0, 3.0])
+def test_noise_free_random_flights_over_a_sloped_surface_are_exact(seed, climb_mps) -> None:
+    """Random level and climbing turns with a sloped hill through the emitter: the one
+    candidate is the emitter (on a level turn too, where the prior leaves no reflection to
+    add), its covariance the prior-augmented bound."""
+    data = height_unknown(random_data(seed, climb_mps=climb_mps))
+    truth = data.truth_emitter_m
+    rng = np.random.default_rng(seed)
+    ground = Terrain(
+        sigma_m=rng.uniform(0.5, 20.0),
+        slope=rng.uniform(-0.3, 0.3, 2),
+        hill_height_m=rng.uniform(-50.0, 50.0),
+        hill_centre_m=truth[:2] + rng.uniform(-80.0, 80.0, 2),
+        hill_width_m=rng.uniform(30.0, 150.0),
+    )
+    ground = dataclasses.replace(ground, height_m=float(offset_above_surface_m(ground, truth)))
+    data = dataclasses.replace(data, terrain=ground)
+    estimate = MaximumLikelihood().estimate(data)
+    assert estimate.success, estimate.message
+    scale = float(np.max(np.linalg.norm(data.position_m - truth, axis=1)))
+    np.testing.assert_allclose(estimate.position_m, truth, rtol=0, atol=1e-7 * scale)
+    assert estimate.candidates_m.shape == (1, 3)
+    bound = inverse_symmetric(fisher_information(data, truth, "toa+doppler"))
+    np.testing.assert_allclose(estimate.covariance_m2, bound, rtol=1e-6)
