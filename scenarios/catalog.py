@@ -175,8 +175,9 @@ def hill_scenario(*, climb: bool = False) -> Scenario:
     and then 200 m north, 4 frames of K = 10 samples 0.5 s apart; Doppler σ_f = 0.5 Hz and
     c σ_τ = 10 m at 0 dB. A level turn leaves the reflection of the emitter through the flight
     plane (at 480 m) at the same cost, which "the emitter is below the UAV" removes (MATH §7).
-    With ``climb`` (``hill-climb``) the UAV climbs at 5 m/s while it flies north (to 350 m),
-    which removes that reflection from the data themselves.
+    With ``climb`` (``hill-climb``) the UAV climbs at 5 m/s while it flies north (to 350 m):
+    the two legs then span a tilted plane, and the reflection through it, at about
+    (150, 21, 515) m, fits as exactly and is dropped the same way (MATH §7).
     """
     velocities = heading_velocities_mps(20.0, [0.0, 0.0, 90.0, 90.0])
     if climb:
