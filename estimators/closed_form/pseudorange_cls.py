@@ -70,6 +70,7 @@ from estimators.mirror_rule import finalize_columns
 from scenarios import measurement_model as model
 from scenarios.fisher import gram_information
 from scenarios.geometry import moves_horizontally, single_horizontal_point, straight_track_line
+from scenarios.nuisance import position_dimension
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -82,6 +83,9 @@ OFFSET_METHODS: tuple[OffsetMethod, ...] = ("relaxed", "profile", "two-stage")
 
 HYPERBOLOID = np.array([1.0, 1.0, -1.0])
 """The diagonal of D for ``θ = (x', y', ρ_j)``."""
+
+CONE = np.array([1.0, 1.0, 1.0, -1.0])
+"""The diagonal of D for ``θ = (x', y', z', ρ_j)``, the emitter's height unknown (MATH §15)."""
 
 _GTRS_FIELDS = tuple(f.name for f in fields(IndefiniteGtrsBatch))
 _EPS = np.finfo(float).eps
@@ -197,7 +201,7 @@ class PseudorangeBatch:
     def on_physical_sheet(self) -> BoolArray:
         """Every global minimiser has ``ρ_j > 0``."""
         valid = np.arange(2)[None, :] < self.gtrs.count[:, None]
-        positive = np.where(valid, self.gtrs.points[..., 2] > 0.0, True)
+        positive = np.where(valid, self.gtrs.points[..., -1] > 0.0, True)
         return (self.gtrs.count > 0) & np.all(positive, axis=1)
 
 
@@ -206,14 +210,14 @@ class _Rows:
     """Raw rows in the local frame, (trials, samples) (the ToA row of ``ref`` is unused)."""
 
     ref: int
-    A_d: FloatArray | None  # (n, K, 3)
+    A_d: FloatArray | None  # (n, K, p): p = 3 unknowns (x', y', ρ_j), 4 with z'
     b_d: FloatArray | None  # (n, K)
     nuisance: FloatArray | None  # (n, K, 2): columns of δ and w on the Doppler rows
-    A_t: FloatArray  # (n, K, 3)
+    A_t: FloatArray  # (n, K, p)
     b_t: FloatArray  # (n, K)
-    h_ref: float
-    q: FloatArray  # (K, 2)
-    h: FloatArray  # (K,)
+    h_ref: float  # z_j − z_s (local), 0 with the height unknown (the frame's origin is p_j)
+    q: FloatArray  # (K, d): p_k − p_j, horizontal (d = 2) or 3-D (d = 3)
+    h: FloatArray  # (K,): z_k − z_s (local) with the height known; q_z with it unknown
     gv: FloatArray | None  # (K,) γ|v_xy| per sample
     doppler_hz: FloatArray | None  # (n, K)
 
@@ -250,14 +254,25 @@ def reference_sample(position_m: ArrayLike, reference: Reference = "centre") -> 
 def pseudorange_frame(data: MeasurementSet, ref: int) -> LocalFrame:
     """Origin at ``p_j``'s xy, scale the RMS of the horizontal spread and the heights.
 
-    The pseudo-ranges cannot set the scale (they carry β); the heights and the spread can.
+    The pseudo-ranges cannot set the scale (they carry β); the heights and the spread can:
+    above the emitter, or with its height unknown above ``z = 0`` (the take-off ground). The
+    frame's height origin is then ``z_j`` (:func:`frame_origin_m`).
     """
     position = data.position_m
     origin = position[ref, :2].copy()
     spread = np.mean(np.sum((position[:, :2] - position[:, :2].mean(axis=0)) ** 2, axis=1))
-    heights = np.mean((position[:, 2] - data.emitter_height_m) ** 2)
+    ground = data.emitter_height_m if position_dimension(data.unknowns) == 2 else 0.0
+    heights = np.mean((position[:, 2] - ground) ** 2)
     scale = float(np.sqrt(spread + heights))
     return LocalFrame(origin_m=origin, scale_m=scale if scale > 0.0 else 1.0)
+
+
+def frame_origin_m(geometry: MeasurementSet, frame: LocalFrame, ref: int) -> FloatArray:
+    """The world point of the local origin, in the coordinates estimated: ``p_j``'s xy (2,),
+    or ``p_j`` (3,) with the emitter's height unknown (``world = origin + scale · local``)."""
+    if position_dimension(geometry.unknowns) == 2:
+        return frame.origin_m
+    return np.append(frame.origin_m, geometry.position_m[ref, 2])
 
 
 def pseudorange_rows(
@@ -270,16 +285,31 @@ def pseudorange_rows(
     carrier_offset_unknown: bool,
 ) -> _Rows:
     """The rows of the module text in the local frame (unweighted), for the trials' pseudo-
-    ranges ``range_m`` and Doppler ``doppler_hz`` (n, K) on the samples of ``geometry``."""
+    ranges ``range_m`` and Doppler ``doppler_hz`` (n, K) on the samples of ``geometry``.
+
+    With the emitter's height unknown (``geometry.unknowns``) the frame's origin is ``p_j``
+    itself, ``q_k = p_k − p_j`` has three coordinates and θ = (x', y', z', ρ_j): the height's
+    column is ``−2q_{k,z}`` in the squared-range differences and ``v_{z,k}/|v_{k,xy}|`` in the
+    Doppler rows (MATH §15, "The emitter's height unknown")."""
     position = frame.positions(geometry.position_m)
-    q = position[:, :2]  # the frame's origin is p_j's xy
-    h = position[:, 2] - geometry.emitter_height_m / frame.scale_m
+    dimension = position_dimension(geometry.unknowns)
+    if dimension == 2:
+        q = position[:, :2]  # the frame's origin is p_j's xy
+        h = position[:, 2] - geometry.emitter_height_m / frame.scale_m
+        h_ref = float(h[ref])
+    else:
+        q = position.copy()
+        q[:, 2] -= q[ref, 2]  # the frame's origin is p_j
+        h, h_ref = q[:, 2], 0.0
     d = (range_m - range_m[:, ref : ref + 1]) / frame.scale_m
     n, k = d.shape
-    A_t = np.empty((n, k, 3))
-    A_t[:, :, :2] = -2.0 * q
-    A_t[:, :, 2] = -2.0 * d
-    b_t = d**2 - (np.sum(q**2, axis=1) + h**2 - h[ref] ** 2)
+    A_t = np.empty((n, k, dimension + 1))
+    A_t[:, :, :dimension] = -2.0 * q
+    A_t[:, :, dimension] = -2.0 * d
+    if dimension == 2:
+        b_t = d**2 - (np.sum(q**2, axis=1) + h**2 - h[ref] ** 2)
+    else:
+        b_t = d**2 - np.sum(q**2, axis=1)
     A_d = b_d = nuisance = gv = None
     if doppler_hz is not None:
         velocity = geometry.velocity_mps
@@ -287,14 +317,14 @@ def pseudorange_rows(
         gamma = geometry.gamma_per_m
         f = doppler_hz
         gv = gamma * speed
-        A_d = np.empty((n, k, 3))
-        A_d[:, :, :2] = velocity[:, :2] / speed[:, None]
-        A_d[:, :, 2] = -f / gv
-        geometric = np.sum(velocity[:, :2] * q, axis=1) + velocity[:, 2] * h
+        A_d = np.empty((n, k, dimension + 1))
+        A_d[:, :, :dimension] = velocity[:, :dimension] / speed[:, None]
+        A_d[:, :, dimension] = -f / gv
+        geometric = np.sum(velocity[:, :2] * q[:, :2], axis=1) + velocity[:, 2] * h
         b_d = (geometric + d * f / gamma) / speed
         if carrier_offset_unknown:
             nuisance = np.stack([d / gv, np.broadcast_to(1.0 / gv, d.shape)], axis=-1)
-    return _Rows(ref, A_d, b_d, nuisance, A_t, b_t, float(h[ref]), q, h, gv, doppler_hz)
+    return _Rows(ref, A_d, b_d, nuisance, A_t, b_t, h_ref, q, h, gv, doppler_hz)
 
 
 def _whitened_system(
@@ -307,15 +337,16 @@ def _whitened_system(
     the moments are evaluated.
     """
     n, k = rows.b_t.shape
+    p = rows.A_t.shape[-1]  # the unknowns θ: 3, or 4 with the height
     keep = np.arange(k) != rows.ref
     s2 = sigma_r**2
     var_t = 4.0 * rho**2 * s2 + 6.0 * s2**2
     n_extra = 0 if rows.nuisance is None else 2
-    # columns: θ (3), rhs (1), nuisance (0 or 2), low-rank U (2)
-    width = 6 + n_extra
+    # columns: θ (p), rhs (1), nuisance (0 or 2), low-rank U (2)
+    width = p + 3 + n_extra
     T = np.zeros((n, k, width))
-    T[:, :, :3] = rows.A_t
-    T[:, :, 3] = rows.b_t
+    T[:, :, :p] = rows.A_t
+    T[:, :, p] = rows.b_t
     T[:, :, -2] = s2**0.5 * (2.0 * rho)
     T[:, :, -1] = np.sqrt(2.0) * s2
     if rows.A_d is None:
@@ -326,10 +357,10 @@ def _whitened_system(
         var_d = (rho**2 * sigma_f**2 + keep * (f_bar**2 * s2 + 2.0 * sigma_f**2 * s2)) / gv**2
         cov = 2.0 * rho * f_bar * s2 / gv
         D = np.zeros((n, k, width))
-        D[:, :, :3] = rows.A_d
-        D[:, :, 3] = rows.b_d
+        D[:, :, :p] = rows.A_d
+        D[:, :, p] = rows.b_d
         if n_extra:
-            D[:, :, 4:6] = rows.nuisance
+            D[:, :, p + 1 : p + 3] = rows.nuisance
         D[:, :, -2] = s2**0.5 * a_d
         l11 = np.sqrt(var_d)
         D = D / l11[..., None]
@@ -340,15 +371,15 @@ def _whitened_system(
     # (I + ŨŨᵀ)^(-1/2) = I + P (diag(1/√(1 + s²)) − I) Pᵀ for Ũ = P S Rᵀ
     P, S, _ = np.linalg.svd(U, full_matrices=False)
     X = X + P @ ((1.0 / np.sqrt(1.0 + S**2) - 1.0)[..., None] * (np.swapaxes(P, -1, -2) @ X))
-    A, b = X[..., :3], X[..., 3]
-    return A, b, (X[..., 4:] if n_extra else None)
+    A, b = X[..., :p], X[..., p]
+    return A, b, (X[..., p + 1 :] if n_extra else None)
 
 
 def _moments_at(
     rows: _Rows, theta: FloatArray | None, geometry: MeasurementSet
 ) -> tuple[FloatArray, FloatArray | None]:
     """Ranges and offset-free Doppler (local units, (n, K)) for the weights: stage 1, or at
-    each trial's ``theta`` (n, 3)."""
+    each trial's ``theta`` (n, p)."""
     n, k = rows.b_t.shape
     f = rows.doppler_hz
     if theta is None:
@@ -358,10 +389,11 @@ def _moments_at(
             f_bar = f - f.mean(axis=1, keepdims=True) if rows.nuisance is not None else f.copy()
         return rho, f_bar
     velocity = geometry.velocity_mps
+    heights = rows.h if rows.q.shape[1] == 2 else rows.h - theta[:, None, 2]
     doppler, ranges = model.derivatives_of_offsets(  # the noise-free model (MATH §1)
         rows.q[..., 0] - theta[:, None, 0],
         rows.q[..., 1] - theta[:, None, 1],
-        rows.h,
+        heights,
         (velocity[:, 0], velocity[:, 1], velocity[:, 2]),
         geometry.gamma_per_m,
         order=0,
@@ -434,10 +466,15 @@ def solve_pseudorange_batch(
     )
     sigma_r = geometry.noise.toa_s * geometry.speed_of_light_mps / frame.scale_m
     sigma_f = geometry.noise.doppler_hz if doppler is not None else 1.0
-    constraint = (HYPERBOLOID, np.zeros(3), -(rows.h_ref**2))
+    dimension = position_dimension(geometry.unknowns)
+    if dimension == 2:
+        constraint = (HYPERBOLOID, np.zeros(3), -(rows.h_ref**2))
+    else:  # ‖s'‖² − ρ_j² = 0: the cone of MATH §15
+        constraint = (CONE, np.zeros(4), 0.0)
+    origin = frame_origin_m(geometry, frame, ref)
 
     n = len(ranges)
-    points = np.full((n, 2, 3), np.nan)
+    points = np.full((n, 2, dimension + 1), np.nan)
     count = np.zeros(n, dtype=np.int64)
     status = np.zeros(n, dtype=np.int64)
     last: dict[str, Any] = {}
@@ -452,7 +489,7 @@ def solve_pseudorange_batch(
             gtrs = solve_gtrs_indefinite_batch(A, b, *constraint, hard_case_rtol=hard_case_rtol)
             found, found_count, found_status = gtrs.points.copy(), gtrs.count.copy(), gtrs.status
             valid = np.arange(2)[None, :] < found_count[:, None]
-            wrong = (found_count > 0) & np.all(np.where(valid, found[..., 2] < 0.0, True), axis=1)
+            wrong = (found_count > 0) & np.all(np.where(valid, found[..., -1] < 0.0, True), axis=1)
             for i in np.flatnonzero(wrong):
                 fallback, reason = _physical_sheet_fallback(A[i], b[i], constraint)
                 found[i] = np.nan
@@ -482,7 +519,7 @@ def solve_pseudorange_batch(
             residual = b_full - (A_full @ theta[..., None])[..., 0]
             relaxed = (np.linalg.pinv(N) @ residual[..., None])[..., 0]  # the free (δ, w)
             step = np.maximum(
-                np.abs(relaxed[:, 1] / theta[:, 2] - relaxed[:, 0]), sigma_f / np.sqrt(N.shape[1])
+                np.abs(relaxed[:, 1] / theta[:, -1] - relaxed[:, 0]), sigma_f / np.sqrt(N.shape[1])
             )
             profile = profile_offset(
                 A_full, b_full, N, constraint, relaxed[:, 0], step, hard_case_rtol=hard_case_rtol
@@ -502,7 +539,7 @@ def solve_pseudorange_batch(
             count[done] = at_delta.count[found]
             status[done] = at_delta.status[found]
             valid = np.arange(2)[None, :] < count[done, None]
-            wrong = np.all(np.where(valid, points[done, :, 2] < 0.0, True), axis=1)
+            wrong = np.all(np.where(valid, points[done, :, -1] < 0.0, True), axis=1)
             for i in np.flatnonzero(wrong & (count[done] > 0)):
                 fallback, reason = _physical_sheet_fallback(A[i], b[i], constraint)
                 points[done[i]] = np.nan
@@ -514,7 +551,7 @@ def solve_pseudorange_batch(
         valid = np.arange(2)[None, :] < count[:, None]
         residual = points @ np.swapaxes(last["A"], -1, -2) - last["b"][:, None, :]
         costs = np.where(valid, np.sum(residual**2, axis=-1), np.nan)
-        candidates = points[..., :2] * frame.scale_m + frame.origin_m
+        candidates = points[..., :dimension] * frame.scale_m + origin
         corrected = np.zeros(n, dtype=bool)
         if offset_unknown and offset_method == "two-stage" and trials.size:
             second = linearised_correction(
@@ -522,9 +559,9 @@ def solve_pseudorange_batch(
             )
             candidates[trials] = second.emitter_m
             costs[trials] = second.cost
-            local = (second.emitter_m - frame.origin_m) / frame.scale_m
-            points[trials, :, :2] = local
-            points[trials, :, 2] = np.sqrt(np.sum(local**2, axis=-1) + rows.h_ref**2)
+            local = (second.emitter_m - origin) / frame.scale_m
+            points[trials, :, :dimension] = local
+            points[trials, :, -1] = np.sqrt(np.sum(local**2, axis=-1) + rows.h_ref**2)
             corrected[trials] = np.all(second.accepted | ~valid[trials], axis=1)
         emission, offset = _nuisance_estimates(
             geometry, ranges, doppler, candidates, offset_unknown
@@ -548,7 +585,7 @@ def solve_pseudorange_batch(
         costs=costs,
         emission_time_s=emission,
         carrier_offset_hz=offset,
-        reference_range_m=points[..., 2] * frame.scale_m,
+        reference_range_m=points[..., -1] * frame.scale_m,
         profiled=profiled,
         profile_evaluations=evaluations,
         corrected=corrected,
@@ -616,7 +653,7 @@ def solve_pseudorange_cls(
     costs = batch.costs[0, :count]
     profiled = bool(batch.profiled[0])
 
-    on_sheet = bool(len(gtrs.points) and np.all(gtrs.points[:, 2] > 0.0))
+    on_sheet = bool(len(gtrs.points) and np.all(gtrs.points[:, -1] > 0.0))
     diagnostics: dict[str, Any] = {
         "success": bool(len(points)),
         "status": status,
@@ -626,7 +663,7 @@ def solve_pseudorange_cls(
         "hard_end": gtrs.hard_end,
         "rank": gtrs.rank,
         "reference_sample": ref,
-        "sheet": ["+" if rho_j > 0 else "−" for rho_j in gtrs.points[:, 2]],
+        "sheet": ["+" if rho_j > 0 else "−" for rho_j in gtrs.points[:, -1]],
         "on_physical_sheet": on_sheet,
         "global_cost": float(gtrs.costs.min()) if len(gtrs.costs) else float("nan"),
         "stages": int(stages),
@@ -639,7 +676,7 @@ def solve_pseudorange_cls(
     elif offset_unknown and len(points) and not profiled:
         relaxed = np.linalg.lstsq(N, b_full - A_full @ points[0], rcond=None)[0]
         diagnostics["relaxed_carrier_offset_hz"] = float(relaxed[0])
-        diagnostics["relaxation_gap_hz"] = float(relaxed[1] / points[0, 2] - relaxed[0])
+        diagnostics["relaxation_gap_hz"] = float(relaxed[1] / points[0, -1] - relaxed[0])
     if profiled:
         diagnostics["profile_evaluations"] = int(batch.profile_evaluations[0])
     return PseudorangeSolution(
@@ -647,7 +684,7 @@ def solve_pseudorange_cls(
         costs=costs,
         emission_time_s=emission,
         carrier_offset_hz=offset,
-        reference_range_m=points[:, 2] * frame.scale_m if len(points) else np.zeros(0),
+        reference_range_m=points[:, -1] * frame.scale_m if len(points) else np.zeros(0),
         diagnostics=diagnostics,
         gtrs=gtrs,
         frame=frame,
@@ -659,10 +696,11 @@ def solve_pseudorange_cls(
 def _offset_system(
     A: FloatArray, b: FloatArray, N: FloatArray, delta: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """The rows with δ given and ``w = ρ_jδ`` restored: ``(A + δ N_w e₃ᵀ) θ = b − δ N_δ``, per
-    trial (``A`` (n, m, 3), ``b`` (n, m), ``N`` (n, m, 2), ``delta`` (n,))."""
+    """The rows with δ given and ``w = ρ_jδ`` restored: ``(A + δ N_w e_ρᵀ) θ = b − δ N_δ``, per
+    trial (``A`` (n, m, p), ``b`` (n, m), ``N`` (n, m, 2), ``delta`` (n,); ``e_ρ`` selects
+    ``ρ_j``, the last unknown)."""
     A_delta = A.copy()
-    A_delta[..., 2] += delta[:, None] * N[..., 1]
+    A_delta[..., -1] += delta[:, None] * N[..., 1]
     return A_delta, b - delta[:, None] * N[..., 0]
 
 
@@ -687,12 +725,12 @@ def profile_offset(
     *,
     hard_case_rtol: float = 1e-10,
 ) -> ProfiledOffset:
-    """Minimise the exact cost ``min_θ ‖(A + δN_w e₃ᵀ)θ − (b − δN_δ)‖²`` over δ (hyperboloid),
-    for ``n`` trials at once.
+    """Minimise the exact cost ``min_θ ‖(A + δN_w e_ρᵀ)θ − (b − δN_δ)‖²`` over δ (hyperboloid,
+    or cone with the height unknown), for ``n`` trials at once.
 
     ``A, b, N`` are whitened rows of the relaxed systems (n, m, ·) (columns of N: δ, w),
     ``constraint`` the ``(d, g, c)`` of the hyperboloid. The constraint does not depend on δ,
-    so by the envelope theorem the profile's derivative is ``2 rᵀ(θ*₃ N_w + N_δ)`` at the GTRS
+    so by the envelope theorem the profile's derivative is ``2 rᵀ(ρ*_j N_w + N_δ)`` at the GTRS
     minimiser θ* (r its residual): a root search on it (expanding from ``delta0`` by ``step``
     until the sign changes, then Brent's method, :func:`_brent_root`) reaches the minimum to
     rounding, where a search on the cost alone stops at ``√ε``. Each step solves
@@ -710,7 +748,7 @@ def profile_offset(
         evaluations[at] += 1
         theta = gtrs.points[:, 0]
         residual = (A_delta @ theta[..., None])[..., 0] - b_delta
-        value = 2.0 * np.sum(residual * (theta[:, 2:] * N[at][..., 1] + N[at][..., 0]), axis=1)
+        value = 2.0 * np.sum(residual * (theta[:, -1:] * N[at][..., 1] + N[at][..., 0]), axis=1)
         return np.where(gtrs.count > 0, value, np.nan), gtrs
 
     delta0 = np.asarray(delta0, dtype=float)
@@ -831,9 +869,9 @@ def _physical_sheet_fallback(
 ) -> tuple[FloatArray, str]:
     """The lowest-cost stationary point with ``ρ_j > 0`` (the minimiser over that sheet)."""
     points, _, _ = stationary_points(A, b, *constraint)
-    physical = points[points[:, 2] > 0.0]
+    physical = points[points[:, -1] > 0.0]
     if len(physical) == 0:
-        return np.zeros((0, 3)), "wrong-sheet-no-physical-point"
+        return np.zeros((0, A.shape[-1])), "wrong-sheet-no-physical-point"
     return physical[:1], "wrong-sheet-fallback"
 
 
@@ -845,7 +883,8 @@ def _nuisance_estimates(
     offset_unknown: bool,
 ) -> tuple[FloatArray, FloatArray | None]:
     """``b̂ = mean(r_k − ρ̂_k)/c`` and, when unknown, ``δ̂ = mean(f_k − f_k(ŝ))`` per candidate:
-    ``candidates_m`` (n, c, 2) of the trials' ``range_m`` and ``doppler_hz`` (n, K)."""
+    ``candidates_m`` (n, c, 2), or (n, c, 3) with the height, of the trials' ``range_m`` and
+    ``doppler_hz`` (n, K)."""
     ranges = model.slant_range_m(geometry.position_m, candidates_m, geometry.emitter_height_m)
     emission = np.mean(range_m[:, None, :] - ranges, axis=-1) / geometry.speed_of_light_mps
     offset = None
@@ -874,10 +913,12 @@ def estimate_pseudorange_columns(
 
     What ``estimate`` of :mod:`estimators.closed_form.cls` returns trial by trial with an
     unknown emission time (MATH §15): :func:`solve_pseudorange_batch` on the frames used, the
-    hard-case pair left of the last heading first and the mirror rule of
-    :func:`~estimators.mirror_rule.finalize_columns`; ties draw from each trial's generator,
-    in trial order. When the samples used hover every trial goes to ``solve_one``, whose
-    ``finalize_estimate`` fails it with the reason.
+    hard-case pair left of the last heading first (with the height unknown: the lower first)
+    and the mirror rule of :func:`~estimators.mirror_rule.finalize_columns`; ties draw from
+    each trial's generator, in trial order. When the samples used hover every trial goes to
+    ``solve_one``, whose ``finalize_estimate`` fails it with the reason. With the emitter's
+    height unknown the columns are 3-D, a candidate above the UAV is dropped, and a straight
+    track fails every trial with :data:`~estimators.mirror_rule.STRAIGHT_TRACK_HEIGHT`.
     """
     n = batch.n_trials
     generators = check_rngs(rngs, n)
@@ -900,18 +941,24 @@ def estimate_pseudorange_columns(
     )
     success = solution.count > 0
     hard = solution.gtrs.hard_case
-    # ordered_candidates: the hard-case pair left of the last heading first, at one cost; on
-    # a straight track only that one (the mirror rule adds the other)
+    # ordered_candidates: the hard-case pair left of the last heading first (3-D: the lower
+    # first), at one cost; on a straight track (2-D) only that one (the mirror rule adds the
+    # other)
     candidates, count = solution.candidates_m.copy(), solution.count.copy()
+    three_d = candidates.shape[-1] == 3
     pair = hard & (count == 2)
-    velocity = used.velocity_mps[-1]
-    left = np.array([-velocity[1], velocity[0]])
-    swap = pair & ((candidates[:, 0] - candidates[:, 1]) @ left < 0.0)
+    if three_d:
+        swap = pair & (candidates[:, 0, 2] > candidates[:, 1, 2])
+    else:
+        velocity = used.velocity_mps[-1]
+        left = np.array([-velocity[1], velocity[0]])
+        swap = pair & ((candidates[:, 0] - candidates[:, 1]) @ left < 0.0)
     candidates[swap] = candidates[swap, ::-1]
     costs = np.where(pair[:, None], np.min(solution.costs, axis=1)[:, None], solution.costs)
     line = straight_track_line(used.position_m, used.velocity_mps)
-    if line is not None:
+    if line is not None and not three_d:
         count = np.where(pair, 1, count)
+    ceiling = float(used.position_m[:, 2].max()) if three_d else None
     with np.errstate(invalid="ignore"):
         final = finalize_columns(
             candidates,
@@ -920,6 +967,7 @@ def estimate_pseudorange_columns(
             used.position_m[:, :2].mean(axis=0),
             line,
             side_prior_m=side_prior_m,
+            ceiling_m=ceiling,
         )
     ok = success & ~final.invalid
     n_kept = np.where(ok, final.n_candidates, 0)
@@ -933,11 +981,13 @@ def estimate_pseudorange_columns(
         WRONG_SHEET_NOTE,
         f"hard case: mirror pair (MATH §15); {WRONG_SHEET_NOTE}",
         *(f"pseudo-range closed form: {status} (MATH §15)" for status in STATUSES),
-        "pseudo-range closed form: no finite candidate (MATH §15)",
+        final.problem or "pseudo-range closed form: no finite candidate (MATH §15)",
     ]
     wrong_sheet = ~solution.on_physical_sheet
+    # a geometry that locates nothing (final.problem) says so for every trial
+    fails = success | bool(final.problem)
     code = np.where(
-        ok, hard + 2 * wrong_sheet, np.where(success, len(messages) - 1, 4 + solution.status)
+        ok, hard + 2 * wrong_sheet, np.where(fails, len(messages) - 1, 4 + solution.status)
     )
     diagnostics: dict[str, NDArray[Any]] = {
         "status": np.array(STATUSES, dtype=object)[solution.status],
