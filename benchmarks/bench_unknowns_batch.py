@@ -25,7 +25,15 @@ the largest distance between the two paths' positions (the same code: zero, or r
 the profile and the two-stage form also the ratio of their columns' time per estimate to the
 relaxed form's on the same trials (the two-stage form's budget: at most 2×).
 
-Run: ``python benchmarks/bench_unknowns_batch.py`` (``--trials N``).
+With the emitter's height unknown too (``roof-beacon``: ``beacon-pass`` with the beacon 25 m up,
+offset, emission time and height unknown) the pseudo-range closed forms estimate ``(x, y, z)``
+(MATH §15, "The emitter's height unknown"): 2-D (``beacon-pass``) against 3-D
+(``roof-beacon``) per offset method, through the pseudo-range path of ``cls``
+(:func:`~estimators.closed_form.pseudorange_cls.estimate_pseudorange_columns`), the batch of N
+and one trial at a time (a batch of one each), on the same flight and noise.
+
+Run: ``python benchmarks/bench_unknowns_batch.py`` (``--trials N``; ``--part height`` for the
+2-D against 3-D comparison alone).
 """
 
 from __future__ import annotations
@@ -40,9 +48,11 @@ import numpy as np  # noqa: E402
 from cpu_time import best_cpu_us  # noqa: E402
 
 from estimators.closed_form.cls import Cls  # noqa: E402
+from estimators.closed_form.pseudorange_cls import estimate_pseudorange_columns  # noqa: E402
 from estimators.registry import make_estimator  # noqa: E402
 from scenarios.catalog import get_scenario  # noqa: E402
 from scenarios.simulate import simulate_trials, trial_seeds  # noqa: E402
+from scenarios.types import MeasurementBatch  # noqa: E402
 
 PER_TRIAL = 300
 PER_TRIAL_PROFILE = 60
@@ -89,10 +99,42 @@ def bench(scenario_name: str, n: int, offset_method: str, estimator_name: str = 
     return columns_us
 
 
+def bench_height(n: int) -> None:
+    """2-D (``beacon-pass``) against 3-D (``roof-beacon``): µs per estimate of the pseudo-range
+    columns, in a batch of ``n`` and one trial at a time (batches of one), per offset method."""
+    for method in ("relaxed", "two-stage", "profile"):
+        times = {}
+        for name in ("beacon-pass", "roof-beacon"):
+            batch = simulate_trials(get_scenario(name), snr_db=SNR_DB, seeds=trial_seeds(2026, n))
+            single = min(n, PER_TRIAL)
+            ones = [MeasurementBatch.of_one(batch.trial(i)) for i in range(single)]
+
+            def columns(of: MeasurementBatch, method: str = method):
+                return estimate_pseudorange_columns(
+                    "cls", of, "all", None, None, None, offset_method=method
+                )
+
+            batch_us = best_cpu_us(lambda: columns(batch), n)  # noqa: B023
+            one_us = best_cpu_us(lambda: [columns(one) for one in ones], single)  # noqa: B023
+            success = int(columns(batch).success.sum())
+            times[name] = batch_us, one_us
+            print(
+                f"cls {name:>12} ({'3-D' if name == 'roof-beacon' else '2-D'})  "
+                f"offset_method={method:9s} batch N={n:,}: {batch_us:7.1f} µs/estimate "
+                f"(success {success}/{n}); one trial: {one_us:7.1f} µs/estimate"
+            )
+        (batch2, one2), (batch3, one3) = times["beacon-pass"], times["roof-beacon"]
+        print(f"{'':>22}3-D / 2-D: batch ×{batch3 / batch2:.2f}, one trial ×{one3 / one2:.2f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=2_000, help="N (default 2,000)")
+    parser.add_argument("--part", choices=("all", "height"), default="all")
     args = parser.parse_args()
+    bench_height(args.trials)
+    if args.part == "height":
+        return
     for name in SCENARIOS:
         relaxed_us = bench(name, args.trials, "relaxed")
         for method in ("two-stage", "profile"):
