@@ -251,26 +251,28 @@ def reference_sample(position_m: ArrayLike, reference: Reference = "centre") -> 
     return index
 
 
-def pseudorange_frame(data: MeasurementSet, ref: int) -> LocalFrame:
+def pseudorange_frame(data: MeasurementSet, ref: int, dimension: int = 2) -> LocalFrame:
     """Origin at ``p_j``'s xy, scale the RMS of the horizontal spread and the heights.
 
     The pseudo-ranges cannot set the scale (they carry β); the heights and the spread can:
-    above the emitter, or with its height unknown above ``z = 0`` (the take-off ground). The
-    frame's height origin is then ``z_j`` (:func:`frame_origin_m`).
+    above the emitter, or with its height estimated (``dimension`` 3) above ``z = 0`` (the
+    take-off ground). The frame's height origin is then ``z_j`` (:func:`frame_origin_m`).
     """
     position = data.position_m
     origin = position[ref, :2].copy()
     spread = np.mean(np.sum((position[:, :2] - position[:, :2].mean(axis=0)) ** 2, axis=1))
-    ground = data.emitter_height_m if position_dimension(data.unknowns) == 2 else 0.0
+    ground = data.emitter_height_m if dimension == 2 else 0.0
     heights = np.mean((position[:, 2] - ground) ** 2)
     scale = float(np.sqrt(spread + heights))
     return LocalFrame(origin_m=origin, scale_m=scale if scale > 0.0 else 1.0)
 
 
-def frame_origin_m(geometry: MeasurementSet, frame: LocalFrame, ref: int) -> FloatArray:
+def frame_origin_m(
+    geometry: MeasurementSet, frame: LocalFrame, ref: int, dimension: int = 2
+) -> FloatArray:
     """The world point of the local origin, in the coordinates estimated: ``p_j``'s xy (2,),
-    or ``p_j`` (3,) with the emitter's height unknown (``world = origin + scale · local``)."""
-    if position_dimension(geometry.unknowns) == 2:
+    or ``p_j`` (3,) with the emitter's height estimated (``world = origin + scale · local``)."""
+    if dimension == 2:
         return frame.origin_m
     return np.append(frame.origin_m, geometry.position_m[ref, 2])
 
@@ -283,16 +285,15 @@ def pseudorange_rows(
     doppler_hz: FloatArray | None,
     *,
     carrier_offset_unknown: bool,
+    dimension: int = 2,
 ) -> _Rows:
     """The rows of the module text in the local frame (unweighted), for the trials' pseudo-
     ranges ``range_m`` and Doppler ``doppler_hz`` (n, K) on the samples of ``geometry``.
 
-    With the emitter's height unknown (``geometry.unknowns``) the frame's origin is ``p_j``
-    itself, ``q_k = p_k − p_j`` has three coordinates and θ = (x', y', z', ρ_j): the height's
+    With the emitter's height estimated (``dimension`` 3) the frame's origin is ``p_j`` itself, ``q_k = p_k − p_j`` has three coordinates and θ = (x', y', z', ρ_j): the height's
     column is ``−2q_{k,z}`` in the squared-range differences and ``v_{z,k}/|v_{k,xy}|`` in the
     Doppler rows (MATH §15, "The emitter's height unknown")."""
     position = frame.positions(geometry.position_m)
-    dimension = position_dimension(geometry.unknowns)
     if dimension == 2:
         q = position[:, :2]  # the frame's origin is p_j's xy
         h = position[:, 2] - geometry.emitter_height_m / frame.scale_m
@@ -402,6 +403,15 @@ def _moments_at(
     return ranges[0], None if f is None else doppler[0]
 
 
+def check_dimension(dimension: object) -> None:
+    """One line naming the field when ``dimension`` is neither 2 nor 3."""
+    if dimension not in (2, 3):
+        raise ValueError(
+            f"dimension: expected 2 (the emitter at the data's height) or 3 (its height "
+            f"estimated), got {dimension!r}"
+        )
+
+
 def check_offset_method(offset_method: object) -> None:
     """One line naming the field and its values when ``offset_method`` is none of them."""
     if offset_method not in OFFSET_METHODS:
@@ -436,6 +446,7 @@ def solve_pseudorange_batch(
     reference: Reference = "centre",
     offset_method: OffsetMethod = "relaxed",
     hard_case_rtol: float = 1e-10,
+    dimension: int = 2,
 ) -> PseudorangeBatch:
     """The relaxed pseudo-range CLS (module text, MATH §15) of ``n`` trials at once.
 
@@ -451,27 +462,38 @@ def solve_pseudorange_batch(
     ``offset_method="two-stage"`` every returned point goes to the second stage,
     :func:`~estimators.closed_form.pseudorange_two_stage.linearised_correction` (every trial
     and candidate at once), whose profiled cost becomes the candidate's cost.
+
+    ``dimension`` 3 estimates the emitter's height too: θ = (x', y', z', ρ_j) on the cone
+    ``‖s'‖² = ρ_j²`` (MATH §15, "The emitter's height unknown"), candidates ``(n, 2, 3)``. With
+    2 (the default) the emitter is at ``geometry.emitter_height_m``, the height the data assume
+    when they declare it unknown (``ml`` starts so at a few heights).
     """
     check_offset_method(offset_method)
     if int(stages) != stages or stages < 1:
         raise ValueError(f"stages: must be a whole number >= 1, got {stages!r}")
+    check_dimension(dimension)
     # C order: a trial's rows then reduce in the same order in a batch of any size
     ranges = np.ascontiguousarray(range_m, dtype=float)
     doppler = None if doppler_hz is None else np.ascontiguousarray(doppler_hz, dtype=float)
     offset_unknown = carrier_offset_unknown and doppler is not None
     ref = reference_sample(geometry.position_m, reference)
-    frame = pseudorange_frame(geometry, ref)
+    frame = pseudorange_frame(geometry, ref, dimension)
     rows = pseudorange_rows(
-        geometry, frame, ref, ranges, doppler, carrier_offset_unknown=offset_unknown
+        geometry,
+        frame,
+        ref,
+        ranges,
+        doppler,
+        carrier_offset_unknown=offset_unknown,
+        dimension=dimension,
     )
     sigma_r = geometry.noise.toa_s * geometry.speed_of_light_mps / frame.scale_m
     sigma_f = geometry.noise.doppler_hz if doppler is not None else 1.0
-    dimension = position_dimension(geometry.unknowns)
     if dimension == 2:
         constraint = (HYPERBOLOID, np.zeros(3), -(rows.h_ref**2))
     else:  # ‖s'‖² − ρ_j² = 0: the cone of MATH §15
         constraint = (CONE, np.zeros(4), 0.0)
-    origin = frame_origin_m(geometry, frame, ref)
+    origin = frame_origin_m(geometry, frame, ref, dimension)
 
     n = len(ranges)
     points = np.full((n, 2, dimension + 1), np.nan)
@@ -600,6 +622,7 @@ def solve_pseudorange_cls(
     reference: Reference = "centre",
     offset_method: OffsetMethod = "relaxed",
     hard_case_rtol: float = 1e-10,
+    dimension: int = 2,
 ) -> PseudorangeSolution:
     """Every global minimiser of the pseudo-range CLS with b unknown (module text, MATH §15).
 
@@ -623,6 +646,9 @@ def solve_pseudorange_cls(
         (:func:`profile_offset`, a scalar root search, one GTRS per step), with the weights
         of the last relaxed stage; ``"two-stage"`` corrects the relaxed candidates by the
         second stage of :mod:`~estimators.closed_form.pseudorange_two_stage` (closed form).
+    dimension : 2 or 3
+        3: estimate the emitter's height too, ``(x, y, z)`` candidates (MATH §15, "The
+        emitter's height unknown"); 2: the emitter at ``data.emitter_height_m``.
 
     If the global minimiser lies on the wrong sheet (``ρ_j < 0``, possible only at high
     noise) the lowest-cost stationary point on the physical sheet is returned instead and
@@ -639,6 +665,7 @@ def solve_pseudorange_cls(
         reference=reference,
         offset_method=offset_method,
         hard_case_rtol=hard_case_rtol,
+        dimension=dimension,
     )
     ref, frame = batch.reference_sample, batch.frame
     count = int(batch.count[0])
@@ -938,6 +965,7 @@ def estimate_pseudorange_columns(
         None if batch.doppler_hz is None else batch.doppler_hz[:, columns],
         carrier_offset_unknown=offset_unknown,
         offset_method=offset_method,
+        dimension=position_dimension(used.unknowns),
     )
     success = solution.count > 0
     hard = solution.gtrs.hard_case

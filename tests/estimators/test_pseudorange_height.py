@@ -35,6 +35,7 @@ from tests.scenarios.random_flights import random_data
 
 ALL = ("carrier_offset_hz", "emission_time_s", HEIGHT_UNKNOWN)
 METHODS = ("relaxed", "profile", "two-stage")
+HEIGHT = {"carrier_offset_unknown": True, "dimension": 3}
 CLIMBS_MPS = (1.5, -2.0, 4.0)
 
 
@@ -98,7 +99,7 @@ def test_noise_free_level_turn_gives_the_emitter_and_its_reflection(method) -> N
     data = noise_free(scenario)
     truth = data.truth_emitter_m
     assert truth.tolist() == [150.0, 120.0, 25.0] and set(data.unknowns) == set(ALL)
-    solution = solve_pseudorange_cls(data, carrier_offset_unknown=True, offset_method=method)
+    solution = solve_pseudorange_cls(data, offset_method=method, **HEIGHT)
     assert solution.diagnostics["hard_case"]
     found = sorted(solution.candidates_m.tolist(), key=lambda point: point[2])
     np.testing.assert_allclose(found, [truth, [150.0, 120.0, 175.0]], rtol=0, atol=1e-6)
@@ -131,7 +132,7 @@ def test_noise_free_climbing_turn_in_one_tilted_plane(method) -> None:
     data = noise_free(climbing_turn())
     ghost = reflection_through_the_flight_plane(data)
     np.testing.assert_allclose(ghost, [150.0, 21.176, 515.294], rtol=0, atol=1e-3)
-    solution = solve_pseudorange_cls(data, carrier_offset_unknown=True, offset_method=method)
+    solution = solve_pseudorange_cls(data, offset_method=method, **HEIGHT)
     assert solution.diagnostics["hard_case"]
     found = sorted(solution.candidates_m.tolist(), key=lambda point: point[2])
     np.testing.assert_allclose(found, [[150.0, 120.0, 120.0], ghost], rtol=0, atol=1e-6)
@@ -146,7 +147,7 @@ def test_noise_free_climbing_turn_in_one_tilted_plane(method) -> None:
 def test_noise_free_bent_climb_is_exact_and_unique(method) -> None:
     """Climbing in the last frame only bends the track out of every plane: one minimiser."""
     data = noise_free(bent_climb())
-    solution = solve_pseudorange_cls(data, carrier_offset_unknown=True, offset_method=method)
+    solution = solve_pseudorange_cls(data, offset_method=method, **HEIGHT)
     assert not solution.diagnostics["hard_case"] and len(solution.candidates_m) == 1
     np.testing.assert_allclose(solution.candidates_m, [[150.0, 120.0, 120.0]], rtol=0, atol=1e-6)
     np.testing.assert_allclose(solution.carrier_offset_hz, [700.0], rtol=0, atol=1e-6)
@@ -162,7 +163,7 @@ def test_noise_free_random_climbing_flights_are_exact(seed, climb_mps) -> None:
     data = random_climb(seed, climb_mps)
     tolerance = 1e-8 * scale_m(data)
     for method in METHODS:
-        solution = solve_pseudorange_cls(data, carrier_offset_unknown=True, offset_method=method)
+        solution = solve_pseudorange_cls(data, offset_method=method, **HEIGHT)
         np.testing.assert_allclose(
             solution.candidates_m[:1], [data.truth_emitter_m], rtol=0, atol=tolerance
         )
@@ -178,7 +179,9 @@ def test_noise_free_with_the_carrier_offset_known() -> None:
     scenario = bent_climb().replace(
         carrier_offset_hz=0.0, unknowns=("emission_time_s", HEIGHT_UNKNOWN)
     )
-    solution = solve_pseudorange_cls(noise_free(scenario), carrier_offset_unknown=False)
+    solution = solve_pseudorange_cls(
+        noise_free(scenario), carrier_offset_unknown=False, dimension=3
+    )
     assert solution.carrier_offset_hz is None
     np.testing.assert_allclose(solution.candidates_m, [[150.0, 120.0, 120.0]], rtol=0, atol=1e-6)
 
@@ -228,7 +231,7 @@ def test_relaxed_minimiser_is_the_brute_force_optimum(name, snr_db) -> None:
         batch.geometry,
         batch.geometry.speed_of_light_mps * batch.toa_s,
         batch.doppler_hz,
-        carrier_offset_unknown=True,
+        **HEIGHT,
     )
     for i in range(batch.n_trials):
         assert solution.count[i] >= 1 and solution.on_physical_sheet[i]
@@ -350,9 +353,7 @@ def test_one_trial_is_the_batch_of_one(method) -> None:
     for i in range(batch.n_trials):
         one = columns(MeasurementBatch.of_one(batch.trial(i)), method)
         assert np.array_equal(one.position_m[0], whole.position_m[i])
-        alone = solve_pseudorange_cls(
-            batch.trial(i), carrier_offset_unknown=True, offset_method=method
-        )
+        alone = solve_pseudorange_cls(batch.trial(i), offset_method=method, **HEIGHT)
         assert any(np.array_equal(c, whole.position_m[i]) for c in alone.candidates_m)
 
 
@@ -366,3 +367,30 @@ def test_level_turn_ties_draw_nothing_after_the_rule() -> None:
     assert result.success.all() and not result.ambiguous.any()
     assert (result.position_m[:, 2] < batch.geometry.position_m[:, 2].max()).all()
     assert [g.bit_generator.state for g in generators] == states
+
+
+@pytest.mark.bits("the default dimension runs the 2-D arrays of the data at their assumed height")
+def test_dimension_2_is_the_emitter_at_the_assumed_height() -> None:
+    """The default on data declaring the height unknown solves in (x, y) at the height they
+    assume (``ml``'s starts at a few heights): the bits of the same data with the height
+    declared known at that height."""
+    batch = simulate_trials(get_scenario("roof-beacon"), snr_db=10.0, seeds=trial_seeds(3, 4))
+    known = batch.geometry.assuming_known([HEIGHT_UNKNOWN])
+    assert HEIGHT_UNKNOWN not in known.unknowns and known.emitter_height_m == 0.0
+    ranges = batch.geometry.speed_of_light_mps * batch.toa_s
+    for method in METHODS:
+        options = {"carrier_offset_unknown": True, "offset_method": method}
+        assumed = solve_pseudorange_batch(batch.geometry, ranges, batch.doppler_hz, **options)
+        plain = solve_pseudorange_batch(known, ranges, batch.doppler_hz, **options)
+        assert assumed.candidates_m.shape == (4, 2, 2)
+        assert np.array_equal(assumed.candidates_m, plain.candidates_m, equal_nan=True)
+
+
+def test_a_bad_dimension_is_one_line_naming_the_field() -> None:
+    data = noise_free(get_scenario("roof-beacon"))
+    with pytest.raises(ValueError) as raised:
+        solve_pseudorange_cls(data, carrier_offset_unknown=True, dimension=4)
+    assert str(raised.value) == (
+        "dimension: expected 2 (the emitter at the data's height) or 3 (its height estimated), "
+        "got 4"
+    )
