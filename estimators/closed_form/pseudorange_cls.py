@@ -44,6 +44,15 @@ scalar search (:func:`profile_offset`). Not a closed form any more, but efficien
 ``offset_method="two-stage"`` keeps the closed form and re-imposes what the relaxation freed in
 a second stage: the measurement model linearised about the relaxed estimate, one weighted least
 squares in the correction, δ and β (:mod:`estimators.closed_form.pseudorange_two_stage`).
+
+**The emitter's height unknown** (``dimension=3``; MATH §15, "The emitter's height unknown").
+The frame's origin is ``p_j`` itself, ``q_k = p_k − p_j`` has three coordinates and
+``θ = (x', y', z', ρ_j)``: the squared-range differences ``[−2q_kᵀ, −2d_k] θ = d_k² − ‖q_k‖²``,
+the Doppler rows ``[v_kᵀ/|v_{k,xy}|, −f_k/(γ|v_{k,xy}|)] θ = (v_kᵀq_k + d_k f_k/γ)/|v_{k,xy}|``,
+the same δ columns and weights, and the cone ``‖s'‖² − ρ_j² = 0`` (:data:`CONE`) for the
+hyperboloid. A flight in one plane (a level one among them) leaves the height's component
+normal to it to the cone: the hard case, the emitter and its reflection through the plane at
+one cost, of which the mirror rule keeps the one below the UAV; a straight track fails.
 """
 
 from __future__ import annotations
@@ -102,8 +111,9 @@ class PseudorangeSolution:
 
     Attributes
     ----------
-    candidates_m : (n, 2)
-        Every global minimiser on the physical sheet (2 in the hard case), world metres.
+    candidates_m : (n, d)
+        Every global minimiser on the physical sheet (2 in the hard case), world metres:
+        ``(x, y)``, or ``(x, y, z)`` with the height estimated.
     costs : (n,)
         The whitened, projected cost at each candidate.
     emission_time_s : (n,)
@@ -151,19 +161,21 @@ class PseudorangeBatch:
     frame : LocalFrame
         Centred on the reference sample (the trials share it).
     constraint : ``(d, g, c)``
-        The hyperboloid ``‖s'‖² − ρ_j² = −h_j²`` in the local frame.
-    points : (n, 2, 3)
-        The returned minimisers ``θ = (x', y', ρ_j)`` in the local frame: trial ``i``'s are
+        The hyperboloid ``‖s'‖² − ρ_j² = −h_j²`` in the local frame (the cone, ``c = 0``, with
+        the height estimated).
+    points : (n, 2, p)
+        The returned minimisers ``θ = (x', y', ρ_j)`` (``(x', y', z', ρ_j)`` with the height
+        estimated, p = 4) in the local frame: trial ``i``'s are
         ``points[i, :count[i]]`` (the global ones, or the physical sheet's), NaN beyond.
     count : (n,)
     status : (n,)
         An index into :data:`STATUSES`.
     gtrs : IndefiniteGtrsBatch
         Each trial's last solve (the last stage it reached).
-    A, b : (n, m, 3), (n, m)
+    A, b : (n, m, p), (n, m)
         The last stage's whitened, projected rows; ``A_full``, ``b_full`` and ``nuisance``
         (None with δ known) the same rows before the projection.
-    candidates_m, costs, emission_time_s, reference_range_m : (n, 2, 2), (n, 2), (n, 2), (n, 2)
+    candidates_m, costs, emission_time_s, reference_range_m : (n, 2, d), (n, 2), (n, 2), (n, 2)
         Per returned point, NaN beyond ``count``; ``carrier_offset_hz`` (n, 2) or None.
     profiled, profile_evaluations : (n,), (n,)
         With ``offset_method="profile"``: the trials whose δ is the profile's (the others keep
