@@ -21,9 +21,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from comparison.crlb import crlb_m2, rmse_bound_m
+from comparison.crlb import crlb_m2, crlb_parts_m, rmse_bound_m
 from comparison.trial_rows import (
     POINT_CRLB_SETS,
+    POINT_HEIGHT_CRLB,
     POINT_KNOWN_CRLB_SETS,
     SCORED_DIMENSION,
     coordinate_columns,
@@ -252,6 +253,10 @@ def point_rows(
                 key = _modality_key(modalities)
                 known = info.known_information.get(key, info.information.get(key))
                 bounds[column] = bound_of(known, frame, horizontal_known=info.dimension > 2)
+            if dimension > 2:  # the parts of the 3-D bound (the whole of a 2-D one)
+                crlb = crlb_m2(information_of(info.information.get(("toa", "doppler")), frame))
+                horizontal, vertical = crlb_parts_m(crlb)
+                bounds.update(zip(POINT_HEIGHT_CRLB, (horizontal, vertical), strict=True))
             scale = math.sqrt(float(np.mean(squared_range[flight.sample_frames() <= frame])))
             rows.append(
                 {

@@ -55,6 +55,13 @@ def crlb_m2(information: ArrayLike) -> FloatArray:
     return inverse_symmetric(information)
 
 
+def crlb_parts_m(crlb_m2: np.ndarray) -> tuple[float, float]:
+    """The horizontal and vertical parts of a bound (MATH §8): ``√(CRLB_xx + CRLB_yy)`` and
+    ``√CRLB_zz`` of a 3×3 one; a 2×2 one is all horizontal (``√trace``, NaN)."""
+    horizontal = float(np.sqrt(crlb_m2[0, 0] + crlb_m2[1, 1]))
+    return horizontal, float(np.sqrt(crlb_m2[2, 2])) if len(crlb_m2) > 2 else math.nan
+
+
 def crlb_table(data: MeasurementSet, at_m: Any) -> dict[str, Any]:
     """RMSE bound and CRLB matrix at ``at_m`` for each of ``MODALITY_SETS`` (MATH §8).
 
@@ -101,8 +108,9 @@ def crlb_table(data: MeasurementSet, at_m: Any) -> dict[str, Any]:
         bound_m2 = crlb_m2(information)
         table["crlb_m2"][name] = bound_m2.tolist()
         if three_d:
-            table["horizontal_rmse_bound_m"][name] = math.sqrt(bound_m2[0, 0] + bound_m2[1, 1])
-            table["vertical_rmse_bound_m"][name] = math.sqrt(bound_m2[2, 2])
+            horizontal, vertical = crlb_parts_m(bound_m2)
+            table["horizontal_rmse_bound_m"][name] = horizontal
+            table["vertical_rmse_bound_m"][name] = vertical
         if data.unknowns:
             # every unknown known: no nuisance column, and the height fixed (the (x, y) block)
             known_information = fisher_information(data, point, modalities, unknowns=())

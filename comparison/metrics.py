@@ -232,7 +232,8 @@ def _summarize_points(
 
     In a 3-D run (an emitter of unknown height) the groups whose answers are horizontal (a
     scenario with the height known, or an estimator that assumes it) are summarised in 2-D,
-    apart from the others, each trial set keeping its seeds; the rows then come back in the
+    apart from the others, each trial set keeping its seeds, their ``rmse_horizontal_m`` and
+    ``crlb_horizontal_m`` their ``rmse_m`` and ``crlb_rmse_m``; the rows then come back in the
     groups' order."""
     horizontal = _horizontal_rows(trials, codes, planners)
     kinds = [horizontal] if horizontal is not None and horizontal.all() else []
@@ -260,6 +261,9 @@ def _summarize_points(
             n_bootstrap,
             confidence,
         )
+        if flat:  # a horizontal answer's horizontal parts are its whole
+            part["rmse_horizontal_m"] = part["rmse_m"]
+            part["crlb_horizontal_m"] = part["crlb_rmse_m"]
         parts.append(part)
         first = groups.first_rows
         order.append(

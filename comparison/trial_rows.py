@@ -231,6 +231,13 @@ POINT_KNOWN_CRLB_SETS: dict[str, tuple[str, ...]] = {
 """Bounds with every nuisance parameter known (MATH §15): beside their namesakes of
 :data:`POINT_CRLB_SETS` they give the price of the scenario's unknowns (equal without any)."""
 
+POINT_HEIGHT_CRLB: tuple[str, ...] = (
+    "crlb_horizontal_toa_doppler_m",
+    "crlb_vertical_toa_doppler_m",
+)
+"""A 3-D points table's parts of the ToA+Doppler bound (MATH §8): ``√(CRLB_xx + CRLB_yy)``
+and ``√CRLB_zz`` (for a scenario with the height known, its whole bound and NaN)."""
+
 _SCENARIO_INDEX = Column("scenario_index", "INTEGER")
 
 
@@ -248,6 +255,7 @@ def points_table(dimension: int = SCORED_DIMENSION) -> Table:
             _real("range_scale_m"),
             *(_real(name) for name in POINT_CRLB_SETS),
             *(_real(name, required=False) for name in POINT_KNOWN_CRLB_SETS),
+            *(_real(name, required=False) for name in POINT_HEIGHT_CRLB if dimension > 2),
         ),
         indexes=(_SCENARIO_INDEX,),
     )

@@ -22,6 +22,7 @@ from scipy.stats import binom
 
 from comparison.labels import label_html
 from comparison.metrics import has_planners, parameter_label, summary_swept_columns
+from comparison.trial_rows import POINT_HEIGHT_CRLB
 from comparison.verdicts import (
     MIN_SUCCESS_RATE,
     MIN_TRIALS,
@@ -492,8 +493,9 @@ def _uninformative_modalities(rows: pd.DataFrame, points: pd.DataFrame | None) -
 
 
 def _price_of_unknowns(points: pd.DataFrame | None) -> list[str]:
-    """Scenarios whose emitter's carrier offset or emission time is unknown (MATH §15): the
-    bounds every verdict is judged on, beside the bounds with them known, and the ratio."""
+    """Scenarios whose emitter's carrier offset, emission time or height is unknown (MATH §8,
+    §15): the bounds every verdict is judged on, beside the bounds with them known, and the
+    ratio; with the height unknown also the ratio of the bound's horizontal part alone."""
     pairs = {
         "ToA+Doppler": ("crlb_rmse_toa_doppler_m", "crlb_rmse_known_toa_doppler_m"),
         "Doppler": ("crlb_rmse_doppler_m", "crlb_rmse_known_doppler_m"),
@@ -505,6 +507,9 @@ def _price_of_unknowns(points: pd.DataFrame | None) -> list[str]:
     parts = []
     for scenario, own in last.groupby("scenario", sort=False):
         prices = []
+        horizontal = own.get(POINT_HEIGHT_CRLB[0])
+        if horizontal is not None and own[POINT_HEIGHT_CRLB[1]].isna().all():
+            horizontal = None  # a scenario with the height known: its bound is horizontal
         for name, (column, known) in pairs.items():
             bound = own[column].to_numpy(float)
             reference = own[known].to_numpy(float)
@@ -516,11 +521,24 @@ def _price_of_unknowns(points: pd.DataFrame | None) -> list[str]:
                     if np.ptp(ratio) < 5e-3 * ratio.min()
                     else (f"{ratio.min():.3g} to {ratio.max():.3g}")
                 )
-                prices.append(f"{name} {spread}×")
+                part = ""
+                if horizontal is not None and name == "ToA+Doppler":
+                    flat = horizontal.to_numpy(float) / reference
+                    part = f" ({np.nanmax(flat):.3g}×)"
+                prices.append(f"{name} {spread}×{part}")
         if prices:
             parts.append(f"{_escape(scenario)}: {', '.join(prices)}")
     if not parts:
         return []
+    height = POINT_HEIGHT_CRLB[1] in points.columns and points[POINT_HEIGHT_CRLB[1]].notna().any()
+    if height:
+        return [
+            "Price of the unknowns (the carrier offset and emission time, MATH §15; the "
+            "emitter's height, MATH §8): every bound here is the CRLB with them estimated; it "
+            "is this many times the bound with all of them known, at the true height (√CRLB "
+            "ratio at the last frame; in brackets the 3-D bound's horizontal part alone): "
+            f"{'; '.join(parts)}."
+        ]
     return [
         "Price of the unknown carrier offset and emission time (MATH §15): every bound here is "
         "the CRLB with them estimated too; it is this many times the bound with them known "

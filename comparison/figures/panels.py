@@ -198,20 +198,18 @@ def draw_bounds(
     reference = None
     if point_rows is not None and REFERENCE_BOUND in point_rows:
         reference = point_rows[REFERENCE_BOUND].to_numpy(float)
-        ax.plot(
-            point_rows[x],
-            reference,
-            color="black",
-            linewidth=2.4,
-            label="√CRLB, ToA+Doppler",
-            zorder=1.9,
-        )
-        curves.append(
-            Curve("√CRLB, ToA+Doppler", "√CRLB", point_rows[x].to_numpy(float), reference)
-        )
+        # an emitter of unknown height: the 3-D bound, and the bound with it known (MATH §8)
+        height = "truth_z_m" in point_rows and bool(point_rows["truth_z_m"].notna().any())
+        name = "√CRLB, ToA+Doppler, (x, y, z)" if height else "√CRLB, ToA+Doppler"
+        ax.plot(point_rows[x], reference, color="black", linewidth=2.4, label=name, zorder=1.9)
+        curves.append(Curve(name, "√CRLB", point_rows[x].to_numpy(float), reference))
         known = point_rows.get(KNOWN_BOUND)
         if known is not None and not _same_bound(known.to_numpy(float), reference):
-            label = "√CRLB, ToA+Doppler, carrier and clock known (MATH §15)"
+            label = (
+                "√CRLB, ToA+Doppler, height and every offset known (MATH §8, §15)"
+                if height
+                else "√CRLB, ToA+Doppler, carrier and clock known (MATH §15)"
+            )
             ax.plot(point_rows[x], known, color="grey", linewidth=1.6, linestyle=":", label=label)
             curves.append(Curve(label, "√CRLB", point_rows[x].to_numpy(float), known.to_numpy()))
     # Bounds that differ from the reference, each drawn once for all estimators sharing it.

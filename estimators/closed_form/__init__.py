@@ -12,6 +12,10 @@ With an unknown emission time (§15) the pseudo-range form,
 the second stage of its two-stage form (``offset_method="two-stage"``),
 :mod:`~estimators.closed_form.pseudorange_two_stage`.
 The reference path is the batch: ``Cls.estimate`` is the batch of one trial.
+
+With the emitter's height among the data's unknowns, ``cls`` solves the same GTRS in one more
+dimension, ``r = (x, y, z, ‖s‖²)`` (MATH §3-§5): the rows carry the height's column
+(:class:`~estimators.closed_form.gtrs_batch.RowBlock` ``ah``) and the solver is the same code.
 """
 
 from estimators.closed_form.cls import Cls, ClsAsPrinted, ClsPaper, cls_rows

@@ -6,7 +6,11 @@ Three estimators share one pipeline, the vectorised solve of :mod:`estimators.cl
     The corrected method: one Doppler·range row per sample (§3), squared-range rows with the
     height term (§4), the exact GTRS solve whose hard case returns both mirror minimisers (§5),
     and two-stage optimal weighting by the exact second moments (§6), which makes it invariant
-    to the unit system, the speed and the heading.
+    to the unit system, the speed and the heading. With the emitter's height unknown the same
+    solve in three coordinates (§5): a level flight's reflection through its plane is returned
+    beside the emitter (the mirror rule keeps the one below the UAV), one straight track fails
+    in one line, and with the emission time unknown too the data are refused (the pseudo-range
+    form of §15 is 2-D).
 ``cls-paper`` (:class:`ClsPaper`)
     The paper's unweighted system with its errata fixed: one projected Doppler row per frame at
     the paper's scale ``K|v|²`` (MATH §3), the height term, the transpose, λ solved exactly.
@@ -71,6 +75,7 @@ from estimators.closed_form.pseudorange_cls import (
 )
 from estimators.goodness_of_fit import FIT_KEYS, fit_of, with_fit, with_fit_columns
 from scenarios.geometry import straight_track_line
+from scenarios.nuisance import HEIGHT_UNKNOWN, position_dimension
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -101,6 +106,7 @@ def cls_rows(
         origin_m=frame.origin_m,
         scale_m=frame.scale_m,
         weights_at_local_xy=weights_at_local_xy,
+        dimension=position_dimension(data.unknowns),
     )
     return (A, b) if offset is None else project_out(A, b, offset)
 
@@ -183,11 +189,24 @@ def _constrained_ls(rows: Rows, frames: Frames, data: MeasurementSet) -> Constra
             "(x, y, ρ_j) (MATH §15), not the paraboloid GTRS of §5 that constrained_ls describes"
         )
     used = data.select_frames(frames)
-    A, b, offset, scale = system_of_trial(used, rows, last_stage=True)
+    A, b, offset, scale = system_of_trial(
+        used, rows, last_stage=True, dimension=position_dimension(data.unknowns)
+    )
     if offset is not None:
         A, b = project_out(A, b, offset)
     frame = LocalFrame(origin_m=used.position_m[:, :2].mean(axis=0), scale_m=scale)
     return ConstrainedLS.in_frame(A, b, frame)
+
+
+def require_pseudorange_height_known(unknowns: Sequence[str]) -> None:
+    """Refuse the emission time and the height unknown together: the pseudo-range form
+    (MATH §15) solves for ``(x, y)`` at a known height only."""
+    if "emission_time_s" in unknowns and HEIGHT_UNKNOWN in unknowns:
+        raise ValueError(
+            "unknowns: the closed form does not yet estimate the emitter's height with the "
+            "emission time unknown (the pseudo-range form of MATH §15 is 2-D); give "
+            "the height for now (drop 'emitter_height_m' from unknowns)"
+        )
 
 
 def _check_options(frames: str, side_prior_m: object) -> None:
@@ -242,6 +261,7 @@ class _Batches(EstimatesOfColumns):
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)
         check_rng(rng)
+        require_pseudorange_height_known(data.unknowns)
         if "emission_time_s" in data.unknowns:
             return with_fit(self, self._solve_one(data, rng), data)
         return estimate_trial(
@@ -261,7 +281,7 @@ class _Batches(EstimatesOfColumns):
         return _constrained_ls(self._rows(), self.frames, data)
 
     def _fit(self, data: MeasurementSet, position_m: FloatArray) -> dict[str, Any]:
-        """The goodness of fit (MATH §17) at ``position_m`` (1, 2), as ``with_fit_columns``
+        """The goodness of fit (MATH §17) at ``position_m`` (1, d), as ``with_fit_columns``
         computes it for a batch of one (the same arrays, the same bits)."""
         value, dof = fit_of(self, data, position_m)
         return dict(zip(FIT_KEYS, (float(value[0]), int(dof)), strict=True))
@@ -284,6 +304,7 @@ class _Batches(EstimatesOfColumns):
     ) -> BatchEstimates:
         """``estimate_batch`` as columns, without an object per trial."""
         require_batch(self, batch)
+        require_pseudorange_height_known(batch.geometry.unknowns)
         if "emission_time_s" in batch.geometry.unknowns:  # MATH §15: vectorised
             columns = estimate_pseudorange_columns(
                 self.name,
@@ -364,9 +385,9 @@ class Cls(_Batches):
             batch=True,
             unit_invariant=self.weighting == "optimal",
             unknowns=frozenset(
-                {"carrier_offset_hz", "emission_time_s"}
+                {"carrier_offset_hz", "emission_time_s", HEIGHT_UNKNOWN}
                 if self.weighting == "optimal"
-                else {"carrier_offset_hz"}
+                else {"carrier_offset_hz", HEIGHT_UNKNOWN}
             ),
         )
 

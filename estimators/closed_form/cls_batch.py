@@ -45,9 +45,10 @@ from estimators.base import Estimate
 from estimators.batch import BatchEstimates, check_rngs
 from estimators.closed_form.cls_rows import horizontal_speed_mps
 from estimators.closed_form.gtrs_batch import GtrsBatch, RowBlock, solve_gtrs_batch
-from estimators.mirror_rule import finalize_columns
+from estimators.mirror_rule import STRAIGHT_TRACK_HEIGHT, finalize_columns
 from scenarios import measurement_model as model
 from scenarios.geometry import straight_track_lines
+from scenarios.nuisance import position_dimension
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -90,6 +91,7 @@ class SharedGeometry:
     mean_xy: FloatArray
     column: dict[str, FloatArray]
     offset_unknown: bool
+    dimension: int = 2
 
     @classmethod
     def of(
@@ -98,9 +100,15 @@ class SharedGeometry:
         frames: str,
         *,
         origin_m: FloatArray | None = None,
+        dimension: int = 2,
     ) -> SharedGeometry:
         """The samples of ``frames`` of a batch's geometry, or of one trial's; the local
-        frame's origin is their mean horizontal position unless ``origin_m`` is given."""
+        frame's origin is their mean horizontal position unless ``origin_m`` is given.
+
+        ``dimension`` 3: the emitter's height a coordinate (the rows of MATH §3-§5 in three
+        coordinates; ``cls`` asks for it when the data declare the height unknown); 2: the
+        height the data give, ``emitter_height_m`` (with the height unknown, the height a
+        caller assumes: the starts of ``ml`` at assumed heights)."""
         geometry = batch.geometry if isinstance(batch, MeasurementBatch) else batch
         used = geometry.select_frames(frames)
         if frames == "last":
@@ -122,8 +130,11 @@ class SharedGeometry:
         bounds = np.append(np.flatnonzero(change), k)
         starts, counts = bounds[:-1], bounds[1:] - bounds[:-1]
         unit = velocity[:, :2] / speed[:, None]
-        dz = position[:, 2] - used.emitter_height_m
+        # with the height a coordinate (MATH §5) the rows' frame has its z at 0: the data's
+        # emitter_height_m (what an estimator ignoring the height assumes) is not read
+        dz = position[:, 2] - (used.emitter_height_m if dimension == 2 else 0.0)
         names = ("x", "y", "-2x", "-2y", "ux", "uy", "-ux", "-uy", "vx", "vy", "vz", "dz", "gv")
+        names += ("-2z", "uz", "-uz")
         per_sample = np.empty((len(names), k, 1))  # (K, 1) columns that broadcast against (K, n)
         per_sample[0:2, :, 0] = offset.T
         per_sample[2:4, :, 0] = -2.0 * offset.T
@@ -132,6 +143,9 @@ class SharedGeometry:
         per_sample[8:11, :, 0] = velocity.T
         per_sample[11, :, 0] = dz
         per_sample[12, :, 0] = used.gamma_per_m * speed
+        per_sample[13, :, 0] = -2.0 * position[:, 2]
+        per_sample[14, :, 0] = velocity[:, 2] / speed  # v_z/|v_xy|: the height's Doppler column
+        per_sample[15, :, 0] = -per_sample[14, :, 0]
         # collinear to COLLINEAR_RTOL implies straight to the default 1e-9
         line, collinear_line = straight_track_lines(position, velocity, (1e-9, COLLINEAR_RTOL))
         return cls(
@@ -151,6 +165,7 @@ class SharedGeometry:
             mean_xy=mean_xy,
             column=dict(zip(names, per_sample, strict=True)),
             offset_unknown="carrier_offset_hz" in used.unknowns,
+            dimension=dimension,
         )
 
     def frame_sums(self, values: FloatArray) -> FloatArray:
@@ -162,9 +177,10 @@ class SharedGeometry:
 class SolvedTrials:
     """What the vectorised CLS decides for each of ``n`` trials, before the tie-break draws.
 
-    ``candidates`` (n, 4, 2) holds trial ``i``'s kept candidates in its first
+    ``candidates`` (n, 4, d) holds trial ``i``'s kept candidates in its first
     ``n_candidates[i]`` slots; ``chosen`` is the returned one unless ``draw`` (a tie with no
-    prior: ``rng.integers(n_candidates)`` decides); ``failed`` trials have no finite answer.
+    prior: ``rng.integers(n_candidates)`` decides); ``failed`` trials have no finite answer,
+    ``degenerate`` ones failed because one straight track cannot fix the height (d = 3).
     ``carrier_offset_hz`` is δ at the first candidate when it is unknown (MATH §15).
     """
 
@@ -178,6 +194,7 @@ class SolvedTrials:
     multiplier: FloatArray
     rank: NDArray[np.int64]
     carrier_offset_hz: FloatArray | None
+    degenerate: NDArray[np.bool_]
 
 
 def solve_trials(
@@ -223,6 +240,9 @@ def _solve_part(
 ) -> SolvedTrials:
     """:func:`solve_trials` of one chunk (n, K)."""
     n = len(ranges)
+    d = shared.dimension
+    if d == 3 and shared.line is not None:  # a circle of minimisers (MATH §7): no solve
+        return _degenerate(n)
     if n == 1:  # numpy sums one column in another order: solve it as two, keep one
         r, f = np.repeat(ranges.T, 2, axis=1), np.repeat(doppler.T, 2, axis=1)
     else:
@@ -235,6 +255,9 @@ def _solve_part(
         count = solution.count[:n]
         if shared.line is not None:
             count = count - hard
+        # with the height a coordinate both reflections through a level flight's plane go
+        # (MATH §7); the rule drops the one above the UAV
+        ceiling = {} if d == 2 else {"ceiling_m": float(np.max(shared.z))}
         final = finalize_columns(
             world[:n],
             count,
@@ -242,10 +265,11 @@ def _solve_part(
             shared.mean_xy,
             shared.line,
             side_prior_m=side_prior_m,
+            **ceiling,
         )
     candidates = final.candidates
     if candidates.shape[1] < MAX_CANDIDATES:  # every chunk holds the same width
-        padded = np.full((n, MAX_CANDIDATES, 2), np.nan)
+        padded = np.full((n, MAX_CANDIDATES, d), np.nan)
         padded[:, : candidates.shape[1]] = candidates
         candidates = padded
     return SolvedTrials(
@@ -259,6 +283,24 @@ def _solve_part(
         solution.multiplier[:n],
         solution.rank[:n],
         None if not shared.offset_unknown else solution.nuisance[:n, 0],
+        np.zeros(n, dtype=bool),
+    )
+
+
+def _degenerate(n: int) -> SolvedTrials:
+    """``n`` trials failed for :data:`STRAIGHT_TRACK_HEIGHT`."""
+    return SolvedTrials(
+        np.full((n, MAX_CANDIDATES, 3), np.nan),
+        np.zeros(n, dtype=np.int64),
+        np.zeros(n, dtype=np.int64),
+        np.zeros(n, dtype=bool),
+        np.zeros(n, dtype=bool),
+        np.ones(n, dtype=bool),
+        np.zeros(n, dtype=bool),
+        np.full(n, np.nan),
+        np.full(n, -1, dtype=np.int64),
+        None,
+        np.ones(n, dtype=bool),
     )
 
 
@@ -291,7 +333,7 @@ def estimate_columns(
     """The CLS estimates of every trial of ``batch``, as columns (see module docstring)."""
     n = batch.n_trials
     generators = check_rngs(rngs, n)
-    shared = SharedGeometry.of(batch, frames)
+    shared = SharedGeometry.of(batch, frames, dimension=position_dimension(batch.geometry.unknowns))
     speed_of_light = shared.used.speed_of_light_mps
     ranges = speed_of_light * batch.toa_s[:, shared.columns]
     doppler = batch.doppler_hz[:, shared.columns]
@@ -307,8 +349,10 @@ def estimate_columns(
         n_candidates=np.where(ok, solved.n_candidates, 0),
         ambiguous=solved.ambiguous & ok,
         success=ok.copy(),
-        message_code=np.where(ok, np.where(solved.hard_case, 1, 0), 2).astype(np.int64),
-        messages=("", HARD_CASE_MESSAGE, FAILED_MESSAGE),
+        message_code=np.where(
+            ok, np.where(solved.hard_case, 1, 0), np.where(solved.degenerate, 3, 2)
+        ).astype(np.int64),
+        messages=("", HARD_CASE_MESSAGE, FAILED_MESSAGE, STRAIGHT_TRACK_HEIGHT),
         diagnostics=_diagnostics(solved, rows, shared),
     )
 
@@ -324,15 +368,16 @@ def estimate_trial(
 ) -> Estimate:
     """:func:`estimate_columns` of one trial, ``data``, as its :class:`Estimate`: the same
     vectorised solve (:func:`solve_trials`) on a batch of one, without the batch's columns.
-    ``fit(position (1, 2))`` gives the goodness-of-fit diagnostics of a success."""
-    shared = SharedGeometry.of(data, frames)
+    ``fit(position (1, d))`` gives the goodness-of-fit diagnostics of a success."""
+    shared = SharedGeometry.of(data, frames, dimension=position_dimension(data.unknowns))
     ranges = shared.used.speed_of_light_mps * data.toa_s[shared.columns][None]
     solved = solve_trials(shared, rows, ranges, data.doppler_hz[shared.columns][None], side_prior_m)
     diagnostics = {
         key: value[0].item() for key, value in _diagnostics(solved, rows, shared).items()
     }
     if solved.failed[0]:
-        return Estimate.failed(name, FAILED_MESSAGE, **diagnostics)
+        message = STRAIGHT_TRACK_HEIGHT if solved.degenerate[0] else FAILED_MESSAGE
+        return Estimate.failed(name, message, dimension=shared.dimension, **diagnostics)
     count = int(solved.n_candidates[0])
     chosen = int(solved.chosen[0])
     if solved.draw[0] and rng is not None:
@@ -371,16 +416,18 @@ def system_of_trial(
     scale_m: float | None = None,
     weights_at_local_xy: FloatArray | None = None,
     last_stage: bool = False,
+    dimension: int = 2,
 ) -> tuple[FloatArray, FloatArray, FloatArray | None, float]:
-    """The stacked rows ``A`` (m, 3), ``b`` (m,) of one trial (``data``, every sample) in its
+    """The stacked rows ``A`` (m, d + 1), ``b`` (m,) of one trial (``data``, every sample) in its
     local frame, as the solver sums them, δ's column (m,) or None, and the frame's scale.
 
     The frame is the solver's (centred on the samples, scaled by the RMS of their spread and
     ranges) unless ``origin_m`` and ``scale_m`` are given. ``weighted`` rows are whitened at the
     measurements, at ``weights_at_local_xy``, or (``last_stage``) at the stage-1 estimate: the
-    system whose minimisers ``estimate`` returns.
+    system whose minimisers ``estimate`` returns. ``dimension`` as for
+    :meth:`SharedGeometry.of` (3: rows over ``(x, y, z, ‖s‖²)``).
     """
-    shared = SharedGeometry.of(data, "all", origin_m=origin_m)
+    shared = SharedGeometry.of(data, "all", origin_m=origin_m, dimension=dimension)
     r = (shared.used.speed_of_light_mps * data.toa_s)[:, None]
     f = data.doppler_hz[:, None]
     if scale_m is None:
@@ -391,12 +438,14 @@ def system_of_trial(
     rows_of = RowsOfChunk(shared, r, f, scale)
     weights_at = None
     if weights_at_local_xy is not None:
-        weights_at = tuple(np.asarray(weights_at_local_xy, dtype=float).reshape(2, 1))
+        weights_at = tuple(
+            np.asarray(weights_at_local_xy, dtype=float).reshape(shared.dimension, 1)
+        )
     elif last_stage and rows == "weighted":
         with np.errstate(all="ignore"):
             first = solve_gtrs_batch(rows_of.blocks(rows), 1)
         pick = int(_second_left(shared, first)[0])
-        weights_at = (first.x[:1, pick], first.y[:1, pick])
+        weights_at = tuple(c[:1, pick] for c in first.points)
     blocks = rows_of.blocks(rows, weights_at=weights_at)
 
     def column(values: FloatArray | None, n_rows: int) -> FloatArray:
@@ -406,7 +455,9 @@ def system_of_trial(
 
     A = np.concatenate(
         [
-            np.column_stack([column(part, block.n_rows) for part in (block.ax, block.ay, block.az)])
+            np.column_stack(
+                [column(part, block.n_rows) for part in block.columns(shared.dimension)]
+            )
             for block in blocks
         ]
     )
@@ -426,12 +477,14 @@ def _ordered_costs(costs: FloatArray, hard_case: NDArray[np.bool_]) -> FloatArra
 def solve_chunk(
     shared: SharedGeometry, rows: str, r: FloatArray, f: FloatArray
 ) -> tuple[FloatArray, GtrsBatch]:
-    """World candidates (n, 2, 2), a hard-case pair left of the last heading first, and the
-    solution of the last stage (its ``x, y`` and ``nuisance`` in the same order)."""
+    """World candidates (n, 2, d), a hard-case pair left of the last heading first (with the
+    height a coordinate, the lower first), and the solution of the last stage (its points and
+    ``nuisance`` in the same order)."""
     scale = np.sqrt(shared.spread_sq + np.add.reduce(r * r, axis=0) / len(r))  # (np.mean's bits)
     scale[~(scale > 0.0)] = 1.0  # (NaN too)
     rows_of = RowsOfChunk(shared, r, f, scale)
-    deficient = shared.collinear
+    # rows with an exact null vector: one straight track (2-D), a level flight (3-D, MATH §5)
+    deficient = shared.collinear if shared.dimension == 2 else bool(np.ptp(shared.z) == 0.0)
     n = r.shape[1]
     solution = solve_gtrs_batch(
         rows_of.blocks(rows), n, rank=rows != "weighted", rank_deficient=deficient
@@ -440,46 +493,52 @@ def solve_chunk(
         # stage 2: weights at the stage-1 estimate (MATH §6); of a hard-case pair, at the point
         # left of the last heading (on a straight track both give the same weights)
         first = _second_left(shared, solution)
-        local_x = np.where(first, solution.x[:, 1], solution.x[:, 0])
-        local_y = np.where(first, solution.y[:, 1], solution.y[:, 0])
+        local = tuple(np.where(first, c[:, 1], c[:, 0]) for c in solution.points)
         solution = solve_gtrs_batch(
-            rows_of.blocks(rows, weights_at=(local_x, local_y)),
+            rows_of.blocks(rows, weights_at=local),
             n,
             rank=True,
             rank_deficient=deficient,
         )
     swap = _second_left(shared, solution)
-    for name in ("x", "y", "costs", "nuisance") if swap.any() else ():
+    for name in ("x", "y", "z", "costs", "nuisance") if swap.any() else ():
         values = getattr(solution, name)
         if values is not None:
             values[swap] = values[swap, ::-1]
-    world = np.empty((n, 2, 2))
+    world = np.empty((n, 2, shared.dimension))
     np.multiply(solution.x, scale[:, None], out=world[..., 0])
     world[..., 0] += shared.origin[0]
     np.multiply(solution.y, scale[:, None], out=world[..., 1])
     world[..., 1] += shared.origin[1]
+    if solution.z is not None:  # the frame's z is the world's (MATH §5)
+        np.multiply(solution.z, scale[:, None], out=world[..., 2])
     return world, solution
 
 
-def candidates_of_trial(data: MeasurementSet) -> FloatArray:
+def candidates_of_trial(data: MeasurementSet, *, dimension: int = 2) -> FloatArray:
     """The weighted CLS's minimisers of one trial (every sample), before the mirror rule:
-    (1, 2) or, in the hard case, the pair (2, 2), the point left of the last heading first;
-    (0, 2) when the GTRS has no finite minimiser. The same solve as a batch's
-    (:func:`solve_chunk`), for the starts of another estimator."""
-    shared = SharedGeometry.of(data, "all")
+    (1, d) or, in the hard case, the pair (2, d), the point left of the last heading first
+    (with the height a coordinate, the lower first); (0, d) when the GTRS has no finite
+    minimiser. The same solve as a batch's
+    (:func:`solve_chunk`), for the starts of another estimator. ``dimension`` as for
+    :meth:`SharedGeometry.of` (2 by default: at the data's ``emitter_height_m``)."""
+    shared = SharedGeometry.of(data, "all", dimension=dimension)
     r = np.repeat((shared.used.speed_of_light_mps * data.toa_s)[:, None], 2, axis=1)
     f = np.repeat(data.doppler_hz[:, None], 2, axis=1)  # two columns: a batch's sums
     with np.errstate(all="ignore"):
         world, solution = solve_chunk(shared, "weighted", r, f)
     if solution.failed[0]:
-        return np.empty((0, 2))
+        return np.empty((0, shared.dimension))
     return world[0, : int(solution.count[0])]
 
 
 def _second_left(shared: SharedGeometry, solution: GtrsBatch) -> NDArray[np.bool_]:
     """Whether the second of each hard-case pair lies left of the last heading (False off the
     hard case): the order handed to the mirror rule, so that which point a tie-break returns
-    does not depend on the rounding of the two costs."""
+    does not depend on the rounding of the two costs. With the height a coordinate, whether
+    the second is the lower (the pair of a level flight is one above the other, MATH §7)."""
+    if solution.z is not None:
+        return solution.hard_case & (solution.z[:, 1] < solution.z[:, 0])
     velocity = shared.velocity[-1]
     across = (solution.x[:, 0] - solution.x[:, 1]) * -velocity[1] + (
         solution.y[:, 0] - solution.y[:, 1]
@@ -497,7 +556,8 @@ class RowsOfChunk:
         self.shared = shared
         self.r, self.f, self.scale = r, f, scale
         self.gamma = used.gamma_per_m
-        self.height = used.emitter_height_m
+        self.height = used.emitter_height_m if shared.dimension == 2 else 0.0
+        self.three_d = shared.dimension == 3
         velocity = shared.velocity
         self.vp = (
             velocity[:, 0] * shared.offset[:, 0]
@@ -533,11 +593,15 @@ class RowsOfChunk:
             az=np.ones((len(offset), 1)),
             b=self.toa_rhs(height_term=height_term) * (inv * inv),
             ac=np.zeros((len(offset), 1)) if zero_offset else None,
+            ah=self.shared.column["-2z"] * inv if self.three_d else None,
         )
 
     def blocks(
-        self, rows: str, *, weights_at: tuple[FloatArray, FloatArray] | None = None
+        self, rows: str, *, weights_at: tuple[FloatArray, ...] | None = None
     ) -> list[RowBlock]:
+        """The row blocks of ``rows``; ``weighted`` ones whitened at the measurements or at the
+        local point ``weights_at`` (``x, y`` or, with the height a coordinate, ``x, y, z``, each
+        (n,))."""
         shared = self.shared
         inv = 1.0 / self.scale
         if rows == "weighted":
@@ -550,9 +614,15 @@ class RowsOfChunk:
                     az=None,
                     b=self.doppler_rhs() * (inv * inv),
                     ac=None if self.offset is None else self.offset * (inv * inv),
+                    ah=shared.column["uz"] * inv if self.three_d else None,
                 ),
                 self.toa_block(zero_offset=self.offset is not None),
             ]
+        if self.three_d:
+            raise ValueError(
+                f"rows: {rows!r} rows take the emitter's height as known (MATH §3); with it "
+                "unknown use 'weighted' or 'per-sample'"
+            )
         if rows == "per-frame":
             counts = shared.frame_counts[:, None]
             starts = shared.frame_starts
@@ -586,11 +656,12 @@ class RowsOfChunk:
             ]
         raise ValueError(f"rows: unknown row variant {rows!r}")
 
-    def _whitened(self, weights_at: tuple[FloatArray, FloatArray] | None) -> list[RowBlock]:
+    def _whitened(self, weights_at: tuple[FloatArray, ...] | None) -> list[RowBlock]:
         """Per-sample Doppler and ToA rows whitened pair by pair (MATH §6).
 
         The moments are evaluated at the measured ``(r, f)`` or, with ``weights_at`` (local
-        ``x, y`` per trial), at that point. Written with in-place operations: this is the
+        ``x, y`` per trial, and ``z`` with the height a coordinate), at that point. Written with
+        in-place operations: this is the
         largest part of the batch's work.
         """
         shared, scale = self.shared, self.scale
@@ -604,7 +675,7 @@ class RowsOfChunk:
             doppler, ranges = model.derivatives_of_offsets(
                 column["x"] - weights_at[0] * scale,
                 column["y"] - weights_at[1] * scale,
-                column["dz"],
+                column["dz"] if len(weights_at) == 2 else column["dz"] - weights_at[2] * scale,
                 (column["vx"], column["vy"], column["vz"]),
                 self.gamma,
                 order=0,
@@ -640,14 +711,25 @@ class RowsOfChunk:
         toa_x = np.multiply(ratio, column["-ux"])
         toa_x += column["-2x"]
         toa_x *= toa_weight
+        doppler_h = toa_h = None
+        if self.three_d:  # the height's columns (MATH §5): v_z/|v_xy| and −2z, whitened alike
+            doppler_h = column["uz"] * weight
+            toa_h = np.multiply(ratio, column["-uz"])
+            toa_h += column["-2z"]
+            toa_h *= toa_weight
         toa_y = np.multiply(ratio, column["-uy"], out=ratio)
         toa_y += column["-2y"]
         toa_y *= toa_weight
         return [
             RowBlock(
-                ax=column["ux"] * weight, ay=column["uy"] * weight, az=None, b=beta, ac=offset_d
+                ax=column["ux"] * weight,
+                ay=column["uy"] * weight,
+                az=None,
+                b=beta,
+                ac=offset_d,
+                ah=doppler_h,
             ),
-            RowBlock(ax=toa_x, ay=toa_y, az=toa_weight * scale, b=toa_b, ac=offset_t),
+            RowBlock(ax=toa_x, ay=toa_y, az=toa_weight * scale, b=toa_b, ac=offset_t, ah=toa_h),
         ]
 
     @cached_property

@@ -8,7 +8,8 @@ A closed-form estimator of the Doppler-ToA CLS solves
     \qquad r = (x, y, x^2 + y^2)
 
 for some rows ``A``, ``b`` (its own weighting, its own frames) in a local frame
-``(x, y) = ((x_s, y_s) − origin_m)/scale_m``. An estimator that exposes those rows with
+``(x, y) = ((x_s, y_s) − origin_m)/scale_m``; with the emitter's height a coordinate,
+``r = (x, y, z, x² + y² + z²)`` with ``z = z_s/scale_m``. An estimator that exposes those rows with
 
 .. code-block:: python
 
@@ -58,12 +59,13 @@ def _read_only(value: ArrayLike, name: str, shape: tuple[int | None, ...]) -> Fl
 
 @dataclass(frozen=True, slots=True, eq=False)
 class ConstrainedLS:
-    """``min ‖A r − b‖²`` s.t. ``r_x² + r_y² = r_z`` in a local frame (MATH §5).
+    """``min ‖A r − b‖²`` s.t. ``‖s‖² = r_w`` in a local frame (MATH §5).
 
     Attributes
     ----------
-    A : (m, 3)
-        The stacked rows, weighted as the estimator weights them, over ``r = (x, y, r_z)``.
+    A : (m, 3) or (m, 4)
+        The stacked rows, weighted as the estimator weights them, over ``r = (x, y, r_z)`` or,
+        with the height a coordinate, ``r = (x, y, z, r_w)`` (``z = z_s / scale_m``).
     b : (m,)
     origin_m : (2,)
         World position of the local origin, metres.
@@ -77,7 +79,8 @@ class ConstrainedLS:
     scale_m: float
 
     def __post_init__(self) -> None:
-        A = _read_only(self.A, "A", (None, 3))
+        width = np.shape(self.A)[1] if np.ndim(self.A) == 2 and np.shape(self.A)[1] == 4 else 3
+        A = _read_only(self.A, "A", (None, width))
         b = _read_only(self.b, "b", (len(A),))
         if len(b) == 0:
             raise ValueError("A: expected at least one row, got none")
@@ -100,16 +103,27 @@ class ConstrainedLS:
     def frame(self) -> LocalFrame:
         return LocalFrame(origin_m=self.origin_m, scale_m=self.scale_m)
 
+    @property
+    def dimension(self) -> int:
+        """2, or 3 with the height a coordinate."""
+        return self.A.shape[1] - 1
+
     def to_local(self, xy_m: ArrayLike) -> FloatArray:
-        """World points (..., 2) in metres to the local frame of the rows."""
-        return self.frame.to_local(xy_m)
+        """World points (..., d) in metres to the local frame of the rows."""
+        points = np.asarray(xy_m, dtype=float)
+        local = points / self.scale_m
+        local[..., :2] = self.frame.to_local(points[..., :2])
+        return local
 
     def to_world(self, xy_local: ArrayLike) -> FloatArray:
-        """Local points (..., 2) to world metres."""
-        return self.frame.to_world(xy_local)
+        """Local points (..., d) to world metres."""
+        points = np.asarray(xy_local, dtype=float)
+        world = points * self.scale_m
+        world[..., :2] = self.frame.to_world(points[..., :2])
+        return world
 
     def cost(self, xy_m: ArrayLike) -> FloatArray:
-        """``‖A (x, y, x² + y²) − b‖²`` at world points (..., 2): each lifted onto the
+        """``‖A (s, ‖s‖²) − b‖²`` at world points (..., d): each lifted onto the
         paraboloid."""
         return constrained_cost(self.A, self.b, self.to_local(xy_m))
 

@@ -2,30 +2,34 @@ r"""The GTRS of MATH §5 (paper eq ``finalest``, corrected), solved for many sys
 
 .. math::
 
-    \min_r \lVert A r - b\rVert^2 \quad\text{s.t.}\quad r_x^2 + r_y^2 - r_z = 0,
-    \qquad r = (x_s, y_s, x_s^2 + y_s^2)
+    \min_r \lVert A r - b\rVert^2 \quad\text{s.t.}\quad \lVert s \rVert^2 - r_w = 0,
+    \qquad r = (s, \lVert s \rVert^2)
 
-a generalized trust-region subproblem. With ``M = AᵀA``, ``q = Aᵀb``, ``D = diag(1,1,0)`` and
-``g = (0, 0, −½)`` the stationarity condition is ``(M + λD) r = q − λg`` (the paper drops the
-transpose), and the global minimiser is the stationary point with ``M + λD ⪰ 0`` (Moré 1993;
-Beck, Stoica & Li 2008). This is the one implementation: one system
-(:func:`estimators.closed_form.gtrs.solve_gtrs`) is a batch of one.
+with ``s = (x_s, y_s)`` (the emitter's height known, ``d = 2``) or ``s = (x_s, y_s, z_s)`` (the
+height a coordinate, ``d = 3``): a generalized trust-region subproblem. With ``M = AᵀA``,
+``q = Aᵀb``, ``D = diag(I_d, 0)`` and ``g = (0, …, 0, −½)`` the stationarity condition is
+``(M + λD) r = q − λg`` (the paper drops the transpose), and the global minimiser is the
+stationary point with ``M + λD ⪰ 0`` (Moré 1993; Beck, Stoica & Li 2008). This is the one
+implementation, for both dimensions: one system (:func:`estimators.closed_form.gtrs.solve_gtrs`)
+is a batch of one.
 
 Every per-system scalar is an array of shape ``(n,)`` and the rows of the stacked systems are
 given as :class:`RowBlock` columns of shape ``(R, n)`` (row × system), so that every operation
 is one numpy call over the whole batch.
 
 - ``M`` and ``q`` are summed over the rows (:func:`~estimators.closed_form.gtrs_rank.row_dot`,
-  whose order does not depend on the batch); eliminating ``r_z`` with the Schur complement
-  ``S = M_xy − m mᵀ/M₃₃`` (``m = M[:2, 2]``), ``S = U diag(μ₁ ≤ μ₂) Uᵀ`` in closed form,
-  ``a = q_xy − m q₃/M₃₃``, ``h = m/(2M₃₃)``, ``ã = Uᵀa``, ``h̃ = Uᵀh``, ``e = ã + μ h̃``:
-  ``ỹ_i(λ) + h̃_i = e_i/(μ_i + λ)`` and
-  ``φ(λ) = Σ e_i²/(μ_i + λ)² − ‖h̃‖² − (q₃ + λ/2)/M₃₃``, strictly decreasing on ``λ > −μ₁``.
-- Hard case, the normal case here (MATH §5): when ``e₁ = 0`` (every single straight frame:
-  ``A`` has rank 2) the pole at ``−μ₁`` disappears. If ``φ(−μ₁)`` without the ``e₁`` term is
-  negative and ``|e₁| ≤ rtol·μ₂·√(−φ(−μ₁))``, ``λ* = −μ₁`` and the minimisers are
-  ``ỹ₁ = −h̃₁ ± √(−φ(−μ₁))``: the emitter and its mirror image across the track, kept as a pair
-  when their costs are equal to rounding (:func:`equal_to_rounding`).
+  whose order does not depend on the batch); eliminating ``r_w`` with the Schur complement
+  ``S = M_ss − m mᵀ/M_ww`` (``m = M[:d, w]``, ``w = d`` the index of ``r_w``),
+  ``S = U diag(μ₁ ≤ … ≤ μ_d) Uᵀ`` (in closed form for ``d = 2``, :func:`eigen_2x2`; by
+  ``numpy.linalg.eigh`` for ``d = 3``), ``a = q_s − m q_w/M_ww``, ``h = m/(2M_ww)``,
+  ``ã = Uᵀa``, ``h̃ = Uᵀh``, ``e = ã + μ h̃``: ``ỹ_i(λ) + h̃_i = e_i/(μ_i + λ)`` and
+  ``φ(λ) = Σ e_i²/(μ_i + λ)² − ‖h̃‖² − (q_w + λ/2)/M_ww``, strictly decreasing on ``λ > −μ₁``.
+- Hard case, the normal case here (MATH §5): when ``e₁ = 0`` (every single straight frame in
+  2-D, every level flight in 3-D: ``A`` has a null vector) the pole at ``−μ₁`` disappears. If
+  ``φ(−μ₁)`` without the ``e₁`` term is negative and ``|e₁| ≤ rtol·μ_d·√(−φ(−μ₁))``,
+  ``λ* = −μ₁`` and the minimisers are ``ỹ₁ = −h̃₁ ± √(−φ(−μ₁))``: the emitter and its mirror
+  image (across the track in 2-D, through the flight plane in 3-D), kept as a pair when their
+  costs are equal to rounding (:func:`equal_to_rounding`).
 - Otherwise the root of the secular equation ``φ(−μ₁ + s) = 0`` is found by Newton's method
   from a lower bound of the root. ``φ`` is convex and strictly decreasing in ``s > 0``, so
   every Newton iterate stays below the root and the iterates increase monotonically to it:
@@ -34,12 +38,13 @@ is one numpy call over the whole batch.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-from estimators.closed_form.gtrs_rank import RANK_RTOL, numerical_rank, row_dot
+from estimators.closed_form.gtrs_rank import RANK_RTOL, numerical_rank, numerical_rank_3d, row_dot
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -56,11 +61,14 @@ _PAIR_SIGNS = np.array([1.0, -1.0])
 
 @dataclass(frozen=True, slots=True)
 class RowBlock:
-    """Rows ``[ax, ay, az] r = b`` of many systems: arrays of shape (R, n) or (R, 1).
+    """Rows ``[ax, ay, (ah,) az] r = b`` of many systems: arrays of shape (R, n) or (R, 1).
 
-    ``az=None`` is a zero third column (the Doppler rows of MATH §3). ``ac`` is the column of
+    ``r = (x, y, ‖s‖²)`` with the emitter's height known, ``r = (x, y, z, ‖s‖²)`` when it is a
+    coordinate (MATH §5): ``ah`` is the height's column, ``None`` in 2-D; ``az`` is the column
+    of ``‖s‖²``, ``None`` a zero column (the Doppler rows of MATH §3). ``ac`` is the column of
     a free linear unknown ``t`` (an unknown carrier offset, MATH §15), ``[ax, ay, az] r + ac t
-    = b``, which the solver projects out: ``None`` when there is none.
+    = b``, which the solver projects out: ``None`` when there is none. The dimension of a list
+    of blocks is 3 when any block has ``ah`` (:func:`row_dimension`).
     """
 
     ax: FloatArray
@@ -68,10 +76,17 @@ class RowBlock:
     az: FloatArray | None
     b: FloatArray
     ac: FloatArray | None = None
+    ah: FloatArray | None = None
 
     @property
     def n_rows(self) -> int:
         return int(self.b.shape[0])
+
+    def columns(self, dimension: int) -> list[FloatArray | None]:
+        """The ``dimension + 1`` columns of ``A``, the position's then ``‖s‖²``'s (None: zero)."""
+        if dimension == 2:
+            return [self.ax, self.ay, self.az]
+        return [self.ax, self.ay, self.ah, self.az]
 
     def take(self, index: IntArray) -> RowBlock:
         """The systems ``index`` (columns of trial-wise arrays; broadcast columns kept)."""
@@ -81,7 +96,9 @@ class RowBlock:
                 return column
             return np.ascontiguousarray(column[:, index])  # (fancy indexing gives F order)
 
-        return RowBlock(pick(self.ax), pick(self.ay), pick(self.az), pick(self.b), pick(self.ac))
+        return RowBlock(
+            pick(self.ax), pick(self.ay), pick(self.az), pick(self.b), pick(self.ac), pick(self.ah)
+        )
 
     def per_point(self) -> RowBlock:
         """The columns as (R, 1, n), to meet points of shape (p, n)."""
@@ -90,89 +107,133 @@ class RowBlock:
             return None if values is None else values[:, None, :]
 
         return RowBlock(
-            column(self.ax), column(self.ay), column(self.az), column(self.b), column(self.ac)
+            column(self.ax),
+            column(self.ay),
+            column(self.az),
+            column(self.b),
+            column(self.ac),
+            column(self.ah),
         )
 
-    def residual(self, x: FloatArray, y: FloatArray) -> FloatArray:
-        """``A r − b`` at ``r = (x, y, x² + y²)`` for each system, shape (R, n) (or (R, n, p)
-        for the columns of :meth:`per_point` and points (p, n))."""
-        out = self.ax * x
-        out += self.ay * y
+    def residual(self, point: Sequence[FloatArray]) -> FloatArray:
+        """``A r − b`` at ``r = (s, ‖s‖²)`` for each system, ``point`` the coordinates of
+        ``s``, each (n,), shape (R, n) (or (R, n, p) for the columns of :meth:`per_point` and
+        coordinates (p, n))."""
+        out = self.ax * point[0]
+        out += self.ay * point[1]
+        if self.ah is not None:
+            out += self.ah * point[2]
         out -= self.b
         if self.az is not None:
-            out += self.az * (x * x + y * y)
+            out += self.az * squared_norm(point)
         return out
+
+
+def squared_norm(point: Sequence[FloatArray]) -> FloatArray:
+    """``‖s‖²`` of the coordinates ``point``, summed in their order."""
+    total = point[0] * point[0]
+    for coordinate in point[1:]:
+        total = total + coordinate * coordinate
+    return total
+
+
+def row_dimension(blocks: Sequence[RowBlock]) -> int:
+    """The dimension of the position the rows describe: 3 when any block has a height column."""
+    return 3 if any(block.ah is not None for block in blocks) else 2
 
 
 @dataclass(frozen=True, slots=True, eq=False)
 class NormalEquations:
-    """``M = AᵀA`` (its six entries), ``q = Aᵀb``, ``‖b‖²`` and the row count, per system.
+    """``M = AᵀA`` (``M[i][j]`` of shape (n,), lists), ``q = Aᵀb``, ``‖b‖²`` and the row count, per
+    system, for ``r`` of ``dimension + 1`` entries, ``‖s‖²`` last (index ``w``).
 
     With a free unknown's column ``c`` in the rows (:attr:`RowBlock.ac`) these are of the rows
     projected off ``c`` (MATH §15): ``M − m_c m_cᵀ/‖c‖²``, ``q − m_c (cᵀb)/‖c‖²``,
-    ``‖b‖² − (cᵀb)²/‖c‖²`` with ``m_c = Aᵀc``; ``nuisance`` keeps ``(m_c, cᵀb, ‖c‖²)`` (the
-    sums ``c1, c2, c3, cb, cc``) for the unknown's value at a point, :meth:`nuisance_at`.
+    ``‖b‖² − (cᵀb)²/‖c‖²`` with ``m_c = Aᵀc``; ``nuisance`` keeps ``m_c`` (``"c"``, d + 1 (n,)),
+    ``cᵀb`` and ``‖c‖²`` (``"cb"``, ``"cc"``) for the unknown's value at a point,
+    :meth:`nuisance_at`.
     """
 
-    m11: FloatArray
-    m12: FloatArray
-    m13: FloatArray
-    m22: FloatArray
-    m23: FloatArray
-    m33: FloatArray
-    q1: FloatArray
-    q2: FloatArray
-    q3: FloatArray
+    M: list[list[FloatArray]]
+    q: list[FloatArray]
     bb: FloatArray
     n_rows: int
+    dimension: int
     nuisance: dict[str, FloatArray] | None = None
 
     @classmethod
     def of(cls, blocks: list[RowBlock], n: int) -> NormalEquations:
-        sums: dict[str, FloatArray] = {}
-        for block in blocks:
-            ax, ay, az, b, ac = block.ax, block.ay, block.az, block.b, block.ac
-            pairs = [("m11", ax, ax), ("m12", ax, ay), ("m22", ay, ay)]
-            pairs += [("q1", ax, b), ("q2", ay, b), ("bb", b, b)]
-            if az is not None:
-                pairs += [("m13", ax, az), ("m23", ay, az), ("m33", az, az), ("q3", az, b)]
-            if ac is not None:
-                pairs += [("c1", ax, ac), ("c2", ay, ac), ("cb", b, ac), ("cc", ac, ac)]
-                if az is not None:
-                    pairs.append(("c3", az, ac))
-            for key, left, right in pairs:
-                total = row_dot(left, right, n)
-                sums[key] = total if key not in sums else sums[key] + total
-        zero = np.zeros(n)
-        keys = ("m11", "m12", "m13", "m22", "m23", "m33", "q1", "q2", "q3", "bb")
-        values = {key: sums.get(key, zero) for key in keys}
-        nuisance = None
-        if "cc" in sums:
-            nuisance = {key: sums.get(key, zero) for key in ("c1", "c2", "c3", "cb", "cc")}
-            inv = 1.0 / nuisance["cc"]
-            column = {"1": nuisance["c1"], "2": nuisance["c2"], "3": nuisance["c3"]}
-            for i, j in (("1", "1"), ("1", "2"), ("1", "3"), ("2", "2"), ("2", "3"), ("3", "3")):
-                values[f"m{i}{j}"] = values[f"m{i}{j}"] - column[i] * column[j] * inv
-            for i in ("1", "2", "3"):
-                values[f"q{i}"] = values[f"q{i}"] - column[i] * nuisance["cb"] * inv
-            values["bb"] = values["bb"] - nuisance["cb"] * nuisance["cb"] * inv
-        return cls(**values, n_rows=sum(block.n_rows for block in blocks), nuisance=nuisance)
+        d = row_dimension(blocks)
+        k = d + 1
+        sums: dict[tuple[str, int, int], FloatArray] = {}
 
-    def nuisance_at(self, x: FloatArray, y: FloatArray) -> FloatArray:
-        """The free unknown's least-squares value ``cᵀ(b − A r)/‖c‖²`` at ``r = (x, y, x² +
-        y²)`` (x, y of shape (n, k)); NaN where the point is."""
+        def add(key: tuple[str, int, int], left: FloatArray, right: FloatArray) -> None:
+            total = row_dot(left, right, n)
+            sums[key] = total if key not in sums else sums[key] + total
+
+        for block in blocks:
+            columns = block.columns(d)
+            b, ac = block.b, block.ac
+            add(("bb", 0, 0), b, b)
+            for i in range(k):
+                if columns[i] is None:
+                    continue
+                add(("q", i, 0), columns[i], b)
+                for j in range(i, k):
+                    if columns[j] is not None:
+                        add(("M", i, j), columns[i], columns[j])
+                if ac is not None:
+                    add(("c", i, 0), columns[i], ac)
+            if ac is not None:
+                add(("cb", 0, 0), b, ac)
+                add(("cc", 0, 0), ac, ac)
+        zero = np.zeros(n)
+        M = [[zero] * k for _ in range(k)]
+        for i in range(k):
+            for j in range(i, k):
+                M[i][j] = M[j][i] = sums.get(("M", i, j), zero)
+        q = [sums.get(("q", i, 0), zero) for i in range(k)]
+        bb = sums[("bb", 0, 0)]
+        nuisance = None
+        if ("cc", 0, 0) in sums:
+            column = [sums.get(("c", i, 0), zero) for i in range(k)]
+            cb, cc = sums[("cb", 0, 0)], sums[("cc", 0, 0)]
+            nuisance = {"c": column, "cb": cb, "cc": cc}
+            inv = 1.0 / cc
+            for i in range(k):
+                for j in range(i, k):
+                    M[i][j] = M[j][i] = M[i][j] - column[i] * column[j] * inv
+                q[i] = q[i] - column[i] * cb * inv
+            bb = bb - cb * cb * inv
+        return cls(
+            M=M,
+            q=q,
+            bb=bb,
+            n_rows=sum(block.n_rows for block in blocks),
+            dimension=d,
+            nuisance=nuisance,
+        )
+
+    def nuisance_at(self, points: Sequence[FloatArray]) -> FloatArray:
+        """The free unknown's least-squares value ``cᵀ(b − A r)/‖c‖²`` at ``r = (s, ‖s‖²)``
+        (the coordinates of ``s`` each of shape (n, k)); NaN where the point is."""
         c = self.nuisance
         if c is None:
             raise ValueError("the rows have no free unknown's column")
-        z = x * x + y * y
-        return (
-            c["cb"][:, None] - c["c1"][:, None] * x - c["c2"][:, None] * y - c["c3"][:, None] * z
-        ) / c["cc"][:, None]
+        column = c["c"]
+        out = c["cb"][:, None] - column[0][:, None] * points[0]
+        for i in range(1, self.dimension):
+            out = out - column[i][:, None] * points[i]
+        out = out - column[self.dimension][:, None] * squared_norm(points)
+        return out / c["cc"][:, None]
 
     @property
     def trace(self) -> FloatArray:
         """``‖A‖_F²``."""
-        return self.m11 + self.m22 + self.m33
+        total = self.M[0][0] + self.M[1][1]
+        for i in range(2, self.dimension + 1):
+            total = total + self.M[i][i]
+        return total
 
 
 def take_systems(blocks: list[RowBlock], index: IntArray, n: int) -> list[RowBlock]:
@@ -200,11 +261,13 @@ class GtrsBatch:
     rank : (n,)
         Numerical rank of ``A`` (``-1`` when not asked for).
     failed : (n,)
-        No finite minimiser: non-finite rows, no ToA row (``M₃₃ = 0``), or a secular equation
+        No finite minimiser: non-finite rows, no ToA row (``M_ww = 0``), or a secular equation
         whose iteration failed.
     nuisance : (n, 2) or None
         The free unknown's value at each point (:meth:`NormalEquations.nuisance_at`), when the
         rows have its column.
+    z : (n, 2) or None
+        The height of each minimiser when the rows have a height column (3-D), else None.
     """
 
     x: FloatArray
@@ -216,6 +279,12 @@ class GtrsBatch:
     rank: IntArray
     failed: BoolArray
     nuisance: FloatArray | None = None
+    z: FloatArray | None = None
+
+    @property
+    def points(self) -> list[FloatArray]:
+        """The coordinates of the minimisers, ``[x, y]`` or ``[x, y, z]``, each (n, 2)."""
+        return [self.x, self.y] if self.z is None else [self.x, self.y, self.z]
 
     def first(self) -> GtrsBatch:
         """The first system alone."""
@@ -253,83 +322,126 @@ def eigen_2x2(
     return mu1, mu2, 2.0 * radius, c, s
 
 
+def eigen_symmetric(
+    S: list[list[FloatArray]],
+) -> tuple[list[FloatArray], list[FloatArray], list[list[FloatArray]]]:
+    """Eigenvalues ``μ₁ ≤ … ≤ μ_d`` of the symmetric ``S`` (``S[i][j]`` of shape (n,)), the
+    gaps ``μ_i − μ₁`` (i ≥ 2) and the eigenvectors, ``U[j][i]`` the j-th entry of the i-th.
+
+    ``d = 2``: the closed form :func:`eigen_2x2` (its gap without cancellation); ``d ≥ 3``:
+    ``numpy.linalg.eigh`` on the stacked (n, d, d) matrices.
+    """
+    d = len(S)
+    if d == 2:
+        mu1, mu2, gap, c, s = eigen_2x2(S[0][0], S[0][1], S[1][1])
+        return [mu1, mu2], [gap], [[c, -s], [s, c]]
+    stacked = np.stack([np.stack(row, axis=-1) for row in S], axis=-2)
+    values, vectors = np.linalg.eigh(stacked)
+    mu = [np.ascontiguousarray(values[:, i]) for i in range(d)]
+    gaps = [np.maximum(mu[i] - mu[0], 0.0) for i in range(1, d)]
+    U = [[np.ascontiguousarray(vectors[:, j, i]) for i in range(d)] for j in range(d)]
+    return mu, gaps, U
+
+
+def _pole_term(e: FloatArray, gap: FloatArray, power: int) -> FloatArray:
+    """``e²/gap^power``, ``0`` where ``e = gap = 0`` and ``inf`` where only the gap is 0."""
+    positive = gap > 0.0
+    if positive.all():
+        return e * e / gap**power
+    return np.where(
+        positive, e * e / np.where(positive, gap, 1.0) ** power, np.where(e == 0, 0.0, np.inf)
+    )
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class Spectrum:
     """The Schur complement's eigen-decomposition and the secular equation's coefficients.
 
-    ``S = M_xy − m mᵀ/M₃₃ = U diag(μ₁ ≤ μ₂) Uᵀ`` with ``u₁ = (c, s)``; ``ã = Uᵀa``,
-    ``h̃ = Uᵀh``, ``e = ã + μ h̃``; ``φ(−μ₁ + s) = e₁²/s² + e₂²/(g+s)² − base − s/(2M₃₃)``.
+    ``S = M_ss − m mᵀ/M_ww = U diag(μ₁ ≤ … ≤ μ_d) Uᵀ`` (``m = M[:d, w]``), ``a = q_s − m q_w/M_ww``,
+    ``h = m/(2M_ww)``, ``ã = Uᵀa``, ``h̃ = Uᵀh``, ``e = ã + μ h̃`` (lists over the eigen-axes,
+    each (n,)); ``φ(−μ₁ + s) = e₁²/s² + Σ_{i≥2} e_i²/(g_i + s)² − base − s/(2M_ww)`` with the
+    gaps ``g_i = μ_i − μ₁``.
     """
 
-    mu1: FloatArray
-    mu2: FloatArray
-    gap: FloatArray
-    c: FloatArray
-    s: FloatArray
-    a_t1: FloatArray
-    a_t2: FloatArray
-    h_t1: FloatArray
-    h_t2: FloatArray
-    e1: FloatArray
-    e2: FloatArray
+    mu: list[FloatArray]
+    gaps: list[FloatArray]
+    U: list[list[FloatArray]]
+    a_t: list[FloatArray]
+    h_t: list[FloatArray]
+    e: list[FloatArray]
     h_sq: FloatArray
     base: FloatArray
     second_at_pole: FloatArray
     phi_pole: FloatArray
-    m33: FloatArray
+    m_ww: FloatArray
 
     @classmethod
     def of(cls, ne: NormalEquations) -> Spectrum:
-        m13, m23, m33, q3 = ne.m13, ne.m23, ne.m33, ne.q3
-        mu1, mu2, gap, c, s = eigen_2x2(
-            ne.m11 - m13 * m13 / m33, ne.m12 - m13 * m23 / m33, ne.m22 - m23 * m23 / m33
-        )
-        a1 = ne.q1 - m13 * q3 / m33
-        a2 = ne.q2 - m23 * q3 / m33
-        h1 = m13 / (2.0 * m33)
-        h2 = m23 / (2.0 * m33)
-        a_t1, a_t2 = c * a1 + s * a2, -s * a1 + c * a2
-        h_t1, h_t2 = c * h1 + s * h2, -s * h1 + c * h2
-        e2 = a_t2 + mu2 * h_t2
-        h_sq = h_t1 * h_t1 + h_t2 * h_t2
-        base = h_sq + (q3 - 0.5 * mu1) / m33
-        positive = gap > 0.0
-        if positive.all():
-            second_at_pole = e2 * e2 / gap**2
-        else:
-            second_at_pole = np.where(
-                positive,
-                e2 * e2 / np.where(positive, gap, 1.0) ** 2,
-                np.where(e2 == 0, 0.0, np.inf),
-            )
+        M, q, d = ne.M, ne.q, ne.dimension
+        m_ww, q_w = M[d][d], q[d]
+        S = [[M[i][j] for j in range(d)] for i in range(d)]
+        for i in range(d):
+            for j in range(i, d):
+                S[i][j] = S[j][i] = M[i][j] - M[i][d] * M[j][d] / m_ww
+        mu, gaps, U = eigen_symmetric(S)
+        a = [q[i] - M[i][d] * q_w / m_ww for i in range(d)]
+        h = [M[i][d] / (2.0 * m_ww) for i in range(d)]
+
+        def rotate(values: list[FloatArray]) -> list[FloatArray]:
+            out = []
+            for i in range(d):
+                total = U[0][i] * values[0]
+                for j in range(1, d):
+                    total = total + U[j][i] * values[j]
+                out.append(total)
+            return out
+
+        a_t, h_t = rotate(a), rotate(h)
+        e = [a_t[i] + mu[i] * h_t[i] for i in range(d)]
+        h_sq = squared_norm(h_t)
+        base = h_sq + (q_w - 0.5 * mu[0]) / m_ww
+        second_at_pole = _pole_term(e[1], gaps[0], 2)
+        for i in range(2, d):
+            second_at_pole = second_at_pole + _pole_term(e[i], gaps[i - 1], 2)
         return cls(
-            mu1=mu1,
-            mu2=mu2,
-            gap=gap,
-            c=c,
-            s=s,
-            a_t1=a_t1,
-            a_t2=a_t2,
-            h_t1=h_t1,
-            h_t2=h_t2,
-            e1=a_t1 + mu1 * h_t1,
-            e2=e2,
+            mu=mu,
+            gaps=gaps,
+            U=U,
+            a_t=a_t,
+            h_t=h_t,
+            e=e,
             h_sq=h_sq,
             base=base,
             second_at_pole=second_at_pole,
             phi_pole=second_at_pole - base,
-            m33=m33,
+            m_ww=m_ww,
         )
 
-    def take(self, index: IntArray) -> Spectrum:
-        if index.size == self.mu1.size:
-            return self
-        return Spectrum(**{name: getattr(self, name)[index] for name in self.__slots__})
+    @property
+    def dimension(self) -> int:
+        return len(self.mu)
 
-    def to_rows(self, y1: FloatArray, y2: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Eigenbasis coordinates back to the rows' ``(x, y)``: ``U ỹ`` (of (n,) or (p, n)
+    def take(self, index: IntArray) -> Spectrum:
+        if index.size == self.mu[0].size:
+            return self
+
+        def pick(value):  # (arrays, and lists of them)
+            if isinstance(value, list):
+                return [pick(item) for item in value]
+            return value[index]
+
+        return Spectrum(**{name: pick(getattr(self, name)) for name in self.__slots__})
+
+    def to_rows(self, y: Sequence[FloatArray]) -> list[FloatArray]:
+        """Eigenbasis coordinates back to the rows' coordinates: ``U ỹ`` (of (n,) or (p, n)
         points)."""
-        return self.c * y1 - self.s * y2, self.s * y1 + self.c * y2
+        out = []
+        for j in range(self.dimension):
+            total = self.U[j][0] * y[0]
+            for i in range(1, self.dimension):
+                total = total + self.U[j][i] * y[i]
+            out.append(total)
+        return out
 
 
 def solve_gtrs_batch(
@@ -340,11 +452,12 @@ def solve_gtrs_batch(
     rank: bool = False,
     rank_deficient: bool = False,
 ) -> GtrsBatch:
-    """Every global minimiser of ``‖A r − b‖²`` s.t. ``r_x² + r_y² = r_z`` for ``n`` systems.
+    """Every global minimiser of ``‖A r − b‖²`` s.t. ``‖s‖² = r_w`` for ``n`` systems, ``r =
+    (s, r_w)`` with ``s`` of 2 or 3 coordinates (:func:`row_dimension`).
 
     The systems are the columns of ``blocks`` (see the module docstring for the method).
     ``hard_case_rtol``: the hard case is considered when the root of φ would lie within
-    ``hard_case_rtol · μ₂`` of the pole ``−μ₁``, and declared only if the two points of the
+    ``hard_case_rtol · μ_d`` of the pole ``−μ₁``, and declared only if the two points of the
     null line then have costs equal to rounding (:func:`equal_to_rounding`; they differ by
     ``4|e₁|√(−φ(−μ₁))``); otherwise the unique root is returned. ``rank=True`` also computes
     the numerical rank of each ``A`` (:func:`~estimators.closed_form.gtrs_rank.numerical_rank`);
@@ -359,19 +472,19 @@ def solve_gtrs_batch(
 def _solve(blocks: list[RowBlock], n: int, rtol: float, want_rank: bool | str) -> GtrsBatch:
     ne = NormalEquations.of(blocks, n)
     sp = Spectrum.of(ne)
+    d = ne.dimension
     trace = ne.trace
-    finite = np.isfinite(trace) & np.isfinite(ne.q1 + ne.q2 + ne.q3 + ne.bb) & (ne.m33 > 0.0)
+    finite = np.isfinite(trace) & np.isfinite(sum(ne.q) + ne.bb) & (sp.m_ww > 0.0)
     failed = ~finite
-    mu_scale = np.maximum(np.abs(sp.mu2), TINY)
-    gap_safe = sp.gap if (sp.gap > 0.0).all() else np.where(sp.gap > 0.0, sp.gap, 1.0)
+    mu_scale = np.maximum(np.abs(sp.mu[-1]), TINY)
+    gaps_safe = [gap if (gap > 0.0).all() else np.where(gap > 0.0, gap, 1.0) for gap in sp.gaps]
 
-    # hard-case screen (MATH §5): φ(−μ₁) < 0 and |e₁| ≤ rtol·μ₂·√(−φ(−μ₁))
+    # hard-case screen (MATH §5): φ(−μ₁) < 0 and |e₁| ≤ rtol·μ_d·√(−φ(−μ₁))
     negative = sp.phi_pole < 0.0
     width = np.sqrt(np.where(negative, -sp.phi_pole, 0.0))
-    screen = negative & (np.abs(sp.e1) <= rtol * mu_scale * width) & finite
+    screen = negative & (np.abs(sp.e[0]) <= rtol * mu_scale * width) & finite
 
-    x = np.full((n, 2), np.nan)
-    y = np.full((n, 2), np.nan)
+    points = [np.full((n, 2), np.nan) for _ in range(d)]
     costs = np.full((n, 2), np.nan)
     multiplier = np.full(n, np.nan)
     hard = np.zeros(n, dtype=bool)
@@ -385,14 +498,15 @@ def _solve(blocks: list[RowBlock], n: int, rtol: float, want_rank: bool | str) -
             return values if every else values[idx]
 
         sub = sp.take(idx)
-        y2 = sub.e2 / pick(gap_safe) - sub.h_t2
         w = pick(width)
         # (2, m): the pair point-major, so that numpy's loops run over the systems
-        px, py = sub.to_rows(-sub.h_t1 + _PAIR_SIGNS[:, None] * w, y2)
+        tilde = [-sub.h_t[0] + _PAIR_SIGNS[:, None] * w]
+        tilde += [sub.e[i] / pick(gaps_safe[i - 1]) - sub.h_t[i] for i in range(1, d)]
+        pair = sub.to_rows(tilde)
         rows = take_systems(blocks, idx, n)
-        pair_costs = _cost(rows, px, py).T
-        px, py = px.T, py.T
-        square = px * px + py * py
+        pair_costs = _cost(rows, pair).T
+        pair = [coordinate.T for coordinate in pair]
+        square = squared_norm(pair)
         norms = np.maximum.reduce(np.sqrt(square + square * square), axis=1)
         # a small but real e₁ (two headings a few millidegrees apart) passes the screen, yet
         # the pair's costs then differ by 4|e₁|√(−φ(−μ₁)): the pair only when they are equal
@@ -401,38 +515,56 @@ def _solve(blocks: list[RowBlock], n: int, rtol: float, want_rank: bool | str) -
         )
         if every and equal.all():
             hard[:] = True
-            x[:], y[:], costs[:] = px, py, pair_costs
-            multiplier[:] = -sp.mu1
+            for target, values in zip(points, pair, strict=True):
+                target[:] = values
+            costs[:] = pair_costs
+            multiplier[:] = -sp.mu[0]
         else:
             keep = idx[equal]
             hard[keep] = True
-            x[keep], y[keep], costs[keep] = px[equal], py[equal], pair_costs[equal]
-            multiplier[keep] = -sp.mu1[keep]
+            for target, values in zip(points, pair, strict=True):
+                target[keep] = values[equal]
+            costs[keep] = pair_costs[equal]
+            multiplier[keep] = -sp.mu[0][keep]
 
     # --- the unique root of the secular equation
     idx = np.flatnonzero(finite & ~hard)
     if idx.size:
         sub = sp.take(idx)
         shift, diverged = _secular_root(sub, sp.phi_pole[idx])
-        ratio1 = np.where(shift > 0.0, sub.e1 / np.where(shift > 0.0, shift, 1.0), 0.0)
-        den2 = sub.gap + shift
-        ratio2 = np.where(den2 > 0.0, sub.e2 / np.where(den2 > 0.0, den2, 1.0), 0.0)
-        px, py = sub.to_rows(ratio1 - sub.h_t1, ratio2 - sub.h_t2)
-        x[idx, 0], y[idx, 0] = px, py
-        costs[idx, 0] = _cost(take_systems(blocks, idx, n), px, py)
-        multiplier[idx] = shift - sub.mu1
+        ratio = [np.where(shift > 0.0, sub.e[0] / np.where(shift > 0.0, shift, 1.0), 0.0)]
+        for i in range(1, d):
+            den = sub.gaps[i - 1] + shift
+            ratio.append(np.where(den > 0.0, sub.e[i] / np.where(den > 0.0, den, 1.0), 0.0))
+        root = sub.to_rows([ratio[i] - sub.h_t[i] for i in range(d)])
+        for target, values in zip(points, root, strict=True):
+            target[idx, 0] = values
+        costs[idx, 0] = _cost(take_systems(blocks, idx, n), root)
+        multiplier[idx] = shift - sub.mu[0]
         failed[idx] |= diverged
-    nuisance = None if ne.nuisance is None else ne.nuisance_at(x, y)
+    nuisance = None if ne.nuisance is None else ne.nuisance_at(points)
 
     ranks = np.full(n, -1, dtype=np.int64)
-    if want_rank:
+    if want_rank and d == 2:
         ranks = numerical_rank(
-            blocks, ne, sp.mu1, sp.mu2, _svd_rank, take_systems, deficient=want_rank == "deficient"
+            blocks,
+            ne,
+            sp.mu[0],
+            sp.mu[1],
+            _svd_rank,
+            take_systems,
+            deficient=want_rank == "deficient",
         )
-    failed |= ~np.isfinite(x[:, 0]) | ~np.isfinite(y[:, 0]) | ~np.isfinite(costs[:, 0])
+    elif want_rank:
+        ranks = numerical_rank_3d(
+            blocks, ne, sp.mu, _svd_rank, take_systems, deficient=want_rank == "deficient"
+        )
+    for values in points:
+        failed |= ~np.isfinite(values[:, 0])
+    failed |= ~np.isfinite(costs[:, 0])
     return GtrsBatch(
-        x=x,
-        y=y,
+        x=points[0],
+        y=points[1],
         count=np.where(hard, 2, 1).astype(np.int64),
         costs=costs,
         multiplier=multiplier,
@@ -440,32 +572,35 @@ def _solve(blocks: list[RowBlock], n: int, rtol: float, want_rank: bool | str) -
         rank=ranks,
         failed=failed,
         nuisance=nuisance,
+        z=points[2] if d == 3 else None,
     )
 
 
-def _cost(blocks: list[RowBlock], x: FloatArray, y: FloatArray) -> FloatArray:
-    """``‖A r − b‖²`` at ``r = (x, y, x² + y²)``, summed row by row (:func:`row_dot`); with a
-    free unknown's column ``c``, at its best value ``t = cᵀ(b − A r)/‖c‖²``: the residual
-    ``A r + c t − b`` is formed before it is squared (subtracting ``(cᵀ(A r − b))²/‖c‖²`` from
-    the unprojected cost would lose the digits of a small cost to a large one)."""
-    if x.ndim == 2:  # p points per system, (p, n): the rows' columns as (R, 1, n)
+def _cost(blocks: list[RowBlock], point: Sequence[FloatArray]) -> FloatArray:
+    """``‖A r − b‖²`` at ``r = (s, ‖s‖²)`` (``point`` the coordinates of ``s``), summed row by
+    row (:func:`row_dot`); with a free unknown's column ``c``, at its best value ``t = cᵀ(b −
+    A r)/‖c‖²``: the residual ``A r + c t − b`` is formed before it is squared (subtracting
+    ``(cᵀ(A r − b))²/‖c‖²`` from the unprojected cost would lose the digits of a small cost to
+    a large one)."""
+    shape = point[0].shape
+    if point[0].ndim == 2:  # p points per system, (p, n): the rows' columns as (R, 1, n)
         blocks = [block.per_point() for block in blocks]
-    residuals = [block.residual(x, y) for block in blocks]
+    residuals = [block.residual(point) for block in blocks]
     if any(block.ac is not None for block in blocks):
-        along = np.zeros(x.shape)
-        norm = np.zeros(x.shape)
+        along = np.zeros(shape)
+        norm = np.zeros(shape)
         for block, residual in zip(blocks, residuals, strict=True):
             if block.ac is not None:
-                along += row_dot(block.ac, residual, x.shape)
-                norm += row_dot(block.ac, block.ac, x.shape)
+                along += row_dot(block.ac, residual, shape)
+                norm += row_dot(block.ac, block.ac, shape)
         step = along / norm
         residuals = [
             residual if block.ac is None else residual - block.ac * step
             for block, residual in zip(blocks, residuals, strict=True)
         ]
-    total = np.zeros(x.shape)
+    total = np.zeros(shape)
     for residual in residuals:
-        total += row_dot(residual, residual, x.shape)
+        total += row_dot(residual, residual, shape)
     return total
 
 
@@ -499,18 +634,20 @@ def _secular_root(sp: Spectrum, phi_pole: FloatArray) -> tuple[FloatArray, BoolA
     step stays left of the root. Returns the root, 0 when ``φ(0⁺) ≤ 0`` (``e₁ = 0`` and φ
     touches zero on the pole) or when it is below ``1e-250``, and whether the iteration failed.
     """
-    e1_sq, e2_sq, gap, base = sp.e1 * sp.e1, sp.e2 * sp.e2, sp.gap, sp.base
-    slope_linear = 0.5 / sp.m33
-    positive = gap > 0.0
-    gap_safe = np.where(positive, gap, 1.0)
-    steep = np.where(positive, 2.0 * e2_sq / gap_safe**3, np.where(e2_sq == 0, 0.0, np.inf))
+    d = sp.dimension
+    e1_sq, base = sp.e[0] * sp.e[0], sp.base
+    e_sq = [sp.e[i] * sp.e[i] for i in range(1, d)]
+    slope_linear = 0.5 / sp.m_ww
+    steep = 2.0 * _pole_term(sp.e[1], sp.gaps[0], 3)
+    for i in range(2, d):
+        steep = steep + 2.0 * _pole_term(sp.e[i], sp.gaps[i - 1], 3)
     steep = steep + slope_linear
     tangent_root = np.where(phi_pole > 0.0, phi_pole / steep, 0.0)
     tangent_root = np.where(np.isfinite(tangent_root), tangent_root, 0.0)
-    bound_pole = np.abs(sp.e1) / np.sqrt(2.0 * np.maximum(-phi_pole, 0.0))
+    bound_pole = np.abs(sp.e[0]) / np.sqrt(2.0 * np.maximum(-phi_pole, 0.0))
     bound_slope = np.cbrt(e1_sq / (2.0 * steep))
     pole_bound = 0.9 * np.minimum(bound_pole, bound_slope)
-    pole_bound = np.where((sp.e1 != 0.0) & np.isfinite(pole_bound), pole_bound, 0.0)
+    pole_bound = np.where((sp.e[0] != 0.0) & np.isfinite(pole_bound), pole_bound, 0.0)
     shift = np.maximum(tangent_root, pole_bound)
 
     failed = np.zeros(shift.shape, dtype=bool)
@@ -521,10 +658,16 @@ def _secular_root(sp: Spectrum, phi_pole: FloatArray) -> tuple[FloatArray, BoolA
         s = shift[active]
         inv = 1.0 / s
         first = e1_sq[active] * inv * inv
-        den = gap[active] + s
-        second = e2_sq[active] / (den * den)
+        den = sp.gaps[0][active] + s
+        second = e_sq[0][active] / (den * den)
+        slope = 2.0 * second / den
+        for i in range(2, d):
+            den = sp.gaps[i - 1][active] + s
+            term = e_sq[i - 1][active] / (den * den)
+            second = second + term
+            slope = slope + 2.0 * term / den
         value = first + second - base[active] - s * slope_linear[active]
-        derivative = 2.0 * first * inv + 2.0 * second / den + slope_linear[active]
+        derivative = 2.0 * first * inv + slope + slope_linear[active]
         step = value / derivative
         done = (value <= 0.0) | (step <= 2.0 * EPS * s) | ~np.isfinite(step)
         shift[active] = np.where(done, s, s + step)
@@ -535,13 +678,19 @@ def _secular_root(sp: Spectrum, phi_pole: FloatArray) -> tuple[FloatArray, BoolA
 
 
 def _svd_rank(blocks: list[RowBlock], n: int) -> IntArray:
-    """The numerical rank from the singular values of the stacked rows (n, R, 3)."""
+    """The numerical rank from the singular values of the stacked rows (n, R, d + 1)."""
+    d = row_dimension(blocks)
     columns = []
     for block in blocks:
         shape = (block.n_rows, n)
-        az = np.zeros(shape) if block.az is None else np.broadcast_to(block.az, shape)
         columns.append(
-            np.stack([np.broadcast_to(block.ax, shape), np.broadcast_to(block.ay, shape), az], -1)
+            np.stack(
+                [
+                    np.zeros(shape) if column is None else np.broadcast_to(column, shape)
+                    for column in block.columns(d)
+                ],
+                -1,
+            )
         )
     A = np.concatenate(columns, axis=0).transpose(1, 0, 2)
     if any(block.ac is not None for block in blocks):  # the rows projected off c (MATH §15)

@@ -61,7 +61,8 @@ def numerical_rank(
     ``svd_rank`` of their rows (the singular values themselves). ``deficient=True`` states that every ``A`` has a null vector up to rounding
     (``σ₃ ≤ 1e-13 σ₁``: the rows of one straight track, MATH §5), which replaces ``‖A u‖``.
     """
-    m11, m12, m13, m22, m23, m33 = ne.m11, ne.m12, ne.m13, ne.m22, ne.m23, ne.m33
+    M = ne.M  # (the 2-D rows: r = (x, y, x² + y²))
+    m11, m12, m13, m22, m23, m33 = M[0][0], M[0][1], M[0][2], M[1][1], M[1][2], M[2][2]
     trace = ne.trace
     c11 = m22 * m33 - m23 * m23
     c22 = m11 * m33 - m13 * m13
@@ -104,6 +105,57 @@ def numerical_rank(
         sigma2_sq_low = (minors[todo] - minors_error[todo]) / (2.0 * trace[todo])
         two = deficient & (sigma2_sq_low > ratio_sq * trace[todo])
         rank[todo[two]] = 2
+    exact = np.flatnonzero((rank < 0) & np.isfinite(trace))
+    if exact.size:
+        rank[exact] = svd_rank(take_systems(blocks, exact, trace.size), exact.size)
+    return rank
+
+
+def numerical_rank_3d(
+    blocks: list,
+    ne,
+    mu: list[FloatArray],
+    svd_rank: Callable[[list, int], IntArray],
+    take_systems: Callable[[list, IntArray, int], list],
+    *,
+    deficient: bool = False,
+) -> IntArray:
+    """:func:`numerical_rank` of rows over ``r = (x, y, z, ‖s‖²)`` (the height a coordinate).
+
+    The same certificates one size up, from the elementary symmetric functions ``e_j`` of the
+    eigenvalues ``λ₁ ≥ … ≥ λ₄`` of ``M`` (``e₁ = t = tr M``, ``e₂``, ``e₃`` the sums of the
+    principal 2×2 and 3×3 minors, ``e₄ = det M = M_ww μ₁ μ₂ μ₃``): ``σ₄² ≥ e₄ / e₃`` (as
+    ``e₃ ≥ λ₁λ₂λ₃``) and ``σ₃² ≥ e₃ / (2 e₂)`` (as ``e₃ ≤ λ₃ (λ₁λ₂ + e₂)``), each clearing the
+    threshold by a factor 10 beyond the rounding of the minors (``16 ε t^j``) and of ``μ``;
+    the second only with ``deficient=True`` (a level flight, whose rows annihilate
+    ``(0, 0, 1, 2h)``, MATH §5). The other systems get ``svd_rank`` of their rows.
+    """
+    M = ne.M
+    trace = ne.trace
+    index = range(4)
+    pairs = [(i, j) for i in index for j in index if i < j]
+    e2 = sum(M[i][i] * M[j][j] - M[i][j] * M[i][j] for i, j in pairs)
+    e3 = 0.0
+    for skip in index:
+        a, b, c = (i for i in index if i != skip)
+        e3 = e3 + (
+            M[a][a] * (M[b][b] * M[c][c] - M[b][c] * M[b][c])
+            - M[a][b] * (M[a][b] * M[c][c] - M[b][c] * M[a][c])
+            + M[a][c] * (M[a][b] * M[b][c] - M[b][b] * M[a][c])
+        )
+    err_mu = 8.0 * EPS * np.sqrt(ne.n_rows) * trace
+    ratio_sq = (RANK_RTOL * 10.0) ** 2
+    rank = np.full(trace.shape, -1, dtype=np.int64)
+    det_low = M[3][3]
+    for value in mu:
+        det_low = det_low * np.maximum(value - err_mu, 0.0)
+    e3_error = 16.0 * EPS * trace * trace * trace
+    full = det_low / (e3 + e3_error) > ratio_sq * trace
+    rank[full] = 4
+    if deficient:
+        e2_error = 16.0 * EPS * trace * trace
+        sigma3_sq_low = (e3 - e3_error) / (2.0 * (e2 + e2_error))
+        rank[~full & (sigma3_sq_low > ratio_sq * trace)] = 3
     exact = np.flatnonzero((rank < 0) & np.isfinite(trace))
     if exact.size:
         rank[exact] = svd_rank(take_systems(blocks, exact, trace.size), exact.size)

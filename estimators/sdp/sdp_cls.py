@@ -5,10 +5,11 @@ The CLS of MATH §5 (paper eq ``finalest``, corrected) is
 .. math::
 
     f^\star = \min_r \lVert A r - b\rVert^2 \quad\text{s.t.}\quad r_x^2 + r_y^2 - r_z = 0,
-    \qquad r = (x_s, y_s, x_s^2 + y_s^2).
+    \qquad r = (x_s, y_s, x_s^2 + y_s^2)
 
-Lifting ``(r, 1)`` to ``W = [[X, r], [rᵀ, 1]] ⪰ 0`` makes the objective and the constraint
-linear in ``W``:
+(with the emitter's height a coordinate, ``r = (x_s, y_s, z_s, ‖s‖²)`` and the constraint
+``‖s‖² = r_w``: every matrix below one size larger, the lift 5×5). Lifting ``(r, 1)`` to
+``W = [[X, r], [rᵀ, 1]] ⪰ 0`` makes the objective and the constraint linear in ``W``:
 
 .. math::
 
@@ -80,7 +81,7 @@ from estimators.base import (
 from estimators.batch import BatchEstimates, check_rngs
 from estimators.closed_form.cls_batch import CHUNK_ELEMENTS, MAX_CHUNK, SharedGeometry
 from estimators.goodness_of_fit import with_fit, with_fit_columns
-from estimators.mirror_rule import FinalizedColumns, finalize_columns
+from estimators.mirror_rule import STRAIGHT_TRACK_HEIGHT, FinalizedColumns, finalize_columns
 from estimators.sdp.sdp_lift import (
     RANK_RTOL,
     ChunkRows,
@@ -107,6 +108,7 @@ from estimators.sdp.sdp_solvers import (
     solve_ladders,
     solver_attempts,
 )
+from scenarios.nuisance import HEIGHT_UNKNOWN, position_dimension
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 
@@ -204,7 +206,8 @@ def solve_sdp_relaxation(
 ) -> SdpSolution:
     """Solve the SDP relaxation of MATH §11 for the stacked rows ``A r = b`` of MATH §5.
 
-    ``A`` (m, 3) and ``b`` (m,) in a frame scaled to order one
+    ``A`` (m, 3), or (m, 4) with the height a coordinate, and ``b`` (m,) in a frame scaled to
+    order one
     (:class:`~estimators.closed_form.cls_rows.LocalFrame`); ``relaxation`` ``equality`` (``r_z =
     trace Y``, the Shor relaxation, tight) or ``inequality`` (``r_z ≥ trace Y``, tight only when
     λ* ≥ 0); ``solver`` Clarabel (called directly) or SCS (through cvxpy); ``max_iter`` the
@@ -320,6 +323,7 @@ class SdpCls:
             modules=self.required_modules,
             batch=True,
             unit_invariant=self.weighting == "optimal",
+            unknowns=frozenset({HEIGHT_UNKNOWN}),
             noise_free_tolerance_m=1e-5,
             tolerance_reason="the interior-point solver stops at a relative gap of about 1e-8",
         )
@@ -374,7 +378,7 @@ class _Solved:
     """The trials of one chunk that passed every stage, in the local frame's world units."""
 
     index: IntArray
-    world: FloatArray  # (k, 2, 2)
+    world: FloatArray  # (k, 2, d)
     count: IntArray
     costs: FloatArray  # (k, 2)
     code: IntArray  # message code (_message)
@@ -383,13 +387,14 @@ class _Solved:
     FIELDS: ClassVar[tuple[str, ...]] = ("index", "world", "count", "costs", "code")
 
     @staticmethod
-    def join(parts: list[_Solved]) -> _Solved:
+    def join(parts: list[_Solved], dimension: int) -> _Solved:
         """The trials of every chunk, in order."""
         if len(parts) == 1:
             return parts[0]
         empty = np.empty(0, dtype=np.int64)
         if not parts:
-            return _Solved(empty, np.empty((0, 2, 2)), empty, np.empty((0, 2)), empty, {})
+            world = np.empty((0, 2, dimension))
+            return _Solved(empty, world, empty, np.empty((0, 2)), empty, {})
         joined = (np.concatenate([getattr(p, name) for p in parts]) for name in _Solved.FIELDS)
         keys = list(parts[0].diagnostics)
         return _Solved(
@@ -413,12 +418,18 @@ def _solve_batch(
     """Every stage of every trial, chunk by chunk, then the mirror rule and the draws."""
     n = batch.n_trials
     generators = check_rngs(rngs, n)
-    shared = SharedGeometry.of(batch, estimator.frames)
+    shared = SharedGeometry.of(
+        batch, estimator.frames, dimension=position_dimension(batch.geometry.unknowns)
+    )
     assert batch.toa_s is not None and batch.doppler_hz is not None
     ranges = shared.used.speed_of_light_mps * batch.toa_s[:, shared.columns]
     doppler = batch.doppler_hz[:, shared.columns]
     chunk = int(np.clip(CHUNK_ELEMENTS // max(shared.used.n_samples, 1), 256, MAX_CHUNK))
     failures: dict[int, Estimate] = {}
+    if shared.dimension == 3 and shared.line is not None:  # a circle of minimisers (MATH §7)
+        failure = Estimate.failed(estimator.name, STRAIGHT_TRACK_HEIGHT, dimension=3)
+        failures = dict.fromkeys(range(n), failure)
+        return _decide(estimator, shared, [], failures, generators)
     solved = [
         _solve_chunk(
             estimator,
@@ -446,6 +457,7 @@ def _solve_chunk(
     to ``failures`` (by trial index), the trials that pass every stage are returned (None when
     no trial does)."""
     name, solver = estimator.name, estimator.solver
+    d = shared.dimension
     chunk = ChunkRows(shared, ranges, doppler)
     m = chunk.m
     rows = "weighted" if estimator.weighting == "optimal" else "per-sample"
@@ -462,6 +474,7 @@ def _solve_chunk(
                 name,
                 f"rows: the stage-{stage} CLS system has NaN or infinite entries "
                 "(degenerate geometry or weights); check speeds, ranges and noise levels",
+                dimension=d,
                 stage=stage,
             )
         alive &= finite
@@ -488,6 +501,7 @@ def _solve_chunk(
             failures[start + i] = Estimate.failed(
                 name,
                 f"stage {stage}: {message}",
+                dimension=d,
                 **_row(diagnostics, j),
                 stage=stage,
                 stage_statuses=list(statuses[i]),
@@ -495,9 +509,9 @@ def _solve_chunk(
             )
         alive[index[~accepted]] = False
         if stage < stages:  # the weights of stage 2 at each trial's first stage-1 point
-            x, y = np.full(m, np.nan), np.full(m, np.nan)
-            x[index], y[index] = solved.points[:, 0, 0], solved.points[:, 0, 1]
-            weights_at = (x, y)
+            weights_at = tuple(np.full(m, np.nan) for _ in range(d))
+            for axis, values in enumerate(weights_at):
+                values[index] = solved.points[:, 0, axis]
 
     # the trials that passed: world candidates, message, diagnostics
     final = index[accepted]
@@ -511,7 +525,11 @@ def _solve_chunk(
         if every
         else (solved.count[accepted], solved.points[accepted], solved.costs[accepted])
     )
-    world = points[:, :, :2] * chunk.scale[final, None, None] + shared.origin
+    if d == 3 and np.ptp(shared.z) == 0.0:
+        plane = shared.z[0] / chunk.scale[final]
+        count, points, costs = _with_reflections(count, points, costs, plane)
+    world = points[:, :, :d] * chunk.scale[final, None, None]
+    world[..., :2] += shared.origin  # (the frame's z is the world's, MATH §5)
     valid = np.arange(2) < count[:, None]
     good = (np.isfinite(world).all(axis=2) | ~valid).all(axis=1)
     rank_two = diagnostics["rank"] >= 2
@@ -529,7 +547,7 @@ def _solve_chunk(
     }
     for j in np.flatnonzero(~good).tolist():
         failures[start + int(final[j])] = Estimate.failed(
-            name, "the recovered minimisers are not finite", **_row(diagnostics, j)
+            name, "the recovered minimisers are not finite", dimension=d, **_row(diagnostics, j)
         )
     code = (4 * inaccurate + 2 * rank_two + loose).astype(np.int64)
     if not good.all():
@@ -544,6 +562,33 @@ def _solve_chunk(
     return _Solved(start + final, world, count, costs, code, diagnostics)
 
 
+REFLECTION_ATOL = 1e-6
+"""A recovered point farther than this (local units) from a level flight's plane gets its
+reflection as a second candidate (:func:`_with_reflections`); nearer, it is its own
+reflection to the solver's accuracy."""
+
+
+def _with_reflections(
+    count: IntArray, points: FloatArray, costs: FloatArray, plane: FloatArray
+) -> tuple[IntArray, FloatArray, FloatArray]:
+    """On a level flight at local height ``plane`` (n,) the reflection of a point through the
+    flight plane explains the data alike (MATH §7): a lift that recovered one point alone (a
+    rank-one lift: noise-free data, where either rank-one lift of the pair is an optimum) gets
+    its reflection added at the same cost, as the closed form's hard case returns both."""
+    single = (count == 1) & (np.abs(points[:, 0, 2] - plane) > REFLECTION_ATOL)
+    if not single.any():
+        return count, points, costs
+    count, points, costs = count.copy(), points.copy(), costs.copy()
+    first = points[single, 0]
+    mirror = first.copy()
+    mirror[:, 2] = 2.0 * plane[single] - first[:, 2]
+    mirror[:, 3] = mirror[:, 0] ** 2 + mirror[:, 1] ** 2 + mirror[:, 2] ** 2
+    points[single, 1] = mirror
+    costs[single, 1] = costs[single, 0]
+    count[single] = 2
+    return count, points, costs
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class _Decided:
     """Every trial's outcome. The trials that passed are rows of the arrays (trial ``index``),
@@ -551,7 +596,7 @@ class _Decided:
     those finalized one at a time and ``failures`` the failed ones, by trial."""
 
     index: IntArray
-    candidates: FloatArray  # (k, width, 2)
+    candidates: FloatArray  # (k, width, d)
     n_kept: IntArray
     chosen: IntArray
     ambiguous: NDArray[np.bool_]
@@ -582,10 +627,14 @@ def _decide(
 ) -> _Decided:
     """The mirror rule (:func:`~estimators.mirror_rule.finalize_columns`) for every trial that
     passed, and the tie-break draws in trial order."""
-    solved = _Solved.join(parts)
+    d = shared.dimension
+    solved = _Solved.join(parts, d)
     index, world, count, costs, code = (getattr(solved, name) for name in _Solved.FIELDS)
     found, keys = dict(solved.diagnostics), list(solved.diagnostics)
     if index.size:
+        # with the height a coordinate a level flight's pair is the emitter and its reflection
+        # through the flight plane (MATH §7): the rule drops the one above the UAV
+        ceiling = {} if d == 2 else {"ceiling_m": float(np.max(shared.z))}
         with np.errstate(all="ignore"):
             final = finalize_columns(
                 world,
@@ -594,11 +643,12 @@ def _decide(
                 shared.mean_xy,
                 shared.line,
                 side_prior_m=estimator.side_prior_m,
+                **ceiling,
             )
     else:  # no trial passed: every one is in failures
         none = np.zeros(0, dtype=bool)
         final = FinalizedColumns(
-            np.empty((0, 1, 2)), count, np.empty((0, 1), dtype=np.int64), count, none, none, none
+            np.empty((0, 1, d)), count, np.empty((0, 1), dtype=np.int64), count, none, none, none
         )
     chosen = final.chosen.copy()
     for j in np.flatnonzero(final.draw).tolist():  # rows are in trial order
@@ -607,7 +657,7 @@ def _decide(
             chosen[j] = rng.integers(final.n_candidates[j])
     redone = {
         int(index[j]): Estimate.failed(
-            estimator.name, "no finite candidate (MATH §7)", **_row(found, j)
+            estimator.name, "no finite candidate (MATH §7)", dimension=d, **_row(found, j)
         )
         for j in np.flatnonzero(final.invalid).tolist()
     }
@@ -630,12 +680,13 @@ def _columns(estimator: SdpCls, decided: _Decided, n: int) -> BatchEstimates:
     """The estimates of ``n`` trials as :class:`BatchEstimates` (a failed trial keeps its
     message, not its diagnostics)."""
     index = decided.index
+    d = decided.candidates.shape[2]
     width = max(decided.candidates.shape[1], 1)
-    candidates = np.full((n, width, 2), np.nan)
+    candidates = np.full((n, width, d), np.nan)
     candidates[index, : decided.candidates.shape[1]] = decided.candidates
     n_kept = np.zeros(n, dtype=np.int64)
     n_kept[index] = decided.n_kept
-    position = np.full((n, 2), np.nan)
+    position = np.full((n, d), np.nan)
     position[index] = decided.candidates[np.arange(len(index)), decided.chosen]
     ambiguous = np.zeros(n, dtype=bool)
     ambiguous[index] = decided.ambiguous

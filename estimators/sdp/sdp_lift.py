@@ -1,10 +1,12 @@
 r"""The lifted CLS of MATH §11 in numbers: rows, compression, whitening, recovery from a lift.
 
 Pure numpy, no solver, written for ``n`` systems at once (a leading axis of length ``n``; one
-Monte Carlo trial each), with one-system wrappers. :class:`ChunkRows` stacks the CLS rows of
+Monte Carlo trial each), with one-system wrappers. ``r = (s, ‖s‖²)`` has ``d + 1`` entries: ``d = 2``
+with the emitter's height known, ``d = 3`` with it a coordinate (every function reads ``d`` from
+its arrays' shapes; the lift is ``(d + 2) × (d + 2)``). :class:`ChunkRows` stacks the CLS rows of
 a chunk of trials (those of :mod:`estimators.closed_form.cls_batch`, MATH §3-§6).
-:func:`compress_stacked` turns the stacked rows ``A r = b`` of each system into the 3×3 triangle of
-``A = QR`` (``‖A r − b‖² = ‖R r − Qᵀb‖² + ρ²``), so the solver's problem does not depend on the
+:func:`compress_stacked` turns the stacked rows ``A r = b`` of each system into the (d+1)×(d+1)
+triangle of ``A = QR`` (``‖A r − b‖² = ‖R r − Qᵀb‖² + ρ²``), so the solver's problem does not depend on the
 number of samples. :func:`whiten_batch` writes the lifted problem around the least-squares point
 ``r₀`` in whitened coordinates ``r = r₀ + L w`` (``L = V diag(ℓ_i)`` from the SVD of ``R``), which
 makes the objective ``O(1)`` in every direction; without it Clarabel stops with gaps near 1e−4
@@ -33,7 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from estimators.closed_form.cls_batch import RowsOfChunk, SharedGeometry
-from estimators.closed_form.gtrs_batch import RowBlock
+from estimators.closed_form.gtrs_batch import RowBlock, row_dimension
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -41,8 +43,12 @@ IntArray = NDArray[np.int64]
 RANK_RTOL = 1e-6
 """An eigenvalue of the whitened lift below ``RANK_RTOL`` times the largest counts as zero."""
 
-Z_ROWS = np.array([0, 1, 3])
-"""The rows and columns of the lift over ``(x, y, 1)``: MATH §11's ``Z``."""
+
+def z_rows(size: int) -> NDArray[np.intp]:
+    """The rows and columns of a lift of ``size = d + 2`` over ``(s, 1)``: ``Z``, without the
+    row of ``r_w``."""
+    return np.array([*range(size - 2), size - 1])
+
 
 _SINGULAR_RTOL = 1e-12
 _TINY = float(np.finfo(float).tiny)
@@ -69,8 +75,17 @@ def _matvec(A: FloatArray, x: FloatArray) -> FloatArray:
     return out
 
 
-def _dot3(u: FloatArray, v: FloatArray) -> FloatArray:
-    return u[..., 0] * v[..., 0] + u[..., 1] * v[..., 1] + u[..., 2] * v[..., 2]
+def _dot(u: FloatArray, v: FloatArray) -> FloatArray:
+    """``u · v`` over the last axis, summed left to right."""
+    out = u[..., 0] * v[..., 0]
+    for k in range(1, u.shape[-1]):
+        out = out + u[..., k] * v[..., k]
+    return out
+
+
+def _squared_norm(u: FloatArray) -> FloatArray:
+    """``‖u‖²`` over the last axis, summed left to right."""
+    return _dot(u, u)
 
 
 def _transpose(A: FloatArray) -> FloatArray:
@@ -95,12 +110,13 @@ def symmetric_eigenvalues(M: ArrayLike) -> FloatArray:
 def stack_rows(blocks: list[RowBlock], width: int) -> FloatArray:
     """The augmented systems ``[A | b]`` of ``width`` trials from row blocks of shape (R, width)
     or (R, 1) (:class:`~estimators.closed_form.gtrs_batch.RowBlock`, ``az=None`` a zero column),
-    block after block: shape (width, rows, 4)."""
-    out = np.empty((width, sum(block.n_rows for block in blocks), 4))
+    block after block: shape (width, rows, d + 2)."""
+    d = row_dimension(blocks)
+    out = np.empty((width, sum(block.n_rows for block in blocks), d + 2))
     at = 0
     for block in blocks:
         end = at + block.n_rows
-        for column, values in enumerate((block.ax, block.ay, block.az, block.b)):
+        for column, values in enumerate((*block.columns(d), block.b)):
             out[:, at:end, column] = 0.0 if values is None else values.T
         at = end
     return out
@@ -125,33 +141,35 @@ class ChunkRows:
         self.scale = np.where(scale > 0.0, scale, 1.0)
         self.rows_of = RowsOfChunk(shared, r, f, self.scale)
 
-    def systems(self, rows: str, weights_at: tuple[FloatArray, FloatArray] | None) -> FloatArray:
-        """``[A | b]`` of every trial (m, 2K, 4) for the row variant ``rows`` (``weighted``
-        with the weights at the local ``weights_at = (x, y)`` (m,) of each trial, or at the
-        data when None; ``per-sample``)."""
+    def systems(self, rows: str, weights_at: tuple[FloatArray, ...] | None) -> FloatArray:
+        """``[A | b]`` of every trial (m, 2K, d + 2) for the row variant ``rows`` (``weighted``
+        with the weights at the local ``weights_at = (x, y)`` or ``(x, y, z)`` (m,) of each
+        trial, or at the data when None; ``per-sample``)."""
         if weights_at is not None and self.m == 1:
-            weights_at = (np.repeat(weights_at[0], 2), np.repeat(weights_at[1], 2))
+            weights_at = tuple(np.repeat(values, 2) for values in weights_at)
         with np.errstate(all="ignore"):
             blocks = self.rows_of.blocks(rows, weights_at=weights_at)
             return stack_rows(blocks, self.width)[: self.m]
 
 
 def compress_stacked(rows: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """QR compression of ``n`` augmented systems ``[A | b]`` of shape (n, m, 4) (finite).
+    """QR compression of ``n`` augmented systems ``[A | b]`` of shape (n, m, p) (finite),
+    ``p = d + 2``.
 
     One Householder QR per system (LAPACK ``dgeqrf``): its triangle is ``[[R, c], [0, ±ρ]]``,
     so ``Q`` is never formed and ``ρ`` comes out of the factorisation rather than from
-    ``b − Q Qᵀ b``. Returns ``R`` (n, 3, 3) upper triangular, ``c = Qᵀb`` (n, 3) (zero rows
-    appended when ``m < 3``) and ``ρ²`` (n,).
+    ``b − Q Qᵀ b``. Returns ``R`` (n, p − 1, p − 1) upper triangular, ``c = Qᵀb`` (n, p − 1)
+    (zero rows appended when ``m < p − 1``) and ``ρ²`` (n,).
     """
-    n, m, _ = rows.shape
-    factor = np.linalg.qr(rows, mode="r")  # (n, min(m, 4), 4), upper triangular
-    k = min(m, 3)
-    R = np.zeros((n, 3, 3))
-    c = np.zeros((n, 3))
-    R[:, :k] = factor[:, :k, :3]
-    c[:, :k] = factor[:, :k, 3]
-    residual_sq = factor[:, 3, 3] ** 2 if m > 3 else np.zeros(n)
+    n, m, p = rows.shape
+    q = p - 1
+    factor = np.linalg.qr(rows, mode="r")  # (n, min(m, p), p), upper triangular
+    k = min(m, q)
+    R = np.zeros((n, q, q))
+    c = np.zeros((n, q))
+    R[:, :k] = factor[:, :k, :q]
+    c[:, :k] = factor[:, :k, q]
+    residual_sq = factor[:, q, q] ** 2 if m > q else np.zeros(n)
     return R, c, residual_sq
 
 
@@ -160,14 +178,15 @@ def compress_rows(A: ArrayLike, b: ArrayLike) -> tuple[FloatArray, FloatArray, f
 
     Parameters
     ----------
-    A : (m, 3)
+    A : (m, 3) or (m, 4)
+        Over ``r = (x, y, x² + y²)``, or ``(x, y, z, ‖s‖²)`` with the height a coordinate.
     b : (m,)
 
     Returns
     -------
-    R : (3, 3)
-        Upper triangle of ``A = QR`` (zero rows appended when ``m < 3``).
-    c : (3,)
+    R : (d + 1, d + 1)
+        Upper triangle of ``A = QR`` (zero rows appended when ``m < d + 1``).
+    c : (d + 1,)
         ``Qᵀ b`` (zeros appended likewise).
     residual_sq : float
         ``ρ² = ‖b − Q Qᵀ b‖²``, the part of the cost no ``r`` can change.
@@ -175,18 +194,20 @@ def compress_rows(A: ArrayLike, b: ArrayLike) -> tuple[FloatArray, FloatArray, f
     Raises
     ------
     ValueError
-        If ``A`` is not (m, 3) with m >= 1, ``b`` not (m,), or an entry is not finite.
+        If ``A`` is not (m, 3) or (m, 4) with m >= 1, ``b`` not (m,), or an entry is not finite.
     """
     A = np.asarray(A, dtype=float)
     b = np.asarray(b, dtype=float)
-    if A.ndim != 2 or A.shape[1] != 3 or A.shape[0] < 1:
-        raise ValueError(f"A: expected the stacked rows with shape (m, 3), m >= 1; got {A.shape}")
-    m = A.shape[0]
+    if A.ndim != 2 or A.shape[1] not in (3, 4) or A.shape[0] < 1:
+        raise ValueError(
+            f"A: expected the stacked rows with shape (m, 3) or (m, 4), m >= 1; got {A.shape}"
+        )
+    m, q = A.shape
     if b.shape != (m,):
         raise ValueError(f"b: expected shape ({m},) to match A, got {b.shape}")
-    augmented = np.empty((1, m, 4))
-    augmented[0, :, :3] = A
-    augmented[0, :, 3] = b
+    augmented = np.empty((1, m, q + 1))
+    augmented[0, :, :q] = A
+    augmented[0, :, q] = b
     if not np.isfinite(augmented).all():
         raise ValueError("A/b: the stacked rows contain NaN or infinity; check the measurements")
     R, c, residual_sq = compress_stacked(augmented)
@@ -196,11 +217,10 @@ def compress_rows(A: ArrayLike, b: ArrayLike) -> tuple[FloatArray, FloatArray, f
 def compressed_cost(
     R: FloatArray, c: FloatArray, residual_sq: FloatArray, xy: FloatArray
 ) -> FloatArray:
-    """``‖A (x, y, x² + y²) − b‖² = ‖R r − c‖² + ρ²`` at points ``xy`` (n, k, 2): (n, k)."""
-    x, y = xy[..., 0], xy[..., 1]
-    r = np.stack([x, y, x * x + y * y], axis=-1)
+    """``‖A (s, ‖s‖²) − b‖² = ‖R r − c‖² + ρ²`` at points ``s`` (n, k, d): (n, k)."""
+    r = np.concatenate([xy, _squared_norm(xy)[..., None]], axis=-1)
     residual = matmul_small(r, _transpose(R)) - c[:, None, :]
-    return _dot3(residual, residual) + residual_sq[:, None]
+    return _dot(residual, residual) + residual_sq[:, None]
 
 
 # --------------------------------------------------------------------------------------------
@@ -212,21 +232,21 @@ def compressed_cost(
 class WhitenedRelaxation:
     """The relaxation's data of one system in the solver's coordinates ``r = r₀ + L w``.
 
-    Attributes
+    Attributes (``p = d + 2`` the size of the lift)
     ----------
-    objective : (4, 4)
+    objective : (p, p)
         ``H_w / s``: ``tr(H_w W_w) = ‖A r − b‖²`` on rank-one lifts of ``(w, 1)``.
-    constraint : (4, 4)
-        ``C_w / κ``: ``tr(C_w W_w) = ‖y‖² − r_z`` on rank-one lifts.
-    origin : (3,)
+    constraint : (p, p)
+        ``C_w / κ``: ``tr(C_w W_w) = ‖s‖² − r_w`` on rank-one lifts.
+    origin : (p − 1,)
         ``r₀``, the minimum-norm least-squares point of ``R r = c``.
-    basis : (3, 3)
+    basis : (p − 1, p − 1)
         ``L``.
     objective_scale : float
         ``s``; the relaxation value is ``s · tr(objective · W_w)``.
     constraint_scale : float
         ``κ``.
-    transform : (4, 4)
+    transform : (p, p)
         ``T = [[L, r₀], [0, 1]]``: ``(r, 1) = T (w, 1)``.
     """
 
@@ -243,7 +263,7 @@ class WhitenedRelaxation:
         return local_lift(self.transform, np.asarray(lift_w, dtype=float))
 
     def points(self, w: ArrayLike) -> FloatArray:
-        """``r = r₀ + L w`` for rows ``w`` of shape (..., 3)."""
+        """``r = r₀ + L w`` for rows ``w`` of shape (..., p − 1)."""
         return self.origin + np.asarray(w, dtype=float) @ self.basis.T
 
 
@@ -251,13 +271,13 @@ class WhitenedRelaxation:
 class WhitenedBatch:
     """:class:`WhitenedRelaxation` of ``n`` systems, field by field with a leading axis."""
 
-    objective: FloatArray  # (n, 4, 4)
-    constraint: FloatArray  # (n, 4, 4)
-    origin: FloatArray  # (n, 3)
-    basis: FloatArray  # (n, 3, 3)
+    objective: FloatArray  # (n, p, p)
+    constraint: FloatArray  # (n, p, p)
+    origin: FloatArray  # (n, p - 1)
+    basis: FloatArray  # (n, p - 1, p - 1)
     objective_scale: FloatArray  # (n,)
     constraint_scale: FloatArray  # (n,)
-    transform: FloatArray  # (n, 4, 4)
+    transform: FloatArray  # (n, p, p)
 
     def take(self, index: IntArray) -> WhitenedBatch:
         """The systems ``index``."""
@@ -278,14 +298,15 @@ class WhitenedBatch:
 
 
 def local_lift(transform: FloatArray, lift_w: FloatArray) -> FloatArray:
-    """``T W_w Tᵀ`` for (..., 4, 4) stacks."""
+    """``T W_w Tᵀ`` for (..., p, p) stacks."""
     return matmul_small(matmul_small(transform, lift_w), _transpose(transform))
 
 
 def paraboloid_residual(r: ArrayLike) -> FloatArray:
-    """``‖y‖² − r_z`` for points ``r`` (..., 3): zero on the constraint of MATH §5."""
+    """``‖s‖² − r_w`` for points ``r = (s, r_w)`` (..., d + 1): zero on the constraint of
+    MATH §5."""
     r = np.asarray(r, dtype=float)
-    return r[..., 0] * r[..., 0] + r[..., 1] * r[..., 1] - r[..., 2]
+    return _squared_norm(r[..., :-1]) - r[..., -1]
 
 
 def whiten_batch(R: FloatArray, c: FloatArray, residual_sq: FloatArray) -> WhitenedBatch:
@@ -302,65 +323,66 @@ def whiten_batch(R: FloatArray, c: FloatArray, residual_sq: FloatArray) -> White
     direction ``v₃`` with the paraboloid). ``ℓ_max = 1 + ‖r₀‖`` bounds the weak directions by
     the frame's length scale.
 
-    ``R`` (n, 3, 3), ``c`` (n, 3), ``residual_sq`` (n,), all finite.
+    ``R`` (n, d + 1, d + 1), ``c`` (n, d + 1), ``residual_sq`` (n,), all finite.
     """
     with np.errstate(divide="ignore", invalid="ignore"):
         return _whiten(R, c, residual_sq)
 
 
 def _whiten(R: FloatArray, c: FloatArray, residual_sq: FloatArray) -> WhitenedBatch:
-    n = len(R)
+    n, q = R.shape[:2]  # q = d + 1 entries of r
+    p = q + 1
     U, sigma, Vt = np.linalg.svd(R)
     V = _transpose(Vt)
     cutoff = _SINGULAR_RTOL * np.maximum(sigma[:, :1], _TINY)
     inverse = np.where(sigma > cutoff, 1.0 / sigma, 0.0)
     origin = _matvec(V, inverse * _matvec(_transpose(U), c))
     misfit = c - _matvec(R, origin)
-    misfit_sq = _dot3(misfit, misfit)
-    x0, y0, z0 = origin[:, 0], origin[:, 1], origin[:, 2]
+    misfit_sq = _dot(misfit, misfit)
+    position = origin[:, :-1]
 
     floor = residual_sq + misfit_sq
-    projection = np.stack([x0, y0, x0 * x0 + y0 * y0], axis=-1)
+    projection = np.concatenate([position, _squared_norm(position)[:, None]], axis=-1)
     residual = _matvec(R, projection) - c
-    upper = _dot3(residual, residual) - misfit_sq
+    upper = _dot(residual, residual) - misfit_sq
     need = floor < 1e-9 * upper
     if need.any():  # only they could lift the scale above its floor (they can only lower it)
-        crossings, count = line_paraboloid_points(origin[need], Vt[need, 2])
+        crossings, count = line_paraboloid_points(origin[need], Vt[need, q - 1])
         residuals = matmul_small(crossings, _transpose(R[need])) - c[need, None, :]
-        excess = _dot3(residuals, residuals) - misfit_sq[need, None]
+        excess = _dot(residuals, residuals) - misfit_sq[need, None]
         excess = np.where(np.arange(2) < count[:, None], excess, np.inf)
         upper[need] = np.minimum(upper[need], np.minimum(excess[:, 0], excess[:, 1]))
     scale = np.maximum(np.maximum(floor, 1e-9 * np.maximum(upper, 0.0)), 1e-300)
 
-    length_max = 1.0 + np.sqrt(x0 * x0 + y0 * y0 + z0 * z0)
+    length_max = 1.0 + np.sqrt(_squared_norm(origin))
     lengths = np.where(
         sigma > 0.0,
         np.minimum(np.sqrt(scale)[:, None] / sigma, length_max[:, None]),
         length_max[:, None],
     )
     # T = [[L, r0], [0, 1]] maps (w, 1) to (r, 1); its top rows M = [L | r0] give both blocks
-    transform = np.zeros((n, 4, 4))
-    transform[:, :3, :3] = V * lengths[:, None, :]
-    transform[:, :3, 3] = origin
-    transform[:, 3, 3] = 1.0
-    top = transform[:, :3]
-    # H_w = Gᵀ G + ρ² e₄e₄ᵀ with G = [R L | −e] = R M − [0 | c]
+    transform = np.zeros((n, p, p))
+    transform[:, :q, :q] = V * lengths[:, None, :]
+    transform[:, :q, q] = origin
+    transform[:, q, q] = 1.0
+    top = transform[:, :q]
+    # H_w = Gᵀ G + ρ² e_pe_pᵀ with G = [R L | −e] = R M − [0 | c]
     G = matmul_small(R, top)
-    G[:, :, 3] -= c
+    G[:, :, q] -= c
     H = matmul_small(_transpose(G), G)
-    H[:, 3, 3] = floor
-    # C_w = KᵀK − ½(e₄ m_zᵀ + m_z e₄ᵀ) with K = M[:2] (the y rows), m_z = M[2] (the r_z row)
-    K = top[:, :2]
+    H[:, q, q] = floor
+    # C_w = KᵀK − ½(e_p m_wᵀ + m_w e_pᵀ) with K = M[:d] (the rows of s), m_w = M[d] (r_w's)
+    K = top[:, : q - 1]
     C = matmul_small(_transpose(K), K)
-    half_z = 0.5 * top[:, 2]
-    C[:, 3] -= half_z
-    C[:, :, 3] -= half_z
-    constraint_scale = np.abs(C).reshape(n, 16).max(axis=1)
+    half_z = 0.5 * top[:, q - 1]
+    C[:, q] -= half_z
+    C[:, :, q] -= half_z
+    constraint_scale = np.abs(C).reshape(n, p * p).max(axis=1)
     return WhitenedBatch(
         objective=H / scale[:, None, None],
         constraint=C / constraint_scale[:, None, None],
         origin=origin,
-        basis=transform[:, :3, :3].copy(),
+        basis=transform[:, :q, :q].copy(),
         objective_scale=scale,
         constraint_scale=constraint_scale,
         transform=transform,
@@ -404,13 +426,13 @@ def quadratic_roots(
 
 
 def line_paraboloid_points(point: FloatArray, direction: FloatArray) -> tuple[FloatArray, IntArray]:
-    """The (0 to 2) points ``point + t·direction`` with ``‖y‖² = r_z``, for ``n`` lines
-    (point, direction (n, 3)): points (n, 2, 3) (NaN past ``count``) and the count (n,)."""
-    px, py, pz = point[:, 0], point[:, 1], point[:, 2]
-    dx, dy, dz = direction[:, 0], direction[:, 1], direction[:, 2]
-    a = dx * dx + dy * dy
-    half_b = px * dx + py * dy - 0.5 * dz
-    c = px * px + py * py - pz
+    """The (0 to 2) points ``point + t·direction`` with ``‖s‖² = r_w``, for ``n`` lines
+    (point, direction (n, d + 1)): points (n, 2, d + 1) (NaN past ``count``) and the count
+    (n,)."""
+    position, along = point[:, :-1], direction[:, :-1]
+    a = _squared_norm(along)
+    half_b = _dot(position, along) - 0.5 * direction[:, -1]
+    c = _squared_norm(position) - point[:, -1]
     roots, count = quadratic_roots(a, half_b, c)
     return point[:, None, :] + roots[:, :, None] * direction[:, None, :], count
 
@@ -436,24 +458,25 @@ def recover_batch(
     ``tr(C W) = ‖y‖² − r_z + tr(Schur_yy) ≤ 0`` holds for both relaxations, that line always
     crosses the paraboloid (when rounding says otherwise, the centre alone is returned).
 
-    ``lift_w`` (n, 4, 4) finite whitened lifts, ``origin`` (n, 3) and ``basis`` (n, 3, 3) of
-    their :class:`WhitenedBatch`. Returns points (n, 2, 3) in the local frame (NaN past the
-    count), their count (n,) and the rank (n,).
+    ``lift_w`` (n, p, p) finite whitened lifts, ``origin`` (n, p − 1) and ``basis`` (n, p − 1,
+    p − 1) of their :class:`WhitenedBatch`. Returns points (n, 2, p − 1) in the local frame
+    (NaN past the count), their count (n,) and the rank (n,).
     """
     W = 0.5 * (lift_w + _transpose(lift_w))
+    q = W.shape[-1] - 1
     eigenvalues = np.linalg.eigvalsh(W)
     cutoff = rank_rtol * np.maximum(eigenvalues[:, -1], _TINY)
     rank = np.count_nonzero(eigenvalues > cutoff[:, None], axis=1).astype(np.int64)
-    corner = W[:, 3, 3]
-    w = W[:, :3, 3] / corner[:, None]
+    corner = W[:, q, q]
+    w = W[:, :q, q] / corner[:, None]
     centre = origin + _matvec(basis, w)
-    points = np.full((len(W), 2, 3), np.nan)
+    points = np.full((len(W), 2, q), np.nan)
     points[:, 0] = centre
     count = np.ones(len(W), dtype=np.int64)
     pair = rank >= 2
     if pair.any():
         wp = w[pair]
-        schur = W[pair, :3, :3] / corner[pair, None, None] - wp[:, :, None] * wp[:, None, :]
+        schur = W[pair, :q, :q] / corner[pair, None, None] - wp[:, :, None] * wp[:, None, :]
         principal = np.linalg.eigh(0.5 * (schur + _transpose(schur)))[1][:, :, -1]
         direction = _matvec(basis[pair], principal)
         crossing, crossings = line_paraboloid_points(centre[pair], direction)
@@ -467,7 +490,7 @@ def recover_batch(
 def recover_minimisers(
     lift_w: ArrayLike, whitened: WhitenedRelaxation, *, rank_rtol: float = RANK_RTOL
 ) -> tuple[FloatArray, int]:
-    """:func:`recover_batch` for one system: ``(points (k, 3) in the local frame, rank)``."""
+    """:func:`recover_batch` for one system: ``(points (k, d + 1) in the local frame, rank)``."""
     points, count, rank = recover_batch(
         np.asarray(lift_w, dtype=float)[None],
         whitened.origin[None],
@@ -484,9 +507,9 @@ def recover_minimisers(
 
 @dataclass(frozen=True, slots=True, eq=False)
 class ReadLifts:
-    """What the optimal whitened lifts of ``n`` systems say: the recovered points (n, 2, 3)
+    """What the optimal whitened lifts of ``n`` systems say: the recovered points (n, 2, d + 1)
     and their count, the rank, the CLS costs of the points (n, 2), the relaxation value, the
-    lift in the local frame (n, 4, 4), and whether points, costs and value are finite (only
+    lift in the local frame (n, d + 2, d + 2), and whether points, costs and value are finite (only
     the finite ones are kept: elsewhere NaN, count and rank 0)."""
 
     points: FloatArray
@@ -499,11 +522,16 @@ class ReadLifts:
 
 
 def trace_product(H: FloatArray, W: FloatArray) -> FloatArray:
-    """``tr(H W)`` for symmetric stacks (n, 4, 4): the entrywise products summed row by row,
-    then the four row sums, left to right."""
+    """``tr(H W)`` for symmetric stacks (n, p, p): the entrywise products summed row by row,
+    then the row sums, left to right."""
     product = H * W
-    rows = product[:, :, 0] + product[:, :, 1] + product[:, :, 2] + product[:, :, 3]
-    return rows[:, 0] + rows[:, 1] + rows[:, 2] + rows[:, 3]
+    rows = product[:, :, 0]
+    for k in range(1, product.shape[-1]):
+        rows = rows + product[:, :, k]
+    total = rows[:, 0]
+    for k in range(1, rows.shape[-1]):
+        total = total + rows[:, k]
+    return total
 
 
 def read_lifts(
@@ -516,14 +544,14 @@ def read_lifts(
     *,
     rank_rtol: float = RANK_RTOL,
 ) -> ReadLifts:
-    """For the systems ``read`` (n,) (their whitened lifts ``lift_w`` (n, 4, 4) finite):
+    """For the systems ``read`` (n,) (their whitened lifts ``lift_w`` (n, p, p) finite):
     the points (:func:`recover_batch`), their costs ``‖R r − c‖² + ρ²``, the value
     ``s · tr(H_w W_w)`` and the local lift ``T W_w Tᵀ``."""
     n = len(lift_w)
     index = np.flatnonzero(read)
     every = index.size == n  # the usual case: no copies
     if index.size == 0:
-        return _unread(n)
+        return _unread(n, lift_w.shape[-1])
     if not every:
         lift_w, whitened = lift_w[index], whitened.take(index)
         R, c, residual_sq = R[index], c[index], residual_sq[index]
@@ -532,7 +560,7 @@ def read_lifts(
             lift_w, whitened.origin, whitened.basis, rank_rtol=rank_rtol
         )
         valid = np.arange(2) < count[:, None]
-        costs = np.where(valid, compressed_cost(R, c, residual_sq, points[:, :, :2]), np.nan)
+        costs = np.where(valid, compressed_cost(R, c, residual_sq, points[:, :, :-1]), np.nan)
         value = whitened.objective_scale * trace_product(whitened.objective, lift_w)
         lift = local_lift(whitened.transform, lift_w)
     finite = (
@@ -543,38 +571,38 @@ def read_lifts(
     found = ReadLifts(points, count, rank, costs, value, lift, finite)
     if every and finite.all():
         return found
-    out = _unread(n)
+    out = _unread(n, lift_w.shape[-1])
     kept = index[finite]
     for name in ReadLifts.__dataclass_fields__:
         getattr(out, name)[kept] = getattr(found, name)[finite]
     return out
 
 
-def _unread(n: int) -> ReadLifts:
+def _unread(n: int, size: int) -> ReadLifts:
     return ReadLifts(
-        points=np.full((n, 2, 3), np.nan),
+        points=np.full((n, 2, size - 1), np.nan),
         count=np.zeros(n, dtype=np.int64),
         rank=np.zeros(n, dtype=np.int64),
         costs=np.full((n, 2), np.nan),
         value=np.full(n, np.nan),
-        lift=np.full((n, 4, 4), np.nan),
+        lift=np.full((n, size, size), np.nan),
         finite=np.zeros(n, dtype=bool),
     )
 
 
 def lift_spectra(lift: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """For local lifts (n, 4, 4): the eigenvalues of the lift (n, 4) and of MATH §11's ``Z``
-    (n, 3), descending, and ``x² + y² − r_z`` of the relaxed point (last column); NaN for a
+    """For local lifts (n, p, p): the eigenvalues of the lift (n, p) and of MATH §11's ``Z``
+    (n, p − 1), descending, and ``‖s‖² − r_w`` of the relaxed point (last column); NaN for a
     lift that is not finite."""
-    n = len(lift)
+    n, p = lift.shape[:2]
+    rows = z_rows(p)
     finite = np.isfinite(lift).all(axis=(1, 2))
-    lift_eigenvalues = np.full((n, 4), np.nan)
-    z_eigenvalues = np.full((n, 3), np.nan)
+    lift_eigenvalues = np.full((n, p), np.nan)
+    z_eigenvalues = np.full((n, p - 1), np.nan)
     if finite.any():
         lifts = lift[finite]
         lift_eigenvalues[finite] = symmetric_eigenvalues(lifts)[:, ::-1]
-        z_eigenvalues[finite] = symmetric_eigenvalues(lifts[:, Z_ROWS][:, :, Z_ROWS])[:, ::-1]
-    x, y, r_z = lift[:, 0, 3], lift[:, 1, 3], lift[:, 2, 3]
+        z_eigenvalues[finite] = symmetric_eigenvalues(lifts[:, rows][:, :, rows])[:, ::-1]
     with np.errstate(all="ignore"):
-        residual = np.where(finite, x * x + y * y - r_z, np.nan)
+        residual = np.where(finite, paraboloid_residual(lift[:, : p - 1, p - 1]), np.nan)
     return lift_eigenvalues, z_eigenvalues, residual

@@ -1,6 +1,7 @@
 r"""The conic program of MATH §11 and the two ways it is solved: Clarabel directly, or cvxpy.
 
-The lifted problem over the symmetric 4×4 ``W`` (whitened data of
+The lifted problem over the symmetric ``W`` of size ``p = d + 2`` (4×4 with the emitter's
+height known, 5×5 with it a coordinate; whitened data of
 :func:`estimators.sdp.sdp_lift.whiten_relaxation`) is
 
 .. math::
@@ -9,14 +10,15 @@ The lifted problem over the symmetric 4×4 ``W`` (whitened data of
     \operatorname{tr}(C W) = 0 \ (\text{or} \le 0),\quad W \succeq 0 .
 
 **Clarabel, directly** (:func:`solve_with_clarabel`, ``solver="CLARABEL"``). The program is
-tiny (10 variables, 12 rows) and its sparsity never changes, so it is written for Clarabel's
-own API (``min qᵀx`` s.t. ``A x + s = b``, ``s ∈ K``) once per relaxation and only its data
+tiny (10 variables and 12 rows for p = 4, 15 and 17 for p = 5) and its sparsity never changes,
+so it is written for Clarabel's own API (``min qᵀx`` s.t. ``A x + s = b``, ``s ∈ K``) once per
+relaxation and size and only its data
 are filled per solve. It is the program cvxpy 1.9 compiles from the parametrised problem of
 :func:`relaxation_problem`, entry for entry: ``x`` holds the lower triangle of ``W`` column by
-column (cvxpy's order for a symmetric variable); ``q = (H_ii, 2H_ij)``; row 0 is ``W₄₄ = 1``
+column (cvxpy's order for a symmetric variable); ``q = (H_ii, 2H_ij)``; row 0 is ``W_pp = 1``
 and row 1 ``tr(C W)`` (the zero cone for the equality relaxation, ``−tr(C W) ≥ 0`` in the
-nonnegative cone for the inequality); rows 2-11 are ``−svec(W)`` in
-``PSDTriangleConeT(4)`` (upper triangle column by column, off-diagonals times √2). The dual
+nonnegative cone for the inequality); the other rows are ``−svec(W)`` in
+``PSDTriangleConeT(p)`` (upper triangle column by column, off-diagonals times √2). The dual
 of row 1 is cvxpy's ``dual_value`` of the lifted constraint. The statuses are translated to
 cvxpy's vocabulary with cvxpy's own table (``Solved`` → ``optimal``, ``AlmostSolved`` →
 ``optimal_inaccurate``, ``MaxIterations``/``MaxTime`` → ``user_limit``, ``NumericalError``,
@@ -61,12 +63,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from estimators.sdp.sdp_lift import (
-    Z_ROWS,
     IntArray,
     WhitenedBatch,
     WhitenedRelaxation,
     lift_spectra,
     object_column,
+    z_rows,
 )
 
 if TYPE_CHECKING:
@@ -153,7 +155,7 @@ def solver_attempts(solver: Solver, max_iter: int | None) -> list[dict[str, Any]
 @dataclass(frozen=True, slots=True, eq=False)
 class SolveOutcome:
     """One solver call on the whitened problem: the status (cvxpy's vocabulary or
-    ``solver_error``), the whitened lift ``W_w`` (4, 4) or None when the solver returned no
+    ``solver_error``), the whitened lift ``W_w`` (p, p) or None when the solver returned no
     primal point, the multiplier of the lifted constraint row, the iterations, the solver's
     own time from its solve information (NaN when absent) and, for ``solver_error``, what went
     wrong."""
@@ -179,7 +181,7 @@ RETRIED: frozenset[str] = frozenset({OPTIMAL_INACCURATE, SOLVER_ERROR})
 class LadderOutcomes:
     """The last outcome of each of ``n`` systems' rung ladders, as columns.
 
-    ``lift`` (n, 4, 4) is NaN where the solver returned no primal point (``has_lift``);
+    ``lift`` (n, p, p) is NaN where the solver returned no primal point (``has_lift``);
     ``rung`` is the rung of the last outcome (1: the tightest) and ``rungs_solve_time`` the
     solver's own time summed over every rung tried (a rung without a time adds nothing).
     """
@@ -210,9 +212,9 @@ def solve_ladders(
     whose data are not finite is :data:`NON_FINITE_DATA` without calling Clarabel. SCS goes
     through cvxpy system by system (:func:`solve_with_cvxpy`).
     """
-    n = len(whitened.objective)
+    n, size = whitened.objective.shape[:2]
     if solver == "CLARABEL":
-        program = clarabel_program(relaxation)
+        program = clarabel_program(relaxation, size)
         q = inner_product_coefficients(whitened.objective)
         rows = inner_product_coefficients(whitened.constraint)
         finite = (np.isfinite(q).all(axis=1) & np.isfinite(rows).all(axis=1)).tolist()
@@ -242,7 +244,7 @@ def solve_ladders(
         outcomes.append(outcome)
         rungs.append(rung + 1)
         spent.append(total)
-    lift = np.full((n, 4, 4), np.nan)
+    lift = np.full((n, size, size), np.nan)
     has_lift = np.array([o.lift is not None for o in outcomes], dtype=bool)
     if has_lift.any():
         lift[has_lift] = [o.lift for o in outcomes if o.lift is not None]
@@ -263,29 +265,62 @@ def solve_ladders(
 # Clarabel, directly
 # --------------------------------------------------------------------------------------------
 
-_LOWER: tuple[tuple[int, int], ...] = tuple((i, j) for j in range(4) for i in range(j, 4))
-"""The variable ``x``: entries ``(i, j)``, ``i ≥ j``, of ``W`` column by column (cvxpy's order)."""
-_UPPER: tuple[tuple[int, int], ...] = tuple((i, j) for j in range(4) for i in range(j + 1))
-"""Clarabel's ``PSDTriangleConeT`` order: the upper triangle column by column."""
 
-_LOWER_ROWS = np.array([i for i, _ in _LOWER])
-_LOWER_COLS = np.array([j for _, j in _LOWER])
-_LOWER_FLAT = 4 * _LOWER_ROWS + _LOWER_COLS
-_UPPER_FLAT = 4 * _LOWER_COLS + _LOWER_ROWS
-_HALF_WEIGHTS = np.where(_LOWER_ROWS == _LOWER_COLS, 0.5, 1.0)
-"""``tr(M W) = Σ_k (M[i_k, j_k] + M[j_k, i_k]) · half_weight_k · x_k``."""
-_LIFT_INDEX = np.array([[_LOWER.index((max(i, j), min(i, j))) for j in range(4)] for i in range(4)])
-"""``W = x[_LIFT_INDEX]``."""
-_N_VARIABLES = len(_LOWER)
-_N_ROWS = 2 + len(_UPPER)
+@dataclass(frozen=True, slots=True, eq=False)
+class LiftLayout:
+    """Where the entries of a symmetric lift of size ``p`` sit in the conic program.
+
+    ``lower``: the variable ``x``, entries ``(i, j)``, ``i ≥ j``, of ``W`` column by column
+    (cvxpy's order); ``upper``: Clarabel's ``PSDTriangleConeT`` order, the upper triangle
+    column by column; ``tr(M W) = Σ_k (M[i_k, j_k] + M[j_k, i_k]) · half_weights_k · x_k``
+    with the flat indices ``lower_flat``, ``upper_flat``; ``W = x[lift_index]``.
+    """
+
+    size: int
+    lower: tuple[tuple[int, int], ...]
+    upper: tuple[tuple[int, int], ...]
+    lower_flat: NDArray[np.intp]
+    upper_flat: NDArray[np.intp]
+    half_weights: FloatArray
+    lift_index: NDArray[np.intp]
+
+    @property
+    def n_variables(self) -> int:
+        return len(self.lower)
+
+    @property
+    def n_rows(self) -> int:
+        return 2 + len(self.upper)
+
+
+@functools.cache
+def lift_layout(size: int) -> LiftLayout:
+    """The :class:`LiftLayout` of a lift of ``size`` (4: the height known; 5: a coordinate)."""
+    lower = tuple((i, j) for j in range(size) for i in range(j, size))
+    upper = tuple((i, j) for j in range(size) for i in range(j + 1))
+    rows = np.array([i for i, _ in lower])
+    cols = np.array([j for _, j in lower])
+    index = [[lower.index((max(i, j), min(i, j))) for j in range(size)] for i in range(size)]
+    return LiftLayout(
+        size=size,
+        lower=lower,
+        upper=upper,
+        lower_flat=size * rows + cols,
+        upper_flat=size * cols + rows,
+        half_weights=np.where(rows == cols, 0.5, 1.0),
+        lift_index=np.array(index),
+    )
+
+
 _LIFTED_ROW = 1
 
 
 @dataclass(frozen=True, slots=True, eq=False)
 class ClarabelProgram:
-    """The fixed part of the conic program for one relaxation, built once per process.
+    """The fixed part of the conic program for one relaxation and lift size, built once per
+    process.
 
-    ``A`` (12×10 CSC) keeps its pattern for good: the slots of the lifted-constraint row
+    ``A`` (12×10 CSC for the 4×4 lift) keeps its pattern for good: the slots of the lifted-constraint row
     (``constraint_slots``, in ``x`` order) are stored even when zero and are the only values
     written per solve, under ``lock`` and only until Clarabel has copied the data into a new
     solver (:func:`run_clarabel`).
@@ -297,54 +332,63 @@ class ClarabelProgram:
     b: FloatArray
     cones: list[Any]
     constraint_slots: NDArray[np.intp]
+    layout: LiftLayout
     lock: threading.Lock = field(default_factory=threading.Lock)
 
 
 @functools.cache
-def clarabel_program(relaxation: Relaxation) -> ClarabelProgram:
-    """The conic program of MATH §11 for Clarabel's API, built once per process and cached."""
+def clarabel_program(relaxation: Relaxation, size: int = 4) -> ClarabelProgram:
+    """The conic program of MATH §11 for Clarabel's API over a lift of ``size``, built once
+    per process and cached."""
     _check_relaxation(relaxation)
     import clarabel
     from scipy.sparse import csc_array
 
-    # each column of A: row 0 (W₄₄ = 1) for the last variable, row 1 (tr(C W)), its PSD row
+    layout = lift_layout(size)
+    last = size - 1
+    # each column of A: row 0 (W_pp = 1) for the last variable, row 1 (tr(C W)), its PSD row
     indptr, indices, values, slots = [0], [], [], []
-    for i, j in _LOWER:
-        if (i, j) == (3, 3):
+    for i, j in layout.lower:
+        if (i, j) == (last, last):
             indices.append(0)
             values.append(1.0)
         slots.append(len(values))
         indices.append(_LIFTED_ROW)
         values.append(0.0)
-        indices.append(2 + _UPPER.index((j, i)))
+        indices.append(2 + layout.upper.index((j, i)))
         values.append(-1.0 if i == j else -math.sqrt(2.0))
         indptr.append(len(values))
     A = csc_array(
         (np.array(values), np.array(indices, dtype=np.int32), np.array(indptr, dtype=np.int32)),
-        shape=(_N_ROWS, _N_VARIABLES),
+        shape=(layout.n_rows, layout.n_variables),
     )
-    b = np.zeros(_N_ROWS)
+    b = np.zeros(layout.n_rows)
     b[0] = 1.0
     b.flags.writeable = False
+    cone = clarabel.PSDTriangleConeT(size)
     if relaxation == "equality":
-        cones = [clarabel.ZeroConeT(2), clarabel.PSDTriangleConeT(4)]
+        cones = [clarabel.ZeroConeT(2), cone]
     else:
-        cones = [clarabel.ZeroConeT(1), clarabel.NonnegativeConeT(1), clarabel.PSDTriangleConeT(4)]
+        cones = [clarabel.ZeroConeT(1), clarabel.NonnegativeConeT(1), cone]
     return ClarabelProgram(
         relaxation=relaxation,
-        P=csc_array((_N_VARIABLES, _N_VARIABLES)),
+        P=csc_array((layout.n_variables, layout.n_variables)),
         A=A,
         b=b,
         cones=cones,
         constraint_slots=np.array(slots, dtype=np.intp),
+        layout=layout,
     )
 
 
 def inner_product_coefficients(M: FloatArray) -> FloatArray:
     """``a`` with ``tr(M W) = a · x`` for the symmetric part of ``M`` (cvxpy's coefficients
-    of a symmetric parameter: ``M_ii`` and ``M_ij + M_ji``); ``M`` (..., 4, 4), ``a`` (..., 10)."""
-    flat = M.reshape(*M.shape[:-2], 16)
-    return (flat[..., _LOWER_FLAT] + flat[..., _UPPER_FLAT]) * _HALF_WEIGHTS
+    of a symmetric parameter: ``M_ii`` and ``M_ij + M_ji``); ``M`` (..., p, p), ``a`` (...,
+    p(p + 1)/2)."""
+    size = M.shape[-1]
+    layout = lift_layout(size)
+    flat = M.reshape(*M.shape[:-2], size * size)
+    return (flat[..., layout.lower_flat] + flat[..., layout.upper_flat]) * layout.half_weights
 
 
 def clarabel_settings(settings: dict[str, Any]) -> Any:
@@ -391,7 +435,7 @@ def solve_with_clarabel(
     constraint_row = inner_product_coefficients(whitened.constraint)
     if not (np.isfinite(q).all() and np.isfinite(constraint_row).all()):
         return NON_FINITE_DATA
-    program = clarabel_program(relaxation)
+    program = clarabel_program(relaxation, len(whitened.objective))
     return clarabel_outcome(program, q, constraint_row, clarabel_settings(settings))
 
 
@@ -404,7 +448,7 @@ NON_FINITE_DATA = SolveOutcome(
 def clarabel_outcome(
     program: ClarabelProgram, q: FloatArray, constraint_row: FloatArray, options: Any
 ) -> SolveOutcome:
-    """One Clarabel solve on finite data ``q``, ``constraint_row`` (10,) with the
+    """One Clarabel solve on finite data ``q``, ``constraint_row`` (p(p + 1)/2,) with the
     ``DefaultSettings`` ``options`` (copied by Clarabel when the solver is built, so one object
     serves every solve of a rung): :func:`run_clarabel` and the translation of its answer."""
     try:
@@ -421,9 +465,9 @@ def clarabel_outcome(
         )
     lift = None
     if status in _SOLUTION_PRESENT:
-        lift = np.array(solution.x, dtype=float)[_LIFT_INDEX]
+        lift = np.array(solution.x, dtype=float)[program.layout.lift_index]
     z = solution.z
-    dual = float(z[_LIFTED_ROW]) if len(z) == _N_ROWS else math.nan
+    dual = float(z[_LIFTED_ROW]) if len(z) == program.layout.n_rows else math.nan
     return SolveOutcome(status, lift, dual, iterations, solve_time)
 
 
@@ -452,24 +496,25 @@ class RelaxationProblem:
 
 
 @functools.cache
-def relaxation_problem(relaxation: Relaxation) -> RelaxationProblem:
-    """The lifted problem of MATH §11 as a cvxpy problem, built once per process and cached.
+def relaxation_problem(relaxation: Relaxation, size: int = 4) -> RelaxationProblem:
+    """The lifted problem of MATH §11 over a lift of ``size`` as a cvxpy problem, built once
+    per process and cached.
 
-    ``min tr(H W)`` s.t. ``W ⪰ 0``, ``W₄₄ = 1`` and ``tr(C W) = 0`` (``≤ 0`` for the
+    ``min tr(H W)`` s.t. ``W ⪰ 0``, ``W_pp = 1`` and ``tr(C W) = 0`` (``≤ 0`` for the
     inequality relaxation), ``H`` and ``C`` being ``cp.Parameter``\\ s so re-solving only
     refills the canonical data (DPP).
     """
     _check_relaxation(relaxation)
     import cvxpy as cp
 
-    lift = cp.Variable((4, 4), symmetric=True, name="W")
-    objective = cp.Parameter((4, 4), symmetric=True, name="H")
-    constraint = cp.Parameter((4, 4), symmetric=True, name="C")
+    lift = cp.Variable((size, size), symmetric=True, name="W")
+    objective = cp.Parameter((size, size), symmetric=True, name="H")
+    constraint = cp.Parameter((size, size), symmetric=True, name="C")
     lifted = cp.trace(constraint @ lift)
     lifted_constraint = lifted == 0 if relaxation == "equality" else lifted <= 0
     problem = cp.Problem(
         cp.Minimize(cp.trace(objective @ lift)),
-        [lift >> 0, lift[3, 3] == 1, lifted_constraint],
+        [lift >> 0, lift[size - 1, size - 1] == 1, lifted_constraint],
     )
     assert problem.is_dpp(), "the lifted CLS must be DPP to be re-solved cheaply"
     return RelaxationProblem(
@@ -491,7 +536,7 @@ def solve_with_cvxpy(
     """One ``Problem.solve`` of the shared cvxpy problem; a ``SolverError`` is an outcome."""
     from cvxpy.error import SolverError
 
-    built = relaxation_problem(relaxation)
+    built = relaxation_problem(relaxation, len(whitened.objective))
     with built.lock:
         built.set_data(whitened)
         try:
@@ -539,13 +584,14 @@ class SdpSolution:
     value : float
         Optimal value of the relaxation in the units of ``‖A r − b‖²`` (NaN on failure): a
         lower bound on the CLS optimum, equal to it when the relaxation is tight.
-    points : (n, 3)
+    points : (n, d + 1)
         ``r`` of the recovered minimisers (two in the rank-two case); for a non-tight
         inequality relaxation, the relaxation's own argmin (off the paraboloid).
     costs : (n,)
-        ``‖A (x, y, x² + y²) − b‖²`` at each point's ``(x, y)`` (as ``‖R r − c‖² + ρ²``).
-    lift : (4, 4)
-        ``W`` in the local frame over ``(x, y, r_z, 1)``; rows and columns 0, 1, 3 are ``Z``.
+        ``‖A (s, ‖s‖²) − b‖²`` at each point's ``s`` (as ``‖R r − c‖² + ρ²``).
+    lift : (d + 2, d + 2)
+        ``W`` in the local frame over ``(s, r_w, 1)``; the rows and columns of ``s`` and 1
+        are ``Z`` (0, 1, 3 in 2-D).
     rank : int
         Numerical rank of the lift (1: tight and unique; 2: the hard case).
     multiplier : float
@@ -587,7 +633,8 @@ class SdpSolution:
     @property
     def z_matrix(self) -> FloatArray:
         """MATH §11's ``Z = [[Y, y], [yᵀ, 1]]`` (local frame)."""
-        return self.lift[np.ix_(Z_ROWS, Z_ROWS)]
+        rows = z_rows(len(self.lift))
+        return self.lift[np.ix_(rows, rows)]
 
     @property
     def lift_eigenvalues(self) -> FloatArray:
@@ -602,7 +649,7 @@ class SdpSolution:
     @property
     def relaxed_point(self) -> FloatArray:
         """``r`` read from the lift's last column (local frame)."""
-        return self.lift[:3, 3]
+        return self.lift[:-1, -1]
 
     @property
     def tightness_gap(self) -> float:
@@ -616,7 +663,7 @@ class SdpSolution:
 @dataclass(frozen=True, slots=True, eq=False)
 class SdpColumns:
     """The solved relaxations of ``n`` systems, field by field as in :class:`SdpSolution`
-    (``points`` (n, 2, 3) and ``costs`` (n, 2) NaN past ``count``; a failed system has count
+    (``points`` (n, 2, d + 1) and ``costs`` (n, 2) NaN past ``count``; a failed system has count
     0, NaN value, lift and multiplier, rank 0)."""
 
     status: list[str]

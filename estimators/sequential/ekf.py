@@ -554,7 +554,9 @@ class Ekf:
         if state.n_frames == 0:
             return Estimate.failed(self.name, "no frame has been processed yet", frames=0)
         if state.pending:  # the height unknown and every frame on one straight track
-            return Estimate.failed(self.name, STRAIGHT_TRACK_HEIGHT, frames=state.n_frames)
+            return Estimate.failed(
+                self.name, STRAIGHT_TRACK_HEIGHT, dimension=3, frames=state.n_frames
+            )
         d = state.dimension
         hypotheses = state.all_hypotheses()
         notes = []

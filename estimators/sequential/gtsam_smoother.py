@@ -248,7 +248,7 @@ class GtsamSmoother:
             try:
                 state = self._height_start(frames, steps, mode="batch")
             except EstimationFailure as error:
-                return Estimate.failed(self.name, str(error), frames=len(frames))
+                return Estimate.failed(self.name, str(error), dimension=3, frames=len(frames))
             return self.estimate_state(state, rng=rng)
         try:
             candidates = first_frame_candidates(frame_data[0])
@@ -342,13 +342,15 @@ class GtsamSmoother:
         unknown nuisance parameters their values are in ``diagnostics`` (MATH §15)."""
         if isinstance(state, smoother_nuisance.NuisanceSmootherState):
             return smoother_nuisance.estimate_state(state, self._nuisance_options(), rng)
-        if state.failure:
-            return Estimate.failed(self.name, state.failure, frames=state.n_frames)
         if not state.frames:
             return Estimate.failed(self.name, "no frame has been processed yet", frames=0)
-        height = state.frames[0].dimension == 3
-        if height and not state.hypotheses:  # every frame so far on one straight track
-            return Estimate.failed(self.name, STRAIGHT_TRACK_HEIGHT, frames=state.n_frames)
+        d = state.frames[0].dimension  # 3 with the height unknown
+        if state.failure:
+            return Estimate.failed(self.name, state.failure, dimension=d, frames=state.n_frames)
+        if d == 3 and not state.hypotheses:  # every frame so far on one straight track
+            return Estimate.failed(
+                self.name, STRAIGHT_TRACK_HEIGHT, dimension=3, frames=state.n_frames
+            )
         hypotheses = state.all_hypotheses()
         diagnostics: dict[str, Any] = {"mode": "streaming", **state.diagnostics}
         notes = []
@@ -374,7 +376,7 @@ class GtsamSmoother:
             diagnostics=diagnostics,
             random_walk=self.random_walk,
             ceiling_m=max(float(f.position_m[:, 2].max()) for f in state.frames)
-            if height
+            if d == 3
             else None,
         )
 

@@ -377,7 +377,10 @@ def test_a_3d_run_summarises_horizontal_answers_in_2d_beside_the_3d_ones() -> No
     alone = summarize(trial_rows(errors[:, :2] + 3.0, estimator="assumes"), n_bootstrap=50)
     left = summary.iloc[[0]][alone.columns].reset_index(drop=True)
     pd.testing.assert_frame_equal(left, alone, check_exact=True)
-    assert summary.iloc[0][list(set(metric_names(3)) - set(metric_names(2)))].isna().all()
+    height_only = ["bias_z_m", "rmse_vertical_m", "crlb_vertical_m"]  # and the whole is horizontal
+    assert summary.iloc[0][height_only].isna().all()
+    assert summary.iloc[0]["rmse_horizontal_m"] == summary.iloc[0]["rmse_m"]
+    assert summary.iloc[0]["crlb_horizontal_m"] == summary.iloc[0]["crlb_rmse_m"]
     own = summarize(height[assumed.columns], n_bootstrap=50)
     pd.testing.assert_frame_equal(summary.iloc[[1]].reset_index(drop=True), own, check_exact=True)
 

@@ -170,3 +170,32 @@ def test_an_estimator_may_assume_some_unknowns_and_estimate_the_others() -> None
         EstimatorSpec.from_dict({"name": "cls", "ignore_unknowns": ["height"]})
     with pytest.raises(ValueError, match=r"ignore_unknowns: expected true, false or a list"):
         EstimatorSpec.from_dict({"name": "cls", "ignore_unknowns": "yes"})
+
+
+def test_the_points_hold_the_parts_of_the_3d_bound_and_the_report_its_price(height_run) -> None:
+    """The points table's horizontal and vertical parts of the ToA+Doppler bound are
+    ``crlb_table``'s; the report prices the unknown height against the known-height bound,
+    for the 3-D bound and its horizontal part."""
+    from comparison.report import write_report
+
+    points = read_points(height_run)
+    last = points[points.frame == points.frame.max()].set_index("scenario")
+    data = noise_free(get_scenario("hill"), snr_db=20.0)
+    table = crlb_table(data, data.truth_emitter_m)
+    hill = last.loc["hill"]
+    assert hill.crlb_horizontal_toa_doppler_m == pytest.approx(
+        table["horizontal_rmse_bound_m"]["toa+doppler"], rel=1e-9
+    )
+    assert hill.crlb_vertical_toa_doppler_m == pytest.approx(
+        table["vertical_rmse_bound_m"]["toa+doppler"], rel=1e-9
+    )
+    turn = points[points.scenario == "turn"]
+    assert turn.crlb_vertical_toa_doppler_m.isna().all()
+    np.testing.assert_array_equal(turn.crlb_horizontal_toa_doppler_m, turn.crlb_rmse_toa_doppler_m)
+    write_report(height_run)
+    page = (height_run / "report.html").read_text(encoding="utf-8")
+    price = table["rmse_bound_m"]["toa+doppler"] / table["known_rmse_bound_m"]["toa+doppler"]
+    flat = (
+        table["horizontal_rmse_bound_m"]["toa+doppler"] / table["known_rmse_bound_m"]["toa+doppler"]
+    )
+    assert f"hill: ToA+Doppler {price:.3g}× ({flat:.3g}×)" in page
