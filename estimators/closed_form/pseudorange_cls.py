@@ -64,6 +64,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from estimators.base import hovering_problem
 from estimators.batch import BatchEstimates, check_rngs
 from estimators.closed_form.cls_batch import SolveOne, draw_tie_breaks
 from estimators.closed_form.cls_rows import LocalFrame, horizontal_speed_mps, project_out
@@ -955,14 +956,19 @@ def estimate_pseudorange_columns(
     hard-case pair left of the last heading first (with the height unknown: the lower first)
     and the mirror rule of :func:`~estimators.mirror_rule.finalize_columns`; ties draw from
     each trial's generator, in trial order. When the samples used hover every trial goes to
-    ``solve_one``, whose ``finalize_estimate`` fails it with the reason. With the emitter's
-    height unknown the columns are 3-D, a candidate above the UAV is dropped, and a straight
+    ``solve_one``, whose ``finalize_estimate`` fails it with the reason (with the height
+    unknown: every trial fails here, with it). With the emitter's height unknown the columns
+    are 3-D, a candidate above the UAV is dropped, and a straight
     track fails every trial with :data:`~estimators.mirror_rule.STRAIGHT_TRACK_HEIGHT`.
     """
     n = batch.n_trials
     generators = check_rngs(rngs, n)
     geometry = batch.geometry
     used = geometry.select_frames(frames)
+    dimension = position_dimension(used.unknowns)
+    hovering = hovering_problem(used)
+    if hovering is not None and dimension == 3:
+        return BatchEstimates.failed(n, hovering, estimator=name, dimension=3)
     if single_horizontal_point(used.position_m) and not moves_horizontally(used.velocity_mps):
         redo = [solve_one(batch.trial(i), rng) for i, rng in enumerate(generators)]
         return BatchEstimates.from_estimates(name, redo)
@@ -977,7 +983,7 @@ def estimate_pseudorange_columns(
         None if batch.doppler_hz is None else batch.doppler_hz[:, columns],
         carrier_offset_unknown=offset_unknown,
         offset_method=offset_method,
-        dimension=position_dimension(used.unknowns),
+        dimension=dimension,
     )
     success = solution.count > 0
     hard = solution.gtrs.hard_case
@@ -1015,11 +1021,16 @@ def estimate_pseudorange_columns(
     draw_tie_breaks(generators, final.draw & ok, n_kept, chosen)
     width = final.candidates.shape[1]
     position = final.candidates[np.arange(n), np.minimum(chosen, width - 1)]
+    pair_note = (
+        "hard case: the emitter and its reflection through the flight plane (MATH §15)"
+        if three_d
+        else "hard case: mirror pair (MATH §15)"
+    )
     messages = [
         "",
-        "hard case: mirror pair (MATH §15)",
+        pair_note,
         WRONG_SHEET_NOTE,
-        f"hard case: mirror pair (MATH §15); {WRONG_SHEET_NOTE}",
+        f"{pair_note}; {WRONG_SHEET_NOTE}",
         *(f"pseudo-range closed form: {status} (MATH §15)" for status in STATUSES),
         final.problem or "pseudo-range closed form: no finite candidate (MATH §15)",
     ]

@@ -19,6 +19,7 @@ import pytest
 from scipy.optimize import least_squares
 
 from comparison.crlb import crlb_table
+from estimators.closed_form.cls import Cls
 from estimators.closed_form.pseudorange_cls import (
     estimate_pseudorange_columns,
     solve_pseudorange_batch,
@@ -332,7 +333,7 @@ def test_two_stage_attains_the_3d_bound_on_roof_beacon(snr_db) -> None:
     bound = crlb_table(batch.geometry, truth)["rmse_bound_m"]["toa+doppler"]
     efficiency = {}
     for method in ("relaxed", "two-stage"):
-        result = columns(batch, method)
+        result = Cls(offset_method=method).estimate_columns(batch)
         assert result.success.all() and result.position_m.shape == (400, 3)
         error = result.position_m - truth
         efficiency[method] = float(np.sqrt(np.mean(np.sum(error**2, axis=1)))) / bound
@@ -394,3 +395,46 @@ def test_a_bad_dimension_is_one_line_naming_the_field() -> None:
         "dimension: expected 2 (the emitter at the data's height) or 3 (its height estimated), "
         "got 4"
     )
+
+
+# --------------------------------------------------------------------------------------------
+# through cls
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_cls_estimates_the_height_of_a_non_cooperative_beacon(method) -> None:
+    """``cls`` on ``roof-beacon``: the emitter in three coordinates, noise-free, with δ and b;
+    the reflection above the UAV dropped, said in the message."""
+    estimator = Cls(offset_method=method)
+    assert HEIGHT_UNKNOWN in estimator.capabilities().unknowns
+    estimate = estimator.estimate(noise_free(get_scenario("roof-beacon")))
+    assert estimate.success and not estimate.ambiguous
+    assert estimate.message == (
+        "hard case: the emitter and its reflection through the flight plane (MATH §15)"
+    )
+    np.testing.assert_allclose(estimate.position_m, [150.0, 120.0, 25.0], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(estimate.candidates_m, [[150.0, 120.0, 25.0]], rtol=0, atol=1e-6)
+    assert estimate.diagnostics["carrier_offset_hz"] == pytest.approx(1000.0, abs=1e-6)
+    assert estimate.diagnostics["fit_dof"] == 2 * 40 - 5  # (x, y, z, δ, b)
+
+
+@pytest.mark.bits("cls's one trial is the pseudo-range columns of its batch of one")
+def test_cls_one_trial_is_its_column() -> None:
+    batch = simulate_trials(bent_climb(), snr_db=0.0, seeds=trial_seeds(9, 4))
+    estimator = Cls(offset_method="two-stage")
+    rngs = [np.random.default_rng(i) for i in range(4)]
+    whole = estimator.estimate_columns(batch, rngs=rngs)
+    for i in range(4):
+        one = estimator.estimate(batch.trial(i), rng=np.random.default_rng(i))
+        assert np.array_equal(one.position_m, whole.position_m[i])
+        assert one.diagnostics["fit_chi2"] == whole.diagnostics["fit_chi2"][i]
+
+
+def test_cls_fails_a_straight_track_in_one_line() -> None:
+    scenario = get_scenario("paper-1m").replace(
+        carrier_offset_hz=800.0, emission_time_s=3e-4, emitter_height_m=-20.0, unknowns=ALL
+    )
+    estimate = Cls(offset_method="two-stage").estimate(noise_free(scenario))
+    assert not estimate.success and estimate.message == STRAIGHT_TRACK_HEIGHT
+    assert estimate.position_m.shape == (3,) and np.isnan(estimate.position_m).all()
