@@ -28,9 +28,8 @@ relaxed form's on the same trials (the two-stage form's budget: at most 2×).
 With the emitter's height unknown too (``roof-beacon``: ``beacon-pass`` with the beacon 25 m up,
 offset, emission time and height unknown) the pseudo-range closed forms estimate ``(x, y, z)``
 (MATH §15, "The emitter's height unknown"): 2-D (``beacon-pass``) against 3-D
-(``roof-beacon``) per offset method, through the pseudo-range path of ``cls``
-(:func:`~estimators.closed_form.pseudorange_cls.estimate_pseudorange_columns`), the batch of N
-and one trial at a time (a batch of one each), on the same flight and noise.
+(``roof-beacon``) per offset method, ``cls``'s columns of the batch of N and its ``estimate``
+one trial at a time (in 3-D the columns of a batch of one), on the same flight and noise.
 
 Run: ``python benchmarks/bench_unknowns_batch.py`` (``--trials N``; ``--part height`` for the
 2-D against 3-D comparison alone).
@@ -48,11 +47,9 @@ import numpy as np  # noqa: E402
 from cpu_time import best_cpu_us  # noqa: E402
 
 from estimators.closed_form.cls import Cls  # noqa: E402
-from estimators.closed_form.pseudorange_cls import estimate_pseudorange_columns  # noqa: E402
 from estimators.registry import make_estimator  # noqa: E402
 from scenarios.catalog import get_scenario  # noqa: E402
 from scenarios.simulate import simulate_trials, trial_seeds  # noqa: E402
-from scenarios.types import MeasurementBatch  # noqa: E402
 
 PER_TRIAL = 300
 PER_TRIAL_PROFILE = 60
@@ -100,23 +97,21 @@ def bench(scenario_name: str, n: int, offset_method: str, estimator_name: str = 
 
 
 def bench_height(n: int) -> None:
-    """2-D (``beacon-pass``) against 3-D (``roof-beacon``): µs per estimate of the pseudo-range
-    columns, in a batch of ``n`` and one trial at a time (batches of one), per offset method."""
+    """2-D (``beacon-pass``) against 3-D (``roof-beacon``): µs per estimate of ``cls``, its
+    columns of a batch of ``n`` and one trial at a time, per offset method."""
     for method in ("relaxed", "two-stage", "profile"):
         times = {}
+        estimator = Cls(offset_method=method)
         for name in ("beacon-pass", "roof-beacon"):
             batch = simulate_trials(get_scenario(name), snr_db=SNR_DB, seeds=trial_seeds(2026, n))
             single = min(n, PER_TRIAL)
-            ones = [MeasurementBatch.of_one(batch.trial(i)) for i in range(single)]
-
-            def columns(of: MeasurementBatch, method: str = method):
-                return estimate_pseudorange_columns(
-                    "cls", of, "all", None, None, None, offset_method=method
-                )
-
-            batch_us = best_cpu_us(lambda: columns(batch), n)  # noqa: B023
-            one_us = best_cpu_us(lambda: [columns(one) for one in ones], single)  # noqa: B023
-            success = int(columns(batch).success.sum())
+            ones = [batch.trial(i) for i in range(single)]
+            batch_us = best_cpu_us(lambda: estimator.estimate_columns(batch), n)  # noqa: B023
+            one_us = best_cpu_us(
+                lambda: [estimator.estimate(one) for one in ones],  # noqa: B023
+                single,
+            )
+            success = int(estimator.estimate_columns(batch).success.sum())
             times[name] = batch_us, one_us
             print(
                 f"cls {name:>12} ({'3-D' if name == 'roof-beacon' else '2-D'})  "
