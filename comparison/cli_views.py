@@ -44,15 +44,16 @@ def ambiguity_text(candidates_m: Any, seen: MeasurementSet) -> str:
 
     from scenarios.geometry import cross_track_m, straight_track_line
 
-    points = np.asarray(candidates_m, dtype=float).reshape(-1, 2)
+    points = np.asarray(candidates_m, dtype=float)
+    points = points.reshape(-1, points.shape[-1] if points.ndim > 1 else 2)  # (x, y[, z])
     if len(points) >= 2:
         return f"yes: the data cannot tell these {len(points)} candidates apart (MATH §7)"
     line = straight_track_line(seen.position_m, seen.velocity_mps)
     side = "yes: the side of the track cannot be told from these data"
     if line is not None and len(points) == 1:
         origin, direction = line
-        reach_m = max(float(np.linalg.norm(points[0] - origin)), 1.0)
-        if abs(float(cross_track_m(points[0], origin, direction))) <= 1e-6 * reach_m:
+        reach_m = max(float(np.linalg.norm(points[0, :2] - origin)), 1.0)
+        if abs(float(cross_track_m(points[0, :2], origin, direction))) <= 1e-6 * reach_m:
             return f"{side}; the single candidate lies on the track (MATH §7)"
     return f"{side}, says the estimator (MATH §7)"
 

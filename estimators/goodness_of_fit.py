@@ -32,7 +32,7 @@ from scipy import special
 from estimators.base import Estimate, capabilities_of
 from estimators.batch import BatchEstimates
 from scenarios import measurement_model as model
-from scenarios.nuisance import unknowns_used
+from scenarios.nuisance import nuisance_unknowns, unknowns_used
 from scenarios.types import MEASURED_FIELD, MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -47,10 +47,6 @@ CHUNK_ELEMENTS = 1 << 14
 """Trials × samples evaluated at once: the forward model's temporaries stay in cache (a whole
 batch at once is about 1.7 times slower per trial)."""
 
-N_POSITION_PARAMETERS = 2
-"""``(x_s, y_s)``: the emitter's height is known (MATH §0)."""
-
-
 def fit_chi_square(
     position_m: ArrayLike,
     geometry: MeasurementSet,
@@ -60,14 +56,15 @@ def fit_chi_square(
 
     Parameters
     ----------
-    position_m : (..., 2)
-        The estimated emitter, one per trial (leading axes broadcast).
+    position_m : (..., d)
+        The estimated emitter, one per trial (leading axes broadcast): ``(x, y)``, or
+        ``(x, y, z)`` with the height unknown (MATH §8).
     geometry : MeasurementSet
         The samples used: positions, velocities, constants, noise σ's and ``unknowns``.
     measured : mapping of "doppler", "toa", "rss" to (..., N)
         The measurements of each modality used (Hz, s, dBm).
 
-    Returns ``(chi2 (...), dof)``; ``dof = n − 2 − (unknown nuisance parameters of the
+    Returns ``(chi2 (...), dof)``; ``dof = n − d − (unknown nuisance parameters of the
     modalities used)``, ``n`` the number of measurements. A non-finite position gives NaN.
     """
     s = np.asarray(position_m, dtype=float)
@@ -84,7 +81,7 @@ def fit_chi_square(
             for i in range(0, len(s), rows)
         ]
         return np.concatenate([part for part, _ in parts]), parts[0][1]
-    nuisance = unknowns_used(g.unknowns, measured)
+    nuisance = nuisance_unknowns(unknowns_used(g.unknowns, measured))
     total = np.zeros(s.shape[:-1])
     for modality, values in measured.items():
         values = np.asarray(values, dtype=float)
@@ -104,7 +101,7 @@ def fit_chi_square(
         if centred:  # the least-squares offset at this position (MATH §15)
             residual = residual - residual.mean(axis=-1, keepdims=True)
         total = total + np.einsum("...k,...k->...", residual, residual)
-    dof = len(measured) * g.n_samples - N_POSITION_PARAMETERS - len(nuisance)
+    dof = len(measured) * g.n_samples - s.shape[-1] - len(nuisance)
     return total, dof
 
 

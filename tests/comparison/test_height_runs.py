@@ -199,3 +199,27 @@ def test_the_points_hold_the_parts_of_the_3d_bound_and_the_report_its_price(heig
         table["horizontal_rmse_bound_m"]["toa+doppler"] / table["known_rmse_bound_m"]["toa+doppler"]
     )
     assert f"hill: ToA+Doppler {price:.3g}× ({flat:.3g}×)" in page
+
+
+@pytest.mark.parametrize("estimator", ["ml", "cls"])
+def test_the_command_line_on_a_file_of_unknown_height(tmp_path, estimator) -> None:
+    """``simulate hill``, ``crlb --json`` (the 3×3 bound and its parts) and ``estimate`` (three
+    coordinates, as text and JSON) on the file; at 100 dB (the bound 0.02 mm) the answer is the emitter
+    to the millimetre."""
+    import json
+
+    from tests.comparison.cli_support import invoke
+
+    path = tmp_path / "hill.json"
+    made = invoke("simulate", "hill", "--seed", 1, "--snr-db", 100, "-o", path)
+    assert made.exit_code == 0, made.output
+    bound = json.loads(invoke("crlb", path, "--json").stdout)
+    assert np.shape(bound["crlb_m2"]["toa+doppler"]) == (3, 3)
+    assert bound["at_m"] == [150.0, 120.0, 120.0]
+    assert set(bound) >= {"horizontal_rmse_bound_m", "vertical_rmse_bound_m", "price"}
+    answer = json.loads(invoke("estimate", path, "--estimator", estimator, "--json").stdout)
+    np.testing.assert_allclose(answer["position_m"], [150.0, 120.0, 120.0], atol=1e-3)
+    assert answer["error_m"] < 1e-3 and np.shape(answer["candidates_m"]) == (1, 3)
+    text = invoke("estimate", path, "--estimator", estimator)
+    assert text.exit_code == 0, text.output
+    assert "(150.0000, 120.0000, 120.0000)" in text.stdout
