@@ -783,8 +783,8 @@ def _height_initial_values(
     the cooperative smoother (:mod:`estimators.sequential.gtsam_smoother`, "The height
     unknown"): each start for a static emitter; with a random walk, every frame's variable at
     the static optimum (and its nuisance values) reached from a start, each optimum once, or
-    at the start where that solve did not converge. On noise-free climbing turns with both
-    offsets unknown (σ's at 100 dB) the walk from a start on the first frame's circle took up
+    at the start where that solve did not converge. On noise-free climbing turns with one or
+    both offsets unknown (σ's at 100 dB) the walk from a start on the first frame's circle took up
     to 0.34 s of CPU time a batch estimate, from the static optima 0.02-0.1 s."""
     if not problem.random_walk:
         return [(start, _flat_start(start, 1, 3)) for start in starts]
