@@ -151,7 +151,8 @@ BUILTIN_DEFINITIONS: dict[str, dict[str, Any]] = {
             "an emitter above the take-off ground at a height the receiver does not know "
             "(MATH §8): on a hill under a level turn, under a turn with a climb, and on a roof "
             "as a non-cooperative beacon; every estimator that estimates (x, y, z) against the "
-            "3-D bound (its horizontal and vertical parts beside it), and ml and cls assuming "
+            "3-D bound (its horizontal and vertical parts beside it; cls-two-stage differs from "
+            "cls on the beacon only, MATH §15), and ml and cls assuming "
             "the take-off ground against the (x, y) part: the bias of assuming it; on the hill "
             "with its shape known (hill-terrain) the bound holds the terrain prior, which ml "
             "alone uses (MATH §8)"
@@ -159,6 +160,8 @@ BUILTIN_DEFINITIONS: dict[str, dict[str, Any]] = {
         "scenarios": ["hill", "hill-climb", "roof-beacon", "hill-terrain"],
         "sweep": {"parameter": "snr_db", "values": [0, 10, 20, 30]},
         "estimators": [
+            "cls",
+            {"name": "cls", "label": "cls-two-stage", "options": {"offset_method": "two-stage"}},
             "ml",
             "ekf",
             "gtsam-smoother",
