@@ -4,10 +4,11 @@ an answer.
 Every estimator finishes here, through :func:`estimators.base.finalize_estimate` (one trial,
 the batch of one) or :func:`finalize_columns` (many):
 
-0. with the emitter's height estimated (3-D candidates), a candidate above the UAV's highest
-   sample is dropped: a level flight leaves the reflection through its plane at the same cost,
-   and the emitter is below the UAV; on a straight track nothing is an answer (every rotation
-   about the track fits: :data:`STRAIGHT_TRACK_HEIGHT`);
+0. with the emitter's height estimated (3-D candidates): on a flight in one plane (a level
+   turn, any two straight legs) each candidate's reflection through it is added at the same
+   cost when the caller gives the plane; a candidate above the UAV's highest sample is dropped
+   (the emitter is below the UAV: a level flight's reflection goes so); on a single straight
+   line nothing is an answer (every rotation about it fits: :data:`STRAIGHT_TRACK_HEIGHT`);
 1. on a straight track (every sample on one line, flying along it) each 2-D candidate's
    mirror image across it is added, at the same cost: the data cannot tell the two apart;
 2. candidates closer than :data:`MERGE_RTOL` times their largest distance from the centre of
@@ -90,6 +91,7 @@ def finalize_columns(
     cost_rtol: float = 1e-6,
     merge: bool = True,
     ceiling_m: float | None = None,
+    plane: tuple[FloatArray, FloatArray] | None = None,
 ) -> FinalizedColumns:
     """The mirror rule (module text) for ``n`` trials of one geometry.
 
@@ -108,6 +110,10 @@ def finalize_columns(
     ceiling_m : float
         In 3-D (and only there, where it is required): the UAV's highest sample height. A
         candidate above it is not an answer (step 0 of the module text).
+    plane : the flight's plane ``(origin, unit normal)``, (3,) each, or None
+        In 3-D: the plane every sample lies and flies in
+        (:func:`scenarios.geometry.flight_plane`); each candidate's reflection through it is
+        added at the same cost, and ``line`` (the flight then is no single line) is not read.
     side_prior_m : (2,) or (d,)
         A rough position; a horizontal one picks by horizontal distance.
     """
@@ -116,13 +122,22 @@ def finalize_columns(
     if d == 3 and ceiling_m is None:
         raise ValueError("ceiling_m: the 3-D mirror rule needs the UAV's highest sample height")
     # (w, n) arrays, one row per candidate slot (slot-major: numpy's loops run over the
-    # trials): the candidates, then (straight track, 2-D) their mirror images at equal costs
+    # trials): the candidates, then (a 2-D straight track, a 3-D flight in one plane) their
+    # mirror images at equal costs
     coords = [candidates_m[:, :, j].T for j in range(d)]
     valid = (np.arange(k)[:, None] < count) & np.isfinite(sum(coords) + costs.T)
+    if d == 3 and plane is not None:  # the reflections through the flight's plane, at equal cost
+        origin, normal = (np.asarray(v, dtype=float) for v in plane)
+        height = sum((c - o) * u for c, o, u in zip(coords, origin, normal, strict=True))
+        coords = [
+            np.concatenate([c, c - 2.0 * height * u]) for c, u in zip(coords, normal, strict=True)
+        ]
+        valid = np.concatenate([valid, valid])
+        costs = np.concatenate([costs, costs], axis=1)
     if d == 3:
         z = coords[2]
         valid &= z <= ceiling_m + MERGE_RTOL * max(abs(ceiling_m), 1.0)
-        if line is not None:
+        if line is not None and plane is None:
             problem = STRAIGHT_TRACK_HEIGHT
             valid[:] = False
     cost = np.where(valid, costs.T, np.inf)

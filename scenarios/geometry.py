@@ -160,6 +160,45 @@ def straight_track_lines(
     return lines
 
 
+def flight_plane(
+    position_m: ArrayLike, velocity_mps: ArrayLike, *, rtol: float = 1e-9
+) -> tuple[FloatArray, FloatArray] | None:
+    """The plane every sample lies in and flies in, when the flight is no single line, else
+    None (MATH §7, the emitter's height unknown).
+
+    Returns ``(origin_m, normal)``, a point of the plane (the samples' mean) and its unit
+    normal, both (3,): the smallest right singular vector of the samples' offsets from their
+    mean stacked over their velocities times the flight's duration, when its singular value is
+    at most ``rtol`` times the largest and the middle one is not (a line, or one point, has no
+    one plane: None). A level flight's plane is horizontal; any two straight legs span one.
+    The reflection through it leaves every sample and velocity, hence every measurement, as
+    they are.
+    """
+    position = np.asarray(position_m, dtype=float).reshape(-1, 3)
+    velocity = np.asarray(velocity_mps, dtype=float).reshape(-1, 3)
+    origin = np.add.reduce(position, axis=0) / len(position)
+    spread = position - origin
+    speed = float(np.max(np.sqrt(np.einsum("ij,ij->i", velocity, velocity)), initial=0.0))
+    extent = float(np.max(np.sqrt(np.einsum("ij,ij->i", spread, spread)), initial=0.0))
+    duration = extent / speed if speed > 0.0 else 1.0
+    _, singular, vt = np.linalg.svd(np.vstack([spread, velocity * duration]))
+    if singular[0] <= _TINY or singular[1] <= rtol * singular[0]:
+        return None
+    if singular[2] > rtol * singular[0]:
+        return None
+    return origin, vt[2]
+
+
+def reflect_through_plane(
+    points_m: ArrayLike, origin_m: ArrayLike, normal: ArrayLike
+) -> FloatArray:
+    """Reflect points (..., 3) through the plane through ``origin_m`` of unit ``normal``."""
+    points = np.asarray(points_m, dtype=float)
+    normal = np.asarray(normal, dtype=float)
+    height = (points - np.asarray(origin_m, dtype=float)) @ normal
+    return points - 2.0 * height[..., None] * normal
+
+
 def mirror_across_line(
     points_m: ArrayLike, origin_m: ArrayLike, direction: ArrayLike
 ) -> FloatArray:

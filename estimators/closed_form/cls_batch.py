@@ -47,7 +47,7 @@ from estimators.closed_form.cls_rows import horizontal_speed_mps
 from estimators.closed_form.gtrs_batch import GtrsBatch, RowBlock, solve_gtrs_batch
 from estimators.mirror_rule import STRAIGHT_TRACK_HEIGHT, finalize_columns
 from scenarios import measurement_model as model
-from scenarios.geometry import straight_track_lines
+from scenarios.geometry import flight_plane, straight_track_lines
 from scenarios.nuisance import position_dimension
 from scenarios.types import MeasurementBatch, MeasurementSet
 
@@ -92,6 +92,9 @@ class SharedGeometry:
     column: dict[str, FloatArray]
     offset_unknown: bool
     dimension: int = 2
+    plane: tuple[FloatArray, FloatArray] | None = None
+    """In 3-D, the plane the flight lies and flies in (a level turn, two legs), or None: the
+    mirror rule adds each candidate's reflection through it (MATH §7)."""
 
     @classmethod
     def of(
@@ -166,6 +169,7 @@ class SharedGeometry:
             column=dict(zip(names, per_sample, strict=True)),
             offset_unknown="carrier_offset_hz" in used.unknowns,
             dimension=dimension,
+            plane=flight_plane(position, velocity) if dimension == 3 else None,
         )
 
     def frame_sums(self, values: FloatArray) -> FloatArray:
@@ -255,9 +259,10 @@ def _solve_part(
         count = solution.count[:n]
         if shared.line is not None:
             count = count - hard
-        # with the height a coordinate both reflections through a level flight's plane go
-        # (MATH §7); the rule drops the one above the UAV
-        ceiling = {} if d == 2 else {"ceiling_m": float(np.max(shared.z))}
+        # with the height a coordinate, a flight in one plane (a level turn, two legs) leaves
+        # the reflection through it: the rule adds it and drops what lies above the UAV (MATH
+        # §7), whether or not the solve's hard case found both
+        ceiling = {} if d == 2 else {"ceiling_m": float(np.max(shared.z)), "plane": shared.plane}
         final = finalize_columns(
             world[:n],
             count,
