@@ -36,8 +36,9 @@ class CandidateCheck:
         Largest ``|cost − f*| / f*`` over the candidates, each lifted onto the paraboloid;
         NaN without candidates.
     max_distance_m, max_distance_rel : float
-        Hausdorff distance between the candidates and the closed-form minimisers, in metres
-        and of the length scale (inf without candidates).
+        Hausdorff distance between the candidates and the closed-form minimisers (those due),
+        in metres and of the length scale (inf without candidates; NaN without candidates
+        when no minimiser is due).
     n_missing : int
         Closed-form minimisers with no candidate within the distance tolerance.
     n_extra : int
@@ -284,7 +285,8 @@ def check_candidates(
     scale) of a closed-form minimiser; every closed-form minimiser that is due must have such a
     candidate (both mirror images in the hard case). In 3-D ``ceiling_m``, the UAV's highest
     sample height, is required: a minimiser above it is not due, as the mirror rule drops it
-    (MATH §7: a level flight's reflection through its plane). The largest distance is over the
+    (MATH §7: a level flight's reflection through its plane), and when none is due a failed
+    estimate (no candidates) agrees. The largest distance is over the
     candidates (to the nearest minimiser) and the due minimisers (to the nearest candidate):
     the Hausdorff distance when every minimiser is due. Returns the check and the reasons it
     fails (empty when it passes).
@@ -300,13 +302,15 @@ def check_candidates(
     optimum = float(np.min(closed_form.costs))
     width = np.shape(estimate.candidates_m)[-1]
     if not estimate.success or len(estimate.candidates_m) == 0 or width != d:
+        # no candidate: infinitely far from a due minimiser; with none due, nothing to measure
+        far = float("inf") if due.any() else float("nan")
         check = CandidateCheck(
             estimate_success=bool(estimate.success),
             n_candidates=0,
             n_minimisers=len(minimisers),
             max_rel_cost_gap=float("nan"),
-            max_distance_m=float("inf"),
-            max_distance_rel=float("inf"),
+            max_distance_m=far,
+            max_distance_rel=far,
             n_missing=int(due.sum()),
             n_extra=0,
             n_above_uav=int((~due).sum()),
@@ -315,6 +319,8 @@ def check_candidates(
             return check, (
                 f"the candidates have {width} coordinates, the rows of constrained_ls {d}",
             )
+        if not due.any():  # every global minimiser above the UAV: no answer is the rule's
+            return check, ()
         why = estimate.message or "no candidates"
         return check, (f"estimate failed: {why}",)
     local = problem.to_local(estimate.candidates_m)

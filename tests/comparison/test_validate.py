@@ -246,12 +246,13 @@ class MidpointCls(Cls):
         require_modalities(self, data)
         problem = self.constrained_ls(data)
         solution = solve_gtrs(problem.A, problem.b)
-        xy = solution.points[:, :2]
+        d = problem.dimension
+        xy = solution.points[:, :d]
         if solution.hard_case:
             M, q = problem.A.T @ problem.A, problem.A.T @ problem.b
             lam = 1e-9 * np.trace(M)
-            r = np.linalg.solve(M + lam * np.diag([1.0, 1.0, 0.0]), q + lam * np.array([0, 0, 0.5]))
-            xy = r[None, :2]
+            D, g = np.diag([1.0] * d + [0.0]), np.eye(d + 1)[d] * 0.5
+            xy = np.linalg.solve(M + lam * D, q + lam * g)[None, :d]
         points = problem.to_world(xy)
         used = data.select_frames(self.frames)
         return finalize_estimate(self.name, points, problem.cost(points), used, rng=rng)
@@ -636,3 +637,18 @@ def test_an_estimator_that_takes_the_height_as_known_skips_the_3d_families(tmp_p
     with pytest.raises(ValueError, match=r"^families: climb-height, level-height leave the emit"):
         run_validation(instances=1, families=FAMILIES_3D, estimator="cls-paper")
     assert "skipped_families" not in run_validation(instances=1, families=["turn"]).to_dict()
+
+
+def test_no_answer_agrees_when_every_minimiser_is_above_the_uav():
+    """A unique minimiser above the UAV is not due: a failed estimate (the mirror rule leaves
+    nothing) agrees, and with the UAV above it the same failure is a missing minimiser."""
+    instance = make_instance("climb-height", instance_seeds(9, "climb-height", 1)[0])
+    problem = Cls().constrained_ls(instance.data)
+    closed = solve_gtrs(problem.A, problem.b)
+    (height,) = problem.to_world(closed.points[:, :3])[:, 2]
+    failed = Estimate.failed("cls", "no candidate below the UAV", dimension=3)
+    check, reasons = check_candidates(problem, failed, closed, ceiling_m=height - 1.0)
+    assert reasons == () and check.n_above_uav == 1 and check.n_missing == 0
+    assert np.isnan(check.max_distance_m)
+    check, reasons = check_candidates(problem, failed, closed, ceiling_m=height + 1.0)
+    assert reasons == ("estimate failed: no candidate below the UAV",) and check.n_missing == 1
