@@ -25,7 +25,14 @@ the largest distance between the two paths' positions (the same code: zero, or r
 the profile and the two-stage form also the ratio of their columns' time per estimate to the
 relaxed form's on the same trials (the two-stage form's budget: at most 2×).
 
-Run: ``python benchmarks/bench_unknowns_batch.py`` (``--trials N``).
+With the emitter's height unknown too (``roof-beacon``: ``beacon-pass`` with the beacon 25 m up,
+offset, emission time and height unknown) the pseudo-range closed forms estimate ``(x, y, z)``
+(MATH §15, "The emitter's height unknown"): 2-D (``beacon-pass``) against 3-D
+(``roof-beacon``) per offset method, ``cls``'s columns of the batch of N and its ``estimate``
+one trial at a time (in 3-D the columns of a batch of one), on the same flight and noise.
+
+Run: ``python benchmarks/bench_unknowns_batch.py`` (``--trials N``; ``--part height`` for the
+2-D against 3-D comparison alone).
 """
 
 from __future__ import annotations
@@ -89,10 +96,40 @@ def bench(scenario_name: str, n: int, offset_method: str, estimator_name: str = 
     return columns_us
 
 
+def bench_height(n: int) -> None:
+    """2-D (``beacon-pass``) against 3-D (``roof-beacon``): µs per estimate of ``cls``, its
+    columns of a batch of ``n`` and one trial at a time, per offset method."""
+    for method in ("relaxed", "two-stage", "profile"):
+        times = {}
+        estimator = Cls(offset_method=method)
+        for name in ("beacon-pass", "roof-beacon"):
+            batch = simulate_trials(get_scenario(name), snr_db=SNR_DB, seeds=trial_seeds(2026, n))
+            single = min(n, PER_TRIAL)
+            ones = [batch.trial(i) for i in range(single)]
+            batch_us = best_cpu_us(lambda: estimator.estimate_columns(batch), n)  # noqa: B023
+            one_us = best_cpu_us(
+                lambda: [estimator.estimate(one) for one in ones],  # noqa: B023
+                single,
+            )
+            success = int(estimator.estimate_columns(batch).success.sum())
+            times[name] = batch_us, one_us
+            print(
+                f"cls {name:>12} ({'3-D' if name == 'roof-beacon' else '2-D'})  "
+                f"offset_method={method:9s} batch N={n:,}: {batch_us:7.1f} µs/estimate "
+                f"(success {success}/{n}); one trial: {one_us:7.1f} µs/estimate"
+            )
+        (batch2, one2), (batch3, one3) = times["beacon-pass"], times["roof-beacon"]
+        print(f"{'':>22}3-D / 2-D: batch ×{batch3 / batch2:.2f}, one trial ×{one3 / one2:.2f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=2_000, help="N (default 2,000)")
+    parser.add_argument("--part", choices=("all", "height"), default="all")
     args = parser.parse_args()
+    bench_height(args.trials)
+    if args.part == "height":
+        return
     for name in SCENARIOS:
         relaxed_us = bench(name, args.trials, "relaxed")
         for method in ("two-stage", "profile"):

@@ -151,12 +151,17 @@ BUILTIN_DEFINITIONS: dict[str, dict[str, Any]] = {
             "an emitter above the take-off ground at a height the receiver does not know "
             "(MATH §8): on a hill under a level turn, under a turn with a climb, and on a roof "
             "as a non-cooperative beacon; every estimator that estimates (x, y, z) against the "
-            "3-D bound (its horizontal and vertical parts beside it), and ml and cls assuming "
-            "the take-off ground against the (x, y) part: the bias of assuming it"
+            "3-D bound (its horizontal and vertical parts beside it; cls-two-stage differs from "
+            "cls on the beacon only, MATH §15), and ml and cls assuming "
+            "the take-off ground against the (x, y) part: the bias of assuming it; on the hill "
+            "with its shape known (hill-terrain) the bound holds the terrain prior, which ml "
+            "alone uses (MATH §8)"
         ),
-        "scenarios": ["hill", "hill-climb", "roof-beacon"],
+        "scenarios": ["hill", "hill-climb", "roof-beacon", "hill-terrain"],
         "sweep": {"parameter": "snr_db", "values": [0, 10, 20, 30]},
         "estimators": [
+            "cls",
+            {"name": "cls", "label": "cls-two-stage", "options": {"offset_method": "two-stage"}},
             "ml",
             "ekf",
             "gtsam-smoother",
@@ -214,7 +219,10 @@ BUILTIN_EXPERIMENTS: dict[str, str] = {
     "geometry-map-dense": "RMSE/CRLB of cls, cls-paper over a 100 x 100 emitter grid, 100 trials",
     "paper-fig3": "closed loop: 4 planners x 10 frames, ml and per-frame cls vs flown CRLB",
     "noncooperative": "unknown carrier offset and emission time: a beacon pass and a turn",
-    "height": "an emitter of unknown height: hill, hill-climb, roof-beacon against the 3-D bound",
+    "height": (
+        "an emitter of unknown height: hill, hill-climb, roof-beacon, hill-terrain against the "
+        "3-D bound"
+    ),
     "calibration": "the verdicts checked: estimators of known efficiency and bias, 500 trials",
     "smoke": "2 SNR points, cls and cls-paper, 20 trials (for tests)",
 }

@@ -227,7 +227,7 @@ CONTRACT_METRICS: tuple[Metric, ...] = (
         "nees_judged_mean",
         "1",
         "mean NEES eᵀP⁻¹e of verdict_basis's error against its covariance (the one "
-        "nees_verdict judges; 2 when consistent)",
+        "nees_verdict judges; d when consistent: 2, or 3 with the height estimated)",
         rule=lambda g: g.judged(
             g["nees_side_resolved_mean"], g["nees_returned_incl_wrong_side_mean"]
         ),
@@ -313,13 +313,13 @@ EXTRA_METRICS: tuple[Metric, ...] = (
     Metric(
         "nees_band_low",
         "1",
-        "2.5% point of the mean of n_nees consistent 2-dof NEES values",
+        "2.5% point of the mean of n_nees consistent NEES values of d = 2 (or 3) degrees of freedom",
         rule=lambda g: g.once(_nees_band)[0],
     ),
     Metric(
         "nees_band_high",
         "1",
-        "97.5% point of the mean of n_nees consistent 2-dof NEES values",
+        "97.5% point of the mean of n_nees consistent NEES values of d = 2 (or 3) degrees of freedom",
         rule=lambda g: g.once(_nees_band)[1],
     ),
     Metric(

@@ -349,7 +349,8 @@ def figure_plans(
                     "Mean side-resolved NEES against the frame for estimators with a "
                     "covariance (each trial's nearest candidate against its own, mirrored "
                     "covariance); grey: the 95% chi-square band of the mean of n consistent "
-                    f"2-dof NEES values. {_count_caption(figures.NEES_COUNT_NOTE)}",
+                    "NEES values of 2 degrees of freedom (3 with the height estimated). "
+                    f"{_count_caption(figures.NEES_COUNT_NOTE)}",
                     functools.partial(figures.nees_vs_frame_figure, summary, colors=colors),
                 )
             )

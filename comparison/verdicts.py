@@ -35,7 +35,8 @@ error, overall and along each principal axis of the CRLB, honest when a few tria
 away; Hotelling's region for the mean error.
 
 NEES verdict
-    The mean NEES of ``n`` consistent 2-dof values lies in ``χ²₂ₙ`` quantiles ``/ n``
+    The mean NEES of ``n`` consistent values of ``d`` degrees of freedom (2, or 3 with the
+    height estimated) lies in ``χ²_{dn}`` quantiles ``/ n``
     (:func:`comparison.intervals.nees_band`): ``consistent`` inside the band, ``optimistic`` above it (the reported
     covariance is too small), ``pessimistic`` below it, ``inconclusive`` with fewer than
     :data:`MIN_TRIALS` values, ``no covariance`` for an estimator that reports none.

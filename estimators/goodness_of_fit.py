@@ -47,6 +47,7 @@ CHUNK_ELEMENTS = 1 << 14
 """Trials × samples evaluated at once: the forward model's temporaries stay in cache (a whole
 batch at once is about 1.7 times slower per trial)."""
 
+
 def fit_chi_square(
     position_m: ArrayLike,
     geometry: MeasurementSet,

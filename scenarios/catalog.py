@@ -7,7 +7,8 @@ The paper's scenario as printed has ``σ_τ² = 1e−6 s²``, i.e. ``c σ_τ = 3
 ``beacon-pass``, ``beacon-pass-doppler`` and ``turn-noncooperative`` have a non-cooperative
 emitter, whose carrier offset and emission time are unknown (MATH §15). ``hill``,
 ``hill-climb`` and ``roof-beacon`` put the emitter above the take-off ground at a height the
-receiver does not know (MATH §7, §8): the position then has three coordinates.
+receiver does not know (MATH §7, §8): the position then has three coordinates;
+``hill-terrain`` gives the receiver the hill's shape as a prior on that height (MATH §8).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scenarios.terrain import Terrain
 from scenarios.types import FlightPlan, NoiseSigmas, RssModel, Scenario
 
 PAPER_SPEED_OF_LIGHT_MPS = 3.0e8
@@ -173,8 +175,9 @@ def hill_scenario(*, climb: bool = False) -> Scenario:
     and then 200 m north, 4 frames of K = 10 samples 0.5 s apart; Doppler σ_f = 0.5 Hz and
     c σ_τ = 10 m at 0 dB. A level turn leaves the reflection of the emitter through the flight
     plane (at 480 m) at the same cost, which "the emitter is below the UAV" removes (MATH §7).
-    With ``climb`` (``hill-climb``) the UAV climbs at 5 m/s while it flies north (to 350 m),
-    which removes that reflection from the data themselves.
+    With ``climb`` (``hill-climb``) the UAV climbs at 5 m/s while it flies north (to 350 m):
+    the two legs then span a tilted plane, and the reflection through it, at about
+    (150, 21, 515) m, fits as exactly and is dropped the same way (MATH §7).
     """
     velocities = heading_velocities_mps(20.0, [0.0, 0.0, 90.0, 90.0])
     if climb:
@@ -198,6 +201,28 @@ def hill_scenario(*, climb: bool = False) -> Scenario:
             + ("north climbing 5 m/s" if climb else "north")
             + ", Doppler + ToA (c*sigma_tau = 10 m)"
         ),
+    )
+
+
+HILL_TERRAIN_OFFSET_M = 2.0
+"""How far above the ``hill-terrain`` ground the tag sits (a short pole)."""
+
+
+def hill_terrain() -> Terrain:
+    """The ``hill`` scenario's hill as a known surface (MATH §8, :mod:`scenarios.terrain`): a
+    Gaussian hill of width 100 m centred at (200, 150) m on level take-off ground (0 m), its
+    height set so that the surface under the tag at (150, 120) m is
+    :data:`HILL_TERRAIN_OFFSET_M` below it (118 m; the hill ≈ 139.9 m high); the tag sits on
+    its western slope, so the prior ties the height to ``(x, y)``. σ_m = 5 m: the tag may be
+    on a mast or in a tree, so the prior informs the height without fixing it."""
+    centre, width = np.array([200.0, 150.0]), 100.0
+    under = 120.0 - HILL_TERRAIN_OFFSET_M
+    squared = float(np.sum((np.array([150.0, 120.0]) - centre) ** 2))
+    return Terrain(
+        sigma_m=5.0,
+        hill_height_m=under / np.exp(-squared / (2.0 * width**2)),
+        hill_centre_m=centre,
+        hill_width_m=width,
     )
 
 
@@ -262,6 +287,18 @@ CATALOG: dict[str, CatalogEntry] = {
             "hill-climb",
             lambda: hill_scenario(climb=True),
             "the hill with the UAV climbing while it turns, the height unknown",
+        ),
+        CatalogEntry(
+            "hill-terrain",
+            lambda: hill_scenario().replace(
+                name="hill-terrain",
+                terrain=hill_terrain(),
+                description=(
+                    "hill with the hill's shape known: the tag 2 m above a mapped Gaussian hill, "
+                    "a prior of sigma 5 m on its height above the ground"
+                ),
+            ),
+            "the hill with the ground's shape known: a prior on the height (sigma 5 m)",
         ),
         CatalogEntry(
             "roof-beacon",

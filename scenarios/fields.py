@@ -33,6 +33,11 @@ FRAME_LIMIT = 2**31
 """Frame indices are whole numbers in ``[0, FRAME_LIMIT)``: they fit a 32-bit signed integer,
 whatever stores them (numpy, SQLite, a CSV reader), and no flight has two billion frames."""
 
+MAX_COORDINATE_M = 1e9
+"""Largest ``|x|``, ``|y|``, ``|z|`` of a UAV position, of the emitter and its height, and of
+the terrain's heights and centre (:mod:`scenarios.terrain`), metres; ``scenarios.types`` names
+it too."""
+
 
 # --------------------------------------------------------------------------------------------
 # numbers and text

@@ -21,7 +21,11 @@ log-distance model of ``rss_model`` (MATH §1). ``speed_of_light_mps`` defaults 
 ``emission_time_s`` of a non-cooperative emitter; ``unknowns`` lists which of those two the
 receiver does not know (MATH §15; absent or empty: both known) and ``"emitter_height_m"`` when the
 emitter's height is unknown too (MATH §8: ``truth.emitter_m`` then has three coordinates and
-``emitter_height_m`` is the height an estimator that ignores the unknown assumes). A modality
+``emitter_height_m`` is the height an estimator that ignores the unknown assumes). ``terrain``
+(absent: none) is the known ground, ``{"sigma_m": 5.0, "height_m": 0.0, "slope": [0.0, 0.0],
+"hill_height_m": 139.9, "hill_centre_m": [200.0, 150.0], "hill_width_m": 100.0}`` (only
+``sigma_m`` required; :class:`~scenarios.terrain.Terrain`), a prior on the height when it is
+unknown (MATH §8); CSV files carry none. A modality
 is present when every sample has it; a
 modality on some samples only, an unknown key (a typo), a non-finite number, a wrong length or
 type, an unknown schema, no samples, a negative σ or frames out of order are errors.
@@ -74,6 +78,7 @@ from scenarios.limits import (
     write_text_atomically,
 )
 from scenarios.nuisance import parse_unknowns, position_dimension
+from scenarios.terrain import Terrain
 from scenarios.types import SPEED_OF_LIGHT_MPS, MeasurementSet, NoiseSigmas, RssModel
 
 SCHEMA = "emitterbench.measurements/1"
@@ -87,12 +92,14 @@ _TOP_OPTIONAL = (
     "rss_model",
     "truth",
     "unknowns",
+    "terrain",
 )
 _SAMPLE_REQUIRED = ("frame", "time_s", "position_m", "velocity_mps")
 _MEASUREMENT_FIELDS = ("doppler_hz", "toa_s", "rss_dbm")
 _NOISE_KEYS = ("doppler_hz", "toa_s", "rss_db")
 _RSS_MODEL_KEYS = ("reference_power_dbm", "reference_distance_m", "path_loss_exponent")
 _TRUTH_OPTIONAL = ("carrier_offset_hz", "emission_time_s")
+_TERRAIN_OPTIONAL = ("height_m", "slope", "hill_height_m", "hill_centre_m", "hill_width_m")
 
 CSV_COLUMNS = ("frame", "time_s", "x_m", "y_m", "z_m", "vx_mps", "vy_mps", "vz_mps")
 """The CSV columns every file must have."""
@@ -266,6 +273,7 @@ def measurements_from_dict(obj: Any) -> MeasurementSet:
         rss_model=_rss_model_from_json(obj.get("rss_model")),
         **_truth_from_json(obj.get("truth"), position_dimension(unknowns)),
         unknowns=unknowns,
+        terrain=_terrain_from_json(obj.get("terrain")),
     )
 
 
@@ -292,6 +300,8 @@ def measurements_to_dict(data: MeasurementSet) -> dict[str, Any]:
                 obj["truth"][name] = getattr(data, f"truth_{name}")
     if data.unknowns:
         obj["unknowns"] = list(data.unknowns)
+    if data.terrain is not None:
+        obj["terrain"] = data.terrain.as_dict()
     columns: dict[str, list[Any]] = {
         "frame": data.frame.tolist(),
         "time_s": data.time_s.tolist(),
@@ -463,6 +473,26 @@ def _truth_from_json(value: Any, dimension: int) -> dict[str, Any]:
     return truth
 
 
+def _terrain_from_json(value: Any) -> Terrain | None:
+    """The ``terrain`` object (:class:`~scenarios.terrain.Terrain`; absent: None): ``sigma_m``
+    required, the plane's and the hill's numbers optional (default a level plane at 0 m)."""
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise ValueError(
+            f'terrain: expected an object {{"sigma_m": ..., "height_m": ...}}, got {_kind(value)}'
+        )
+    _check_keys(value, "terrain", required=("sigma_m",), optional=_TERRAIN_OPTIONAL)
+    numbers: dict[str, Any] = {}
+    for key in ("sigma_m", *_TERRAIN_OPTIONAL):
+        if key in ("slope", "hill_centre_m"):
+            if key in value:
+                numbers[key] = _vector(value[key], f"terrain.{key}", 2)
+        elif key in value:
+            numbers[key] = _number(value[key], f"terrain.{key}")
+    return Terrain(**numbers)
+
+
 # --------------------------------------------------------------------------------------------
 # CSV structure
 # --------------------------------------------------------------------------------------------
@@ -601,7 +631,8 @@ def _measurement_set(
 ) -> MeasurementSet:
     """Build the :class:`MeasurementSet`; it checks the values (σ's, RSS model, truth).
 
-    ``nuisance``: ``unknowns`` and the true offsets (MATH §15), as the JSON file gives them."""
+    ``nuisance``: ``unknowns``, the true offsets (MATH §15) and the ``terrain`` (MATH §8), as
+    the JSON file gives them."""
     if not isinstance(noise, NoiseSigmas):
         raise ValueError(f"noise: expected NoiseSigmas, got {type(noise).__name__}")
     if rss_model is not None and not isinstance(rss_model, RssModel):

@@ -49,6 +49,17 @@ modality's rows (one σ) and zero elsewhere, that complement is the Gram matrix 
 each affected modality's block *centred* over its samples: ``J = Σ (g − ḡ)(g − ḡ)ᵀ``. So
 ``unknowns`` centres blocks and everything else is unchanged.
 
+The terrain prior (MATH §8). When ``data`` carries a :class:`~scenarios.terrain.Terrain` and
+the height is unknown (``unknowns`` holds ``"emitter_height_m"`` and the position is
+``(x_s, y_s, z_s)``), the prior ``z_s − h(x_s, y_s) ~ N(0, σ_m²)`` is one more whitened row,
+``(−h_x, −h_y, 1)/σ_m`` (:func:`terrain_row`): :func:`whitened_jacobian` ends with it and
+:class:`InformationStatistics` adds its Gram matrix once to the information of any set of
+frames. The information is then the Bayesian one of the measurements and the prior (the CRLB
+of the data with the terrain as one more measurement of the height above the ground, 0 ± σ_m);
+as ``σ_m → 0`` it tends to the bound constrained to the surface. The per-sample functions
+(:func:`whitened_gradients`, :func:`information_at_samples`, :func:`per_sample_information`)
+hold the samples' rows only.
+
 One nuisance over any set of frames. An estimator that uses some frames faces one δ and one b
 over the union of their samples, so the centring runs over that union: the information of a
 set of frames is not the sum of the frames' own (centred) informations. :func:`frame_statistics`
@@ -68,7 +79,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from scenarios import measurement_model as model
-from scenarios.nuisance import AFFECTED_MODALITY, nuisance_unknowns
+from scenarios.nuisance import AFFECTED_MODALITY, HEIGHT_UNKNOWN, nuisance_unknowns, parse_unknowns
+from scenarios.terrain import offset_gradient
 from scenarios.types import MODALITIES, NOISE_FIELD, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -243,6 +255,20 @@ def information_at_samples(
     )
 
 
+def terrain_row(
+    data: MeasurementSet, emitter_m: ArrayLike, unknowns: Iterable[str]
+) -> FloatArray | None:
+    """The terrain prior's whitened row ``∇(z_s − h(x_s, y_s))/σ_m = (−h_x, −h_y, 1)/σ_m`` at
+    ``emitter_m`` ``(..., 3)``, shape ``(..., 1, 3)`` (MATH §8, :mod:`scenarios.terrain`); None
+    unless ``data`` carries a terrain, ``unknowns`` holds the height and the position has three
+    coordinates (with the height known the terrain is not used)."""
+    emitter = np.asarray(emitter_m, dtype=float)
+    terrain = data.terrain
+    if terrain is None or emitter.shape[-1] != 3 or HEIGHT_UNKNOWN not in parse_unknowns(unknowns):
+        return None
+    return offset_gradient(terrain, emitter)[..., None, :] / terrain.sigma_m
+
+
 def whitened_jacobian(
     data: MeasurementSet,
     emitter_m: ArrayLike,
@@ -250,16 +276,21 @@ def whitened_jacobian(
     *,
     unknowns: Iterable[str] | None = None,
 ) -> FloatArray:
-    """Rows ``∇h_k/σ`` of every sample of ``data`` and modality, shape ``(..., n_rows, d)``.
+    """Rows ``∇h_k/σ`` of every sample of ``data`` and modality, shape ``(..., n_rows, d)``,
+    and last the terrain prior's row where it applies (:func:`terrain_row`).
 
     :func:`whitened_gradients` at ``data``'s own samples (MATH §8); ``emitter_m`` is
     ``(..., d)``. ``unknowns`` defaults to ``data.unknowns`` (MATH §15); ``()`` gives the rows
-    of a cooperative emitter.
+    of a cooperative emitter at a known height.
     """
     unknowns = data.unknowns if unknowns is None else unknowns
-    return whitened_gradients(
+    rows = whitened_gradients(
         data.position_m, data.velocity_mps, emitter_m, data, modalities, unknowns=unknowns
     )
+    prior = terrain_row(data, emitter_m, unknowns)
+    if prior is None:
+        return rows
+    return np.concatenate([rows, np.broadcast_to(prior, (*rows.shape[:-2], 1, 3))], axis=-2)
 
 
 def fisher_information(
@@ -320,6 +351,9 @@ class InformationStatistics:
         ``ḡ`` of those rows in each group.
     count : (G,)
         The samples of each group (one row per sample and modality).
+    prior : (..., d, d)
+        The information of the terrain prior (MATH §8, :func:`terrain_row`), added once to
+        that of any set of groups (zeros: none).
 
     The information of a union ``S`` of groups, with one nuisance parameter per centred
     modality shared by all of ``S``'s samples, is the plain part plus the scatter of the
@@ -331,13 +365,15 @@ class InformationStatistics:
               \text{centred}_G + \sum_{G \in S} n_G (\bar g_G - \bar g_S)(\bar g_G - \bar g_S)^\top
               \Big),\qquad \bar g_S = \frac{\sum_G n_G \bar g_G}{\sum_G n_G},
 
-    which is ``Σ g gᵀ − (Σ g)(Σ g)ᵀ / n`` over ``S``'s rows, formed without its cancellation.
+    which is ``Σ g gᵀ − (Σ g)(Σ g)ᵀ / n`` over ``S``'s rows, formed without its cancellation,
+    plus ``prior``.
     """
 
     plain: FloatArray
     centred: FloatArray
     mean: FloatArray
     count: FloatArray
+    prior: FloatArray | None = None
 
     @property
     def n_groups(self) -> int:
@@ -350,14 +386,16 @@ class InformationStatistics:
 
     def information(self, groups: ArrayLike | None = None) -> FloatArray:
         """``J`` of the union of ``groups`` (group indices, repeats ignored; None: every
-        group), with the nuisance parameters shared over it, shape ``(..., d, d)``. No group:
-        zeros."""
+        group), with the nuisance parameters shared over it, plus the terrain prior's
+        (``prior``), shape ``(..., d, d)``. No group: the prior's alone (zeros without one)."""
         index = (
             np.arange(self.n_groups)
             if groups is None
             else np.unique(np.asarray(groups, dtype=np.int64).reshape(-1))
         )
         information = self.plain[index].sum(axis=0)
+        if self.prior is not None:
+            information = information + self.prior
         counts = self.count[index]
         total = counts.sum()
         if total == 0:
@@ -380,7 +418,8 @@ class InformationStatistics:
 
     def joined(self, other: InformationStatistics) -> InformationStatistics:
         """The groups of ``self`` then those of ``other``, their leading axes broadcast
-        together (past frames at ``(n_c, 1)`` candidates, a planned frame at ``(n_c, n_ψ)``)."""
+        together (past frames at ``(n_c, 1)`` candidates, a planned frame at ``(n_c, n_ψ)``);
+        the terrain prior is ``self``'s (one prior however many sets of samples)."""
         if len(self.centred) != len(other.centred):
             raise ValueError(
                 "statistics: the two sets centre different modalities; build both with the "
@@ -401,6 +440,9 @@ class InformationStatistics:
             centred=joined(self.centred, other.centred, 1, 2),
             mean=joined(self.mean, other.mean, 1, 1),
             count=np.concatenate([self.count, other.count]),
+            prior=None
+            if self.prior is None
+            else np.broadcast_to(self.prior, (*leading, self.dimension, self.dimension)),
         )
 
 
@@ -419,7 +461,8 @@ def information_statistics(
     Arguments as for :func:`whitened_gradients`; ``groups`` gives each of the ``N`` samples
     its group's label (the groups are the distinct labels, ascending); None puts every sample
     in one group. A modality whose nuisance parameter is in ``unknowns`` is kept centred per
-    group; the others' rows go into one Gram matrix per group.
+    group; the others' rows go into one Gram matrix per group. With the height in ``unknowns``
+    and a terrain in ``data`` the prior's information is kept apart (:func:`terrain_row`).
     """
     chosen = parse_modalities(modalities)
     blocks = _whitened_blocks(position_m, velocity_mps, emitter_m, data, chosen)
@@ -448,7 +491,9 @@ def information_statistics(
             mean[c, g] = rows.mean(axis=-2)
             centred[c, g] = gram_information(rows - mean[c, g][..., None, :])
     count = np.array([np.count_nonzero(member) for member in members], dtype=float)
-    return InformationStatistics(plain=plain, centred=centred, mean=mean, count=count)
+    row = terrain_row(data, emitter_m, unknowns)
+    prior = None if row is None else np.broadcast_to(gram_information(row), (*leading, d, d))
+    return InformationStatistics(plain=plain, centred=centred, mean=mean, count=count, prior=prior)
 
 
 def frame_statistics(

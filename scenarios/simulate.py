@@ -60,6 +60,7 @@ def noise_free(scenario: Scenario, *, snr_db: float = 0.0) -> MeasurementSet:
         unknowns=scenario.unknowns,
         truth_carrier_offset_hz=offset_hz,
         truth_emission_time_s=emission_s,
+        terrain=scenario.terrain,
     )
 
 

@@ -57,6 +57,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from scenarios.fields import (
     FRAME_LIMIT,
+    MAX_COORDINATE_M,
     bounded,
     check_magnitude,
     entry_path,
@@ -74,6 +75,7 @@ from scenarios.nuisance import (
     position_dimension,
     set_nuisance_fields,
 )
+from scenarios.terrain import Terrain
 
 SPEED_OF_LIGHT_MPS = 299_792_458.0
 """Speed of light in vacuum, m/s: the default propagation speed (MATH §0)."""
@@ -89,8 +91,6 @@ NOISE_FIELD = {"doppler": "doppler_hz", "toa": "toa_s", "rss": "rss_db"}
 
 FloatArray = NDArray[np.float64]
 
-MAX_COORDINATE_M = 1e9
-"""Largest ``|x|``, ``|y|``, ``|z|`` of a UAV position, of the emitter and its height, metres."""
 MAX_SPEED_MPS = 1e6
 """Largest velocity component, m/s."""
 MAX_TIME_S = 1e12
@@ -307,7 +307,9 @@ class Scenario:
     scales each by ``10^(−snr_db/20)`` (MATH §2). ``modalities`` lists what is simulated.
     ``carrier_offset_hz`` (δ) and ``emission_time_s`` (b) are the emitter's true nuisance
     parameters and ``unknowns`` names those the receiver does not know (MATH §15); a known one is
-    corrected for, so only the unknown ones reach the measurements.
+    corrected for, so only the unknown ones reach the measurements. ``terrain`` (None: none) is
+    the known ground, a prior on the emitter's height when that is unknown (MATH §8,
+    :mod:`scenarios.terrain`); the simulated data carry it.
     """
 
     name: str
@@ -323,10 +325,12 @@ class Scenario:
     carrier_offset_hz: float = 0.0
     emission_time_s: float = 0.0
     unknowns: tuple[str, ...] = ()
+    terrain: Terrain | None = None
 
     def __post_init__(self) -> None:
         text(self.name, "scenario.name")
         set_nuisance_fields(self, "", "")
+        check_terrain(self.terrain)
         emitter = frozen_array(self.emitter_m, "emitter_m", (2,))
         check_magnitude(emitter, "emitter_m", MAX_COORDINATE_M, "m", _FIX_POSITION)
         object.__setattr__(self, "emitter_m", emitter)
@@ -373,6 +377,14 @@ _FIX_POSITION = (
 )
 _FIX_VELOCITY = "velocities are metres per second; check the unit"
 _FIX_TIME = "times are seconds; check the unit, or count time from the start of the flight"
+
+
+def check_terrain(terrain: Any) -> None:
+    """Raise ``ValueError`` naming ``terrain`` unless it is a :class:`Terrain` or None."""
+    if terrain is not None and not isinstance(terrain, Terrain):
+        raise ValueError(
+            f"terrain: expected a Terrain (scenarios.terrain) or None, got {type(terrain).__name__}"
+        )
 
 
 def _set_constants(obj: Any) -> None:
@@ -496,6 +508,10 @@ class MeasurementSet:
         The height was unknown and :meth:`assuming_known` took ``emitter_height_m`` for it: a
         range shorter than the UAV's height above that is the assumption's error, not the
         data's, and is not refused.
+    terrain : Terrain or None
+        The known ground and the emitter's spread about it (:mod:`scenarios.terrain`): with the
+        height unknown a prior on it (MATH §8), which the Fisher information and ``ml`` use;
+        unused with the height known. None: no terrain.
     """
 
     frame: NDArray[np.int64]
@@ -515,10 +531,12 @@ class MeasurementSet:
     truth_carrier_offset_hz: float | None = None
     truth_emission_time_s: float | None = None
     height_assumed: bool = False
+    terrain: Terrain | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
         set_nuisance_fields(self, "truth_", "truth.")
+        check_terrain(self.terrain)
         position = frozen_array(self.position_m, "position_m", (None, 3))
         n = len(position)
         if n == 0:

@@ -198,17 +198,6 @@ def _constrained_ls(rows: Rows, frames: Frames, data: MeasurementSet) -> Constra
     return ConstrainedLS.in_frame(A, b, frame)
 
 
-def require_pseudorange_height_known(unknowns: Sequence[str]) -> None:
-    """Refuse the emission time and the height unknown together: the pseudo-range form
-    (MATH §15) solves for ``(x, y)`` at a known height only."""
-    if "emission_time_s" in unknowns and HEIGHT_UNKNOWN in unknowns:
-        raise ValueError(
-            "unknowns: the closed form does not yet estimate the emitter's height with the "
-            "emission time unknown (the pseudo-range form of MATH §15 is 2-D); give "
-            "the height for now (drop 'emitter_height_m' from unknowns)"
-        )
-
-
 def _check_options(frames: str, side_prior_m: object) -> None:
     if frames not in ("all", "last"):
         raise ValueError(f"frames: expected 'all' or 'last', got {frames!r}")
@@ -261,7 +250,8 @@ class _Batches(EstimatesOfColumns):
     def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
         require_modalities(self, data)
         check_rng(rng)
-        require_pseudorange_height_known(data.unknowns)
+        if "emission_time_s" in data.unknowns and HEIGHT_UNKNOWN in data.unknowns:
+            return with_fit(self, self._columns_of_one(data, rng).estimate(0), data)
         if "emission_time_s" in data.unknowns:
             return with_fit(self, self._solve_one(data, rng), data)
         return estimate_trial(
@@ -296,6 +286,21 @@ class _Batches(EstimatesOfColumns):
             **self._options(data),
         )
 
+    def _columns_of_one(
+        self, data: MeasurementSet, rng: np.random.Generator | None
+    ) -> BatchEstimates:
+        """One trial with the emission time and the height unknown: the pseudo-range columns
+        of its batch of one (MATH §15, "The emitter's height unknown")."""
+        return estimate_pseudorange_columns(
+            self.name,
+            MeasurementBatch.of_one(data),
+            self.frames,
+            [rng],
+            self.side_prior_m,
+            self._solve_one,
+            **self._options(data),
+        )
+
     def estimate_columns(
         self,
         batch: MeasurementBatch,
@@ -304,7 +309,6 @@ class _Batches(EstimatesOfColumns):
     ) -> BatchEstimates:
         """``estimate_batch`` as columns, without an object per trial."""
         require_batch(self, batch)
-        require_pseudorange_height_known(batch.geometry.unknowns)
         if "emission_time_s" in batch.geometry.unknowns:  # MATH §15: vectorised
             columns = estimate_pseudorange_columns(
                 self.name,

@@ -44,6 +44,15 @@ scalar search (:func:`profile_offset`). Not a closed form any more, but efficien
 ``offset_method="two-stage"`` keeps the closed form and re-imposes what the relaxation freed in
 a second stage: the measurement model linearised about the relaxed estimate, one weighted least
 squares in the correction, δ and β (:mod:`estimators.closed_form.pseudorange_two_stage`).
+
+**The emitter's height unknown** (``dimension=3``; MATH §15, "The emitter's height unknown").
+The frame's origin is ``p_j`` itself, ``q_k = p_k − p_j`` has three coordinates and
+``θ = (x', y', z', ρ_j)``: the squared-range differences ``[−2q_kᵀ, −2d_k] θ = d_k² − ‖q_k‖²``,
+the Doppler rows ``[v_kᵀ/|v_{k,xy}|, −f_k/(γ|v_{k,xy}|)] θ = (v_kᵀq_k + d_k f_k/γ)/|v_{k,xy}|``,
+the same δ columns and weights, and the cone ``‖s'‖² − ρ_j² = 0`` (:data:`CONE`) for the
+hyperboloid. A flight in one plane (a level one among them) leaves the height's component
+normal to it to the cone: the hard case, the emitter and its reflection through the plane at
+one cost, of which the mirror rule keeps the one below the UAV; a straight track fails.
 """
 
 from __future__ import annotations
@@ -55,6 +64,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from estimators.base import hovering_problem
 from estimators.batch import BatchEstimates, check_rngs
 from estimators.closed_form.cls_batch import SolveOne, draw_tie_breaks
 from estimators.closed_form.cls_rows import LocalFrame, horizontal_speed_mps, project_out
@@ -70,6 +80,7 @@ from estimators.mirror_rule import finalize_columns
 from scenarios import measurement_model as model
 from scenarios.fisher import gram_information
 from scenarios.geometry import moves_horizontally, single_horizontal_point, straight_track_line
+from scenarios.nuisance import position_dimension
 from scenarios.types import MeasurementBatch, MeasurementSet
 
 FloatArray = NDArray[np.float64]
@@ -82,6 +93,9 @@ OFFSET_METHODS: tuple[OffsetMethod, ...] = ("relaxed", "profile", "two-stage")
 
 HYPERBOLOID = np.array([1.0, 1.0, -1.0])
 """The diagonal of D for ``θ = (x', y', ρ_j)``."""
+
+CONE = np.array([1.0, 1.0, 1.0, -1.0])
+"""The diagonal of D for ``θ = (x', y', z', ρ_j)``, the emitter's height unknown (MATH §15)."""
 
 _GTRS_FIELDS = tuple(f.name for f in fields(IndefiniteGtrsBatch))
 _EPS = np.finfo(float).eps
@@ -98,8 +112,9 @@ class PseudorangeSolution:
 
     Attributes
     ----------
-    candidates_m : (n, 2)
-        Every global minimiser on the physical sheet (2 in the hard case), world metres.
+    candidates_m : (n, d)
+        Every global minimiser on the physical sheet (2 in the hard case), world metres:
+        ``(x, y)``, or ``(x, y, z)`` with the height estimated.
     costs : (n,)
         The whitened, projected cost at each candidate.
     emission_time_s : (n,)
@@ -147,19 +162,21 @@ class PseudorangeBatch:
     frame : LocalFrame
         Centred on the reference sample (the trials share it).
     constraint : ``(d, g, c)``
-        The hyperboloid ``‖s'‖² − ρ_j² = −h_j²`` in the local frame.
-    points : (n, 2, 3)
-        The returned minimisers ``θ = (x', y', ρ_j)`` in the local frame: trial ``i``'s are
+        The hyperboloid ``‖s'‖² − ρ_j² = −h_j²`` in the local frame (the cone, ``c = 0``, with
+        the height estimated).
+    points : (n, 2, p)
+        The returned minimisers ``θ = (x', y', ρ_j)`` (``(x', y', z', ρ_j)`` with the height
+        estimated, p = 4) in the local frame: trial ``i``'s are
         ``points[i, :count[i]]`` (the global ones, or the physical sheet's), NaN beyond.
     count : (n,)
     status : (n,)
         An index into :data:`STATUSES`.
     gtrs : IndefiniteGtrsBatch
         Each trial's last solve (the last stage it reached).
-    A, b : (n, m, 3), (n, m)
+    A, b : (n, m, p), (n, m)
         The last stage's whitened, projected rows; ``A_full``, ``b_full`` and ``nuisance``
         (None with δ known) the same rows before the projection.
-    candidates_m, costs, emission_time_s, reference_range_m : (n, 2, 2), (n, 2), (n, 2), (n, 2)
+    candidates_m, costs, emission_time_s, reference_range_m : (n, 2, d), (n, 2), (n, 2), (n, 2)
         Per returned point, NaN beyond ``count``; ``carrier_offset_hz`` (n, 2) or None.
     profiled, profile_evaluations : (n,), (n,)
         With ``offset_method="profile"``: the trials whose δ is the profile's (the others keep
@@ -197,7 +214,7 @@ class PseudorangeBatch:
     def on_physical_sheet(self) -> BoolArray:
         """Every global minimiser has ``ρ_j > 0``."""
         valid = np.arange(2)[None, :] < self.gtrs.count[:, None]
-        positive = np.where(valid, self.gtrs.points[..., 2] > 0.0, True)
+        positive = np.where(valid, self.gtrs.points[..., -1] > 0.0, True)
         return (self.gtrs.count > 0) & np.all(positive, axis=1)
 
 
@@ -206,14 +223,14 @@ class _Rows:
     """Raw rows in the local frame, (trials, samples) (the ToA row of ``ref`` is unused)."""
 
     ref: int
-    A_d: FloatArray | None  # (n, K, 3)
+    A_d: FloatArray | None  # (n, K, p): p = 3 unknowns (x', y', ρ_j), 4 with z'
     b_d: FloatArray | None  # (n, K)
     nuisance: FloatArray | None  # (n, K, 2): columns of δ and w on the Doppler rows
-    A_t: FloatArray  # (n, K, 3)
+    A_t: FloatArray  # (n, K, p)
     b_t: FloatArray  # (n, K)
-    h_ref: float
-    q: FloatArray  # (K, 2)
-    h: FloatArray  # (K,)
+    h_ref: float  # z_j − z_s (local), 0 with the height unknown (the frame's origin is p_j)
+    q: FloatArray  # (K, d): p_k − p_j, horizontal (d = 2) or 3-D (d = 3)
+    h: FloatArray  # (K,): z_k − z_s (local) with the height known; q_z with it unknown
     gv: FloatArray | None  # (K,) γ|v_xy| per sample
     doppler_hz: FloatArray | None  # (n, K)
 
@@ -247,17 +264,30 @@ def reference_sample(position_m: ArrayLike, reference: Reference = "centre") -> 
     return index
 
 
-def pseudorange_frame(data: MeasurementSet, ref: int) -> LocalFrame:
+def pseudorange_frame(data: MeasurementSet, ref: int, dimension: int = 2) -> LocalFrame:
     """Origin at ``p_j``'s xy, scale the RMS of the horizontal spread and the heights.
 
-    The pseudo-ranges cannot set the scale (they carry β); the heights and the spread can.
+    The pseudo-ranges cannot set the scale (they carry β); the heights and the spread can:
+    above the emitter, or with its height estimated (``dimension`` 3) above ``z = 0`` (the
+    take-off ground). The frame's height origin is then ``z_j`` (:func:`frame_origin_m`).
     """
     position = data.position_m
     origin = position[ref, :2].copy()
     spread = np.mean(np.sum((position[:, :2] - position[:, :2].mean(axis=0)) ** 2, axis=1))
-    heights = np.mean((position[:, 2] - data.emitter_height_m) ** 2)
+    ground = data.emitter_height_m if dimension == 2 else 0.0
+    heights = np.mean((position[:, 2] - ground) ** 2)
     scale = float(np.sqrt(spread + heights))
     return LocalFrame(origin_m=origin, scale_m=scale if scale > 0.0 else 1.0)
+
+
+def frame_origin_m(
+    geometry: MeasurementSet, frame: LocalFrame, ref: int, dimension: int = 2
+) -> FloatArray:
+    """The world point of the local origin, in the coordinates estimated: ``p_j``'s xy (2,),
+    or ``p_j`` (3,) with the emitter's height estimated (``world = origin + scale · local``)."""
+    if dimension == 2:
+        return frame.origin_m
+    return np.append(frame.origin_m, geometry.position_m[ref, 2])
 
 
 def pseudorange_rows(
@@ -268,18 +298,32 @@ def pseudorange_rows(
     doppler_hz: FloatArray | None,
     *,
     carrier_offset_unknown: bool,
+    dimension: int = 2,
 ) -> _Rows:
     """The rows of the module text in the local frame (unweighted), for the trials' pseudo-
-    ranges ``range_m`` and Doppler ``doppler_hz`` (n, K) on the samples of ``geometry``."""
+    ranges ``range_m`` and Doppler ``doppler_hz`` (n, K) on the samples of ``geometry``.
+
+    With the emitter's height estimated (``dimension`` 3) the frame's origin is ``p_j`` itself, ``q_k = p_k − p_j`` has three coordinates and θ = (x', y', z', ρ_j): the height's
+    column is ``−2q_{k,z}`` in the squared-range differences and ``v_{z,k}/|v_{k,xy}|`` in the
+    Doppler rows (MATH §15, "The emitter's height unknown")."""
     position = frame.positions(geometry.position_m)
-    q = position[:, :2]  # the frame's origin is p_j's xy
-    h = position[:, 2] - geometry.emitter_height_m / frame.scale_m
+    if dimension == 2:
+        q = position[:, :2]  # the frame's origin is p_j's xy
+        h = position[:, 2] - geometry.emitter_height_m / frame.scale_m
+        h_ref = float(h[ref])
+    else:
+        q = position.copy()
+        q[:, 2] -= q[ref, 2]  # the frame's origin is p_j
+        h, h_ref = q[:, 2], 0.0
     d = (range_m - range_m[:, ref : ref + 1]) / frame.scale_m
     n, k = d.shape
-    A_t = np.empty((n, k, 3))
-    A_t[:, :, :2] = -2.0 * q
-    A_t[:, :, 2] = -2.0 * d
-    b_t = d**2 - (np.sum(q**2, axis=1) + h**2 - h[ref] ** 2)
+    A_t = np.empty((n, k, dimension + 1))
+    A_t[:, :, :dimension] = -2.0 * q
+    A_t[:, :, dimension] = -2.0 * d
+    if dimension == 2:
+        b_t = d**2 - (np.sum(q**2, axis=1) + h**2 - h[ref] ** 2)
+    else:
+        b_t = d**2 - np.sum(q**2, axis=1)
     A_d = b_d = nuisance = gv = None
     if doppler_hz is not None:
         velocity = geometry.velocity_mps
@@ -287,14 +331,14 @@ def pseudorange_rows(
         gamma = geometry.gamma_per_m
         f = doppler_hz
         gv = gamma * speed
-        A_d = np.empty((n, k, 3))
-        A_d[:, :, :2] = velocity[:, :2] / speed[:, None]
-        A_d[:, :, 2] = -f / gv
-        geometric = np.sum(velocity[:, :2] * q, axis=1) + velocity[:, 2] * h
+        A_d = np.empty((n, k, dimension + 1))
+        A_d[:, :, :dimension] = velocity[:, :dimension] / speed[:, None]
+        A_d[:, :, dimension] = -f / gv
+        geometric = np.sum(velocity[:, :2] * q[:, :2], axis=1) + velocity[:, 2] * h
         b_d = (geometric + d * f / gamma) / speed
         if carrier_offset_unknown:
             nuisance = np.stack([d / gv, np.broadcast_to(1.0 / gv, d.shape)], axis=-1)
-    return _Rows(ref, A_d, b_d, nuisance, A_t, b_t, float(h[ref]), q, h, gv, doppler_hz)
+    return _Rows(ref, A_d, b_d, nuisance, A_t, b_t, h_ref, q, h, gv, doppler_hz)
 
 
 def _whitened_system(
@@ -307,15 +351,16 @@ def _whitened_system(
     the moments are evaluated.
     """
     n, k = rows.b_t.shape
+    p = rows.A_t.shape[-1]  # the unknowns θ: 3, or 4 with the height
     keep = np.arange(k) != rows.ref
     s2 = sigma_r**2
     var_t = 4.0 * rho**2 * s2 + 6.0 * s2**2
     n_extra = 0 if rows.nuisance is None else 2
-    # columns: θ (3), rhs (1), nuisance (0 or 2), low-rank U (2)
-    width = 6 + n_extra
+    # columns: θ (p), rhs (1), nuisance (0 or 2), low-rank U (2)
+    width = p + 3 + n_extra
     T = np.zeros((n, k, width))
-    T[:, :, :3] = rows.A_t
-    T[:, :, 3] = rows.b_t
+    T[:, :, :p] = rows.A_t
+    T[:, :, p] = rows.b_t
     T[:, :, -2] = s2**0.5 * (2.0 * rho)
     T[:, :, -1] = np.sqrt(2.0) * s2
     if rows.A_d is None:
@@ -326,10 +371,10 @@ def _whitened_system(
         var_d = (rho**2 * sigma_f**2 + keep * (f_bar**2 * s2 + 2.0 * sigma_f**2 * s2)) / gv**2
         cov = 2.0 * rho * f_bar * s2 / gv
         D = np.zeros((n, k, width))
-        D[:, :, :3] = rows.A_d
-        D[:, :, 3] = rows.b_d
+        D[:, :, :p] = rows.A_d
+        D[:, :, p] = rows.b_d
         if n_extra:
-            D[:, :, 4:6] = rows.nuisance
+            D[:, :, p + 1 : p + 3] = rows.nuisance
         D[:, :, -2] = s2**0.5 * a_d
         l11 = np.sqrt(var_d)
         D = D / l11[..., None]
@@ -340,15 +385,15 @@ def _whitened_system(
     # (I + ŨŨᵀ)^(-1/2) = I + P (diag(1/√(1 + s²)) − I) Pᵀ for Ũ = P S Rᵀ
     P, S, _ = np.linalg.svd(U, full_matrices=False)
     X = X + P @ ((1.0 / np.sqrt(1.0 + S**2) - 1.0)[..., None] * (np.swapaxes(P, -1, -2) @ X))
-    A, b = X[..., :3], X[..., 3]
-    return A, b, (X[..., 4:] if n_extra else None)
+    A, b = X[..., :p], X[..., p]
+    return A, b, (X[..., p + 1 :] if n_extra else None)
 
 
 def _moments_at(
     rows: _Rows, theta: FloatArray | None, geometry: MeasurementSet
 ) -> tuple[FloatArray, FloatArray | None]:
     """Ranges and offset-free Doppler (local units, (n, K)) for the weights: stage 1, or at
-    each trial's ``theta`` (n, 3)."""
+    each trial's ``theta`` (n, p)."""
     n, k = rows.b_t.shape
     f = rows.doppler_hz
     if theta is None:
@@ -358,16 +403,26 @@ def _moments_at(
             f_bar = f - f.mean(axis=1, keepdims=True) if rows.nuisance is not None else f.copy()
         return rho, f_bar
     velocity = geometry.velocity_mps
+    heights = rows.h if rows.q.shape[1] == 2 else rows.h - theta[:, None, 2]
     doppler, ranges = model.derivatives_of_offsets(  # the noise-free model (MATH §1)
         rows.q[..., 0] - theta[:, None, 0],
         rows.q[..., 1] - theta[:, None, 1],
-        rows.h,
+        heights,
         (velocity[:, 0], velocity[:, 1], velocity[:, 2]),
         geometry.gamma_per_m,
         order=0,
         values=f is not None,
     )
     return ranges[0], None if f is None else doppler[0]
+
+
+def check_dimension(dimension: object) -> None:
+    """One line naming the field when ``dimension`` is neither 2 nor 3."""
+    if dimension not in (2, 3):
+        raise ValueError(
+            f"dimension: expected 2 (the emitter at the data's height) or 3 (its height "
+            f"estimated), got {dimension!r}"
+        )
 
 
 def check_offset_method(offset_method: object) -> None:
@@ -404,6 +459,7 @@ def solve_pseudorange_batch(
     reference: Reference = "centre",
     offset_method: OffsetMethod = "relaxed",
     hard_case_rtol: float = 1e-10,
+    dimension: int = 2,
 ) -> PseudorangeBatch:
     """The relaxed pseudo-range CLS (module text, MATH §15) of ``n`` trials at once.
 
@@ -419,25 +475,41 @@ def solve_pseudorange_batch(
     ``offset_method="two-stage"`` every returned point goes to the second stage,
     :func:`~estimators.closed_form.pseudorange_two_stage.linearised_correction` (every trial
     and candidate at once), whose profiled cost becomes the candidate's cost.
+
+    ``dimension`` 3 estimates the emitter's height too: θ = (x', y', z', ρ_j) on the cone
+    ``‖s'‖² = ρ_j²`` (MATH §15, "The emitter's height unknown"), candidates ``(n, 2, 3)``. With
+    2 (the default) the emitter is at ``geometry.emitter_height_m``, the height the data assume
+    when they declare it unknown (``ml`` starts so at a few heights).
     """
     check_offset_method(offset_method)
     if int(stages) != stages or stages < 1:
         raise ValueError(f"stages: must be a whole number >= 1, got {stages!r}")
+    check_dimension(dimension)
     # C order: a trial's rows then reduce in the same order in a batch of any size
     ranges = np.ascontiguousarray(range_m, dtype=float)
     doppler = None if doppler_hz is None else np.ascontiguousarray(doppler_hz, dtype=float)
     offset_unknown = carrier_offset_unknown and doppler is not None
     ref = reference_sample(geometry.position_m, reference)
-    frame = pseudorange_frame(geometry, ref)
+    frame = pseudorange_frame(geometry, ref, dimension)
     rows = pseudorange_rows(
-        geometry, frame, ref, ranges, doppler, carrier_offset_unknown=offset_unknown
+        geometry,
+        frame,
+        ref,
+        ranges,
+        doppler,
+        carrier_offset_unknown=offset_unknown,
+        dimension=dimension,
     )
     sigma_r = geometry.noise.toa_s * geometry.speed_of_light_mps / frame.scale_m
     sigma_f = geometry.noise.doppler_hz if doppler is not None else 1.0
-    constraint = (HYPERBOLOID, np.zeros(3), -(rows.h_ref**2))
+    if dimension == 2:
+        constraint = (HYPERBOLOID, np.zeros(3), -(rows.h_ref**2))
+    else:  # ‖s'‖² − ρ_j² = 0: the cone of MATH §15
+        constraint = (CONE, np.zeros(4), 0.0)
+    origin = frame_origin_m(geometry, frame, ref, dimension)
 
     n = len(ranges)
-    points = np.full((n, 2, 3), np.nan)
+    points = np.full((n, 2, dimension + 1), np.nan)
     count = np.zeros(n, dtype=np.int64)
     status = np.zeros(n, dtype=np.int64)
     last: dict[str, Any] = {}
@@ -452,7 +524,7 @@ def solve_pseudorange_batch(
             gtrs = solve_gtrs_indefinite_batch(A, b, *constraint, hard_case_rtol=hard_case_rtol)
             found, found_count, found_status = gtrs.points.copy(), gtrs.count.copy(), gtrs.status
             valid = np.arange(2)[None, :] < found_count[:, None]
-            wrong = (found_count > 0) & np.all(np.where(valid, found[..., 2] < 0.0, True), axis=1)
+            wrong = (found_count > 0) & np.all(np.where(valid, found[..., -1] < 0.0, True), axis=1)
             for i in np.flatnonzero(wrong):
                 fallback, reason = _physical_sheet_fallback(A[i], b[i], constraint)
                 found[i] = np.nan
@@ -482,7 +554,7 @@ def solve_pseudorange_batch(
             residual = b_full - (A_full @ theta[..., None])[..., 0]
             relaxed = (np.linalg.pinv(N) @ residual[..., None])[..., 0]  # the free (δ, w)
             step = np.maximum(
-                np.abs(relaxed[:, 1] / theta[:, 2] - relaxed[:, 0]), sigma_f / np.sqrt(N.shape[1])
+                np.abs(relaxed[:, 1] / theta[:, -1] - relaxed[:, 0]), sigma_f / np.sqrt(N.shape[1])
             )
             profile = profile_offset(
                 A_full, b_full, N, constraint, relaxed[:, 0], step, hard_case_rtol=hard_case_rtol
@@ -502,7 +574,7 @@ def solve_pseudorange_batch(
             count[done] = at_delta.count[found]
             status[done] = at_delta.status[found]
             valid = np.arange(2)[None, :] < count[done, None]
-            wrong = np.all(np.where(valid, points[done, :, 2] < 0.0, True), axis=1)
+            wrong = np.all(np.where(valid, points[done, :, -1] < 0.0, True), axis=1)
             for i in np.flatnonzero(wrong & (count[done] > 0)):
                 fallback, reason = _physical_sheet_fallback(A[i], b[i], constraint)
                 points[done[i]] = np.nan
@@ -514,7 +586,7 @@ def solve_pseudorange_batch(
         valid = np.arange(2)[None, :] < count[:, None]
         residual = points @ np.swapaxes(last["A"], -1, -2) - last["b"][:, None, :]
         costs = np.where(valid, np.sum(residual**2, axis=-1), np.nan)
-        candidates = points[..., :2] * frame.scale_m + frame.origin_m
+        candidates = points[..., :dimension] * frame.scale_m + origin
         corrected = np.zeros(n, dtype=bool)
         if offset_unknown and offset_method == "two-stage" and trials.size:
             second = linearised_correction(
@@ -522,9 +594,9 @@ def solve_pseudorange_batch(
             )
             candidates[trials] = second.emitter_m
             costs[trials] = second.cost
-            local = (second.emitter_m - frame.origin_m) / frame.scale_m
-            points[trials, :, :2] = local
-            points[trials, :, 2] = np.sqrt(np.sum(local**2, axis=-1) + rows.h_ref**2)
+            local = (second.emitter_m - origin) / frame.scale_m
+            points[trials, :, :dimension] = local
+            points[trials, :, -1] = np.sqrt(np.sum(local**2, axis=-1) + rows.h_ref**2)
             corrected[trials] = np.all(second.accepted | ~valid[trials], axis=1)
         emission, offset = _nuisance_estimates(
             geometry, ranges, doppler, candidates, offset_unknown
@@ -548,7 +620,7 @@ def solve_pseudorange_batch(
         costs=costs,
         emission_time_s=emission,
         carrier_offset_hz=offset,
-        reference_range_m=points[..., 2] * frame.scale_m,
+        reference_range_m=points[..., -1] * frame.scale_m,
         profiled=profiled,
         profile_evaluations=evaluations,
         corrected=corrected,
@@ -563,6 +635,7 @@ def solve_pseudorange_cls(
     reference: Reference = "centre",
     offset_method: OffsetMethod = "relaxed",
     hard_case_rtol: float = 1e-10,
+    dimension: int = 2,
 ) -> PseudorangeSolution:
     """Every global minimiser of the pseudo-range CLS with b unknown (module text, MATH §15).
 
@@ -586,6 +659,9 @@ def solve_pseudorange_cls(
         (:func:`profile_offset`, a scalar root search, one GTRS per step), with the weights
         of the last relaxed stage; ``"two-stage"`` corrects the relaxed candidates by the
         second stage of :mod:`~estimators.closed_form.pseudorange_two_stage` (closed form).
+    dimension : 2 or 3
+        3: estimate the emitter's height too, ``(x, y, z)`` candidates (MATH §15, "The
+        emitter's height unknown"); 2: the emitter at ``data.emitter_height_m``.
 
     If the global minimiser lies on the wrong sheet (``ρ_j < 0``, possible only at high
     noise) the lowest-cost stationary point on the physical sheet is returned instead and
@@ -602,6 +678,7 @@ def solve_pseudorange_cls(
         reference=reference,
         offset_method=offset_method,
         hard_case_rtol=hard_case_rtol,
+        dimension=dimension,
     )
     ref, frame = batch.reference_sample, batch.frame
     count = int(batch.count[0])
@@ -616,7 +693,7 @@ def solve_pseudorange_cls(
     costs = batch.costs[0, :count]
     profiled = bool(batch.profiled[0])
 
-    on_sheet = bool(len(gtrs.points) and np.all(gtrs.points[:, 2] > 0.0))
+    on_sheet = bool(len(gtrs.points) and np.all(gtrs.points[:, -1] > 0.0))
     diagnostics: dict[str, Any] = {
         "success": bool(len(points)),
         "status": status,
@@ -626,7 +703,7 @@ def solve_pseudorange_cls(
         "hard_end": gtrs.hard_end,
         "rank": gtrs.rank,
         "reference_sample": ref,
-        "sheet": ["+" if rho_j > 0 else "−" for rho_j in gtrs.points[:, 2]],
+        "sheet": ["+" if rho_j > 0 else "−" for rho_j in gtrs.points[:, -1]],
         "on_physical_sheet": on_sheet,
         "global_cost": float(gtrs.costs.min()) if len(gtrs.costs) else float("nan"),
         "stages": int(stages),
@@ -639,7 +716,7 @@ def solve_pseudorange_cls(
     elif offset_unknown and len(points) and not profiled:
         relaxed = np.linalg.lstsq(N, b_full - A_full @ points[0], rcond=None)[0]
         diagnostics["relaxed_carrier_offset_hz"] = float(relaxed[0])
-        diagnostics["relaxation_gap_hz"] = float(relaxed[1] / points[0, 2] - relaxed[0])
+        diagnostics["relaxation_gap_hz"] = float(relaxed[1] / points[0, -1] - relaxed[0])
     if profiled:
         diagnostics["profile_evaluations"] = int(batch.profile_evaluations[0])
     return PseudorangeSolution(
@@ -647,7 +724,7 @@ def solve_pseudorange_cls(
         costs=costs,
         emission_time_s=emission,
         carrier_offset_hz=offset,
-        reference_range_m=points[:, 2] * frame.scale_m if len(points) else np.zeros(0),
+        reference_range_m=points[:, -1] * frame.scale_m if len(points) else np.zeros(0),
         diagnostics=diagnostics,
         gtrs=gtrs,
         frame=frame,
@@ -659,10 +736,11 @@ def solve_pseudorange_cls(
 def _offset_system(
     A: FloatArray, b: FloatArray, N: FloatArray, delta: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """The rows with δ given and ``w = ρ_jδ`` restored: ``(A + δ N_w e₃ᵀ) θ = b − δ N_δ``, per
-    trial (``A`` (n, m, 3), ``b`` (n, m), ``N`` (n, m, 2), ``delta`` (n,))."""
+    """The rows with δ given and ``w = ρ_jδ`` restored: ``(A + δ N_w e_ρᵀ) θ = b − δ N_δ``, per
+    trial (``A`` (n, m, p), ``b`` (n, m), ``N`` (n, m, 2), ``delta`` (n,); ``e_ρ`` selects
+    ``ρ_j``, the last unknown)."""
     A_delta = A.copy()
-    A_delta[..., 2] += delta[:, None] * N[..., 1]
+    A_delta[..., -1] += delta[:, None] * N[..., 1]
     return A_delta, b - delta[:, None] * N[..., 0]
 
 
@@ -687,12 +765,12 @@ def profile_offset(
     *,
     hard_case_rtol: float = 1e-10,
 ) -> ProfiledOffset:
-    """Minimise the exact cost ``min_θ ‖(A + δN_w e₃ᵀ)θ − (b − δN_δ)‖²`` over δ (hyperboloid),
-    for ``n`` trials at once.
+    """Minimise the exact cost ``min_θ ‖(A + δN_w e_ρᵀ)θ − (b − δN_δ)‖²`` over δ (hyperboloid,
+    or cone with the height unknown), for ``n`` trials at once.
 
     ``A, b, N`` are whitened rows of the relaxed systems (n, m, ·) (columns of N: δ, w),
     ``constraint`` the ``(d, g, c)`` of the hyperboloid. The constraint does not depend on δ,
-    so by the envelope theorem the profile's derivative is ``2 rᵀ(θ*₃ N_w + N_δ)`` at the GTRS
+    so by the envelope theorem the profile's derivative is ``2 rᵀ(ρ*_j N_w + N_δ)`` at the GTRS
     minimiser θ* (r its residual): a root search on it (expanding from ``delta0`` by ``step``
     until the sign changes, then Brent's method, :func:`_brent_root`) reaches the minimum to
     rounding, where a search on the cost alone stops at ``√ε``. Each step solves
@@ -710,7 +788,7 @@ def profile_offset(
         evaluations[at] += 1
         theta = gtrs.points[:, 0]
         residual = (A_delta @ theta[..., None])[..., 0] - b_delta
-        value = 2.0 * np.sum(residual * (theta[:, 2:] * N[at][..., 1] + N[at][..., 0]), axis=1)
+        value = 2.0 * np.sum(residual * (theta[:, -1:] * N[at][..., 1] + N[at][..., 0]), axis=1)
         return np.where(gtrs.count > 0, value, np.nan), gtrs
 
     delta0 = np.asarray(delta0, dtype=float)
@@ -831,9 +909,9 @@ def _physical_sheet_fallback(
 ) -> tuple[FloatArray, str]:
     """The lowest-cost stationary point with ``ρ_j > 0`` (the minimiser over that sheet)."""
     points, _, _ = stationary_points(A, b, *constraint)
-    physical = points[points[:, 2] > 0.0]
+    physical = points[points[:, -1] > 0.0]
     if len(physical) == 0:
-        return np.zeros((0, 3)), "wrong-sheet-no-physical-point"
+        return np.zeros((0, A.shape[-1])), "wrong-sheet-no-physical-point"
     return physical[:1], "wrong-sheet-fallback"
 
 
@@ -845,7 +923,8 @@ def _nuisance_estimates(
     offset_unknown: bool,
 ) -> tuple[FloatArray, FloatArray | None]:
     """``b̂ = mean(r_k − ρ̂_k)/c`` and, when unknown, ``δ̂ = mean(f_k − f_k(ŝ))`` per candidate:
-    ``candidates_m`` (n, c, 2) of the trials' ``range_m`` and ``doppler_hz`` (n, K)."""
+    ``candidates_m`` (n, c, 2), or (n, c, 3) with the height, of the trials' ``range_m`` and
+    ``doppler_hz`` (n, K)."""
     ranges = model.slant_range_m(geometry.position_m, candidates_m, geometry.emitter_height_m)
     emission = np.mean(range_m[:, None, :] - ranges, axis=-1) / geometry.speed_of_light_mps
     offset = None
@@ -874,15 +953,22 @@ def estimate_pseudorange_columns(
 
     What ``estimate`` of :mod:`estimators.closed_form.cls` returns trial by trial with an
     unknown emission time (MATH §15): :func:`solve_pseudorange_batch` on the frames used, the
-    hard-case pair left of the last heading first and the mirror rule of
-    :func:`~estimators.mirror_rule.finalize_columns`; ties draw from each trial's generator,
-    in trial order. When the samples used hover every trial goes to ``solve_one``, whose
-    ``finalize_estimate`` fails it with the reason.
+    hard-case pair left of the last heading first (with the height unknown: the lower first)
+    and the mirror rule of :func:`~estimators.mirror_rule.finalize_columns`; ties draw from
+    each trial's generator, in trial order. When the samples used hover every trial goes to
+    ``solve_one``, whose ``finalize_estimate`` fails it with the reason (with the height
+    unknown: every trial fails here, with it). With the emitter's height unknown the columns
+    are 3-D, a candidate above the UAV is dropped, and a straight
+    track fails every trial with :data:`~estimators.mirror_rule.STRAIGHT_TRACK_HEIGHT`.
     """
     n = batch.n_trials
     generators = check_rngs(rngs, n)
     geometry = batch.geometry
     used = geometry.select_frames(frames)
+    dimension = position_dimension(used.unknowns)
+    hovering = hovering_problem(used)
+    if hovering is not None and dimension == 3:
+        return BatchEstimates.failed(n, hovering, estimator=name, dimension=3)
     if single_horizontal_point(used.position_m) and not moves_horizontally(used.velocity_mps):
         redo = [solve_one(batch.trial(i), rng) for i, rng in enumerate(generators)]
         return BatchEstimates.from_estimates(name, redo)
@@ -897,21 +983,28 @@ def estimate_pseudorange_columns(
         None if batch.doppler_hz is None else batch.doppler_hz[:, columns],
         carrier_offset_unknown=offset_unknown,
         offset_method=offset_method,
+        dimension=dimension,
     )
     success = solution.count > 0
     hard = solution.gtrs.hard_case
-    # ordered_candidates: the hard-case pair left of the last heading first, at one cost; on
-    # a straight track only that one (the mirror rule adds the other)
+    # ordered_candidates: the hard-case pair left of the last heading first (3-D: the lower
+    # first), at one cost; on a straight track (2-D) only that one (the mirror rule adds the
+    # other)
     candidates, count = solution.candidates_m.copy(), solution.count.copy()
+    three_d = candidates.shape[-1] == 3
     pair = hard & (count == 2)
-    velocity = used.velocity_mps[-1]
-    left = np.array([-velocity[1], velocity[0]])
-    swap = pair & ((candidates[:, 0] - candidates[:, 1]) @ left < 0.0)
+    if three_d:
+        swap = pair & (candidates[:, 0, 2] > candidates[:, 1, 2])
+    else:
+        velocity = used.velocity_mps[-1]
+        left = np.array([-velocity[1], velocity[0]])
+        swap = pair & ((candidates[:, 0] - candidates[:, 1]) @ left < 0.0)
     candidates[swap] = candidates[swap, ::-1]
     costs = np.where(pair[:, None], np.min(solution.costs, axis=1)[:, None], solution.costs)
     line = straight_track_line(used.position_m, used.velocity_mps)
-    if line is not None:
+    if line is not None and not three_d:
         count = np.where(pair, 1, count)
+    ceiling = float(used.position_m[:, 2].max()) if three_d else None
     with np.errstate(invalid="ignore"):
         final = finalize_columns(
             candidates,
@@ -920,6 +1013,7 @@ def estimate_pseudorange_columns(
             used.position_m[:, :2].mean(axis=0),
             line,
             side_prior_m=side_prior_m,
+            ceiling_m=ceiling,
         )
     ok = success & ~final.invalid
     n_kept = np.where(ok, final.n_candidates, 0)
@@ -927,17 +1021,24 @@ def estimate_pseudorange_columns(
     draw_tie_breaks(generators, final.draw & ok, n_kept, chosen)
     width = final.candidates.shape[1]
     position = final.candidates[np.arange(n), np.minimum(chosen, width - 1)]
+    pair_note = (
+        "hard case: the emitter and its reflection through the flight plane (MATH §15)"
+        if three_d
+        else "hard case: mirror pair (MATH §15)"
+    )
     messages = [
         "",
-        "hard case: mirror pair (MATH §15)",
+        pair_note,
         WRONG_SHEET_NOTE,
-        f"hard case: mirror pair (MATH §15); {WRONG_SHEET_NOTE}",
+        f"{pair_note}; {WRONG_SHEET_NOTE}",
         *(f"pseudo-range closed form: {status} (MATH §15)" for status in STATUSES),
-        "pseudo-range closed form: no finite candidate (MATH §15)",
+        final.problem or "pseudo-range closed form: no finite candidate (MATH §15)",
     ]
     wrong_sheet = ~solution.on_physical_sheet
+    # a geometry that locates nothing (final.problem) says so for every trial
+    fails = success | bool(final.problem)
     code = np.where(
-        ok, hard + 2 * wrong_sheet, np.where(success, len(messages) - 1, 4 + solution.status)
+        ok, hard + 2 * wrong_sheet, np.where(fails, len(messages) - 1, 4 + solution.status)
     )
     diagnostics: dict[str, NDArray[Any]] = {
         "status": np.array(STATUSES, dtype=object)[solution.status],

@@ -42,7 +42,10 @@ Vectorised over trials and over each trial's starts:
    at the midpoint) are one; every minimum within ``cost_rtol`` of the best is a candidate (on
    one straight frame the mirror pair has exactly equal cost, MATH §7); on a level flight with
    the height unknown each minimum's reflection through the flight plane is added at its cost
-   (:func:`with_reflections`: the likelihood is symmetric about the plane, MATH §7);
+   (:func:`with_reflections`: the likelihood is symmetric about the plane, MATH §7), unless
+   the data carry a terrain: its prior (the last row of the residual,
+   :mod:`estimators.ml.ml_residuals`) breaks that symmetry, the reflections are no minima of
+   the posterior, and the starts below the UAV find its minima;
 5. the mirror rule and tie-break (:func:`~estimators.mirror_rule.finalize_columns`, which
    also drops a 3-D candidate above the UAV; one
    ``rng.integers`` per trial that draws, in trial order), the covariance, the inverse Fisher
@@ -172,7 +175,11 @@ class SharedContext:
             origin = np.append(origin, position[:, 2].mean())
             if straight_track_line(position, used.velocity_mps) is not None:
                 degenerate = STRAIGHT_TRACK_HEIGHT  # a circle of equal cost (MATH §7)
-            elif np.ptp(position[:, 2]) == 0.0 and not used.velocity_mps[:, 2].any():
+            elif (
+                np.ptp(position[:, 2]) == 0.0
+                and not used.velocity_mps[:, 2].any()
+                and used.terrain is None  # a terrain prior breaks the symmetry (module text)
+            ):
                 level = float(position[0, 2])
             if degenerate is None:
                 heights = tuple(
@@ -255,8 +262,10 @@ class SharedContext:
 
     @property
     def n_rows(self) -> int:
-        """Rows of the residual: Doppler (and ToA, and RSS) blocks of every sample."""
-        return self.doppler_t.shape[0] * (1 + self.uses_toa + (self.rss_t is not None))
+        """Rows of the residual: Doppler (and ToA, and RSS) blocks of every sample, and the
+        terrain prior's row (:mod:`estimators.ml.ml_residuals`)."""
+        blocks = 1 + self.uses_toa + (self.rss_t is not None)
+        return self.doppler_t.shape[0] * blocks + self.model.prior
 
 
 def solve_batch(

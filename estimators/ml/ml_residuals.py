@@ -21,6 +21,13 @@ With the emitter's height unknown (MATH §8, ``dimension`` 3) the emitter is ``(
 the height is a coordinate of every evaluation (``z_k − z_s`` from the samples' ``pz``), the
 Jacobian has a third column, ``∂ρ_k/∂z_s = −(z_k − z_s)/ρ_k`` and
 ``∂f_k/∂z_s = (γ v_z + f_k (z_k − z_s)/ρ_k)/ρ_k`` (:func:`scenarios.measurement_model.doppler_jacobian`).
+
+With the height unknown and a terrain in the data (:mod:`scenarios.terrain`) the residual ends
+with the prior's row, the emitter's offset above the ground measured as 0 with σ_m:
+``e = (0 − (z_s − h(x_s, y_s)))/σ_m``, ``∂e/∂s = −(−h_x, −h_y, 1)/σ_m`` (minus the row of
+:func:`scenarios.fisher.terrain_row`). ``‖e‖²`` is then minus twice the log-posterior, and its
+minimum the MAP (MATH §8, §10); the Gram matrix of the Jacobian is the prior-augmented
+information.
 """
 
 from __future__ import annotations
@@ -35,7 +42,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from estimators.ml.minpack_batch import column_sums
 from scenarios import measurement_model as model
-from scenarios.nuisance import position_dimension
+from scenarios.nuisance import HEIGHT_UNKNOWN, position_dimension
+from scenarios.terrain import Terrain, offset_above_surface_m, offset_gradient
 from scenarios.types import MeasurementSet, RssModel
 
 FloatArray = NDArray[np.float64]
@@ -68,6 +76,7 @@ class ResidualModel:
     sample_axis: int = -1
     toa: bool = True  # a ToA block (False: Doppler alone, MATH §15)
     dimension: int = 2  # 3: the height a coordinate of the emitter (MATH §8)
+    terrain: Terrain | None = None  # the prior's row, with dimension 3 (module text)
 
     @classmethod
     def of(cls, data: MeasurementSet) -> ResidualModel:
@@ -90,7 +99,34 @@ class ResidualModel:
             ),
             toa=data.toa_s is not None,
             dimension=position_dimension(data.unknowns),
+            terrain=data.terrain if HEIGHT_UNKNOWN in data.unknowns else None,
         )
+
+    @property
+    def prior(self) -> bool:
+        """Whether the residual ends with the terrain prior's row (module text)."""
+        return self.terrain is not None and self.dimension == 3
+
+    def _prior_point(self, point: Sequence[ArrayLike]) -> FloatArray:
+        """The emitter ``(..., 3)`` laid out as a row of the blocks: ``(1, k)`` rows first,
+        ``(..., 1)`` samples last."""
+        stacked = np.stack(np.broadcast_arrays(*point[:3]), axis=-1)
+        return stacked[None] if self.sample_axis == 0 else stacked
+
+    def _prior_residual(self, point: Sequence[ArrayLike], out: FloatArray | None) -> FloatArray:
+        """``(0 − (z_s − h(x_s, y_s)))/σ_m`` (module text), one row."""
+        assert self.terrain is not None
+        offset = offset_above_surface_m(self.terrain, self._prior_point(point))
+        return np.multiply(offset, -1.0 / self.terrain.sigma_m, out=out)
+
+    def _prior_jacobian(
+        self, point: Sequence[ArrayLike], out: Sequence[FloatArray | None]
+    ) -> list[FloatArray]:
+        """``∂e/∂x_s, ∂e/∂y_s, ∂e/∂z_s`` of the prior's row: ``(h_x, h_y, −1)/σ_m``."""
+        assert self.terrain is not None
+        gradient = offset_gradient(self.terrain, self._prior_point(point))
+        scale = -1.0 / self.terrain.sigma_m
+        return [np.multiply(gradient[..., axis], scale, out=out[axis]) for axis in range(3)]
 
     def by_sample(self) -> ResidualModel:
         """The same constants as columns ``(N, 1)``: rows first, emitters along the last axis."""
@@ -158,7 +194,10 @@ class ResidualModel:
             assert self.rss_model is not None
             power = model.rss_of_ranges(ranges, self.rss_model)[0]
             blocks.append(_whitened(rss, power, sigma_p, slots[-1]))
-        return self._profiled(blocks) if any(self.centred) else blocks
+        blocks = self._profiled(blocks) if any(self.centred) else blocks
+        if self.prior:  # after the profiling: the prior has no nuisance parameter
+            blocks.append(self._prior_residual(point, None if out is None else out[-1:]))
+        return blocks
 
     def jacobian(
         self,
@@ -198,7 +237,11 @@ class ResidualModel:
             if power is not None:
                 into.append(np.multiply(power[1 + axis], -1.0 / sigma_p, out=slot[-1]))
         if any(self.centred):
-            return tuple(self._profiled(column) for column in columns)
+            columns = tuple(self._profiled(column) for column in columns)
+        if self.prior:
+            rows = [None if out is None else out[axis][-1:] for axis in range(d)]
+            for column, row in zip(columns, self._prior_jacobian(point, rows), strict=True):
+                column.append(row)
         return columns
 
 

@@ -46,8 +46,8 @@ def test_an_estimator_that_takes_the_offsets_as_known_is_refused_at_load() -> No
     assert "'ml'" in message and "'cls'" in message
 
 
-def test_ignore_unknowns_must_be_a_boolean_and_round_trips() -> None:
-    with pytest.raises(ValueError, match="ignore_unknowns: expected true or false"):
+def test_ignore_unknowns_must_be_a_boolean_or_a_list_and_round_trips() -> None:
+    with pytest.raises(ValueError, match="ignore_unknowns: expected true, false or a list"):
         experiment([{"name": "ml", "ignore_unknowns": "yes"}])
     loaded = experiment(["ml", {"name": "cls-paper", "ignore_unknowns": True}])
     assert loaded.estimators[1].ignore_unknowns

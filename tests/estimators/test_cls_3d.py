@@ -286,19 +286,6 @@ def test_one_straight_track_is_refused_in_one_line() -> None:
     assert {estimator.estimate_batch(batch)[i].message for i in range(5)} == {STRAIGHT_TRACK_HEIGHT}
 
 
-def test_the_height_with_the_emission_time_unknown_is_refused_in_one_line() -> None:
-    """The pseudo-range form (MATH §15) is 2-D: the height unknown with it is refused, naming
-    the unknowns and the way out."""
-    data = noise_free(get_scenario("roof-beacon"))
-    estimator = make_estimator("cls")
-    with pytest.raises(ValueError, match=r"^unknowns: .*emission time unknown.*\n?") as error:
-        estimator.estimate(data)
-    assert "\n" not in str(error.value) and "emitter_height_m" in str(error.value)
-    batch = simulate_trials(get_scenario("roof-beacon"), snr_db=10.0, seeds=trial_seeds(1, 2))
-    with pytest.raises(ValueError, match=r"^unknowns: "):
-        estimator.estimate_columns(batch)
-
-
 @pytest.mark.parametrize("name", ["hill", "hill-climb"])
 def test_constrained_ls_describes_the_3d_system_the_estimate_minimises(name: str) -> None:
     """``cls.constrained_ls(data)`` in 3-D: rows over ``(x, y, z, ‖s‖²)`` whose exact optimum
