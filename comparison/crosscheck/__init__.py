@@ -19,6 +19,15 @@ Families of instances (each drawn from its own ``SeedSequence``):
 ``paper``
     The paper's geometry (MATH §14) with the ``paper-1m`` or ``paper-10m`` constants at a
     random SNR (MATH §2), weighted rows.
+``climb-height`` (3-D)
+    The emitter's height unknown, ``r = (x, y, z, x² + y² + z²)`` (MATH §5 in three
+    coordinates, the lift 5×5): three legs at random headings, each at its own climb rate, the
+    emitter at a random height below the UAV; weighted rows. No plane holds the flight: one
+    minimiser.
+``level-height`` (3-D)
+    The same with a level flight: its rows annihilate ``(0, 0, 1, 2h)`` and the emitter's
+    reflection through the flight plane costs the same (MATH §7): the hard case, both
+    minimisers due (unless the noise leaves one, in the plane).
 
 Length scale: every distance is also given relative to the problem's length scale, the
 :class:`~estimators.closed_form.cls_rows.LocalFrame` scale (RMS of the track spread and the ranges).
@@ -31,7 +40,8 @@ family's: the closed form and the SDP are compared on them as above, and every c
 estimator returns is lifted onto the paraboloid and must attain the closed-form optimum (relative
 cost gap ``<= rtol_objective``, within ``rtol_argmin`` of the length scale of a closed-form
 minimiser), and every closed-form minimiser must be among its candidates (both mirror images in
-the hard case, MATH §5). A disagreement is replayed with ``--replay SEED --families F
+the hard case, MATH §5), except, with the height unknown, one above the UAV's highest sample,
+which the mirror rule drops (MATH §7). A disagreement is replayed with ``--replay SEED --families F
 --estimator NAME``.
 
 The command is ``emitterbench validate``. Modules: :mod:`~comparison.crosscheck.instances`
@@ -59,6 +69,7 @@ from comparison.crosscheck.compare import (
 )
 from comparison.crosscheck.instances import (
     FAMILIES,
+    FAMILY_DIMENSION,
     FloatArray,
     ValidationInstance,
     instance_seeds,
@@ -82,6 +93,7 @@ from comparison.crosscheck.run import (
 
 __all__ = [
     "FAMILIES",
+    "FAMILY_DIMENSION",
     "MULTIPLIER_ZERO_RTOL",
     "NOT_RUN",
     "CandidateCheck",

@@ -13,6 +13,7 @@ from comparison.crosscheck.instances import FloatArray, ValidationInstance
 from estimators.base import Estimate
 from estimators.closed_form.constrained_ls import PROTOCOL_METHOD, ConstrainedLS
 from estimators.closed_form.gtrs import GtrsSolution, constrained_cost, solve_gtrs
+from estimators.mirror_rule import MERGE_RTOL
 from estimators.sdp.sdp_cls import SdpSolution, solve_sdp_relaxation
 
 NOT_RUN = "not_run"
@@ -35,8 +36,9 @@ class CandidateCheck:
         Largest ``|cost − f*| / f*`` over the candidates, each lifted onto the paraboloid;
         NaN without candidates.
     max_distance_m, max_distance_rel : float
-        Hausdorff distance between the candidates and the closed-form minimisers, in metres
-        and of the length scale (inf without candidates).
+        Hausdorff distance between the candidates and the closed-form minimisers (those due),
+        in metres and of the length scale (inf without candidates; NaN without candidates
+        when no minimiser is due).
     n_missing : int
         Closed-form minimisers with no candidate within the distance tolerance.
     n_extra : int
@@ -44,6 +46,10 @@ class CandidateCheck:
         tolerance, or away from every minimiser).
     n_below : int
         Candidates whose cost is below the closed-form optimum beyond the tolerance.
+    n_above_uav : int
+        Closed-form minimisers above the UAV's highest sample (the height unknown): the
+        mirror rule drops them ("the emitter is below the UAV", MATH §7), so they are not due,
+        and the distances are to the others.
     """
 
     estimate_success: bool
@@ -55,6 +61,7 @@ class CandidateCheck:
     n_missing: int
     n_extra: int
     n_below: int = 0
+    n_above_uav: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -104,9 +111,11 @@ def relative_objective_gap(sdp_value: float, closed_form_value: float) -> float:
 
 
 def point_set_distance(first: FloatArray, second: FloatArray) -> float:
-    """Hausdorff distance between two point sets (n, 2) and (m, 2); inf if one is empty."""
-    first = np.asarray(first, dtype=float).reshape(-1, 2)
-    second = np.asarray(second, dtype=float).reshape(-1, 2)
+    """Hausdorff distance between two point sets (n, d) and (m, d); inf if one is empty."""
+    first = np.asarray(first, dtype=float)
+    d = first.shape[-1]
+    first = first.reshape(-1, d)
+    second = np.asarray(second, dtype=float).reshape(-1, d)
     if len(first) == 0 or len(second) == 0:
         return float("inf")
     pairwise = np.linalg.norm(first[:, None, :] - second[None, :, :], axis=-1)
@@ -122,8 +131,12 @@ def compare_solutions(
     rtol_objective: float,
     rtol_argmin: float,
 ) -> InstanceResult:
-    """Judge one instance: objective gap, argmin or mirror-pair distance, solver status."""
+    """Judge one instance: objective gap, argmin or mirror-pair distance, solver status.
+
+    Points are compared in all ``d`` coordinates of the rows (``(x, y)``, or ``(x, y, z)`` with
+    the height unknown), in the local frame's unit."""
     scale = instance.length_scale_m
+    d = instance.dimension
     value = float(np.min(closed_form.costs))
     reasons: list[str] = []
     gap = argmin = pair = float("nan")
@@ -133,22 +146,29 @@ def compare_solutions(
         gap = relative_objective_gap(sdp.value, value)
         if not gap <= rtol_objective:
             reasons.append(f"relative objective gap {gap:.3g} > {rtol_objective:g}")
-        cf_points = closed_form.points[:, :2]
+        cf_points = closed_form.points[:, :d]
         if closed_form.hard_case:
-            pair = point_set_distance(sdp.points[:, :2], cf_points)
+            pair = point_set_distance(sdp.points[:, :d], cf_points)
             if not pair <= rtol_argmin:
                 reasons.append(
                     f"hard case: SDP pair ({len(sdp.points)} points, rank {sdp.rank}) is "
                     f"{pair:.3g} (of the length scale) from the closed-form mirror pair"
                 )
         else:
-            best = sdp.points[int(np.argmin(sdp.costs)), :2]
+            best = sdp.points[int(np.argmin(sdp.costs)), :d]
             argmin = float(np.min(np.linalg.norm(cf_points - best, axis=1)))
             if not argmin <= rtol_argmin:
                 reasons.append(
                     f"unique minimiser: SDP argmin is {argmin:.3g} (of the length scale) from "
                     f"the closed form's (SDP rank {sdp.rank})"
                 )
+                point_gaps = [relative_objective_gap(cost, value) for cost in sdp.costs]
+                if len(point_gaps) == 2 and max(point_gaps) <= rtol_objective:
+                    reasons.append(
+                        "both points recovered from the SDP's lift attain the closed-form "
+                        f"optimum (relative gaps {point_gaps[0]:.3g}, {point_gaps[1]:.3g}): the "
+                        "closed form returned one minimiser of a mirror pair (MATH §5)"
+                    )
     return InstanceResult(
         family=instance.family,
         seed=instance.seed,
@@ -182,8 +202,9 @@ def validate_instance(
     """Run the closed form and the SDP on the instance's rows.
 
     The equality (Shor) relaxation is judged against the closed form. The inequality relaxation
-    ``r_z >= ‖y‖²`` is solved too, for the report only: it is tight exactly when λ* >= 0
-    (MATH §11). ``multiplier_rel = λ*/‖A_xy‖₂²`` (λ* acts on the xy block only) and
+    ``r_z >= ‖y‖²`` (in 3-D ``r_w >= ‖s‖²``) is solved too, for the report only: it is tight
+    exactly when λ* >= 0 (MATH §11). ``multiplier_rel = λ*/‖A_s‖₂²`` (λ* acts on the block of
+    ``s``, ``(x, y)`` or ``(x, y, z)``, only) and
     ``inequality_rel_gap`` (its value below the closed form's, relative) record it.
     """
     started = time.perf_counter()
@@ -204,7 +225,8 @@ def validate_instance(
     value = float(np.min(closed_form.costs))
     result = replace(
         result,
-        multiplier_rel=closed_form.multiplier / np.linalg.norm(instance.A[:, :2], 2) ** 2,
+        multiplier_rel=closed_form.multiplier
+        / np.linalg.norm(instance.A[:, : instance.dimension], 2) ** 2,
         inequality_rel_gap=(value - inequality.value) / max(abs(value), np.finfo(float).tiny)
         if inequality.has_solution
         else float("nan"),
@@ -252,29 +274,53 @@ def check_candidates(
     *,
     rtol_objective: float = 1e-6,
     rtol_argmin: float = 1e-3,
+    ceiling_m: float | None = None,
 ) -> tuple[CandidateCheck, tuple[str, ...]]:
     """Judge the estimator's candidates on its own rows ``problem`` (MATH §5).
 
-    Each candidate ``(x, y)`` is lifted to ``r = (x, y, x² + y²)`` in the rows' frame, so it
-    lies on the constraint surface, and its cost is compared with the closed-form optimum
-    ``f*``. A candidate is a global minimiser when ``|cost − f*| <= rtol_objective · f*`` and it
-    lies within ``rtol_argmin`` (of the length scale) of a closed-form minimiser; every
-    closed-form minimiser must have such a candidate (both mirror images in the hard case).
-    Returns the check and the reasons it fails (empty when it passes).
+    Each candidate ``s`` (``(x, y)``, or ``(x, y, z)`` with the height a coordinate) is lifted
+    to ``r = (s, ‖s‖²)`` in the rows' frame, so it lies on the constraint surface, and its cost
+    is compared with the closed-form optimum ``f*``. A candidate is a global minimiser when
+    ``|cost − f*| <= rtol_objective · f*`` and it lies within ``rtol_argmin`` (of the length
+    scale) of a closed-form minimiser; every closed-form minimiser that is due must have such a
+    candidate (both mirror images in the hard case). In 3-D ``ceiling_m``, the UAV's highest
+    sample height, is required: a minimiser above it is not due, as the mirror rule drops it
+    (MATH §7: a level flight's reflection through its plane), and when none is due a failed
+    estimate (no candidates) agrees. The largest distance is over the
+    candidates (to the nearest minimiser) and the due minimisers (to the nearest candidate):
+    the Hausdorff distance when every minimiser is due. Returns the check and the reasons it
+    fails (empty when it passes).
     """
-    minimisers = closed_form.points[:, :2]
+    d = problem.dimension
+    minimisers = closed_form.points[:, :d]
+    due = np.ones(len(minimisers), dtype=bool)
+    if d == 3:
+        if ceiling_m is None:
+            raise ValueError("ceiling_m: the 3-D check needs the UAV's highest sample height")
+        heights = problem.to_world(minimisers)[:, 2]
+        due = heights <= ceiling_m + MERGE_RTOL * max(abs(ceiling_m), 1.0)
     optimum = float(np.min(closed_form.costs))
-    if not estimate.success or len(estimate.candidates_m) == 0:
+    width = np.shape(estimate.candidates_m)[-1]
+    if not estimate.success or len(estimate.candidates_m) == 0 or width != d:
+        # no candidate: infinitely far from a due minimiser; with none due, nothing to measure
+        far = float("inf") if due.any() else float("nan")
         check = CandidateCheck(
             estimate_success=bool(estimate.success),
             n_candidates=0,
             n_minimisers=len(minimisers),
             max_rel_cost_gap=float("nan"),
-            max_distance_m=float("inf"),
-            max_distance_rel=float("inf"),
-            n_missing=len(minimisers),
+            max_distance_m=far,
+            max_distance_rel=far,
+            n_missing=int(due.sum()),
             n_extra=0,
+            n_above_uav=int((~due).sum()),
         )
+        if estimate.success and len(estimate.candidates_m) and width != d:
+            return check, (
+                f"the candidates have {width} coordinates, the rows of constrained_ls {d}",
+            )
+        if not due.any():  # every global minimiser above the UAV: no answer is the rule's
+            return check, ()
         why = estimate.message or "no candidates"
         return check, (f"estimate failed: {why}",)
     local = problem.to_local(estimate.candidates_m)
@@ -284,18 +330,19 @@ def check_candidates(
     near = distances <= rtol_argmin
     below = gaps < -rtol_objective
     extra = ~below & ((gaps > rtol_objective) | ~near.any(axis=1))
-    missing = ~near.any(axis=0)
-    hausdorff = point_set_distance(local, minimisers)
+    missing = due & ~near.any(axis=0)
+    largest = max(distances.min(axis=1).max(), distances[:, due].min(axis=0).max(initial=0.0))
     check = CandidateCheck(
         estimate_success=True,
         n_candidates=len(local),
         n_minimisers=len(minimisers),
         max_rel_cost_gap=float(np.max(np.abs(gaps))),
-        max_distance_m=hausdorff * problem.scale_m,
-        max_distance_rel=hausdorff,
+        max_distance_m=float(largest) * problem.scale_m,
+        max_distance_rel=float(largest),
         n_missing=int(missing.sum()),
         n_extra=int(extra.sum()),
         n_below=int(below.sum()),
+        n_above_uav=int((~due).sum()),
     )
     reasons = []
     if extra.any():
@@ -306,13 +353,14 @@ def check_candidates(
             "length scale from the nearest closed-form minimiser"
         )
     if missing.any():
-        kind = (
-            "hard case: both mirror minimisers must be returned"
-            if closed_form.hard_case
-            else "unique minimiser"
-        )
+        if not closed_form.hard_case:
+            kind = "unique minimiser"
+        elif due.all():
+            kind = "hard case: both mirror minimisers must be returned"
+        else:
+            kind = "hard case: the minimiser below the UAV must be returned"
         reasons.append(
-            f"{check.n_missing} of {check.n_minimisers} closed-form minimiser(s) not among the "
+            f"{check.n_missing} of {int(due.sum())} closed-form minimiser(s) not among the "
             f"candidates ({kind}; the nearest candidate is "
             f"{float(np.max(distances[:, missing].min(axis=0))):.3g} of the length scale away)"
         )
@@ -408,7 +456,12 @@ def validate_estimator_instance(
         on_rows, rtol_objective=rtol_objective, rtol_argmin=rtol_argmin, solver=solver
     )
     check, reasons = check_candidates(
-        problem, estimate, closed_form, rtol_objective=rtol_objective, rtol_argmin=rtol_argmin
+        problem,
+        estimate,
+        closed_form,
+        rtol_objective=rtol_objective,
+        rtol_argmin=rtol_argmin,
+        ceiling_m=float(np.max(data.position_m[:, 2])) if problem.dimension == 3 else None,
     )
     result = replace(result, candidates=check, reasons=reasons + result.reasons)
     return result, EstimatorRun(on_rows, estimate, problem, closed_form, sdp)

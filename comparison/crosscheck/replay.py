@@ -85,16 +85,18 @@ def replay_with_verdict(
             return "\n".join(lines) + "\n", False
         assert run.closed_form is not None and run.sdp is not None
         instance, closed_form, sdp = run.instance, run.closed_form, run.sdp
-    frame = instance.frame
+    frame, d = instance.frame, instance.dimension
+    world = instance.problem.to_world
     lines += [
         f"  local frame: origin {_matrix_text(frame.origin_m)} m, "
         f"length scale {frame.scale_m:.6g} m",
-        f"  rows: {instance.rows}, A {instance.A.shape}, numerical rank {closed_form.rank}",
+        f"  rows: {instance.rows}, A {instance.A.shape} (d = {d}), numerical rank "
+        f"{closed_form.rank}",
         "closed form (MATH §5)",
         f"  lambda* = {closed_form.multiplier:.10g}, hard case {closed_form.hard_case}",
     ]
     for point, cost in zip(closed_form.points, closed_form.costs, strict=True):
-        lines.append(f"  minimiser (m) {_matrix_text(frame.to_world(point[:2]))}  cost {cost:.12g}")
+        lines.append(f"  minimiser (m) {_matrix_text(world(point[:d]))}  cost {cost:.12g}")
     lines += [
         "SDP relaxation (MATH §11, equality)",
         f"  status {sdp.status} (tolerance rung {sdp.rung}), iterations {sdp.iterations}, "
@@ -112,7 +114,7 @@ def replay_with_verdict(
         ]
         for point, cost in zip(sdp.points, sdp.costs, strict=True):
             lines.append(
-                f"  recovered point (m) {_matrix_text(frame.to_world(point[:2]))}  cost {cost:.12g}"
+                f"  recovered point (m) {_matrix_text(world(point[:d]))}  cost {cost:.12g}"
             )
     if run is not None:
         lines += _estimate_lines(run, float(np.min(closed_form.costs)))
@@ -133,7 +135,9 @@ def replay_with_verdict(
     if result.candidates is not None:
         check = result.candidates
         lines.append(
-            f"  candidates: {check.n_candidates} for {check.n_minimisers} minimiser(s), "
+            f"  candidates: {check.n_candidates} for {check.n_minimisers} minimiser(s)"
+            + (f" ({check.n_above_uav} above the UAV, not due)" if check.n_above_uav else "")
+            + ", "
             f"max relative cost gap {check.max_rel_cost_gap:.3e}, max distance "
             f"{check.max_distance_m:.3e} m ({check.max_distance_rel:.3e} of the length scale), "
             f"missing {check.n_missing}, extra {check.n_extra}"

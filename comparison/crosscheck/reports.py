@@ -17,6 +17,7 @@ from comparison.crosscheck.result import ValidationResult
 
 _COLUMNS = (
     ("family", "family"),
+    ("dimension", "d"),
     ("n", "n"),
     ("n_hard", "hard"),
     ("max_rel_objective_gap", "max rel. objective gap"),
@@ -34,6 +35,7 @@ _COLUMNS = (
 
 _ESTIMATOR_COLUMNS = (
     ("family", "family"),
+    ("dimension", "d"),
     ("n", "n"),
     ("n_hard", "hard"),
     ("n_sdp_failed", "SDP failed"),
@@ -54,7 +56,9 @@ def _estimator_caption(result: ValidationResult) -> str:
         "lifted onto the paraboloid and compared with the exact optimum of the same rows (MATH "
         f"§5). Tolerances: relative cost gap {result.rtol_objective:g}; distance to a "
         f"closed-form minimiser {result.rtol_argmin:g} of the length scale. Missing: "
-        "closed-form minimisers not returned (both mirror images are due in the hard case); "
+        "closed-form minimisers not returned (both mirror images are due in the hard case, "
+        "except in d = 3 one above the UAV's highest sample, which the mirror rule drops, "
+        "MATH §7); "
         "extra: candidates that are not global minimisers. The table above compares the closed "
         "form and the SDP on the same rows."
     )
@@ -71,7 +75,8 @@ _INEQUALITY_COLUMNS = (
 )
 
 _INEQUALITY_CAPTION = (
-    "The inequality relaxation (r_z ≥ x² + y², MATH §11) on the same instances: it is tight (value "
+    "The inequality relaxation (r_z ≥ x² + y², in d = 3 r_w ≥ x² + y² + z², MATH §11) on the same "
+    "instances: it is tight (value "
     "within the objective tolerance of the closed form's) when the Lagrange multiplier λ* ≥ 0, "
     "and strictly below the optimum when λ* < 0, by a gap that vanishes as λ* → 0⁻ (so a "
     "barely negative λ* can fall within the tolerance). Gaps are relative to the closed form's "
@@ -112,7 +117,9 @@ def _caption(result: ValidationResult) -> str:
     )
     return (
         f"Closed-form CLS (MATH §5) against its Shor SDP relaxation (MATH §11, cvxpy + "
-        f"Clarabel) on {rows}; root seed {result.seed}. Tolerances: relative "
+        f"Clarabel) on {rows}; root seed {result.seed}. d: the emitter's coordinates, 2 "
+        "(r = (x, y, x² + y²), the height known) or 3 (r = (x, y, z, x² + y² + z²), the height "
+        "unknown; the lift 5×5). Tolerances: relative "
         f"objective gap {result.rtol_objective:g}; argmin distance (unique minimiser) and "
         f"mirror-pair distance (hard case) {result.rtol_argmin:g} of the length scale (RMS of "
         "the track spread and the ranges). Noise levels follow the SNR axis of MATH §2. "
@@ -149,6 +156,14 @@ def _disagreement_lines(result: ValidationResult, limit: int = 200) -> list[str]
     return lines
 
 
+def _skipped_lines(result: ValidationResult) -> list[str]:
+    """One line per reason a family was not run (families of the same reason together)."""
+    by_reason: dict[str, list[str]] = {}
+    for family, why in result.skipped.items():
+        by_reason.setdefault(why, []).append(family)
+    return [f"{', '.join(families)}: {why}." for why, families in by_reason.items()]
+
+
 def markdown_report(result: ValidationResult) -> str:
     """A short Markdown summary: verdict, the per-family table, every disagreement."""
     headers = [title for _, title in _COLUMNS]
@@ -164,6 +179,7 @@ def markdown_report(result: ValidationResult) -> str:
         "|" + "|".join("---" for _ in headers) + "|",
     ]
     lines += ["| " + " | ".join(row) + " |" for row in _table_rows(result)]
+    lines += [f"\nNot run: {line}" for line in _skipped_lines(result)]
     if result.estimator is not None:
         estimator_headers = [title for _, title in _ESTIMATOR_COLUMNS]
         lines += [
@@ -234,7 +250,8 @@ def html_report(result: ValidationResult, png: bytes) -> str:
         f"<p>{len(result.results)} instances, {len(result.disagreements)} disagreements.</p>\n"
         f"<p>{escape(_caption(result))}</p>\n"
         f"<table><tr>{head}</tr>{body}</table>\n"
-        f"{estimator_block}"
+        + "".join(f"<p>Not run: {escape(line)}</p>\n" for line in _skipped_lines(result))
+        + f"{estimator_block}"
         "<h2>The inequality relaxation</h2>\n"
         f"<p>{escape(_INEQUALITY_CAPTION)}</p>\n"
         f"<table><tr>{inequality_head}</tr>{inequality_body}</table>\n"

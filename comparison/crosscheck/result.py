@@ -29,12 +29,15 @@ class FamilySummary:
     """Aggregates of one family (the per-family block of ``validate.json``).
 
     ``n_sdp_failed`` counts instances whose SDP did not end with status ``optimal`` (each is a
-    disagreement). The ``*estimator*`` fields are set when an estimator was validated: instances
-    where it failed or raised, the largest relative cost gap and distance of its candidates,
-    and the total of missing and extra candidates (:class:`CandidateCheck`).
+    disagreement). ``dimension`` is the family's emitter coordinates: 2 (``r = (x, y,
+    x² + y²)``) or 3 (the height unknown, ``r = (x, y, z, x² + y² + z²)``). The
+    ``*estimator*`` fields are set when an estimator was validated: instances where it failed
+    or raised, the largest relative cost gap and distance of its candidates, and the total of
+    missing and extra candidates (:class:`CandidateCheck`).
     """
 
     family: str
+    dimension: int
     n: int
     n_hard: int
     n_unique: int
@@ -69,7 +72,8 @@ class ValidationResult:
 
     ``estimator`` is the validated estimator's name (None: the built-in closed form on the
     families' rows) and ``estimator_args`` the ``--estimator ... --option ...`` arguments that
-    rebuild it in a replay command.
+    rebuild it in a replay command. ``skipped`` maps a family not run to why (an estimator
+    that takes the emitter's height as known, on a family of dimension 3).
     """
 
     seed: int
@@ -80,6 +84,7 @@ class ValidationResult:
     files: dict[str, Path] = field(default_factory=dict)
     estimator: str | None = None
     estimator_args: str = ""
+    skipped: dict[str, str] = field(default_factory=dict)
 
     def replay_command(self, result: InstanceResult) -> str:
         """The command line that re-runs one instance of this validation verbosely."""
@@ -117,6 +122,7 @@ class ValidationResult:
                 "relaxation": "equality (Shor, MATH §11)",
                 "versions": {"cvxpy": cvxpy.__version__, "clarabel": clarabel_version},
                 "families": {name: asdict(summary) for name, summary in self.families.items()},
+                **({"skipped_families": dict(self.skipped)} if self.skipped else {}),
                 "disagreements": [
                     {
                         "family": r.family,

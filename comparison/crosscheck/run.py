@@ -24,13 +24,15 @@ from comparison.crosscheck.compare import (
 )
 from comparison.crosscheck.instances import (
     FAMILIES,
+    FAMILY_DIMENSION,
     check_family,
     instance_seeds,
     make_instance,
 )
 from comparison.crosscheck.reports import write_reports
 from comparison.crosscheck.result import FamilySummary, ValidationResult, json_clean
-from estimators.base import params_of
+from estimators.base import params_of, unknowns_problem
+from scenarios.nuisance import HEIGHT_UNKNOWN
 
 Progress = Callable[[int, int, str], None]
 """``progress(done, total, family)``, called after every instance."""
@@ -127,6 +129,7 @@ def summarise_family(
     negative = [r for r in results if r.multiplier_rel < -MULTIPLIER_ZERO_RTOL]
     return FamilySummary(
         family=family,
+        dimension=FAMILY_DIMENSION[family],
         n=len(results),
         n_hard=len(hard),
         n_unique=len(unique),
@@ -168,6 +171,30 @@ def summarise_family(
     )
 
 
+def _families_for(
+    estimator: Any, families: tuple[str, ...]
+) -> tuple[tuple[str, ...], dict[str, str]]:
+    """The families ``estimator`` can be judged on, and why each other is skipped: a 3-D
+    family leaves the emitter's height unknown, which an estimator that takes it as known
+    refuses (:func:`estimators.base.unknowns_problem`). Raises ``ValueError`` when none is
+    left."""
+    if unknowns_problem(estimator, (HEIGHT_UNKNOWN,), ("doppler", "toa")) is None:
+        return families, {}
+    why = (
+        f"{estimator_label(estimator)} takes the emitter's height as known; these instances "
+        "leave it unknown (r = (x, y, z, x² + y² + z²), MATH §5)"
+    )
+    skipped = {family: why for family in families if FAMILY_DIMENSION[family] == 3}
+    kept = tuple(family for family in families if family not in skipped)
+    if not kept:
+        raise ValueError(
+            f"families: {', '.join(skipped)} leave the emitter's height unknown and "
+            f"{estimator_label(estimator)!r} takes it as known; choose a family of dimension 2 "
+            "or an estimator that estimates the height (cls)"
+        )
+    return kept, skipped
+
+
 def run_validation(
     *,
     instances: int,
@@ -204,7 +231,9 @@ def run_validation(
         None: the built-in closed form on the families' rows. Otherwise an estimator (or a
         name for :func:`estimators.registry.make_estimator`) with ``constrained_ls(data)``
         (:mod:`estimators.closed_form.constrained_ls`): it is run on each instance's measurements
-        and judged on its own rows (:func:`validate_estimator_instance`).
+        and judged on its own rows (:func:`validate_estimator_instance`). The families of
+        dimension 3 are skipped (``skipped`` of the result says why) for an estimator that
+        takes the emitter's height as known.
 
     Returns
     -------
@@ -231,8 +260,10 @@ def run_validation(
         from estimators.registry import make_estimator
 
         estimator = make_estimator(estimator)
+    skipped: dict[str, str] = {}
     if estimator is not None:
         check_protocol(estimator)
+        families, skipped = _families_for(estimator, families)
     total = instances * len(families)
     done = 0
     results: list[InstanceResult] = []
@@ -263,6 +294,7 @@ def run_validation(
         results=tuple(results),
         estimator=None if estimator is None else estimator_label(estimator),
         estimator_args="" if estimator is None else estimator_cli_args(estimator),
+        skipped=skipped,
     )
     if out_dir is None:
         return validation

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import base64
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numpy as np
@@ -15,6 +15,9 @@ import estimators.sdp.sdp_solvers as sdp_solvers
 from comparison.cli import app
 from comparison.crosscheck import (
     FAMILIES,
+    FAMILY_DIMENSION,
+    check_candidates,
+    compare_solutions,
     instance_seeds,
     make_instance,
     point_set_distance,
@@ -23,10 +26,14 @@ from comparison.crosscheck import (
     run_validation,
     validate_instance,
 )
-from estimators.base import finalize_estimate, require_modalities
+from estimators.base import Estimate, finalize_estimate, require_modalities
 from estimators.closed_form.cls import Cls, ClsAsPrinted, ClsPaper
 from estimators.closed_form.gtrs import solve_gtrs
 from estimators.registry import make_estimator
+from estimators.sdp.sdp_cls import solve_sdp_relaxation
+
+FAMILIES_2D = tuple(family for family in FAMILIES if FAMILY_DIMENSION[family] == 2)
+FAMILIES_3D = ("climb-height", "level-height")
 
 
 @pytest.mark.parametrize("family", FAMILIES)
@@ -90,11 +97,12 @@ def test_run_writes_json_markdown_and_html(tmp_path):
         progress=lambda done, total, family: calls.append((done, total, family)),
     )
     assert result.ok
-    assert calls[-1] == (16, 16, "paper") and len(calls) == 16
+    assert calls[-1] == (24, 24, "level-height") and len(calls) == 24
     payload = json.loads((tmp_path / "validate.json").read_text())
     assert payload["ok"] is True and payload["seed"] == 3
     assert set(payload["families"]) == set(FAMILIES)
-    for summary in payload["families"].values():
+    for name, summary in payload["families"].items():
+        assert summary["dimension"] == (3 if name in FAMILIES_3D else 2)
         assert summary["n"] == 4
         assert summary["statuses"] == {"optimal": 4}
         assert summary["max_rel_objective_gap"] <= 1e-6
@@ -105,6 +113,7 @@ def test_run_writes_json_markdown_and_html(tmp_path):
     assert payload["disagreements"] == []
     markdown = (tmp_path / "validate.md").read_text()
     assert "**PASS**" in markdown and "straight" in markdown
+    assert "| family | d | n |" in markdown and "| level-height | 3 | 4 |" in markdown
     html = (tmp_path / "validate.html").read_text()
     encoded = html.split("data:image/png;base64,")[1].split("'")[0]
     assert base64.b64decode(encoded)[:8] == b"\x89PNG\r\n\x1a\n"
@@ -167,7 +176,7 @@ def test_bad_options_raise_value_error_naming_the_field(options, field):
 def test_acceptance_one_thousand_instances_per_family(tmp_path):
     """>= 1000 seeded instances per family: every objective gap <= 1e-6, every unique argmin and
     every hard-case mirror pair within 1e-3 of the length scale, every status optimal."""
-    result = run_validation(instances=1000, families=FAMILIES, seed=0, out_dir=tmp_path)
+    result = run_validation(instances=1000, families=FAMILIES_2D, seed=0, out_dir=tmp_path)
     for family, summary in result.families.items():
         print(
             f"{family}: n={summary.n} hard={summary.n_hard} "
@@ -237,12 +246,13 @@ class MidpointCls(Cls):
         require_modalities(self, data)
         problem = self.constrained_ls(data)
         solution = solve_gtrs(problem.A, problem.b)
-        xy = solution.points[:, :2]
+        d = problem.dimension
+        xy = solution.points[:, :d]
         if solution.hard_case:
             M, q = problem.A.T @ problem.A, problem.A.T @ problem.b
             lam = 1e-9 * np.trace(M)
-            r = np.linalg.solve(M + lam * np.diag([1.0, 1.0, 0.0]), q + lam * np.array([0, 0, 0.5]))
-            xy = r[None, :2]
+            D, g = np.diag([1.0] * d + [0.0]), np.eye(d + 1)[d] * 0.5
+            xy = np.linalg.solve(M + lam * D, q + lam * g)[None, :d]
         points = problem.to_world(xy)
         used = data.select_frames(self.frames)
         return finalize_estimate(self.name, points, problem.cost(points), used, rng=rng)
@@ -268,7 +278,7 @@ class RowsOfTheWrongType(Cls):
 def test_the_builtin_closed_forms_pass_on_every_family(name):
     """Every candidate attains the exact optimum of the estimator's own rows; both mirror
     minimisers in the hard case; the SDP value equals the optimum; every status optimal."""
-    result = run_validation(instances=40, families=FAMILIES, seed=11, estimator=name)
+    result = run_validation(instances=40, families=FAMILIES_2D, seed=11, estimator=name)
     assert result.ok, [(r.family, r.seed, r.reasons) for r in result.disagreements]
     assert result.estimator == name and result.estimator_args == f"--estimator {name}"
     for summary in result.families.values():
@@ -440,3 +450,205 @@ def test_cli_validate_exit_codes(tmp_path):
     (line,) = refused.stderr.strip().splitlines()
     assert line.startswith("error: estimator: 'lls-toa'") and "constrained_ls(self, data)" in line
     assert not (tmp_path / "x").exists()
+
+
+# --------------------------------------------------------------------------------------------
+# the emitter's height unknown: the 3-D families (MATH §5 in three coordinates, §7, §11)
+# --------------------------------------------------------------------------------------------
+
+EXACT_RTOL = 1e-8
+"""Noise-free minimisers against the truth, of the length scale: the rows are exact to
+rounding, and the worst of 30 instances per family is 1.3e-10 (the families reach ranges of
+some hundred track lengths, whose conditioning costs those digits)."""
+
+VALUE_ATOL = 1e-12
+"""Times ``‖b‖²``: a noise-free optimum is zero to rounding, so the SDP value is held to the
+rounding of the cost summed over the rows (the relative gap has no scale there)."""
+
+
+def world_minimisers(instance):
+    """The closed form's minimisers of the instance's rows in world metres, and the solution."""
+    closed = solve_gtrs(instance.A, instance.b)
+    return instance.problem.to_world(closed.points[:, :3]), closed
+
+
+@pytest.mark.parametrize("family", FAMILIES_3D)
+def test_a_noise_free_3d_instance_has_the_emitter_as_its_minimiser(family):
+    """Noise-free, the closed form's minimisers are the emitter (climb-height) or the emitter
+    and its reflection through the flight plane (level-height), and the SDP relaxation's value
+    is the optimum, zero to rounding."""
+    for seed in instance_seeds(21, family, 8):
+        instance = make_instance(family, seed, exact=True)
+        assert instance.dimension == 3 and instance.A.shape[1] == 4
+        points, closed = world_minimisers(instance)
+        truth = instance.data.truth_emitter_m
+        height = instance.data.position_m[:, 2].max()
+        expected = [truth] if family == "climb-height" else [truth, truth * [1, 1, -1]]
+        if family == "level-height":
+            expected[1] = expected[1] + [0.0, 0.0, 2.0 * height]
+        assert closed.hard_case == (family == "level-height")
+        assert len(points) == len(expected)
+        order = np.argsort(points[:, 2])
+        np.testing.assert_allclose(
+            points[order], np.array(expected), rtol=0.0, atol=EXACT_RTOL * instance.length_scale_m
+        )
+        sdp = solve_sdp_relaxation(instance.A, instance.b)
+        assert sdp.status == "optimal" and sdp.lift.shape == (5, 5)
+        bb = instance.b @ instance.b
+        assert abs(sdp.value - closed.costs.min()) <= VALUE_ATOL * bb
+
+
+def test_the_3d_families_have_the_advertised_structure():
+    """climb-height: rank 4, one minimiser, the emitter below the UAV's lowest sample;
+    level-height: every sample at one height, rank 3 (the null vector ``(0, 0, 1, 2h)``)."""
+    for family in FAMILIES_3D:
+        for seed in instance_seeds(5, family, 6):
+            instance = make_instance(family, seed)
+            data = instance.data
+            assert data.truth_emitter_m.shape == (3,) and "emitter_height_m" in data.unknowns
+            assert len(np.unique(data.frame)) == 3 and instance.rows == "weighted"
+            assert 0.0 <= data.truth_emitter_m[2] < data.position_m[:, 2].min()
+            closed = solve_gtrs(instance.A, instance.b)
+            if family == "climb-height":
+                assert closed.rank == 4 and not closed.hard_case
+                assert np.ptp(data.position_m[:, 2]) > 0.0
+            else:
+                assert closed.rank == 3
+                assert np.ptp(data.position_m[:, 2]) == 0.0
+                h = data.position_m[0, 2] / instance.length_scale_m
+                null = np.array([0.0, 0.0, 1.0, 2.0 * h])
+                assert np.linalg.norm(instance.A @ null) <= 1e-12 * np.linalg.norm(instance.A)
+
+
+def test_level_height_returns_both_minimisers_and_the_sdp_its_pair():
+    """Noisy level flights: in the hard case the closed form returns two minimisers at equal
+    cost, mirror images through the flight plane ``z = h`` (one (x, y), heights summing to
+    2h), and the SDP's rank-two lift recovers the same pair (MATH §5, §11)."""
+    hard = 0
+    for seed in instance_seeds(9, "level-height", 12):
+        instance = make_instance("level-height", seed)
+        result, closed, sdp = validate_instance(instance)
+        assert result.agrees, result.reasons
+        if not closed.hard_case:
+            continue
+        hard += 1
+        points = instance.problem.to_world(closed.points[:, :3])
+        height = instance.data.position_m[0, 2]
+        assert len(points) == 2
+        np.testing.assert_allclose(points[0, :2], points[1, :2], rtol=0.0, atol=1e-9 * height)
+        assert points[:, 2].sum() == pytest.approx(2.0 * height, rel=1e-9)
+        np.testing.assert_allclose(closed.costs[0], closed.costs[1], rtol=1e-12)
+        assert sdp.rank == 2 and len(sdp.points) == 2
+        assert result.pair_distance_rel <= 1e-3
+    assert hard >= 9
+
+
+@pytest.mark.parametrize("family", FAMILIES_3D)
+def test_cls_in_3d_is_validated_on_its_own_rows(family):
+    """``--estimator cls`` on data of unknown height: rows over (x, y, z, ‖s‖²); every
+    candidate attains their optimum; of a level flight's pair the reflection above the UAV is
+    not due (the mirror rule drops it, MATH §7) and the emitter's side is returned."""
+    result = run_validation(instances=10, families=[family], seed=4, estimator="cls")
+    assert result.ok, [(r.family, r.seed, r.reasons) for r in result.disagreements]
+    summary = result.families[family]
+    assert summary.dimension == 3 and summary.n_estimator_missing == 0
+    assert summary.max_estimator_rel_cost_gap <= 1e-9
+    for r in result.results:
+        check = r.candidates
+        assert check.n_candidates == 1
+        assert check.n_above_uav == (1 if r.hard_case else 0)
+        assert check.n_minimisers == (2 if r.hard_case else 1)
+    if family == "level-height":
+        assert summary.n_hard >= 8
+
+
+@dataclass(frozen=True, kw_only=True)
+class AboveTheUavCls(Cls):
+    """Wrong on purpose: returns the highest of the closed form's minimisers (in a level
+    flight's hard case, the reflection above the UAV)."""
+
+    name: ClassVar[str] = "above-the-uav-cls"
+
+    def estimate(self, data, *, rng=None):
+        problem = self.constrained_ls(data)
+        points = problem.to_world(solve_gtrs(problem.A, problem.b).points[:, :3])
+        highest = points[np.argmax(points[:, 2])][None]
+        return Estimate(
+            estimator=self.name, position_m=highest[0], candidates_m=highest, ambiguous=False
+        )
+
+
+def test_returning_the_reflection_above_the_uav_is_caught():
+    """The reflection costs the optimum, but the minimiser below the UAV is due and missing."""
+    instance = make_instance("level-height", instance_seeds(9, "level-height", 1)[0])
+    problem = Cls().constrained_ls(instance.data)
+    closed = solve_gtrs(problem.A, problem.b)
+    assert closed.hard_case
+    ceiling = float(instance.data.position_m[:, 2].max())
+    wrong = AboveTheUavCls().estimate(instance.data)
+    check, reasons = check_candidates(problem, wrong, closed, ceiling_m=ceiling)
+    assert check.n_missing == 1 and check.n_above_uav == 1 and check.n_extra == 0
+    assert check.max_rel_cost_gap <= 1e-9  # it is a global minimiser, just not the due one
+    assert "the minimiser below the UAV must be returned" in reasons[0]
+    with pytest.raises(ValueError, match=r"^ceiling_m: "):
+        check_candidates(problem, wrong, closed)
+    right = Cls().estimate(instance.data)
+    check, reasons = check_candidates(problem, right, closed, ceiling_m=ceiling)
+    assert reasons == () and check.n_missing == 0 and check.n_candidates == 1
+
+
+def test_a_closed_form_that_misses_a_mirror_minimiser_disagrees_in_height():
+    """A closed form that returns one point of a level flight's pair (the one the SDP does not
+    rank first) differs from the SDP's argmin in the height alone: the check compares all three
+    coordinates, and says that both recovered points attain the optimum."""
+    instance = make_instance("level-height", instance_seeds(9, "level-height", 1)[0])
+    _, closed, sdp = validate_instance(instance)
+    assert closed.hard_case and len(sdp.points) == 2
+    other = int(np.argmax(np.linalg.norm(closed.points - sdp.points[np.argmin(sdp.costs)], axis=1)))
+    keep = slice(other, other + 1)
+    one = replace(closed, points=closed.points[keep], costs=closed.costs[keep], hard_case=False)
+    result = compare_solutions(
+        instance, one, sdp, closed_form_time_s=0.0, rtol_objective=1e-6, rtol_argmin=1e-3
+    )
+    separation = abs(closed.points[0, 2] - closed.points[1, 2])
+    assert result.argmin_distance_rel == pytest.approx(separation, rel=1e-6)
+    assert separation > 1e-2 and not result.agrees
+    assert "both points recovered from the SDP's lift attain" in result.reasons[1]
+
+
+def test_an_estimator_that_takes_the_height_as_known_skips_the_3d_families(tmp_path):
+    """``cls-paper`` refuses data of unknown height: the 3-D families are not run (the result,
+    validate.json and validate.md say why), and asking for them alone is refused in one line."""
+    result = run_validation(
+        instances=1,
+        families=("turn", *FAMILIES_3D),
+        seed=0,
+        estimator="cls-paper",
+        out_dir=tmp_path,
+    )
+    assert result.ok and set(result.families) == {"turn"}
+    assert set(result.skipped) == set(FAMILIES_3D)
+    payload = json.loads((tmp_path / "validate.json").read_text())
+    assert set(payload["skipped_families"]) == set(FAMILIES_3D)
+    assert (
+        "Not run: climb-height, level-height: cls-paper takes the emitter's height as known"
+        in (tmp_path / "validate.md").read_text()
+    )
+    with pytest.raises(ValueError, match=r"^families: climb-height, level-height leave the emit"):
+        run_validation(instances=1, families=FAMILIES_3D, estimator="cls-paper")
+    assert "skipped_families" not in run_validation(instances=1, families=["turn"]).to_dict()
+
+
+def test_no_answer_agrees_when_every_minimiser_is_above_the_uav():
+    """A unique minimiser above the UAV is not due: a failed estimate (the mirror rule leaves
+    nothing) agrees, and with the UAV above it the same failure is a missing minimiser."""
+    instance = make_instance("climb-height", instance_seeds(9, "climb-height", 1)[0])
+    problem = Cls().constrained_ls(instance.data)
+    closed = solve_gtrs(problem.A, problem.b)
+    (height,) = problem.to_world(closed.points[:, :3])[:, 2]
+    failed = Estimate.failed("cls", "no candidate below the UAV", dimension=3)
+    check, reasons = check_candidates(problem, failed, closed, ceiling_m=height - 1.0)
+    assert reasons == () and check.n_above_uav == 1 and check.n_missing == 0
+    assert np.isnan(check.max_distance_m)
+    check, reasons = check_candidates(problem, failed, closed, ceiling_m=height + 1.0)
+    assert reasons == ("estimate failed: no candidate below the UAV",) and check.n_missing == 1
