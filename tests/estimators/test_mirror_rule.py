@@ -163,3 +163,55 @@ def test_an_estimate_of_3d_candidates_follows_the_track() -> None:
     straight = TrackSoFar.of(Samples(leg, along))
     failed = finalize_from_track("x", candidates, [1.0, 1.0], straight)
     assert not failed.success and failed.message == STRAIGHT_TRACK_HEIGHT
+
+
+def test_in_3d_a_flight_in_one_plane_adds_each_candidate_s_reflection_through_it() -> None:
+    """The flight's plane (scenarios.geometry.flight_plane): horizontal for a level turn,
+    tilted for two legs with a climb, none for a single line or three legs off any plane; the
+    rule adds each candidate's reflection through it at the same cost, and the ceiling keeps the
+    one below the UAV."""
+    from scenarios.geometry import flight_plane, reflect_through_plane
+
+    t = np.linspace(0.0, 1.0, 6)[:, None]
+
+    def legs(*velocities):
+        position, velocity, start = [], [], np.array([0.0, 0.0, 300.0])
+        for v in velocities:
+            position.append(start + t * np.asarray(v) * 10.0)
+            velocity.append(np.tile(v, (len(t), 1)))
+            start = position[-1][-1]
+        return np.vstack(position), np.vstack(velocity)
+
+    level = flight_plane(*legs([10.0, 0.0, 0.0], [0.0, 10.0, 0.0]))
+    assert level is not None and abs(abs(level[1][2]) - 1.0) < 1e-12
+    tilted = flight_plane(*legs([10.0, 0.0, 0.0], [0.0, 10.0, 3.0]))
+    assert tilted is not None
+    np.testing.assert_allclose(np.abs(tilted[1]), np.array([0.0, 3.0, 10.0]) / np.hypot(3, 10))
+    assert flight_plane(*legs([10.0, 0.0, 1.0], [10.0, 0.0, 1.0])) is None  # one line
+    assert flight_plane(*legs([10.0, 0.0, 0.0], [0.0, 10.0, 3.0], [-10.0, 0.0, -1.0])) is None
+
+    emitter = np.array([40.0, -25.0, 120.0])
+    final = finalize_columns(
+        emitter[None, None],
+        np.array([1]),
+        np.array([[2.0]]),
+        np.zeros(2),
+        None,
+        ceiling_m=300.0,
+        plane=level,
+    )
+    assert final.n_candidates.tolist() == [1]
+    np.testing.assert_array_equal(final.candidates[0, 0], emitter)
+    above = reflect_through_plane(emitter, *level)  # the solve found only the one above
+    np.testing.assert_allclose(above, [40.0, -25.0, 480.0], rtol=1e-15)
+    final = finalize_columns(
+        above[None, None],
+        np.array([1]),
+        np.array([[2.0]]),
+        np.zeros(2),
+        None,
+        ceiling_m=300.0,
+        plane=level,
+    )
+    assert final.n_candidates.tolist() == [1] and final.source[0, 0] == 1
+    np.testing.assert_allclose(final.candidates[0, 0], emitter, rtol=1e-15)
