@@ -92,7 +92,7 @@ Levenberg-Marquardt on the whole graph is the checked fallback); their values ar
 Jacobians ``(2K, 3)``. A straight track leaves a circle: the batch solve fails with the mirror
 rule's line and streaming keeps the frames of the first straight track without a hypothesis;
 with a second heading every hypothesis starts from a point of the first frame's circle below
-the UAV (:func:`~estimators.sequential.nuisance_starts.circle_starts`) and is solved by the
+the UAV (:func:`~estimators.sequential.nuisance_starts.height_starts`) and is solved by the
 checked Levenberg-Marquardt above; with a random walk every frame's variable starts at the
 static optimum reached from that point (one frame alone leaves its variable on its own circle),
 and Levenberg-Marquardt's steps are solved by QR, not Cholesky
@@ -127,7 +127,7 @@ from estimators.sequential.mirror_hypotheses import (
     hypothesis_starts,
     smoother_estimate,
 )
-from estimators.sequential.nuisance_starts import circle_starts
+from estimators.sequential.nuisance_starts import height_starts
 from estimators.sequential.nuisance_states import (
     NUISANCE_UNKNOWNS,
     check_same_unknowns,
@@ -392,16 +392,11 @@ class GtsamSmoother:
     ) -> SmootherState:
         """The hypotheses with the height unknown (MATH §7, §8): Levenberg-Marquardt on all
         ``frames`` from each start on the first frame's ambiguity circle below the UAV
-        (:func:`~estimators.sequential.nuisance_starts.circle_starts`); the converged ones,
+        (:func:`~estimators.sequential.nuisance_starts.height_starts`); the converged ones,
         merged and pruned. Raises :class:`EstimationFailure` on a straight track (the height
         is not fixed: :data:`~estimators.mirror_rule.STRAIGHT_TRACK_HEIGHT`) or when no solve
         converged."""
-        track = StraightTrack.of_frame(frames[0])
-        for frame in frames[1:]:
-            track = None if track is None else track.extended(frame)
-        if track is not None:
-            raise EstimationFailure(STRAIGHT_TRACK_HEIGHT)
-        starts = circle_starts(frames[0])
+        starts = height_starts(frames)
         length_scale = frames[0].mean_range_m(starts[0])
         prior_sigma = DIFFUSE_PRIOR_SCALE * length_scale
         hypotheses, reports, reasons = [], [], []

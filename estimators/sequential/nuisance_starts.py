@@ -42,6 +42,7 @@ heading decide among them (:mod:`estimators.sequential.ekf`).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -49,7 +50,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from estimators.convergence import EstimationFailure
 from estimators.frame_model import FrameModel
+from estimators.mirror_rule import STRAIGHT_TRACK_HEIGHT
 from estimators.sequential.nuisance_states import NuisanceFrame, profile_nuisance
+from scenarios.geometry import StraightTrack
 
 FloatArray = NDArray[np.float64]
 
@@ -201,6 +204,18 @@ def straight_frame_starts(frame: NuisanceFrame) -> FloatArray:
     mirrored = best - 2.0 * cross * normal
     pair = [best, mirrored] if cross != 0.0 else [best]
     return np.array([frame.state(p, profile_nuisance([frame], p)) for p in pair])
+
+
+def height_starts(frames: Sequence[FrameModel | NuisanceFrame]) -> FloatArray:
+    """:func:`circle_starts` of the first of ``frames`` (3-D models), once they leave one
+    straight track; raises :class:`EstimationFailure` while they are on one (the height is not
+    fixed: :data:`~estimators.mirror_rule.STRAIGHT_TRACK_HEIGHT`, MATH §7)."""
+    track = StraightTrack.of_frame(frames[0])
+    for frame in frames[1:]:
+        track = None if track is None else track.extended(frame)
+    if track is not None:
+        raise EstimationFailure(STRAIGHT_TRACK_HEIGHT)
+    return circle_starts(frames[0])
 
 
 def circle_starts(frame: FrameModel | NuisanceFrame) -> FloatArray:

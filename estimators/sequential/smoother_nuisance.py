@@ -85,7 +85,7 @@ from estimators.sequential.nuisance_graph import (
     nuisance_values,
     read_values,
 )
-from estimators.sequential.nuisance_starts import circle_starts, straight_frame_starts
+from estimators.sequential.nuisance_starts import height_starts, straight_frame_starts
 from estimators.sequential.nuisance_states import (
     NuisanceFrame,
     diffuse_sigmas,
@@ -681,13 +681,14 @@ def estimate_state(
     """The estimate of the last emitter variable, with the returned hypothesis's nuisance
     values in ``diagnostics`` (``carrier_offset_hz``, ``emission_time_s``, MATH §15)."""
     name = options["name"]
-    if state.failure:
-        return Estimate.failed(name, state.failure, frames=state.n_frames)
     if not state.frames:
         return Estimate.failed(name, "no frame has been processed yet", frames=0)
-    height = state.frames[0].dimension == 3
+    d = state.frames[0].dimension  # 3 with the height unknown
+    height = d == 3
+    if state.failure:
+        return Estimate.failed(name, state.failure, dimension=d, frames=state.n_frames)
     if height and not state.hypotheses:  # every frame so far on one straight track
-        return Estimate.failed(name, STRAIGHT_TRACK_HEIGHT, frames=state.n_frames)
+        return Estimate.failed(name, STRAIGHT_TRACK_HEIGHT, dimension=3, frames=state.n_frames)
     hypotheses = state.all_hypotheses()
     diagnostics: dict[str, Any] = {"mode": "streaming", **state.diagnostics}
     notes = [diagnostics["misfit_restart"]] if diagnostics.get("misfit_restart") else []
@@ -736,15 +737,10 @@ def height_start(
 ) -> NuisanceSmootherState:
     """The hypotheses with the height unknown too: Levenberg-Marquardt on the whole graph (a
     ``Point3`` and the nuisance vector) from each start on the first frame's ambiguity circle
-    below the UAV (:func:`~estimators.sequential.nuisance_starts.circle_starts`); the converged
+    below the UAV (:func:`~estimators.sequential.nuisance_starts.height_starts`); the converged
     ones, merged and pruned. Raises :class:`EstimationFailure` on a straight track
     (:data:`~estimators.mirror_rule.STRAIGHT_TRACK_HEIGHT`) or when no solve converged."""
-    track = StraightTrack.of_frame(frames[0])
-    for frame in frames[1:]:
-        track = None if track is None else track.extended(frame)
-    if track is not None:
-        raise EstimationFailure(STRAIGHT_TRACK_HEIGHT)
-    starts = circle_starts(frames[0])
+    starts = height_starts(frames)
     length_scale = frames[0].mean_range_m(starts[0])
     sigmas = diffuse_sigmas(frames[0], length_scale)
     problem = _problem(frames, sigmas, options)
