@@ -40,9 +40,9 @@ Vectorised over trials and over each trial's starts:
    costs tied within ``XTOL`` the image on the left of the track is kept), and
    minima within ``cost_rtol`` of the best joined to a better one by a flat valley (no barrier
    at the midpoint) are one; every minimum within ``cost_rtol`` of the best is a candidate (on
-   one straight frame the mirror pair has exactly equal cost, MATH §7); on a level flight with
-   the height unknown each minimum's reflection through the flight plane is added at its cost
-   (:func:`with_reflections`: the likelihood is symmetric about the plane, MATH §7), unless
+   one straight frame the mirror pair has exactly equal cost, MATH §7); on a flight in one
+   plane with the height unknown the rule adds each minimum's reflection through it at its cost
+   (``plane``: the likelihood is symmetric about the plane, MATH §7), unless
    the data carry a terrain: its prior (the last row of the residual,
    :mod:`estimators.ml.ml_residuals`) breaks that symmetry, the reflections are no minima of
    the posterior, and the starts below the UAV find its minima;
@@ -87,7 +87,12 @@ from estimators.ml.ml_batch_starts import (
 from estimators.ml.ml_residuals import ResidualModel, profiled_offsets
 from estimators.ml.ml_starts import ranges_uninformative
 from scenarios.fisher import inverse_symmetric
-from scenarios.geometry import cross_track_m, mirror_across_line, straight_track_line
+from scenarios.geometry import (
+    cross_track_m,
+    flight_plane,
+    mirror_across_line,
+    straight_track_line,
+)
 from scenarios.nuisance import position_dimension
 from scenarios.types import MeasurementBatch, MeasurementSet
 
@@ -141,7 +146,7 @@ class SharedContext:
     dimension: int  # 3: the height a coordinate of the emitter (MATH §8)
     heights: tuple[tuple[float, SharedContext], ...]  # the starts' heights (dimension 3)
     degenerate: str | None  # why the geometry cannot fix the emitter (dimension 3)
-    flight_plane_m: float | None  # the altitude of a level flight (dimension 3)
+    plane: tuple[FloatArray, FloatArray] | None  # the flight's plane, if one (dimension 3)
 
     @classmethod
     def of(
@@ -170,17 +175,13 @@ class SharedContext:
         position = used.position_m
         origin = position[:, :2].mean(axis=0)
         spread_sq = float(np.mean(np.sum((position[:, :2] - origin) ** 2, axis=1)))
-        degenerate, level, heights = None, None, ()
+        degenerate, plane, heights = None, None, ()
         if dimension == 3:
             origin = np.append(origin, position[:, 2].mean())
             if straight_track_line(position, used.velocity_mps) is not None:
                 degenerate = STRAIGHT_TRACK_HEIGHT  # a circle of equal cost (MATH §7)
-            elif (
-                np.ptp(position[:, 2]) == 0.0
-                and not used.velocity_mps[:, 2].any()
-                and used.terrain is None  # a terrain prior breaks the symmetry (module text)
-            ):
-                level = float(position[0, 2])
+            elif used.terrain is None:  # a terrain prior breaks the symmetry (module text)
+                plane = flight_plane(position, used.velocity_mps)
             if degenerate is None:
                 heights = tuple(
                     (z, cls.of(estimator, at_height(batch, z), dimension=2))
@@ -214,7 +215,7 @@ class SharedContext:
             dimension=dimension,
             heights=heights,
             degenerate=degenerate,
-            flight_plane_m=level,
+            plane=plane,
         )
 
     def trial_data(self, trial: int) -> MeasurementSet:
@@ -356,10 +357,6 @@ def _solve_trials(context: SharedContext, trials: IntArray) -> _Chunk:
     with np.errstate(invalid="ignore"):  # no minimum: best is inf
         below = unconverged_best < best - estimator.cost_rtol * np.abs(best)
     ok = (count > 0) & (n_minima > 0) & ~below
-    if context.flight_plane_m is not None:  # level: the reflections at the same costs
-        minima, minimum_costs, n_minima = with_reflections(
-            minima, minimum_costs, n_minima, context.flight_plane_m
-        )
     k = max(int(n_minima.max(initial=1)), 1)
     with np.errstate(all="ignore"):
         final = finalize_columns(
@@ -371,6 +368,7 @@ def _solve_trials(context: SharedContext, trials: IntArray) -> _Chunk:
             side_prior_m=estimator.side_prior_m,
             cost_rtol=estimator.cost_rtol,
             ceiling_m=float(context.used.position_m[:, 2].max()),
+            plane=context.plane,  # a flight in one plane: the reflections at equal costs
         )
     candidates, n_kept, chosen = final.candidates, final.n_candidates, final.chosen
     draw, ambiguous = final.draw, final.ambiguous
@@ -611,25 +609,6 @@ def _distance(a: FloatArray, b: FloatArray) -> FloatArray:
     for axis in range(1, a.shape[1]):
         total = total + (a[:, axis] - b[:, axis]) * (a[:, axis] - b[:, axis])
     return np.sqrt(total)
-
-
-def with_reflections(
-    points: FloatArray, costs: FloatArray, count: IntArray, plane_z_m: float
-) -> tuple[FloatArray, FloatArray, IntArray]:
-    """Each trial's minima ``(n, k, 3)`` and, after them, their reflections through the
-    horizontal plane ``z = plane_z_m`` of a level flight at the same costs: the likelihood is
-    exactly symmetric there (MATH §7), so each is a minimum too; the mirror rule keeps those
-    below the UAV."""
-    width = points.shape[1]
-    reflected = points.copy()
-    reflected[..., 2] = 2.0 * plane_z_m - points[..., 2]
-    valid = np.arange(width)[None, :] < count[:, None]
-    joined, joined_costs, keep = _compact(
-        np.concatenate([points, reflected], axis=1),
-        np.concatenate([costs, costs], axis=1),
-        np.concatenate([valid, valid], axis=1),
-    )
-    return joined, joined_costs, keep.sum(axis=1)
 
 
 def _compact(

@@ -525,9 +525,6 @@ def _solve_chunk(
         if every
         else (solved.count[accepted], solved.points[accepted], solved.costs[accepted])
     )
-    if d == 3 and np.ptp(shared.z) == 0.0:
-        plane = shared.z[0] / chunk.scale[final]
-        count, points, costs = _with_reflections(count, points, costs, plane)
     world = points[:, :, :d] * chunk.scale[final, None, None]
     world[..., :2] += shared.origin  # (the frame's z is the world's, MATH §5)
     valid = np.arange(2) < count[:, None]
@@ -560,33 +557,6 @@ def _solve_chunk(
         )
         diagnostics = {key: column[good] for key, column in diagnostics.items()}
     return _Solved(start + final, world, count, costs, code, diagnostics)
-
-
-REFLECTION_ATOL = 1e-6
-"""A recovered point farther than this (local units) from a level flight's plane gets its
-reflection as a second candidate (:func:`_with_reflections`); nearer, it is its own
-reflection to the solver's accuracy."""
-
-
-def _with_reflections(
-    count: IntArray, points: FloatArray, costs: FloatArray, plane: FloatArray
-) -> tuple[IntArray, FloatArray, FloatArray]:
-    """On a level flight at local height ``plane`` (n,) the reflection of a point through the
-    flight plane explains the data alike (MATH §7): a lift that recovered one point alone (a
-    rank-one lift: noise-free data, where either rank-one lift of the pair is an optimum) gets
-    its reflection added at the same cost, as the closed form's hard case returns both."""
-    single = (count == 1) & (np.abs(points[:, 0, 2] - plane) > REFLECTION_ATOL)
-    if not single.any():
-        return count, points, costs
-    count, points, costs = count.copy(), points.copy(), costs.copy()
-    first = points[single, 0]
-    mirror = first.copy()
-    mirror[:, 2] = 2.0 * plane[single] - first[:, 2]
-    mirror[:, 3] = mirror[:, 0] ** 2 + mirror[:, 1] ** 2 + mirror[:, 2] ** 2
-    points[single, 1] = mirror
-    costs[single, 1] = costs[single, 0]
-    count[single] = 2
-    return count, points, costs
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -632,9 +602,10 @@ def _decide(
     index, world, count, costs, code = (getattr(solved, name) for name in _Solved.FIELDS)
     found, keys = dict(solved.diagnostics), list(solved.diagnostics)
     if index.size:
-        # with the height a coordinate a level flight's pair is the emitter and its reflection
-        # through the flight plane (MATH §7): the rule drops the one above the UAV
-        ceiling = {} if d == 2 else {"ceiling_m": float(np.max(shared.z))}
+        # with the height a coordinate, a flight in one plane (a level turn, two legs) leaves
+        # the reflection through it: the rule adds it, whether the lift recovered one point or
+        # both, and drops what lies above the UAV (MATH §7)
+        ceiling = {} if d == 2 else {"ceiling_m": float(np.max(shared.z)), "plane": shared.plane}
         with np.errstate(all="ignore"):
             final = finalize_columns(
                 world,

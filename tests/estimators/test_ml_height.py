@@ -24,6 +24,7 @@ from estimators.ml.minpack_batch import lmder_batch
 from estimators.ml.ml import MaximumLikelihood, whitened_residual_jacobian, whitened_residuals
 from scenarios import get_scenario
 from scenarios.fisher import fisher_information, inverse_symmetric
+from scenarios.geometry import reflect_through_plane
 from scenarios.nuisance import HEIGHT_UNKNOWN
 from scenarios.simulate import noise_free, simulate_trials, trial_seeds
 from scenarios.types import MeasurementSet
@@ -63,12 +64,18 @@ def scale_m(data: MeasurementSet) -> float:
 
 
 def candidates_before_the_rule(monkeypatch, data: MeasurementSet, estimator=None):
-    """The estimate, and the candidates ``ml`` hands to the mirror rule (with their costs)."""
+    """The estimate, and the candidates the mirror rule weighs for ``ml`` (with their costs):
+    those ``ml`` hands it and, on a flight in one plane (``plane``), their reflections through
+    it, which the rule adds at the same costs (MATH §7)."""
     seen = []
     real = ml_batch.finalize_columns
 
     def recording(candidates_m, count, costs, *args, **kwargs):
-        seen.append((candidates_m[0, : count[0]].copy(), costs[0, : count[0]].copy()))
+        points, cost = candidates_m[0, : count[0]].copy(), costs[0, : count[0]].copy()
+        if kwargs.get("plane") is not None:
+            points = np.vstack([points, reflect_through_plane(points, *kwargs["plane"])])
+            cost = np.concatenate([cost, cost])
+        seen.append((points, cost))
         return real(candidates_m, count, costs, *args, **kwargs)
 
     monkeypatch.setattr(ml_batch, "finalize_columns", recording)
