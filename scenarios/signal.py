@@ -110,8 +110,9 @@ class BurstPlan:
             raise ValueError(f"guard_s: must be a whole number of samples, got {guard * rate:.6g}")
         object.__setattr__(self, "guard_s", guard)
         object.__setattr__(self, "n_guard_samples", n_guard)
-        if isinstance(self.chip_seed, bool) or not isinstance(self.chip_seed, (int, np.integer)):
-            raise ValueError(f"chip_seed: expected a whole number, got {self.chip_seed!r}")
+        seed = self.chip_seed
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f"chip_seed: expected a whole number >= 0, got {seed!r}")
         if self.waveform == "bpsk":
             if self.chip_rate_hz is None:
                 raise ValueError("chip_rate_hz: bpsk needs a chip rate (Hz)")

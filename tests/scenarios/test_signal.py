@@ -238,6 +238,7 @@ GOOD = {"waveform": "bpsk", "burst_s": 1e-3, "sample_rate_hz": 2e5, "chip_rate_h
         ({"chip_rate_hz": 4e5}, "chip_rate_hz"),
         ({"chip_rate_hz": 0.0}, "chip_rate_hz"),
         ({"chip_seed": 1.5}, "chip_seed"),
+        ({"chip_seed": -1}, "chip_seed"),
         ({"received_power_w": 0.0}, "received_power_w"),
         ({"guard_s": -1e-4}, "guard_s"),
         ({"guard_s": 1.2e-5}, "guard_s"),
