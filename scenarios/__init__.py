@@ -4,6 +4,7 @@ Data flows one way: ``scenarios`` → ``estimators`` → ``comparison``.
 """
 
 from scenarios.catalog import CATALOG, get_scenario
+from scenarios.signal import BurstPlan, ReceivedBursts, received_bursts
 from scenarios.simulate import noise_free, simulate, simulate_trials, trial_seeds
 from scenarios.types import (
     MODALITIES,
@@ -20,14 +21,17 @@ __all__ = [
     "CATALOG",
     "MODALITIES",
     "SPEED_OF_LIGHT_MPS",
+    "BurstPlan",
     "FlightPlan",
     "MeasurementBatch",
     "MeasurementSet",
     "NoiseSigmas",
+    "ReceivedBursts",
     "RssModel",
     "Scenario",
     "get_scenario",
     "noise_free",
+    "received_bursts",
     "simulate",
     "simulate_trials",
     "trial_seeds",
