@@ -24,7 +24,12 @@ from estimators.frontend.bounds import (
     rms_bandwidth_hz,
 )
 from estimators.frontend.peak import NEWTON_STEPS, newton_to_peak, parabola_vertex
-from estimators.frontend.samples import burst_rows, reference_waveform, sample_rate
+from estimators.frontend.samples import (
+    burst_rows,
+    by_blocks,
+    reference_waveform,
+    sample_rate,
+)
 
 UPSAMPLING = 4
 """The coarse correlation's samples per sample: the grid spacing is a quarter sample."""
@@ -54,6 +59,28 @@ def upsampled_correlation(cross_spectrum: np.ndarray, upsampling: int) -> np.nda
     return np.fft.ifft(padded, axis=-1) * (upsampling / n)
 
 
+def correlation_peak(
+    windows: np.ndarray, reference_spectrum: np.ndarray, upsampling: int, newton_steps: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The maximum of ``|C(τ)|`` for each ``(n, N)`` window: ``τ̂`` in samples in ``[0, N)``
+    and the complex correlation ``C(τ̂)`` (docs/math.md §19)."""
+    n = windows.shape[1]
+    cross = np.fft.fft(windows, axis=-1) * np.conj(reference_spectrum)
+    magnitude = np.abs(upsampled_correlation(cross, upsampling))
+    peak = np.argmax(magnitude, axis=-1)
+    rows, size = np.arange(windows.shape[0]), upsampling * n
+    offset = parabola_vertex(
+        magnitude[rows, (peak - 1) % size],
+        magnitude[rows, peak],
+        magnitude[rows, (peak + 1) % size],
+    )
+    start = (peak + offset) / upsampling
+    rates = 2.0 * np.pi * np.fft.fftfreq(n)
+    tau, value = newton_to_peak(cross / n, rates, start, 1.0 / upsampling, newton_steps)
+    tau = tau % n
+    return np.where(tau >= n, tau - n, tau), value  # a rounding below 0 is 0, not N
+
+
 def burst_delay(
     samples: np.ndarray,
     reference: np.ndarray,
@@ -70,20 +97,9 @@ def burst_delay(
     n = windows.shape[1]
     waveform = reference_waveform(reference, n)
     reference_spectrum = np.fft.fft(waveform, n)
-    cross = np.fft.fft(windows, axis=-1) * np.conj(reference_spectrum)
-    magnitude = np.abs(upsampled_correlation(cross, upsampling))
-    peak = np.argmax(magnitude, axis=-1)
-    rows, size = np.arange(windows.shape[0]), upsampling * n
-    offset = parabola_vertex(
-        magnitude[rows, (peak - 1) % size],
-        magnitude[rows, peak],
-        magnitude[rows, (peak + 1) % size],
+    tau, value = by_blocks(
+        windows, lambda block: correlation_peak(block, reference_spectrum, upsampling, newton_steps)
     )
-    start = (peak + offset) / upsampling
-    rates = 2.0 * np.pi * np.fft.fftfreq(n)
-    tau, value = newton_to_peak(cross / n, rates, start, 1.0 / upsampling, newton_steps)
-    tau = tau % n
-    tau = np.where(tau >= n, tau - n, tau)  # a delay a rounding below 0 is 0, not N
     energy = (windows.real**2 + windows.imag**2).sum(axis=-1)
     reference_energy = float(np.sum(np.abs(waveform) ** 2))
     snr = burst_snr(value, reference_energy, energy, n)

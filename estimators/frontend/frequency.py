@@ -19,7 +19,7 @@ import numpy as np
 
 from estimators.frontend.bounds import below_threshold, burst_snr, rife_boorstyn_variance_hz2
 from estimators.frontend.peak import NEWTON_STEPS, newton_to_peak
-from estimators.frontend.samples import burst_rows, sample_rate
+from estimators.frontend.samples import burst_rows, by_blocks, sample_rate
 
 ZERO_PADDING = 4
 """The coarse FFT's length over the burst's: the grid spacing is a quarter bin."""
@@ -51,6 +51,22 @@ def jacobsen_offset(spectrum: np.ndarray, peak: np.ndarray) -> np.ndarray:
     return np.clip(np.where(flat, 0.0, offset), -0.5, 0.5)
 
 
+def periodogram_peak(
+    bursts: np.ndarray, zero_padding: int, newton_steps: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The periodogram's maximum of each ``(n, N)`` burst: ``ω̂`` in rad/sample in ``[-π, π)``
+    and ``A(ω̂) = Σ_n x_n e^{-jω̂ n'}`` (docs/math.md §19)."""
+    n = bursts.shape[1]
+    size = zero_padding * n
+    spectrum = np.fft.fft(bursts, size, axis=-1)
+    peak = np.argmax(spectrum.real**2 + spectrum.imag**2, axis=-1)
+    grid_rad = 2.0 * np.pi / size
+    start = (peak + jacobsen_offset(spectrum, peak)) * grid_rad
+    centred = np.arange(n) - 0.5 * (n - 1)
+    omega, value = newton_to_peak(bursts, -centred, start, grid_rad, newton_steps)
+    return (omega + np.pi) % (2.0 * np.pi) - np.pi, value
+
+
 def tone_frequency(
     samples: np.ndarray,
     sample_rate_hz: float,
@@ -63,14 +79,9 @@ def tone_frequency(
     rate_hz = sample_rate(sample_rate_hz)
     bursts = burst_rows(samples)
     n = bursts.shape[1]
-    size = zero_padding * n
-    spectrum = np.fft.fft(bursts, size, axis=-1)
-    peak = np.argmax(spectrum.real**2 + spectrum.imag**2, axis=-1)
-    grid_rad = 2.0 * np.pi / size
-    start = (peak + jacobsen_offset(spectrum, peak)) * grid_rad
-    centred = np.arange(n) - 0.5 * (n - 1)
-    omega, value = newton_to_peak(bursts, -centred, start, grid_rad, newton_steps)
-    omega = (omega + np.pi) % (2.0 * np.pi) - np.pi
+    omega, value = by_blocks(
+        bursts, lambda block: periodogram_peak(block, zero_padding, newton_steps)
+    )
     energy = (bursts.real**2 + bursts.imag**2).sum(axis=-1)
     snr = burst_snr(value, float(n), energy, n)
     shape = np.shape(samples)[:-1]

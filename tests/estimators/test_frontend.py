@@ -200,20 +200,20 @@ def test_the_flag_is_the_false_alarm_threshold_of_noise_alone() -> None:
 
 @pytest.mark.bits("the same functions on the same rows: a batch of bursts and each row alone")
 def test_every_burst_at_once_is_one_at_a_time() -> None:
+    """150 bursts (three blocks of ``BLOCK_BURSTS``), each row against itself alone."""
     samples, _ = tone_bursts(snr_db=10.0, seed=2405)
     windows, reference, _ = delay_windows(snr_db=10.0, seed=2406)
-    tones = tone_frequency(samples[:5], SAMPLE_RATE_HZ)
-    delays = burst_delay(windows[:5], reference, SAMPLE_RATE_HZ)
-    for i in range(5):
+    tones = tone_frequency(samples[:150], SAMPLE_RATE_HZ)
+    delays = burst_delay(windows[:150], reference, SAMPLE_RATE_HZ)
+    for i in (0, 63, 64, 100, 149):
         one_tone = tone_frequency(samples[i], SAMPLE_RATE_HZ)
         one_delay = burst_delay(windows[i], reference, SAMPLE_RATE_HZ)
         for batch, one in ((tones, one_tone), (delays, one_delay)):
             for field in batch.__dataclass_fields__:
                 assert np.array_equal(getattr(batch, field)[i], getattr(one, field)), field
     grid = tone_frequency(samples[:6].reshape(2, 3, N), SAMPLE_RATE_HZ)
-    assert np.array_equal(
-        grid.frequency_hz.ravel(), tone_frequency(samples[:6], SAMPLE_RATE_HZ).frequency_hz
-    )
+    assert grid.frequency_hz.shape == (2, 3)
+    assert np.array_equal(grid.frequency_hz.ravel(), tones.frequency_hz[:6])
 
 
 # --------------------------------------------------------------------------------------------
