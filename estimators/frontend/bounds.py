@@ -57,7 +57,7 @@ def burst_snr(
     """``|C|² / (E_s σ̂²)`` with ``σ̂² = (Σ|x|² − |C|²/E_s) / (N − 1)``, the residual's power
     after the fitted amplitude (docs/math.md §19); ``peak`` is the complex correlation ``C``
     of the samples with the reference of energy ``E_s`` at the estimate."""
-    fitted = np.abs(peak) ** 2 / reference_energy
+    fitted = (peak.real**2 + peak.imag**2) / reference_energy  # no hypot: same bits any length
     residual = np.maximum(
         total_energy - fitted, np.finfo(float).eps * total_energy + np.finfo(float).tiny
     )

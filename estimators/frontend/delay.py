@@ -48,15 +48,16 @@ class BurstDelay:
 
 
 def upsampled_correlation(cross_spectrum: np.ndarray, upsampling: int) -> np.ndarray:
-    """``C(m / upsampling)`` for ``m = 0 … upsampling·N − 1`` from the ``(n, N)`` cross-spectrum
-    ``X_k S_k^*``: the spectrum zero-padded between its positive and negative frequencies
-    (those of ``numpy.fft.fftfreq``), inverse transformed (docs/math.md §19)."""
+    """``C(m / U) / (U N)`` for ``m = 0 … U·N − 1`` (``U = upsampling``) from the ``(n, N)``
+    cross-spectrum ``X_k S_k^* / N``: the spectrum zero-padded between its positive and
+    negative frequencies (those of ``numpy.fft.fftfreq``), inverse transformed
+    (docs/math.md §19)."""
     rows, n = cross_spectrum.shape
     positive = (n + 1) // 2
     padded = np.zeros((rows, upsampling * n), dtype=complex)
     padded[:, :positive] = cross_spectrum[:, :positive]
     padded[:, upsampling * n - (n - positive) :] = cross_spectrum[:, positive:]
-    return np.fft.ifft(padded, axis=-1) * (upsampling / n)
+    return np.fft.ifft(padded, axis=-1)
 
 
 def correlation_peak(
@@ -65,8 +66,12 @@ def correlation_peak(
     """The maximum of ``|C(τ)|`` for each ``(n, N)`` window: ``τ̂`` in samples in ``[0, N)``
     and the complex correlation ``C(τ̂)`` (docs/math.md §19)."""
     n = windows.shape[1]
-    cross = np.fft.fft(windows, axis=-1) * np.conj(reference_spectrum)
-    magnitude = np.abs(upsampled_correlation(cross, upsampling))
+    spectrum, ref = np.fft.fft(windows, axis=-1), reference_spectrum
+    cross = np.empty_like(spectrum)  # X S* / N in real arithmetic (peak.newton_to_peak says why)
+    cross.real = (spectrum.real * ref.real + spectrum.imag * ref.imag) / n
+    cross.imag = (spectrum.imag * ref.real - spectrum.real * ref.imag) / n
+    correlation = upsampled_correlation(cross, upsampling)
+    magnitude = np.sqrt(correlation.real**2 + correlation.imag**2)
     peak = np.argmax(magnitude, axis=-1)
     rows, size = np.arange(windows.shape[0]), upsampling * n
     offset = parabola_vertex(
@@ -76,7 +81,7 @@ def correlation_peak(
     )
     start = (peak + offset) / upsampling
     rates = 2.0 * np.pi * np.fft.fftfreq(n)
-    tau, value = newton_to_peak(cross / n, rates, start, 1.0 / upsampling, newton_steps)
+    tau, value = newton_to_peak(cross, rates, start, 1.0 / upsampling, newton_steps)
     tau = tau % n
     return np.where(tau >= n, tau - n, tau), value  # a rounding below 0 is 0, not N
 

@@ -45,9 +45,11 @@ def jacobsen_offset(spectrum: np.ndarray, peak: np.ndarray) -> np.ndarray:
     size = spectrum.shape[1]
     left, centre = spectrum[rows, (peak - 1) % size], spectrum[rows, peak]
     right = spectrum[rows, (peak + 1) % size]
-    denominator = 2.0 * centre - left - right
-    flat = denominator == 0.0
-    offset = ((left - right) / np.where(flat, 1.0, denominator)).real
+    numerator, denominator = left - right, 2.0 * centre - left - right
+    size2 = denominator.real**2 + denominator.imag**2  # real arithmetic: see newton_to_peak
+    flat = size2 == 0.0
+    dot = numerator.real * denominator.real + numerator.imag * denominator.imag
+    offset = dot / np.where(flat, 1.0, size2)
     return np.clip(np.where(flat, 0.0, offset), -0.5, 0.5)
 
 

@@ -31,24 +31,41 @@ def newton_to_peak(
     ``weights`` is ``(n, M)`` complex, ``rates`` the ``(M,)`` real ``u``, ``start`` the ``(n,)``
     starting ``θ``. A step is clipped to ``±step_limit`` (the coarse grid's spacing); where
     ``P`` is not concave the step is ``step_limit / 2`` uphill. Returns ``θ`` and the complex
-    sum ``Σ_m w_m exp(j u_m θ)`` at the returned ``θ``.
+    sum ``A = Σ_m w_m exp(j u_m θ)`` at the returned ``θ``, with ``P' = 2 Re(A* A')`` and
+    ``P'' = 2 (|A'|² + Re(A* A''))``, ``A' = Σ j u w e^{juθ}``, ``A'' = −Σ u² w e^{juθ}``.
+
+    Written in real arithmetic: numpy's complex product takes a vector loop (with fused
+    multiply-adds) or a scalar one depending on the arrays' alignment, so its bits would depend
+    on where the arrays lie; real products and sums do not.
     """
     theta = np.array(start, dtype=float)
-    slope_rates = 1j * rates
-    curvature_rates = -(rates**2)
+    weight_re, weight_im = weights.real, weights.imag
     for _ in range(steps):
-        terms = weights * np.exp(1j * theta[:, None] * rates)
-        value = terms.sum(axis=-1)
-        first = (terms * slope_rates).sum(axis=-1)
-        second = (terms * curvature_rates).sum(axis=-1)
-        slope = 2.0 * (np.conj(value) * first).real
-        curvature = 2.0 * (np.abs(first) ** 2 + (np.conj(value) * second).real)
+        re, im = rotated(weight_re, weight_im, theta[:, None] * rates)
+        value_re, value_im = re.sum(axis=-1), im.sum(axis=-1)
+        first_re, first_im = -(im * rates).sum(axis=-1), (re * rates).sum(axis=-1)
+        square_rates = rates * rates
+        second_re, second_im = -(re * square_rates).sum(axis=-1), -(im * square_rates).sum(axis=-1)
+        slope = 2.0 * (value_re * first_re + value_im * first_im)
+        curvature = 2.0 * (
+            first_re * first_re + first_im * first_im + value_re * second_re + value_im * second_im
+        )
         concave = curvature < 0.0
         newton = -slope / np.where(concave, curvature, -1.0)
         step = np.where(concave, newton, 0.5 * step_limit * np.sign(slope))
         theta += np.clip(step, -step_limit, step_limit)
-    value = (weights * np.exp(1j * theta[:, None] * rates)).sum(axis=-1)
+    re, im = rotated(weight_re, weight_im, theta[:, None] * rates)
+    value = np.empty(theta.shape, dtype=complex)
+    value.real, value.imag = re.sum(axis=-1), im.sum(axis=-1)
     return theta, value
+
+
+def rotated(
+    real: np.ndarray, imag: np.ndarray, phase_rad: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Real and imaginary parts of ``(real + j imag) · exp(j phase)``, in real arithmetic."""
+    cos, sin = np.cos(phase_rad), np.sin(phase_rad)
+    return real * cos - imag * sin, real * sin + imag * cos
 
 
 def parabola_vertex(left: np.ndarray, centre: np.ndarray, right: np.ndarray) -> np.ndarray:
