@@ -32,7 +32,8 @@ def rife_boorstyn_variance_hz2(
     """The Rife-Boorstyn bound of the frequency, Hz², at the burst SNR ``N |b|²/σ²``
     (docs/math.md §19)."""
     snr_per_sample = np.asarray(burst_snr, dtype=float) / n_samples
-    variance_rad2 = 6.0 / (snr_per_sample * n_samples * (n_samples**2 - 1.0))
+    with np.errstate(divide="ignore"):  # a burst of SNR 0 has an infinite variance
+        variance_rad2 = 6.0 / (snr_per_sample * n_samples * (n_samples**2 - 1.0))
     return variance_rad2 * (sample_rate_hz / (2.0 * np.pi)) ** 2
 
 
@@ -48,7 +49,8 @@ def rms_bandwidth_hz(reference: np.ndarray, sample_rate_hz: float, n_samples: in
 
 def delay_crb_s2(burst_snr: np.ndarray, bandwidth_hz: float) -> np.ndarray:
     """The delay bound ``1 / (8π² B_rms² SNR_burst)``, s² (docs/math.md §19)."""
-    return 1.0 / (8.0 * np.pi**2 * bandwidth_hz**2 * np.asarray(burst_snr, dtype=float))
+    with np.errstate(divide="ignore"):  # a burst of SNR 0 has an infinite variance
+        return 1.0 / (8.0 * np.pi**2 * bandwidth_hz**2 * np.asarray(burst_snr, dtype=float))
 
 
 def burst_snr(

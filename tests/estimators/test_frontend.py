@@ -237,3 +237,15 @@ def test_bad_input_is_one_line_naming_the_argument(call, field: str) -> None:
         call()
     message = str(raised.value)
     assert message.startswith(f"{field}: ") and "\n" not in message
+
+
+def test_a_burst_of_zeros_is_flagged_with_an_infinite_variance() -> None:
+    """No signal and no noise: nothing to measure, said without a warning (warnings from
+    estimators/ are errors in the suite)."""
+    tone_found = tone_frequency(np.zeros((2, 16)), SAMPLE_RATE_HZ)
+    delay_found = burst_delay(np.zeros((2, 16)), np.ones(4), SAMPLE_RATE_HZ)
+    for variance, flagged in (
+        (tone_found.variance_hz2, tone_found.below_threshold),
+        (delay_found.variance_s2, delay_found.below_threshold),
+    ):
+        assert np.all(np.isinf(variance)) and flagged.all()
