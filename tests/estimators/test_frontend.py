@@ -8,8 +8,8 @@ The per-burst SNR is the signal's energy over the noise variance per sample, ``�
 
 Tolerance of the statistical tests: the sample variance of ``M = 2000`` Gaussian errors has the
 relative standard deviation ``√(2/M) = 3.2%`` (χ² with ``M`` degrees of freedom), ±6.2% at 95%;
-10% is 3.2 of its standard deviations (a two-sided false failure about once in 600 seeds). The seeds
-are fixed, so each run draws the same bursts.
+10% is 3.2 of its standard deviations (a two-sided false failure about once in 600 seeds).
+The seeds are fixed, so each run draws the same bursts.
 """
 
 from __future__ import annotations
