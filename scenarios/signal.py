@@ -26,7 +26,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from scenarios import measurement_model as model
 from scenarios.fields import finite, positive_finite
@@ -298,26 +298,55 @@ def received_bursts(
     )
 
 
-def rms_bandwidth_hz(plan: BurstPlan) -> float:
-    """``B_rms``, the RMS bandwidth of the burst band-limited to the receiver's band (MATH
-    §18): ``√(Σ f_m² |S_m|² / Σ |S_m|²)`` over the DFT of its ``n_burst_samples`` samples."""
+def rife_boorstyn_variance_hz2(
+    burst_snr: ArrayLike, n_samples: int, sample_rate_hz: float
+) -> NDArray[np.float64]:
+    """The Rife-Boorstyn bound of a tone's frequency over ``n_samples`` samples, amplitude and
+    phase unknown (MATH §18, §19), Hz²: ``6 / (SNR · N (N² − 1))`` rad²/sample² at the
+    per-sample SNR ``SNR_burst / N``, times ``(f_s / 2π)²``; ``→ 6 / ((2π)² SNR_burst T²)`` for
+    large ``N``. Infinite at an SNR of 0."""
+    snr_per_sample = np.asarray(burst_snr, dtype=float) / n_samples
+    with np.errstate(divide="ignore"):  # a burst of SNR 0 has an infinite variance
+        variance_rad2 = 6.0 / (snr_per_sample * n_samples * (n_samples**2 - 1.0))
+    return variance_rad2 * (sample_rate_hz / (2.0 * np.pi)) ** 2
+
+
+def rms_bandwidth_hz(
+    waveform: ArrayLike, sample_rate_hz: float, n_samples: int | None = None
+) -> float:
+    """``B_rms`` of sampled ``waveform`` (zero-padded to ``n_samples``), about its spectral
+    centroid, over its DFT (MATH §18): ``√(Σ (f_m − f̄)² |S_m|² / Σ |S_m|²)``. A real envelope
+    has its centroid at zero."""
+    spectrum = np.abs(np.fft.fft(np.asarray(waveform), n_samples)) ** 2
+    frequency = np.fft.fftfreq(len(spectrum))
+    weight = spectrum / spectrum.sum()
+    centroid = np.sum(weight * frequency)
+    return float(np.sqrt(np.sum(weight * (frequency - centroid) ** 2)) * sample_rate_hz)
+
+
+def delay_crb_s2(burst_snr: ArrayLike, rms_bandwidth: float) -> NDArray[np.float64]:
+    """The bound of a known burst's delay, amplitude and carrier phase unknown (MATH §18), s²:
+    ``1 / (8π² B_rms² SNR_burst)``. Infinite at an SNR of 0."""
+    with np.errstate(divide="ignore"):  # a burst of SNR 0 has an infinite variance
+        return 1.0 / (8.0 * np.pi**2 * rms_bandwidth**2 * np.asarray(burst_snr, dtype=float))
+
+
+def burst_rms_bandwidth_hz(plan: BurstPlan) -> float:
+    """``B_rms`` of the plan's burst band-limited to the receiver's band (MATH §18): that of
+    its ``n_burst_samples`` samples (:func:`rms_bandwidth_hz`)."""
     offsets = window_offsets_s(plan)[
         plan.n_guard_samples : plan.n_guard_samples + plan.n_burst_samples
     ]
-    spectrum = np.abs(np.fft.fft(burst_envelope(plan, offsets))) ** 2
-    frequency = np.fft.fftfreq(plan.n_burst_samples, 1.0 / plan.sample_rate_hz)
-    return float(np.sqrt(np.sum(frequency**2 * spectrum) / np.sum(spectrum)))
+    return rms_bandwidth_hz(burst_envelope(plan, offsets), plan.sample_rate_hz)
 
 
 def frequency_bound_hz2(plan: BurstPlan) -> float:
-    """The Rife-Boorstyn bound on a tone's frequency over one burst (MATH §18), Hz²:
-    ``6 fs² / ((2π)² η N (N² − 1))`` with ``η = C/(N0 fs)`` the per-sample SNR and ``N``
-    the burst's samples; ``→ 6 / ((2π)² SNR_burst T²)`` for large ``N``."""
+    """The Rife-Boorstyn bound on a tone's frequency over one of the plan's bursts (MATH §18),
+    Hz², at its SNR (:func:`rife_boorstyn_variance_hz2`)."""
     n = plan.n_burst_samples
-    eta = 10.0 ** (plan.cn0_dbhz / 10.0) / plan.sample_rate_hz
-    return 6.0 * plan.sample_rate_hz**2 / ((2.0 * np.pi) ** 2 * eta * n * (n * n - 1.0))
+    return float(rife_boorstyn_variance_hz2(plan.burst_snr, n, plan.sample_rate_hz))
 
 
 def delay_bound_s2(plan: BurstPlan) -> float:
-    """The bound on a burst's delay (MATH §18), s²: ``1 / (8π² B_rms² SNR_burst)``."""
-    return 1.0 / (8.0 * np.pi**2 * rms_bandwidth_hz(plan) ** 2 * plan.burst_snr)
+    """The bound on one of the plan's bursts' delay (MATH §18), s² (:func:`delay_crb_s2`)."""
+    return float(delay_crb_s2(plan.burst_snr, burst_rms_bandwidth_hz(plan)))

@@ -12,12 +12,12 @@ from scenarios.catalog import get_scenario
 from scenarios.signal import (
     BurstPlan,
     burst_envelope,
+    burst_rms_bandwidth_hz,
     burst_truth,
     chip_sequence,
     delay_bound_s2,
     frequency_bound_hz2,
     received_bursts,
-    rms_bandwidth_hz,
     window_offsets_s,
 )
 from scenarios.simulate import noise_free, trial_seeds
@@ -216,8 +216,8 @@ def test_delay_bound_is_the_inverse_fisher_information_of_the_band_limited_burst
     information = 2.0 * BPSK.received_power_w / sigma2 * np.sum(np.abs(derivative) ** 2)
     assert 1.0 / delay_bound_s2(BPSK) == pytest.approx(information, rel=1e-10)
     # a rectangular chip's bandwidth grows with the receiver's band; a tone's is zero
-    assert 0.3 * BPSK.chip_rate_hz < rms_bandwidth_hz(BPSK) < BPSK.sample_rate_hz / 2.0
-    assert rms_bandwidth_hz(CW) == 0.0
+    assert 0.3 * BPSK.chip_rate_hz < burst_rms_bandwidth_hz(BPSK) < BPSK.sample_rate_hz / 2.0
+    assert burst_rms_bandwidth_hz(CW) == 0.0
 
 
 GOOD = {"waveform": "bpsk", "burst_s": 1e-3, "sample_rate_hz": 2e5, "chip_rate_hz": 5e4}
