@@ -102,6 +102,14 @@ def _random_noise(rng: np.random.Generator) -> tuple[float, float, float]:
     return carrier, doppler_sigma, range_sigma
 
 
+def _random_emitter(rng: np.random.Generator, track_m: float) -> FloatArray:
+    """A horizontal emitter position: a log-uniform distance from 10 m to 2 km beyond a tenth
+    of the track's length, at a uniform bearing."""
+    distance = _log_uniform(rng, 10.0, 2000.0) + 0.1 * track_m
+    bearing = rng.uniform(0.0, 2.0 * np.pi)
+    return distance * np.array([np.cos(bearing), np.sin(bearing)])
+
+
 def _random_flight_scenario(rng: np.random.Generator, n_frames: int) -> tuple[Scenario, dict]:
     """A random level flight of ``n_frames`` straight frames and a random ground emitter."""
     speed = rng.uniform(2.0, 40.0)
@@ -113,10 +121,7 @@ def _random_flight_scenario(rng: np.random.Generator, n_frames: int) -> tuple[Sc
     samples = int(rng.integers(3, 41))
     interval = _log_uniform(rng, 0.01, 0.5)
     height = rng.uniform(5.0, 200.0)
-    track_m = speed * interval * samples * n_frames
-    distance = _log_uniform(rng, 10.0, 2000.0) + 0.1 * track_m
-    bearing = rng.uniform(0.0, 2.0 * np.pi)
-    emitter = distance * np.array([np.cos(bearing), np.sin(bearing)])
+    emitter = _random_emitter(rng, speed * interval * samples * n_frames)
     carrier, doppler_sigma, range_sigma = _random_noise(rng)
     scenario = Scenario(
         name="validate",
@@ -174,10 +179,7 @@ def _random_height_scenario(rng: np.random.Generator, *, climb: bool) -> tuple[S
     rise = np.cumsum(np.repeat(velocities[:, 2], samples)[:-1] * interval)
     start_height = lowest - min(0.0, float(rise.min()))
     emitter_height = rng.uniform(0.0, 0.9) * lowest
-    track_m = speed * interval * samples * 3
-    distance = _log_uniform(rng, 10.0, 2000.0) + 0.1 * track_m
-    bearing = rng.uniform(0.0, 2.0 * np.pi)
-    emitter = distance * np.array([np.cos(bearing), np.sin(bearing)])
+    emitter = _random_emitter(rng, speed * interval * samples * 3)
     carrier, doppler_sigma, range_sigma = _random_noise(rng)
     scenario = Scenario(
         name="validate",

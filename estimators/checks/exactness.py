@@ -45,20 +45,41 @@ def _check_exact(estimator: Any, names: Iterable[str]) -> None:
             check_failed(
                 f"no candidate on {what}; candidates_m must hold every equal-cost minimiser"
             )
-        for optimum in problem.optima_for(capabilities.frames):
-            distance = np.linalg.norm(candidates - optimum, axis=1)
-            nearest = int(np.argmin(distance))
-            if not distance[nearest] <= tolerance:
-                check_failed(
-                    f"on {what} no candidate is at the optimum {optimum.tolist()} "
-                    f"({problem.source}): the nearest, {candidates[nearest].tolist()}, is "
-                    f"{distance[nearest]:.3g} m away (tolerance "
-                    f"{tolerance_text(capabilities, problem)}). Noise-free data determine the "
-                    "emitter (and its mirror image on one straight frame): compute the answer "
-                    "from the data; a method that stops short may declare a looser "
-                    "Capabilities.noise_free_tolerance_m with a tolerance_reason, within "
-                    f"{MAX_NOISE_FREE_TOLERANCE:g} of the RMS range"
-                )
+        check_candidates_at_optima(
+            candidates,
+            problem.optima_for(capabilities.frames),
+            what,
+            problem,
+            capabilities,
+            tolerance,
+            "Noise-free data determine the emitter (and its mirror image on one straight "
+            "frame): compute the answer from the data; a method that stops short may declare a "
+            "looser Capabilities.noise_free_tolerance_m with a tolerance_reason, within "
+            f"{MAX_NOISE_FREE_TOLERANCE:g} of the RMS range",
+        )
+
+
+def check_candidates_at_optima(
+    candidates: NDArray[np.float64],
+    optima: Iterable[NDArray[np.float64]],
+    what: str,
+    problem: Any,
+    capabilities: Any,
+    tolerance: float,
+    fix: str,
+) -> None:
+    """Fail naming the first optimum of ``problem`` with no candidate within ``tolerance``
+    (the nearest one, its distance and the tolerance), then ``fix``."""
+    for optimum in optima:
+        distance = np.linalg.norm(candidates - optimum, axis=1)
+        nearest = int(np.argmin(distance))
+        if not distance[nearest] <= tolerance:
+            check_failed(
+                f"on {what} no candidate is at the optimum {optimum.tolist()} "
+                f"({problem.source}): the nearest, {candidates[nearest].tolist()}, is "
+                f"{distance[nearest]:.3g} m away (tolerance "
+                f"{tolerance_text(capabilities, problem)}). {fix}"
+            )
 
 
 def check_exact_on_straight_frames(estimator: Any) -> None:

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from estimators.checks.exactness import check_candidates_at_optima
 from estimators.checks.reference_problems import reference_problem, select_frames
 from estimators.checks.results import (
     check_failed,
@@ -15,7 +16,7 @@ from estimators.checks.results import (
     estimate_or_fail,
     require_success,
 )
-from estimators.checks.tolerances import problem_tolerance_m, tolerance_text
+from estimators.checks.tolerances import problem_tolerance_m
 from scenarios.simulate import noise_free
 
 
@@ -42,17 +43,15 @@ def check_exact_with_the_height_unknown(estimator: Any) -> None:
                 "position_m (3,), candidates_m (k, 3), covariance_m2 (3, 3)"
             )
         tolerance = problem_tolerance_m(capabilities, problem)
-        for optimum in optima:
-            distance = np.linalg.norm(candidates - optimum, axis=1)
-            nearest = int(np.argmin(distance))
-            if not distance[nearest] <= tolerance:
-                check_failed(
-                    f"on {what} no candidate is at the optimum {optimum.tolist()} "
-                    f"({problem.source}): the nearest, {candidates[nearest].tolist()}, is "
-                    f"{distance[nearest]:.3g} m away (tolerance "
-                    f"{tolerance_text(capabilities, problem)}). Estimate the height with the "
-                    "position: the data determine (x, y, z)"
-                )
+        check_candidates_at_optima(
+            candidates,
+            optima,
+            what,
+            problem,
+            capabilities,
+            tolerance,
+            "Estimate the height with the position: the data determine (x, y, z)",
+        )
         used = select_frames(noise_free(problem.scenario), capabilities.frames)
         ceiling = float(np.max(used.position_m[:, 2])) if used is not None else np.inf
         above = candidates[candidates[:, 2] > ceiling + tolerance]

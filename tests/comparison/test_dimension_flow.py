@@ -357,6 +357,10 @@ def test_the_summary_of_3d_rows() -> None:
     assert row["rmse_m"] == pytest.approx(math.sqrt(np.mean(np.sum(errors**2, axis=1))), rel=1e-12)
 
 
+@pytest.mark.bits(
+    "the same summary code (Groups) on the same rows with the same trial sets' seeds, whether "
+    "the 3-D table is split into its 2-D and 3-D groups or the rows come alone"
+)
 def test_a_3d_run_summarises_horizontal_answers_in_2d_beside_the_3d_ones() -> None:
     """A 3-D table holding an estimator of 3-D answers and one that assumes the height (its
     rows without z and vertical bound): the second's summary row is, to the bit, the summary
