@@ -75,7 +75,7 @@ def estimate_differences(estimator, trial, single: Estimate, got: Estimate) -> l
 @pytest.mark.paths
 @pytest.mark.parametrize("family", ["paper-1m", "paper-1m-turn", "paper", "near-plane"])
 def test_one_trial_is_the_batch_of_one(family: str) -> None:
-    n = 300
+    n = 150
     batch = family_batch(family, n)
     estimator = MaximumLikelihood()
     columns = estimator.estimate_columns(batch, rngs=generators(n))
