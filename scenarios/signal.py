@@ -181,62 +181,143 @@ def _geometry(source: Scenario | MeasurementSet) -> MeasurementSet:
     )
 
 
+def range_change_m(geometry: MeasurementSet, plan: BurstPlan, emitter_m: ArrayLike) -> FloatArray:
+    """``ρ(t) − ρ_k`` over every burst's window for an emitter at ``emitter_m`` (MATH §18),
+    ``(..., n_bursts, n_samples)`` for hypotheses ``(..., d)``: along the frame's line,
+    ``q / (ρ(t) + ρ_k)`` with ``q = Δt (2 wᵀv + Δt ‖v‖²)``, ``w = p_k − s``, computed without
+    the cancellation of two ranges of kilometres differing by centimetres."""
+    w = model.emitter_offsets_m(geometry.position_m, emitter_m, geometry.emitter_height_m)
+    velocity = np.asarray(geometry.velocity_mps, dtype=float)
+    rho = np.sqrt(np.einsum("...ki,...ki->...k", w, w))[..., None]
+    wv = np.einsum("...ki,ki->...k", w, velocity)[..., None]
+    vv = np.einsum("ki,ki->k", velocity, velocity)[:, None]
+    dt = window_offsets_s(plan)
+    q = dt * (2.0 * wv + dt * vv)
+    return q / (np.sqrt(rho * rho + q) + rho)
+
+
+def burst_phase_rad(
+    geometry: MeasurementSet,
+    plan: BurstPlan,
+    emitter_m: ArrayLike,
+    carrier_offset_hz: ArrayLike = 0.0,
+) -> FloatArray:
+    """φ(t) ``= −2πγ (ρ(t) − ρ_k) + 2πδ Δt`` over every burst's window (MATH §18),
+    ``(..., n_bursts, n_samples)`` for ``emitter_m`` ``(..., d)`` (hypotheses on the leading
+    axes; the carrier offset δ, ``carrier_offset_hz``, broadcasts against them)."""
+    offset_hz = np.asarray(carrier_offset_hz, dtype=float)[..., None, None]
+    change_m = range_change_m(geometry, plan, emitter_m)
+    return 2.0 * np.pi * (-geometry.gamma_per_m * change_m + offset_hz * window_offsets_s(plan))
+
+
+def burst_shift_samples(
+    geometry: MeasurementSet,
+    plan: BurstPlan,
+    emitter_m: ArrayLike,
+    schedule_s: ArrayLike,
+    emission_time_s: ArrayLike = 0.0,
+) -> FloatArray:
+    """``D_k = f_s (τ_k − (t_k − e_k))``, the burst centre's delay past the window's centre in
+    samples (MATH §18), ``(..., n_bursts)``: ``τ_k = ρ_k/c + b`` for an emitter at
+    ``emitter_m`` ``(..., d)`` with emission time b (``emission_time_s``, broadcasting), e_k the
+    schedule ``schedule_s`` ``(n_bursts,)``. Zero at the truth (to rounding)."""
+    emission = np.asarray(emission_time_s, dtype=float)[..., None]
+    toa = model.toa_s(
+        geometry.position_m,
+        emitter_m,
+        geometry.speed_of_light_mps,
+        geometry.emitter_height_m,
+        0.0,
+    )
+    window_s = np.asarray(geometry.time_s, dtype=float) - np.asarray(schedule_s, dtype=float)
+    return plan.sample_rate_hz * ((toa - window_s) + emission)
+
+
+def shifted_envelope(plan: BurstPlan, shift_samples: ArrayLike) -> ComplexArray:
+    """The sampled burst delayed by ``shift_samples`` ``(...)`` in the frequency domain,
+    ``(..., n_samples)`` (MATH §18): ``S_m e^{−j2π f_m D}``, ``f_m`` the bin frequencies of
+    ``numpy.fft.fftfreq`` in cycles per sample, as the front end models a delay (§19). A
+    band-limited delay modulo the window: valid while the burst stays inside its window
+    (``|D|`` within the guard)."""
+    burst = np.fft.fft(burst_envelope(plan, window_offsets_s(plan)))
+    shift = np.asarray(shift_samples, dtype=float)[..., None]
+    frequency = np.fft.fftfreq(plan.n_samples)
+    return np.fft.ifft(burst * np.exp(-2j * np.pi * frequency * shift), axis=-1)
+
+
+def burst_model(
+    geometry: MeasurementSet,
+    plan: BurstPlan,
+    emitter_m: ArrayLike,
+    schedule_s: ArrayLike,
+    *,
+    carrier_offset_hz: ArrayLike = 0.0,
+    emission_time_s: ArrayLike = 0.0,
+) -> ComplexArray:
+    """The noise-free bursts of unit amplitude and zero carrier phase for an emitter at
+    ``emitter_m`` (MATH §18), ``(..., n_bursts, n_samples)`` for hypotheses ``(..., d)``:
+    ``e^{jφ(t)} s̃(n − D_k)``, :func:`burst_phase_rad` and :func:`shifted_envelope` at
+    :func:`burst_shift_samples`. The one model of the samples: the simulator draws around it
+    at the truth, and an estimator from the samples evaluates it at its hypotheses.
+
+    ``geometry`` is the flight (positions, velocities, times at the bursts' centres, γ, c, the
+    emitter's height when not a coordinate), ``schedule_s`` the bursts' nominal emission
+    times e_k; ``carrier_offset_hz`` δ and ``emission_time_s`` b broadcast against the
+    hypotheses. The envelope is delayed by the burst centre's delay throughout the burst: its
+    change within the burst, ``|v| T / 2c`` (10⁻⁴ samples), is neglected; the phase keeps it.
+    """
+    phase = burst_phase_rad(geometry, plan, emitter_m, carrier_offset_hz)
+    shift = burst_shift_samples(geometry, plan, emitter_m, schedule_s, emission_time_s)
+    return np.exp(1j * phase) * shifted_envelope(plan, shift)
+
+
 @dataclass(frozen=True, slots=True)
 class BurstTruth:
     """The noise-free quantities of every burst (MATH §18), each ``(n_bursts, n_samples)``
     unless stated: ``time_s`` the receiver's sample times, ``phase_rad`` φ(t) (without the
-    random θ), ``delay_s`` τ(t), ``envelope`` ``s(t − t_k − (τ(t) − τ_k))``, and per burst
-    ``doppler_hz`` and ``toa_s`` (``f_k``, ``τ_k`` of MATH §1, §15) and
-    ``emission_time_s = t_k − τ_k``."""
+    random θ), ``delay_s`` τ(t), ``envelope`` the delayed burst ``s̃(n − D_k)`` of
+    :func:`burst_model` (``D_k`` zero to rounding), and per burst ``doppler_hz`` and ``toa_s``
+    (``f_k``, ``τ_k`` of MATH §1, §15) and ``emission_time_s = t_k − τ_k``, the schedule."""
 
     time_s: FloatArray
     phase_rad: FloatArray
     delay_s: FloatArray
-    envelope: FloatArray
+    envelope: ComplexArray
     doppler_hz: FloatArray
     toa_s: FloatArray
     emission_time_s: FloatArray
 
 
 def burst_truth(source: Scenario | MeasurementSet, plan: BurstPlan) -> BurstTruth:
-    """The bursts without noise or carrier phase (MATH §18), vectorised over bursts.
-
-    The range change within a burst, ``ρ(t) − ρ_k = Δt (2 wᵀv + Δt |v|²) / (ρ(t) + ρ_k)`` with
-    ``w = p_k − s`` and ``Δt = t − t_k``, is computed without cancellation."""
+    """The bursts without noise or carrier phase (MATH §18), vectorised over bursts."""
     data = _geometry(source)
     emitter = np.asarray(data.truth_emitter_m, dtype=float)
     offset_hz = data.truth_carrier_offset_hz or 0.0
     emission_s = data.truth_emission_time_s or 0.0
-    c = data.speed_of_light_mps
-    gamma = data.gamma_per_m
     position, velocity = data.position_m, data.velocity_mps
-    doppler = model.doppler_hz(position, velocity, emitter, gamma, data.emitter_height_m, offset_hz)
-    toa = model.toa_s(position, emitter, c, data.emitter_height_m, emission_s)
+    doppler = model.doppler_hz(
+        position, velocity, emitter, data.gamma_per_m, data.emitter_height_m, offset_hz
+    )
+    toa = model.toa_s(position, emitter, data.speed_of_light_mps, data.emitter_height_m, emission_s)
     widest = float(np.max(np.abs(doppler)))
     if widest >= plan.sample_rate_hz / 2.0:
         raise ValueError(
             f"sample_rate_hz: the Doppler reaches {widest:.6g} Hz, beyond the receiver's "
             f"{plan.sample_rate_hz / 2.0:.6g} Hz; raise sample_rate_hz"
         )
-    w = model.emitter_offsets_m(position, emitter, data.emitter_height_m)  # (K, 3)
-    rho = np.linalg.norm(w, axis=-1)[:, None]
-    dt = window_offsets_s(plan)[None, :]
-    wv = np.einsum("ki,ki->k", w, velocity)[:, None]
-    vv = np.einsum("ki,ki->k", velocity, velocity)[:, None]
-    moved = w[:, None, :] + dt[..., None] * velocity[:, None, :]
-    rho_t = np.linalg.norm(moved, axis=-1)
-    change_m = dt * (2.0 * wv + dt * vv) / (rho_t + rho)
-    phase = 2.0 * np.pi * (-gamma * change_m + offset_hz * dt)
-    delay = toa[:, None] + change_m / c
-    envelope = burst_envelope(plan, dt - change_m / c)
+    time_s = np.asarray(data.time_s, dtype=float)
+    schedule = time_s - toa
+    change_m = range_change_m(data, plan, emitter)
+    dt = window_offsets_s(plan)
+    shift = burst_shift_samples(data, plan, emitter, schedule, emission_s)
     return BurstTruth(
-        time_s=np.asarray(data.time_s, dtype=float)[:, None] + dt,
-        phase_rad=phase,
-        delay_s=delay,
-        envelope=envelope,
+        time_s=time_s[:, None] + dt,
+        phase_rad=2.0 * np.pi * (-data.gamma_per_m * change_m + offset_hz * dt),
+        delay_s=toa[:, None] + change_m / data.speed_of_light_mps,
+        envelope=shifted_envelope(plan, shift),
         doppler_hz=doppler,
         toa_s=toa,
-        emission_time_s=np.asarray(data.time_s, dtype=float) - toa,
+        emission_time_s=schedule,
     )
 
 
