@@ -166,16 +166,23 @@ def test_signal_bound_is_the_measurement_bound_at_the_plans_sigmas(
 ) -> None:
     scenario = get_scenario(name)
     data = noise_free(scenario)
-    # cooperative: δ and b known (the height, when unknown, stays a coordinate)
-    unknowns = data.unknowns if unknown else tuple(u for u in data.unknowns if u not in NUISANCES)
+    # cooperative: δ and b known; else both unknown (the height, when unknown, stays a
+    # coordinate of the position)
+    height = tuple(u for u in data.unknowns if u not in NUISANCES)
+    unknowns = (*NUISANCES, *height) if unknown else height
     signal = signal_crlb_at_plan_m2(scenario, plan, unknowns=unknowns)
     measured = measurement_crlb_at_plan_m2(scenario, plan, unknowns=unknowns)
     d = len(data.truth_emitter_m)
     assert signal.shape == measured.shape == (d, d)
     # per burst the frequency and delay are sufficient locally and decouple (MATH §22); the
     # Rife-Boorstyn bound is exact in N, so what differs is the Doppler's change within a
-    # burst, of relative size (|v| T / ρ)² (about 1e-7 here; 1e-9 to 1e-8 measured)
-    tolerance = within_burst_change(name, plan) + 1e-10
+    # burst, information of relative size (|v| T / ρ)² (about 1e-7 here) of the cooperative
+    # information; with δ and b unknown the bound grows by the price of the unknowns (its
+    # square in variance) and that information, which δ does not touch (a rate), weighs as
+    # much more: the tolerance is ε times the variance's price
+    cooperative = measurement_crlb_at_plan_m2(scenario, plan, unknowns=height)
+    price = np.trace(measured) / np.trace(cooperative)
+    tolerance = within_burst_change(name, plan) * max(1.0, price) + 1e-10
     assert np.trace(signal) / np.trace(measured) == pytest.approx(1.0, rel=tolerance, abs=0.0)
     np.testing.assert_allclose(signal, measured, rtol=tolerance, atol=tolerance * np.trace(signal))
 
