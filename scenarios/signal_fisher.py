@@ -79,8 +79,8 @@ def _model_and_jacobian(
     envelope, slope = _envelope_and_slope(plan, shift)
     burst = carrier * envelope
     moved = carrier * slope  # ∂u/∂D_k
-    # ∂φ/∂s = 2πγ (u(t) − u_k), u(t) = w(t)/ρ(t) the unit vector from the emitter, and
-    # u(t) − u_k = (Δt v − w_k (ρ(t) − ρ_k)/ρ_k)/ρ(t), without cancellation
+    # ∂φ/∂s = 2πγ (ū(t) − ū_k), ū(t) = w(t)/ρ(t) the unit vector from the emitter, and
+    # ū(t) − ū_k = (Δt v − w_k (ρ(t) − ρ_k)/ρ_k)/ρ(t), without cancellation
     w = model.emitter_offsets_m(geometry.position_m, emitter, geometry.emitter_height_m)
     rho = np.sqrt(np.einsum("...ki,...ki->...k", w, w))[..., None]
     change = range_change_m(geometry, plan, emitter)
@@ -175,19 +175,24 @@ def position_information(information: ArrayLike, dimension: int) -> FloatArray:
     are estimated too: the Schur complement ``J_ss − J_sn J_nn⁻¹ J_ns`` (MATH §15, §22), whose
     inverse is the position's block of ``J⁻¹``. A nuisance with no information (a zero
     diagonal: it does not enter the samples) is left out. Formed on the matrix scaled to unit
-    diagonal, so that parameters in different units (m, Hz, s) do not spoil the solve."""
+    diagonal, so that parameters in different units (m, Hz, s) do not spoil the solve; NaN
+    where the nuisances' block is singular."""
     J = np.asarray(information, dtype=float)
     diagonal = np.diagonal(J).copy()
     kept = np.concatenate([np.arange(dimension), dimension + np.flatnonzero(diagonal[dimension:])])
     J = J[np.ix_(kept, kept)]
-    scale = 1.0 / np.sqrt(np.diagonal(J))
-    normed = J * scale[:, None] * scale[None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):  # a zero diagonal: NaN, singular
+        scale = 1.0 / np.sqrt(np.diagonal(J))
+        normed = J * scale[:, None] * scale[None, :]
     ss, sn, nn = (
         normed[:dimension, :dimension],
         normed[:dimension, dimension:],
         normed[dimension:, dimension:],
     )
-    complement = ss - sn @ np.linalg.solve(nn, sn.T) if nn.size else ss
+    try:
+        complement = ss - sn @ np.linalg.solve(nn, sn.T) if nn.size else ss
+    except np.linalg.LinAlgError:  # the nuisances cannot be told apart from each other
+        return np.full((dimension, dimension), np.nan)
     complement = 0.5 * (complement + complement.T)
     position_scale = 1.0 / scale[:dimension]
     return complement * position_scale[:, None] * position_scale[None, :]

@@ -222,6 +222,14 @@ def test_position_information_is_the_inverse_of_the_position_block() -> None:
     np.testing.assert_allclose(
         np.linalg.inv(position_information(information, 3)), expected, rtol=1e-10
     )
+    # a coordinate the samples do not see, or nuisances they cannot tell apart: NaN
+    blind = information.copy()
+    blind[0, :] = blind[:, 0] = 0.0
+    assert np.all(np.isnan(inverse_symmetric(position_information(blind, 3))))
+    twins = information.copy()
+    twins[4, :], twins[:, 4] = twins[3, :], twins[:, 3]
+    twins[4, 4] = twins[3, 3]
+    assert np.all(np.isnan(inverse_symmetric(position_information(twins, 3))))
 
 
 def test_plan_noise_is_the_bursts_bounds() -> None:
