@@ -277,11 +277,15 @@ def outlier_rate(
     plan: BurstPlan,
     doppler_hz: np.ndarray,
     toa_s: np.ndarray | None = None,
+    among: np.ndarray | None = None,
 ) -> tuple[int, int]:
     """``(count, total)`` of the bursts whose Doppler is more than one bin ``1/T`` off the
     true ``doppler_hz``, or (``"bpsk"``, ``toa_s`` given) whose ToA is more than one chip
-    ``1/R_c`` off: the outliers no local bound describes (docs/math.md §19, §20)."""
+    ``1/R_c`` off: the outliers no local bound describes (docs/math.md §19, §20). ``among``
+    (boolean, ``measured``'s shape): count only those bursts, e.g. ``~measured.below_threshold``
+    for the outliers the flag missed."""
     far = np.abs(measured.doppler_hz - doppler_hz) > 1.0 / plan.burst_s
     if toa_s is not None and measured.toa_s is not None:
         far |= np.abs(measured.toa_s - toa_s) > 1.0 / plan.chip_rate_hz
-    return int(far.sum()), int(far.size)
+    counted = np.ones(far.shape, dtype=bool) if among is None else np.asarray(among, dtype=bool)
+    return int(far[counted].sum()), int(counted.sum())
