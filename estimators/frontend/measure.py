@@ -44,6 +44,12 @@ class BurstMeasurements:
     burst_snr: np.ndarray
     below_threshold: np.ndarray
 
+    def trial(self, index: int) -> BurstMeasurements:
+        """Trial ``index`` of measurements ``(n_trials, n_bursts)``: every array's row."""
+        return BurstMeasurements(
+            **{name: None if value is None else value[index] for name, value in vars(self).items()}
+        )
+
 
 def schedule_times(value: object, name: str, n_bursts: int) -> np.ndarray:
     """``value`` as a finite ``(n_bursts,)`` float array, else one line naming ``name``."""

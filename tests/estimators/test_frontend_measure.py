@@ -20,7 +20,6 @@ import numpy as np
 import pytest
 
 from estimators.frontend import (
-    BurstMeasurements,
     measure_bursts,
     measurement_batch,
     measurement_set,
@@ -64,15 +63,6 @@ def measured_trials(name: str, plan: BurstPlan, seeds, *, noise: bool = True):
     return geometry, measured
 
 
-def one_trial(measured: BurstMeasurements, index: int) -> BurstMeasurements:
-    return BurstMeasurements(
-        **{
-            field.name: None if (value := getattr(measured, field.name)) is None else value[index]
-            for field in dataclasses.fields(measured)
-        }
-    )
-
-
 # --------------------------------------------------------------------------------------------
 # noise-free: the geometry's Doppler and ToA
 # --------------------------------------------------------------------------------------------
@@ -114,7 +104,7 @@ def test_a_noise_free_beacon_pass_recording_round_trips_through_cls() -> None:
     the measured ToA's rounding is ``c · 4ε · 19.5 s ≈ 5 µm`` of range, so 10 µm."""
     scenario = get_scenario("beacon-pass")
     geometry, measured = measured_trials("beacon-pass", plan_of("bpsk"), [5], noise=False)
-    data = measurement_set(geometry, one_trial(measured, 0))
+    data = measurement_set(geometry, measured.trial(0))
     assert data.modalities == {"doppler", "toa"} and data.unknowns == geometry.unknowns
     estimate = make_estimator("cls").estimate(data)
     assert estimate.success and not estimate.ambiguous
@@ -144,7 +134,7 @@ def test_far_above_threshold_the_sigmas_written_are_the_errors_own() -> None:
     bound = noise_at_cn0(plan)
     doppler, toa = [], []
     for index in range(50):
-        data = measurement_set(geometry, one_trial(measured, index))
+        data = measurement_set(geometry, measured.trial(index))
         assert data.noise.doppler_hz**2 / bound.doppler_hz**2 == pytest.approx(1.0, abs=0.1)
         assert data.noise.toa_s**2 / bound.toa_s**2 == pytest.approx(1.0, abs=0.1)
         doppler.append((data.doppler_hz - geometry.doppler_hz) / data.noise.doppler_hz)
@@ -176,7 +166,7 @@ def test_below_threshold_the_outliers_are_counted_and_flagged() -> None:
     message = f"{count} outliers of {total}, {flagged[far].sum()} of them flagged"
     assert total == 200 and count == far.sum() >= 0.9 * total, message
     assert flagged[far].sum() >= 0.99 * count, message
-    data = measurement_set(geometry, one_trial(measured, 0))
+    data = measurement_set(geometry, measured.trial(0))
     assert data.noise.doppler_hz < noise_at_cn0(plan).doppler_hz
     assert (
         np.sqrt(np.mean((data.doppler_hz - geometry.doppler_hz) ** 2)) > 10 * data.noise.doppler_hz
