@@ -197,7 +197,8 @@ def bound_at_mean_snr(variance: np.ndarray, flagged: np.ndarray) -> float:
     ``var_k`` is a bound ``K / SNR̂_k``, so this is the bound at the mean ``SNR̂``
     (docs/math.md §20)."""
     kept = variance[~flagged] if not flagged.all() else variance
-    return float(1.0 / np.mean(1.0 / kept))
+    with np.errstate(divide="ignore"):  # bursts of zeros: infinite variances, refused by name
+        return float(1.0 / np.mean(1.0 / kept))
 
 
 def measured_noise(measured: BurstMeasurements) -> NoiseSigmas:
@@ -211,11 +212,8 @@ def measured_noise(measured: BurstMeasurements) -> NoiseSigmas:
     )
 
 
-def with_measurements(
-    geometry: MeasurementSet, noise: NoiseSigmas, doppler_hz: np.ndarray, toa_s: np.ndarray | None
-) -> MeasurementSet:
-    """``geometry``'s flight, constants, unknowns and truth with the measured Doppler and ToA
-    and their σ's; its RSS dropped (the bursts do not measure it)."""
+def check_bursts(geometry: MeasurementSet, doppler_hz: np.ndarray) -> None:
+    """``geometry`` a :class:`MeasurementSet` with one sample per measured burst."""
     if not isinstance(geometry, MeasurementSet):
         raise ValueError(f"geometry: expected a MeasurementSet, got {type(geometry).__name__}")
     if np.shape(doppler_hz)[-1] != geometry.n_samples:
@@ -223,6 +221,14 @@ def with_measurements(
             f"measured: {np.shape(doppler_hz)[-1]} bursts for the geometry's "
             f"{geometry.n_samples} samples; measure one burst per sample"
         )
+
+
+def with_measurements(
+    geometry: MeasurementSet, noise: NoiseSigmas, doppler_hz: np.ndarray, toa_s: np.ndarray | None
+) -> MeasurementSet:
+    """``geometry``'s flight, constants, unknowns and truth with the measured Doppler and ToA
+    and their σ's; its RSS dropped (the bursts do not measure it)."""
+    check_bursts(geometry, doppler_hz)
     return replace(
         geometry,
         doppler_hz=doppler_hz,
@@ -233,7 +239,9 @@ def with_measurements(
     )
 
 
-def measurement_set(geometry: MeasurementSet, measured: BurstMeasurements) -> MeasurementSet:
+def measurement_set(
+    geometry: MeasurementSet, measured: BurstMeasurements, *, drop_flagged: bool = False
+) -> MeasurementSet:
     """One trial's measurement file (docs/math.md §20): ``geometry``'s flight, constants,
     unknowns and truth with the measured Doppler (and ToA), ``measured`` of shape
     ``(n_bursts,)``, one burst per sample.
@@ -243,16 +251,28 @@ def measurement_set(geometry: MeasurementSet, measured: BurstMeasurements) -> Me
     one σ per modality, and no per-sample σ's are needed: the received power is constant over
     the flight (MATH §18), so every burst has the same SNR and the same bound, and the bursts'
     own estimates of it differ only by their estimation noise. The flagged bursts' measurements
-    are written too; ``set.take(~measured.below_threshold)`` drops them.
+    are written too unless ``drop_flagged``, which keeps the samples not flagged only (below
+    threshold a ToA outlier may be shorter than the UAV's height, which a set with a known
+    emission time refuses).
     """
     if np.ndim(measured.doppler_hz) != 1:
         raise ValueError(
             f"measured: expected one trial, shape (n_bursts,), got "
             f"{np.shape(measured.doppler_hz)}; use measurement_batch for many"
         )
-    return with_measurements(
-        geometry, measured_noise(measured), measured.doppler_hz, measured.toa_s
-    )
+    noise = measured_noise(measured)
+    doppler, toa = measured.doppler_hz, measured.toa_s
+    if drop_flagged:
+        check_bursts(geometry, doppler)
+        kept = ~np.asarray(measured.below_threshold)
+        if not kept.any():
+            raise ValueError(
+                "measured.below_threshold: every burst is flagged, nothing is left to write; "
+                "measure at a higher C/N0 or keep the flagged bursts"
+            )
+        geometry = geometry.take(kept)
+        doppler, toa = doppler[kept], None if toa is None else toa[kept]
+    return with_measurements(geometry, noise, doppler, toa)
 
 
 def measurement_batch(
@@ -260,7 +280,9 @@ def measurement_batch(
 ) -> MeasurementBatch:
     """Many trials' measurements (docs/math.md §20), ``measured`` of shape ``(n_trials,
     n_bursts)``, with the σ's ``noise`` shared by the batch (a caller passes the bounds at the
-    plan's C/N0, :func:`scenarios.signal.noise_at_cn0`)."""
+    plan's C/N0, :func:`scenarios.signal.noise_at_cn0`). Every trial's ToAs pass the set's
+    checks or the batch is refused: below threshold, with a known emission time, a ToA outlier
+    shorter than the UAV's height is (:func:`measurement_set` can drop the flagged bursts)."""
     if np.ndim(measured.doppler_hz) != 2:
         raise ValueError(
             f"measured: expected shape (n_trials, n_bursts), got {np.shape(measured.doppler_hz)}"

@@ -173,6 +173,21 @@ def test_below_threshold_the_outliers_are_counted_and_flagged() -> None:
     )
 
 
+def test_at_threshold_a_known_emission_time_refuses_toa_outliers_unless_dropped() -> None:
+    """turn (emission time known) at 50 dB-Hz (SNR_burst 10 dB): a ToA outlier kilometres
+    short of the UAV's height is refused by the set's own check, naming the entry; with
+    ``drop_flagged`` the set holds the bursts not flagged."""
+    plan = plan_of("bpsk", cn0_dbhz=50.0)
+    geometry, measured = measured_trials("turn", plan, trial_seeds(2450, 1))
+    one = measured.trial(0)
+    with pytest.raises(ValueError, match=r"^toa_s\[1\]: the range"):
+        measurement_set(geometry, one)
+    kept = measurement_set(geometry, one, drop_flagged=True)
+    assert kept.n_samples == (~one.below_threshold).sum() == 10
+    np.testing.assert_array_equal(kept.toa_s, one.toa_s[~one.below_threshold])
+    np.testing.assert_array_equal(kept.time_s, geometry.time_s[~one.below_threshold])
+
+
 # --------------------------------------------------------------------------------------------
 # every burst at once is one at a time; a flight in blocks is the flight at once
 # --------------------------------------------------------------------------------------------
@@ -230,10 +245,18 @@ def bad_calls():
         (lambda: measure_bursts(good, "bpsk", time_s=times, emission_time_s=times), "plan"),
         (lambda: measurement_set(geometry, three), "measured"),
         (lambda: measurement_batch(geometry, three, NoiseSigmas(doppler_hz=1.0)), "measured"),
+        (
+            lambda: measurement_set(
+                noise_free(get_scenario("turn")).take(np.arange(20) < 3),
+                dataclasses.replace(three, below_threshold=np.ones(3, dtype=bool)),
+                drop_flagged=True,
+            ),
+            "measured.below_threshold",
+        ),
     ]
 
 
-@pytest.mark.parametrize("index", range(7))
+@pytest.mark.parametrize("index", range(8))
 def test_bad_input_is_one_line_naming_the_field(index: int) -> None:
     call, field = bad_calls()[index]
     with pytest.raises(ValueError) as raised:
