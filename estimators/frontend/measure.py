@@ -163,16 +163,18 @@ def measure_bursts(
     ``t_k + Δ̂_k − e_k``, ``Δ̂_k`` the burst centre's offset from the window's centre. A block of
     bursts is computed at a time and each burst's result does not depend on the others, so a
     caller may stream a recording in blocks of any size (with the matching slices of
-    ``time_s`` and ``emission_time_s``).
+    ``time_s`` and ``emission_time_s``). The BPSK delay's first pass correlates against the
+    chips without the Doppler ``f``: it needs ``|f| T`` well below 1 (0.1 loses 3% of the
+    burst's energy to that pass, 1 all of it; docs/math.md §20).
     """
     if not isinstance(plan, BurstPlan):
         raise ValueError(f"plan: expected a BurstPlan, got {type(plan).__name__}")
     windows = burst_rows(samples)
     shape = np.shape(samples)
-    if len(shape) < 2 or shape[-1] != plan.n_samples:
+    if len(shape) < 2 or shape[-1] != plan.n_samples or len(windows) == 0:
         raise ValueError(
             f"samples: expected shape (..., n_bursts, {plan.n_samples}), one window of "
-            f"plan.n_samples per burst, got {shape}"
+            f"plan.n_samples per burst and at least one burst, got {shape}"
         )
     time = schedule_times(time_s, "time_s", shape[-2])
     emission = schedule_times(emission_time_s, "emission_time_s", shape[-2])

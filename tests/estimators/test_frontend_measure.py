@@ -237,6 +237,7 @@ def bad_calls():
     return [
         (lambda: measure_bursts(good[:, 1:], plan, time_s=times, emission_time_s=times), "samples"),
         (lambda: measure_bursts(nan, plan, time_s=times, emission_time_s=times), "samples"),
+        (lambda: measure_bursts(good[:0], plan, time_s=[], emission_time_s=[]), "samples"),
         (lambda: measure_bursts(good, plan, time_s=times[:2], emission_time_s=times), "time_s"),
         (
             lambda: measure_bursts(good, plan, time_s=times, emission_time_s=times[:, None]),
@@ -256,7 +257,7 @@ def bad_calls():
     ]
 
 
-@pytest.mark.parametrize("index", range(8))
+@pytest.mark.parametrize("index", range(9))
 def test_bad_input_is_one_line_naming_the_field(index: int) -> None:
     call, field = bad_calls()[index]
     with pytest.raises(ValueError) as raised:
