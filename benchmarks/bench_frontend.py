@@ -10,7 +10,11 @@ per-burst SNR of 20 dB, each made here with numpy (a tone at a random frequency;
 - ``numpy``: a plain transcription written here, one burst at a time: the same zero-padded FFT
   (or upsampled correlation), the same interpolation, the same three Newton steps on the exact
   periodogram (or correlation), the same SNR and bound, in a Python loop over bursts on the
-  first ``min(bursts, 500)`` bursts (its cost per burst does not depend on their number).
+  first ``min(bursts, 500)`` bursts (its cost per burst does not depend on their number);
+- ``measure_bursts``: the whole front end of docs/math.md §20 on BPSK windows of the signal
+  model (:func:`scenarios.signal.received_bursts` on ``turn``, ``N`` samples at the same rate,
+  4 samples a chip, the same SNR): the delay, the chips removed, the frequency, the delay again
+  and the ToA, per burst.
 
 Times are CPU seconds of this process (``time.process_time``, the least of three runs,
 :func:`cpu_time.best_cpu_s`) with BLAS held to one thread; printed as bursts per second per
@@ -32,7 +36,10 @@ for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 from cpu_time import best_cpu_s  # noqa: E402
 
-from estimators.frontend import burst_delay, tone_frequency  # noqa: E402
+from estimators.frontend import burst_delay, measure_bursts, tone_frequency  # noqa: E402
+from scenarios import get_scenario  # noqa: E402
+from scenarios.signal import BurstPlan, received_bursts  # noqa: E402
+from scenarios.simulate import noise_free, trial_seeds  # noqa: E402
 
 SAMPLE_RATE_HZ = 1.0e6
 SNR_DB = 20.0
@@ -149,6 +156,30 @@ def main() -> None:
             f"{name:10s} {fast_rate:10.0f} b/s/c {plain_rate:10.0f} b/s/c "
             f"{fast_rate / plain_rate:7.2f} {difference:13.2e}"
         )
+
+    measure_rate = measure_bursts_rate(count, n)
+    print(f"{'measure':10s} {measure_rate:10.0f} b/s/c  (measure_bursts, bpsk: the whole §20)")
+
+
+def measure_bursts_rate(count: int, n: int) -> float:
+    """Bursts per second per core of :func:`measure_bursts` on ``count`` BPSK windows of ``n``
+    samples received on ``turn`` (whole trials of its 20 bursts)."""
+    burst_s = n / SAMPLE_RATE_HZ
+    plan = BurstPlan(
+        waveform="bpsk",
+        burst_s=burst_s,
+        sample_rate_hz=SAMPLE_RATE_HZ,
+        chip_rate_hz=SAMPLE_RATE_HZ / 4,
+        cn0_dbhz=SNR_DB - 10 * np.log10(burst_s),
+    )
+    geometry = noise_free(get_scenario("turn"))
+    received = received_bursts(geometry, plan, trial_seeds(24, -(-count // geometry.n_samples)))
+    time_s, emission_s = geometry.time_s, received.emission_time_s
+
+    def run():
+        return measure_bursts(received.samples, plan, time_s=time_s, emission_time_s=emission_s)
+
+    return received.samples.shape[0] * received.samples.shape[1] / best_cpu_s(run)
 
 
 if __name__ == "__main__":

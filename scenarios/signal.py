@@ -31,7 +31,7 @@ from numpy.typing import ArrayLike, NDArray
 from scenarios import measurement_model as model
 from scenarios.fields import finite, positive_finite
 from scenarios.simulate import SeedLike, noise_free
-from scenarios.types import MeasurementSet, Scenario
+from scenarios.types import MeasurementSet, NoiseSigmas, Scenario
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complexfloating]
@@ -431,3 +431,11 @@ def frequency_bound_hz2(plan: BurstPlan) -> float:
 def delay_bound_s2(plan: BurstPlan) -> float:
     """The bound on one of the plan's bursts' delay (MATH §18), s² (:func:`delay_crb_s2`)."""
     return float(delay_crb_s2(plan.burst_snr, burst_rms_bandwidth_hz(plan)))
+
+
+def noise_at_cn0(plan: BurstPlan) -> NoiseSigmas:
+    """The measurement-level σ's at the plan's C/N0 (MATH §18, §20): the square roots of
+    :func:`frequency_bound_hz2` and, for ``"bpsk"``, :func:`delay_bound_s2` (a tone carries no
+    delay)."""
+    delay_s = math.sqrt(delay_bound_s2(plan)) if plan.waveform == "bpsk" else None
+    return NoiseSigmas(doppler_hz=math.sqrt(frequency_bound_hz2(plan)), toa_s=delay_s)

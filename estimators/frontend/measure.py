@@ -1,0 +1,321 @@
+r"""From the receiver's bursts to the measurements today's estimators read (docs/math.md §20).
+
+:func:`measure_bursts` runs the per-burst front end of §19 on one window per burst. For a known
+BPSK burst: the delay first (:func:`~estimators.frontend.burst_delay` against the plan's sampled
+chips), then the chips removed (the reference delayed by the estimate, band-limited, times the
+samples) and the tone's frequency (:func:`~estimators.frontend.tone_frequency`), then the delay
+again on the window with that tone removed, matched to the burst as received: the first
+correlation loses ``sinc²(f T)`` of the burst's energy to the Doppler ``f`` and leaves it in the
+residual, so its SNR (and the variance written) would fall with the Doppler. For a tone: the
+frequency only. The ToA is the window's time plus the burst centre's offset from the window's
+centre minus the schedule, ``τ̂_k = t_k + Δ̂_k − e_k``. :func:`measurement_set` (one trial)
+and :func:`measurement_batch` (many trials) put the measurements into the project's
+:class:`~scenarios.types.MeasurementSet` and :class:`~scenarios.types.MeasurementBatch` with the
+σ's of the bounds, which far above threshold are the errors' own.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from estimators.frontend.delay import burst_delay
+from estimators.frontend.frequency import tone_frequency
+from estimators.frontend.peak import rotated
+from estimators.frontend.samples import burst_rows, by_blocks
+from scenarios.signal import BurstPlan, burst_envelope, window_offsets_s
+from scenarios.types import MeasurementBatch, MeasurementSet, NoiseSigmas
+
+
+@dataclass(frozen=True)
+class BurstMeasurements:
+    """Per burst, every array ``(..., n_bursts)`` (docs/math.md §20): the measured Doppler
+    (physical sign, MATH §1) and its variance (the Rife-Boorstyn bound at the burst's estimated
+    SNR); the ToA and its variance (the delay bound at that SNR), None for a ``"cw"`` plan (a
+    tone carries no delay); the burst's estimated SNR (the delay's for ``"bpsk"``, the
+    frequency's for ``"cw"``); and the flag, set where the frequency or the delay is below
+    threshold (§19)."""
+
+    doppler_hz: np.ndarray
+    doppler_variance_hz2: np.ndarray
+    toa_s: np.ndarray | None
+    toa_variance_s2: np.ndarray | None
+    burst_snr: np.ndarray
+    below_threshold: np.ndarray
+
+    def trial(self, index: int) -> BurstMeasurements:
+        """Trial ``index`` of measurements ``(n_trials, n_bursts)``: every array's row."""
+        return BurstMeasurements(
+            **{name: None if value is None else value[index] for name, value in vars(self).items()}
+        )
+
+
+def schedule_times(value: object, name: str, n_bursts: int) -> np.ndarray:
+    """``value`` as a finite ``(n_bursts,)`` float array, else one line naming ``name``."""
+    try:
+        times = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected an array of times in seconds") from None
+    if times.shape != (n_bursts,):
+        raise ValueError(
+            f"{name}: expected shape ({n_bursts},), one time per burst of samples, got "
+            f"{times.shape}"
+        )
+    if not np.all(np.isfinite(times)):
+        raise ValueError(f"{name}: every time must be finite (no NaN or inf)")
+    return times
+
+
+def chips_removed(
+    windows: np.ndarray, reference: np.ndarray, delay_samples: np.ndarray
+) -> np.ndarray:
+    """``x_n · s̃(n − τ̂)`` per ``(n, N)`` row: the real ``reference`` delayed by ``τ̂`` samples
+    in the frequency domain (its Nyquist bin by ``cos(πτ̂)``: the real part) times the samples,
+    in real arithmetic (docs/math.md §20)."""
+    n = windows.shape[1]
+    spectrum = np.fft.fft(reference)
+    re, im = rotated(
+        spectrum.real, spectrum.imag, -2.0 * np.pi * delay_samples[:, None] * np.fft.fftfreq(n)
+    )
+    shifted_spectrum = np.empty(re.shape, dtype=complex)
+    shifted_spectrum.real, shifted_spectrum.imag = re, im
+    shifted = np.fft.ifft(shifted_spectrum, axis=-1).real
+    removed = np.empty_like(windows)
+    removed.real, removed.imag = windows.real * shifted, windows.imag * shifted
+    return removed
+
+
+def tone_removed(windows: np.ndarray, frequency_cycles: np.ndarray) -> np.ndarray:
+    """``x_n e^{−j2π f̂ n'}`` per ``(n, N)`` row, ``f̂`` in cycles/sample and ``n'`` the index
+    from the window's centre, in real arithmetic (docs/math.md §20)."""
+    n = windows.shape[1]
+    phase = -2.0 * np.pi * frequency_cycles[:, None] * (np.arange(n) - 0.5 * (n - 1))
+    re, im = rotated(windows.real, windows.imag, phase)
+    still = np.empty_like(windows)
+    still.real, still.imag = re, im
+    return still
+
+
+def centred(delay_samples: np.ndarray, n: int) -> np.ndarray:
+    """A delay in ``[0, N)`` samples of the window-centred reference as the burst centre's
+    offset from the window's centre, in ``[−N/2, N/2)`` samples."""
+    return np.where(delay_samples >= n / 2.0, delay_samples - n, delay_samples)
+
+
+def burst_samples(windows: np.ndarray, plan: BurstPlan, offset_samples: np.ndarray) -> np.ndarray:
+    """The plan's ``n_burst_samples`` of each ``(n, n_samples)`` row around the burst's centre,
+    ``offset_samples`` from the window's, rounded and kept within the window (without guards,
+    the whole window)."""
+    if plan.n_guard_samples == 0:
+        return windows
+    guard = plan.n_guard_samples
+    start = np.clip(guard + np.rint(offset_samples).astype(np.int64), 0, 2 * guard)
+    index = start[:, None] + np.arange(plan.n_burst_samples)
+    return np.take_along_axis(windows, index, axis=1)
+
+
+def measure_rows(
+    windows: np.ndarray, plan: BurstPlan, reference: np.ndarray
+) -> tuple[np.ndarray, ...]:
+    """The front end on ``(n, n_samples)`` windows: the Doppler, its variance, the burst
+    centre's offset from the window's centre (s), its variance, the SNR and the flag
+    (docs/math.md §20). ``"bpsk"``: the coarse delay against ``reference`` (the window's
+    sampled chips), the chips removed, the frequency, the delay of the window with the tone
+    removed; a burst is flagged if the frequency or the final delay is."""
+    rate_hz, n = plan.sample_rate_hz, plan.n_samples
+    rows = windows.shape[0]
+    if plan.waveform == "cw":
+        tone = tone_frequency(burst_samples(windows, plan, np.zeros(rows)), rate_hz)
+        nothing = np.full(rows, np.nan)
+        return (
+            tone.frequency_hz,
+            tone.variance_hz2,
+            nothing,
+            nothing,
+            tone.burst_snr,
+            tone.below_threshold,
+        )
+    coarse = burst_delay(windows, reference, rate_hz)
+    coarse_samples = coarse.delay_s * rate_hz  # in [0, N): the reference's shift
+    removed = chips_removed(windows, reference, coarse_samples)
+    tone = tone_frequency(burst_samples(removed, plan, centred(coarse_samples, n)), rate_hz)
+    delay = burst_delay(tone_removed(windows, tone.frequency_hz / rate_hz), reference, rate_hz)
+    return (
+        tone.frequency_hz,
+        tone.variance_hz2,
+        centred(delay.delay_s * rate_hz, n) / rate_hz,
+        delay.variance_s2,
+        delay.burst_snr,
+        tone.below_threshold | delay.below_threshold,
+    )
+
+
+def measure_bursts(
+    samples: object, plan: BurstPlan, *, time_s: object, emission_time_s: object
+) -> BurstMeasurements:
+    """The Doppler and (``"bpsk"``) the ToA of every burst, with their variances and the flag
+    (docs/math.md §20).
+
+    ``samples`` ``(..., n_bursts, n_samples)``: one window of ``plan.n_samples`` per burst,
+    centred on ``time_s[k]`` (``t_k``); ``emission_time_s`` ``(n_bursts,)`` the schedule
+    ``e_k`` (what :func:`scenarios.signal.received_bursts` returns). The ToA is
+    ``t_k + Δ̂_k − e_k``, ``Δ̂_k`` the burst centre's offset from the window's centre. A block of
+    bursts is computed at a time and each burst's result does not depend on the others, so a
+    caller may stream a recording in blocks of any size (with the matching slices of
+    ``time_s`` and ``emission_time_s``). The BPSK delay's first pass correlates against the
+    chips without the Doppler ``f``: it needs ``|f| T`` well below 1 (0.1 loses 3% of the
+    burst's energy to that pass, 1 all of it; docs/math.md §20).
+    """
+    if not isinstance(plan, BurstPlan):
+        raise ValueError(f"plan: expected a BurstPlan, got {type(plan).__name__}")
+    windows = burst_rows(samples)
+    shape = np.shape(samples)
+    if len(shape) < 2 or shape[-1] != plan.n_samples or len(windows) == 0:
+        raise ValueError(
+            f"samples: expected shape (..., n_bursts, {plan.n_samples}), one window of "
+            f"plan.n_samples per burst and at least one burst, got {shape}"
+        )
+    time = schedule_times(time_s, "time_s", shape[-2])
+    emission = schedule_times(emission_time_s, "emission_time_s", shape[-2])
+    reference = burst_envelope(plan, window_offsets_s(plan))
+    doppler, doppler_variance, offset_s, offset_variance, snr, flagged = (
+        part.reshape(shape[:-1])
+        for part in by_blocks(windows, lambda block: measure_rows(block, plan, reference))
+    )
+    bpsk = plan.waveform == "bpsk"
+    return BurstMeasurements(
+        doppler_hz=doppler,
+        doppler_variance_hz2=doppler_variance,
+        toa_s=(time - emission) + offset_s if bpsk else None,
+        toa_variance_s2=offset_variance if bpsk else None,
+        burst_snr=snr,
+        below_threshold=flagged,
+    )
+
+
+def bound_at_mean_snr(variance: np.ndarray, flagged: np.ndarray) -> float:
+    """``1 / mean(1 / var_k)`` over the bursts not flagged (all of them if every one is): each
+    ``var_k`` is a bound ``K / SNR̂_k``, so this is the bound at the mean ``SNR̂``
+    (docs/math.md §20)."""
+    kept = variance[~flagged] if not flagged.all() else variance
+    with np.errstate(divide="ignore"):  # bursts of zeros: infinite variances, refused by name
+        return float(1.0 / np.mean(1.0 / kept))
+
+
+def measured_noise(measured: BurstMeasurements) -> NoiseSigmas:
+    """The σ's of one trial: the square root of each bound at the trial's mean estimated burst
+    SNR over the bursts not flagged (docs/math.md §20)."""
+    flagged = np.asarray(measured.below_threshold)
+    toa = measured.toa_variance_s2
+    return NoiseSigmas(
+        doppler_hz=np.sqrt(bound_at_mean_snr(measured.doppler_variance_hz2, flagged)),
+        toa_s=None if toa is None else np.sqrt(bound_at_mean_snr(toa, flagged)),
+    )
+
+
+def check_bursts(geometry: MeasurementSet, doppler_hz: np.ndarray) -> None:
+    """``geometry`` a :class:`MeasurementSet` with one sample per measured burst."""
+    if not isinstance(geometry, MeasurementSet):
+        raise ValueError(f"geometry: expected a MeasurementSet, got {type(geometry).__name__}")
+    if np.shape(doppler_hz)[-1] != geometry.n_samples:
+        raise ValueError(
+            f"measured: {np.shape(doppler_hz)[-1]} bursts for the geometry's "
+            f"{geometry.n_samples} samples; measure one burst per sample"
+        )
+
+
+def with_measurements(
+    geometry: MeasurementSet, noise: NoiseSigmas, doppler_hz: np.ndarray, toa_s: np.ndarray | None
+) -> MeasurementSet:
+    """``geometry``'s flight, constants, unknowns and truth with the measured Doppler and ToA
+    and their σ's; its RSS dropped (the bursts do not measure it)."""
+    check_bursts(geometry, doppler_hz)
+    return replace(
+        geometry,
+        doppler_hz=doppler_hz,
+        toa_s=toa_s,
+        rss_dbm=None,
+        rss_model=None,
+        noise=noise,
+    )
+
+
+def measurement_set(
+    geometry: MeasurementSet, measured: BurstMeasurements, *, drop_flagged: bool = False
+) -> MeasurementSet:
+    """One trial's measurement file (docs/math.md §20): ``geometry``'s flight, constants,
+    unknowns and truth with the measured Doppler (and ToA), ``measured`` of shape
+    ``(n_bursts,)``, one burst per sample.
+
+    The σ's written are the square roots of the bounds at the trial's mean estimated burst SNR
+    over the bursts not flagged (all of them if every one is). A :class:`MeasurementSet` holds
+    one σ per modality, and no per-sample σ's are needed: the received power is constant over
+    the flight (MATH §18), so every burst has the same SNR and the same bound, and the bursts'
+    own estimates of it differ only by their estimation noise. The flagged bursts' measurements
+    are written too unless ``drop_flagged``, which keeps the samples not flagged only (below
+    threshold a ToA outlier may be shorter than the UAV's height, which a set with a known
+    emission time refuses).
+    """
+    if np.ndim(measured.doppler_hz) != 1:
+        raise ValueError(
+            f"measured: expected one trial, shape (n_bursts,), got "
+            f"{np.shape(measured.doppler_hz)}; use measurement_batch for many"
+        )
+    noise = measured_noise(measured)
+    doppler, toa = measured.doppler_hz, measured.toa_s
+    if drop_flagged:
+        check_bursts(geometry, doppler)
+        kept = ~np.asarray(measured.below_threshold)
+        if not kept.any():
+            raise ValueError(
+                "measured.below_threshold: every burst is flagged, nothing is left to write; "
+                "measure at a higher C/N0 or keep the flagged bursts"
+            )
+        geometry = geometry.take(kept)
+        doppler, toa = doppler[kept], None if toa is None else toa[kept]
+    return with_measurements(geometry, noise, doppler, toa)
+
+
+def measurement_batch(
+    geometry: MeasurementSet, measured: BurstMeasurements, noise: NoiseSigmas
+) -> MeasurementBatch:
+    """Many trials' measurements (docs/math.md §20), ``measured`` of shape ``(n_trials,
+    n_bursts)``, with the σ's ``noise`` shared by the batch (a caller passes the bounds at the
+    plan's C/N0, :func:`scenarios.signal.noise_at_cn0`). Every trial's ToAs pass the set's
+    checks or the batch is refused: below threshold, with a known emission time, a ToA outlier
+    shorter than the UAV's height is (:func:`measurement_set` can drop the flagged bursts)."""
+    if np.ndim(measured.doppler_hz) != 2:
+        raise ValueError(
+            f"measured: expected shape (n_trials, n_bursts), got {np.shape(measured.doppler_hz)}"
+        )
+    if not isinstance(noise, NoiseSigmas):
+        raise ValueError(f"noise: expected NoiseSigmas, got {type(noise).__name__}")
+    shared = with_measurements(
+        geometry,
+        noise,
+        measured.doppler_hz[0],
+        None if measured.toa_s is None else measured.toa_s[0],
+    )
+    return MeasurementBatch(
+        geometry=shared, doppler_hz=measured.doppler_hz, toa_s=measured.toa_s, rss_dbm=None
+    )
+
+
+def outlier_rate(
+    measured: BurstMeasurements,
+    plan: BurstPlan,
+    doppler_hz: np.ndarray,
+    toa_s: np.ndarray | None = None,
+    among: np.ndarray | None = None,
+) -> tuple[int, int]:
+    """``(count, total)`` of the bursts whose Doppler is more than one bin ``1/T`` off the
+    true ``doppler_hz``, or (``"bpsk"``, ``toa_s`` given) whose ToA is more than one chip
+    ``1/R_c`` off: the outliers no local bound describes (docs/math.md §19, §20). ``among``
+    (boolean, ``measured``'s shape): count only those bursts, e.g. ``~measured.below_threshold``
+    for the outliers the flag missed."""
+    far = np.abs(measured.doppler_hz - doppler_hz) > 1.0 / plan.burst_s
+    if toa_s is not None and measured.toa_s is not None:
+        far |= np.abs(measured.toa_s - toa_s) > 1.0 / plan.chip_rate_hz
+    counted = np.ones(far.shape, dtype=bool) if among is None else np.asarray(among, dtype=bool)
+    return int(far[counted].sum()), int(counted.sum())
