@@ -414,11 +414,11 @@ def delay_crb_s2(burst_snr: ArrayLike, rms_bandwidth: float) -> NDArray[np.float
 
 def burst_rms_bandwidth_hz(plan: BurstPlan) -> float:
     """``B_rms`` of the plan's burst band-limited to the receiver's band (MATH §18): that of
-    its ``n_burst_samples`` samples (:func:`rms_bandwidth_hz`)."""
-    offsets = window_offsets_s(plan)[
-        plan.n_guard_samples : plan.n_guard_samples + plan.n_burst_samples
-    ]
-    return rms_bandwidth_hz(burst_envelope(plan, offsets), plan.sample_rate_hz)
+    its window's samples, guards included (:func:`rms_bandwidth_hz`). The model of the samples
+    delays the burst over the whole window (:func:`shifted_envelope`), and the front end models
+    it so (§19): with guards the burst's two edges against silence carry delay too (3% more
+    ``B_rms²`` for 4 samples a chip)."""
+    return rms_bandwidth_hz(burst_envelope(plan, window_offsets_s(plan)), plan.sample_rate_hz)
 
 
 def frequency_bound_hz2(plan: BurstPlan) -> float:

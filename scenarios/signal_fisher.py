@@ -35,13 +35,12 @@ from scenarios.signal import (
     burst_phase_rad,
     burst_shift_samples,
     burst_truth,
-    delay_bound_s2,
-    frequency_bound_hz2,
+    noise_at_cn0,
     range_change_m,
     window_offsets_s,
 )
 from scenarios.simulate import noise_free
-from scenarios.types import MeasurementSet, NoiseSigmas, Scenario
+from scenarios.types import MeasurementSet, Scenario
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complexfloating]
@@ -239,14 +238,6 @@ def signal_crlb_at_plan_m2(
     return signal_crlb_m2(geometry, plan, schedule, unknowns=unknowns)
 
 
-def plan_noise(plan: BurstPlan) -> NoiseSigmas:
-    """The σ's of one burst's frequency and delay at the plan's C/N0 (MATH §18, §22): the
-    square roots of :func:`scenarios.signal.frequency_bound_hz2` and
-    :func:`scenarios.signal.delay_bound_s2`; a tone's delay is not measured (None)."""
-    toa = None if plan.waveform == "cw" else float(np.sqrt(delay_bound_s2(plan)))
-    return NoiseSigmas(doppler_hz=float(np.sqrt(frequency_bound_hz2(plan))), toa_s=toa)
-
-
 def measurement_crlb_at_plan_m2(
     source: Scenario | MeasurementSet,
     plan: BurstPlan,
@@ -254,11 +245,11 @@ def measurement_crlb_at_plan_m2(
     unknowns: Iterable[str] | None = None,
 ) -> FloatArray:
     """The measurement-level CRLB of MATH §8 (and §15), m², ``(d, d)``, with the σ's of
-    :func:`plan_noise`: what a front end attaining its per-burst bounds gives the two-step
+    :func:`scenarios.signal.noise_at_cn0`: what a front end attaining its per-burst bounds gives the two-step
     estimators. Doppler and ToA for ``"bpsk"``, Doppler alone for ``"cw"``. Equal to
     :func:`signal_crlb_at_plan_m2` above threshold, up to what MATH §22 lists."""
     geometry = _geometry_of(source)
-    noise = plan_noise(plan)
+    noise = noise_at_cn0(plan)
     modalities = "doppler" if noise.toa_s is None else "toa+doppler"
     # a tone's ToA σ is not used (Doppler alone): the data keep theirs
     sigmas = {"doppler_hz": noise.doppler_hz} | (
