@@ -15,6 +15,10 @@ import typer
 
 from comparison.cli_support import flags_for, known_scenario, measured_recording
 
+IQ_SAMPLES = (20_000_000, "EMITTERBENCH_MAX_IQ_SAMPLES")
+"""Most samples ``simulate-iq`` draws (bursts × window): 320 MB as complex128, about five
+times that while drawing; the file holds half the first (cf32_le)."""
+
 
 def simulate_iq_command(
     scenario: Annotated[
@@ -46,6 +50,7 @@ def simulate_iq_command(
     and write it as a SigMF recording (cf32_le samples; the track, the schedule and the truth
     in the emitterbench extension)."""
     from scenarios.catalog import get_scenario
+    from scenarios.limits import check_limit
     from scenarios.recording import write_recording
     from scenarios.signal import BurstPlan, received_bursts
     from scenarios.simulate import noise_free
@@ -67,6 +72,9 @@ def simulate_iq_command(
             cn0_dbhz=cn0_dbhz,
             chip_rate_hz=chip_rate_hz if waveform == "bpsk" else None,
         )
+        n_samples = chosen.flight.n_samples * plan.n_samples
+        fix = "shorten --burst-s or lower --sample-rate-hz"
+        check_limit(n_samples, "--burst-s", "IQ samples", IQ_SAMPLES, fix)
         received = received_bursts(chosen, plan, [seed])
         meta_path, data_path = write_recording(output, noise_free(chosen), plan, received)
     n_bursts = received.samples.shape[1]

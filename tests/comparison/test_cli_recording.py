@@ -87,6 +87,8 @@ def test_estimate_says_on_stderr_how_many_bursts_were_flagged(tmp_path: Path) ->
         (("--chip-rate-hz", "3e5"), "--chip-rate-hz"),
         # beacon-pass: Doppler and carrier offset near 2 kHz, beyond ±fs/2 = ±1 kHz
         (("--sample-rate-hz", "2e3", "--waveform", "cw"), "--sample-rate-hz"),
+        # 40 bursts of 10 s at 400 kHz: 160 million samples
+        (("--burst-s", "10"), "--burst-s"),
     ],
 )
 def test_simulate_iq_refuses_a_bad_plan_and_writes_nothing(
