@@ -37,8 +37,9 @@ The global object declares the extension ``emitterbench`` (``core:extensions``) 
 
 Floats are written with ``repr`` precision, so the track, the plan and the schedule read back
 bit for bit. :func:`open_recording` checks the metadata against the SigMF schema, then the
-fields above, then the data file's size, before any sample is read; :meth:`Recording.bursts`
-reads the samples a block of bursts at a time, never the whole file. Every error is one
+fields above, then the data file's size and, when ``core:sha512`` is given, its hash (the bytes
+streamed 4 KiB at a time); :meth:`Recording.bursts` reads the samples a block of bursts at a
+time, never the whole file. Every error is one
 ``ValueError`` line naming the field (``emitterbench:track.position_m``, ``core:datatype``,
 the data file) and the fix.
 """
@@ -259,8 +260,8 @@ class Recording:
 
 def open_recording(meta_path: str | os.PathLike[str]) -> Recording:
     """Open the recording ``meta_path`` (``REC.sigmf-meta``, or ``REC``) and check it whole:
-    the SigMF schema, ``core:datatype``, the ``emitterbench`` fields and the data file's size.
-    No sample is read."""
+    the SigMF schema, ``core:datatype``, the ``emitterbench`` fields, the data file's size and
+    its SHA-512 (streamed 4 KiB at a time; no sample is kept)."""
     from sigmf import SigMFFile
 
     meta_path, data_path = recording_paths(meta_path)

@@ -170,7 +170,7 @@ def test_bursts_are_read_a_block_at_a_time(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, block: int
 ) -> None:
     meta_path, geometry, received = recorded(tmp_path)  # 20 bursts
-    recording = open_recording(meta_path)  # reads no sample
+    recording = open_recording(meta_path)  # hashes the file, reads no sample with numpy
     reads: list[int] = []
     fromfile = np.fromfile
 
