@@ -25,6 +25,7 @@ TURN = ("simulate-iq", "turn", "--seed", 4, "--cn0-dbhz", 40)
 def simulated_iq(folder: Path) -> Path:
     result = invoke(*TURN, "-o", folder / "rec")
     assert result.exit_code == 0, result.output
+    assert result.stderr == ""  # |f| T = 0.06 cycles: no warning
     assert result.stdout == (
         f"wrote {folder / 'rec.sigmf-meta'} and {folder / 'rec.sigmf-data'}: turn, 20 bpsk "
         "bursts of 4000 samples (0.64 MB), C/N0 40 dB-Hz, burst SNR 20.0 dB, seed 4\n"
@@ -77,6 +78,20 @@ def test_estimate_says_on_stderr_how_many_bursts_were_flagged(tmp_path: Path) ->
     assert result.exit_code == 0, result.output
     assert result.stderr.startswith(f"measured {meta_path}: 20 bpsk bursts, 0 of 20 flagged below")
     assert result.stdout.startswith("estimator")
+
+
+def test_simulate_iq_warns_when_the_doppler_turns_too_far_over_a_bpsk_burst(
+    tmp_path: Path,
+) -> None:
+    # beacon-pass: 1 kHz carrier offset and its Doppler, up to 1020 Hz: 10.2 cycles in 10 ms
+    args = ("simulate-iq", "beacon-pass", "--seed", 1, "--cn0-dbhz", 40, "-o", tmp_path / "rec")
+    result = invoke(*args)
+    assert result.exit_code == 0, result.output
+    assert result.stderr == (
+        "warning: the Doppler turns 10.2 cycles over a burst, and the front end measures a BPSK "
+        "burst well below 0.1 only (shorten --burst-s to 9e-05 s, or use --waveform cw)\n"
+    )
+    assert invoke(*args, "--waveform", "cw").stderr == ""
 
 
 @pytest.mark.parametrize(
