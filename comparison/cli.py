@@ -1,4 +1,5 @@
-"""The ``emitterbench`` command line: ``simulate``, ``estimate``, ``crlb``, ``fly``, ``list``, ``run``, ``report``.
+"""The ``emitterbench`` command line: ``simulate``, ``estimate``, ``crlb``, ``fly``, ``list``, ``run``, ``report``;
+``simulate-iq`` and ``measure`` on SigMF recordings (:mod:`comparison.cli_recordings`).
 
 Adding a command is one function registered with ``@command("name", field=...)``: its
 parameters are typed ``Annotated`` typer options, it imports the heavy modules it needs inside
@@ -28,6 +29,7 @@ from typing import Annotated, Any, TypeVar
 
 import typer
 
+from comparison.cli_recordings import measure_command, simulate_iq_command
 from comparison.cli_support import (
     CLUSTER_FAILED_STATUS,
     INTERNAL_ERROR_STATUS,
@@ -40,10 +42,10 @@ from comparison.cli_support import (
     clean_errors,
     fail,
     flags_for,
+    known_scenario,
     load_measurements,
     parse_estimator_options,
     print_json,
-    unknown_name,
     with_csv_options,
 )
 from comparison.cli_views import (
@@ -141,7 +143,7 @@ KeyValues = list[str] | None
 """The type of a repeatable ``--option key=value``; its ``metavar`` is :data:`KEY_VALUE`."""
 KEY_VALUE = "KEY=VALUE"
 MeasurementFile = Annotated[
-    Path, typer.Argument(help="Measurement file, .json or .csv (CSV needs the constants).")
+    Path, typer.Argument(help="Measurements .json, .csv (with the constants) or .sigmf-meta.")
 ]
 
 
@@ -150,21 +152,11 @@ MeasurementFile = Annotated[
 # --------------------------------------------------------------------------------------------
 
 
-def _known_scenario(name: str) -> str:
-    """The ``scenario`` argument, checked as click reads it: before the options that follow
-    it, so that a misspelt name is the first thing said (with the close names)."""
-    from scenarios.catalog import CATALOG
-
-    if name not in CATALOG:
-        raise typer.BadParameter(unknown_name(name, CATALOG, "scenarios"))
-    return name
-
-
 @command("simulate", field="scenario")
 def simulate_command(
     scenario: Annotated[
         str,
-        typer.Argument(help="Scenario name (see `emitterbench list`).", callback=_known_scenario),
+        typer.Argument(help="Scenario name (see `emitterbench list`).", callback=known_scenario),
     ],
     seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the noise draw.")],
     output: Annotated[
@@ -204,6 +196,10 @@ def simulate_command(
         f"wrote {output}: {chosen.name}, {data.n_samples} samples in {len(data.frames)} "
         f"frame(s), SNR {snr_db:g} dB, seed {seed}"
     )
+
+
+command("simulate-iq", field="scenario")(simulate_iq_command)
+command("measure", field="recording")(measure_command)
 
 
 @command("estimate", field="file")

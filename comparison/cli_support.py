@@ -41,7 +41,8 @@ user typed (``--output``, ``--resume``).
 :func:`parse_estimator_options` reads the ``--option key=value`` pairs (JSON values within the
 limits of :mod:`scenarios.limits`), :func:`print_json` prints the one JSON object of ``--json``;
 ``@with_csv_options`` gives a command the options of a CSV file's constants
-(:data:`CSV_OPTIONS`), and :func:`load_measurements` reads a measurement file with them.
+(:data:`CSV_OPTIONS`), and :func:`load_measurements` reads a measurement file with them, or
+measures a SigMF recording of bursts (:func:`measured_recording`).
 """
 
 from __future__ import annotations
@@ -503,11 +504,57 @@ def with_csv_options(function: Command) -> Command:
     return run  # type: ignore[return-value]
 
 
+def known_scenario(name: str) -> str:
+    """The ``scenario`` argument, checked as click reads it: before the options that follow
+    it, so that a misspelt name is the first thing said (with the close names)."""
+    from scenarios.catalog import CATALOG
+
+    if name not in CATALOG:
+        raise typer.BadParameter(unknown_name(name, CATALOG, "scenarios"))
+    return name
+
+
+RECORDING_SUFFIX = ".sigmf-meta"
+"""A file named so is a SigMF recording of bursts (:mod:`scenarios.recording`)."""
+
+
 def load_measurements(file: Path, constants: CsvConstants) -> MeasurementSet:
-    """Read a measurement file; a CSV one with the constants of the CSV options.
+    """Read a measurement file; a CSV one with the constants of the CSV options; a recording
+    (``.sigmf-meta``) measured by the front end, which says on stderr how many bursts it
+    flagged below threshold (:func:`measured_recording`).
 
     Errors about a CSV constant name the command-line option to fix (``--sigma-toa-s``).
     """
     from scenarios.files import read_measurements_with
 
+    if file.name.lower().endswith(RECORDING_SUFFIX):
+        given = [field for field, value in constants.items() if value is not None]
+        if given:
+            raise ValueError(
+                f"{_OPTION_OF_FIELD[given[0]]}: only for CSV files; {file} carries its own "
+                "constants (drop the option)"
+            )
+        data, line = measured_recording(file)
+        typer.echo(line, err=True)
+        return data
     return read_measurements_with(file, constants, names=_OPTION_OF_FIELD)
+
+
+def measured_recording(file: Path) -> tuple[MeasurementSet, str]:
+    """The measurements of the recording ``file`` by the front end, read from disk a block of
+    bursts at a time (:func:`estimators.frontend.recording.measure_recording`), and a line
+    saying what was measured and how many bursts were flagged below threshold."""
+    import numpy as np
+
+    from estimators.frontend.recording import measure_recording
+    from scenarios.recording import open_recording
+
+    recording = open_recording(file)
+    data, measured = measure_recording(recording)
+    flagged = int(np.count_nonzero(measured.below_threshold))
+    line = (
+        f"measured {file}: {recording.n_bursts} {recording.plan.waveform} bursts, {flagged} of "
+        f"{recording.n_bursts} flagged below threshold (median burst SNR "
+        f"{10 * np.log10(np.median(measured.burst_snr)):.1f} dB)"
+    )
+    return data, line

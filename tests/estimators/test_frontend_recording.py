@@ -1,0 +1,58 @@
+"""The front end over a recording (estimators/frontend/recording.py): streamed a block of bursts
+at a time, it measures what it measures on the bursts held in memory, whatever the block."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from estimators.frontend.measure import measure_bursts
+from estimators.frontend.recording import measure_recording
+from scenarios.catalog import get_scenario
+from scenarios.recording import open_recording, write_recording
+from scenarios.signal import BurstPlan, received_bursts
+from scenarios.simulate import noise_free
+
+# turn: Doppler within ±6 Hz; 5 ms bursts at 40 dB-Hz, 17 dB: above threshold
+PLAN = BurstPlan(
+    waveform="bpsk", burst_s=5e-3, sample_rate_hz=1e5, chip_rate_hz=2.5e4, cn0_dbhz=40.0
+)
+
+
+@pytest.mark.bits(
+    "measure_bursts on the same bursts' samples: a burst's result does not depend on the others "
+    "measured beside it (MATH §19), and the σ's are the same function of the same arrays"
+)
+def test_a_recording_streamed_in_any_block_is_measured_as_in_memory(tmp_path: Path) -> None:
+    scenario = get_scenario("turn")
+    geometry = noise_free(scenario)
+    received = received_bursts(scenario, PLAN, [11])
+    meta_path, _ = write_recording(tmp_path / "rec", geometry, PLAN, received)
+    recording = open_recording(meta_path)
+    in_memory = measure_bursts(
+        received.samples[0].astype(np.complex64).astype(np.complex128),
+        PLAN,
+        time_s=geometry.time_s,
+        emission_time_s=received.emission_time_s,
+    )
+    for block in (1, 7, 64):
+        data, measured = measure_recording(recording, block)
+        np.testing.assert_array_equal(measured.doppler_hz, in_memory.doppler_hz)
+        np.testing.assert_array_equal(measured.toa_s, in_memory.toa_s)
+        np.testing.assert_array_equal(measured.below_threshold, in_memory.below_threshold)
+        np.testing.assert_array_equal(data.doppler_hz, in_memory.doppler_hz)
+        np.testing.assert_array_equal(data.toa_s, in_memory.toa_s)
+        np.testing.assert_array_equal(data.position_m, geometry.position_m)
+    # the measurements are the truth's within a few of their own σ's (far above threshold)
+    assert not measured.below_threshold.any()
+    doppler_z = (data.doppler_hz - geometry.doppler_hz) / np.sqrt(measured.doppler_variance_hz2)
+    toa_z = (data.toa_s - geometry.toa_s) / np.sqrt(measured.toa_variance_s2)
+    assert np.abs(doppler_z).max() < 5.0
+    assert np.abs(toa_z).max() < 5.0
+
+
+def test_a_recording_is_required() -> None:
+    with pytest.raises(ValueError, match=r"^recording: expected a Recording, got str$"):
+        measure_recording("rec.sigmf-meta")
