@@ -58,9 +58,9 @@ from numpy.typing import NDArray
 from scenarios.fields import frozen_array, number, text, whole
 from scenarios.limits import load_json, read_text, write_text_atomically
 from scenarios.nuisance import parse_unknowns, position_dimension
-from scenarios.signal import BurstPlan, ReceivedBursts, delay_bound_s2, frequency_bound_hz2
+from scenarios.signal import BurstPlan, ReceivedBursts, noise_at_cn0
 from scenarios.terrain import Terrain
-from scenarios.types import MeasurementSet, NoiseSigmas
+from scenarios.types import MeasurementSet
 
 NAMESPACE = "emitterbench"
 """The SigMF extension namespace of the recordings' own fields."""
@@ -423,10 +423,8 @@ def _geometry(
         terrain = _prefixed(path, lambda: Terrain(**constants["terrain"]))
     truth = _truth(header.get(f"{NAMESPACE}:truth"), position_dimension(unknowns))
     nominal = {"doppler_hz": np.zeros(n)}
-    sigmas = {"doppler_hz": float(np.sqrt(frequency_bound_hz2(plan)))}
     if plan.waveform != "cw":
         nominal["toa_s"] = columns["time_s"] - schedule
-        sigmas["toa_s"] = float(np.sqrt(delay_bound_s2(plan)))
     return _prefixed(
         prefix,
         lambda: MeasurementSet(
@@ -435,7 +433,7 @@ def _geometry(
             carrier_hz=carrier_hz,
             speed_of_light_mps=c,
             emitter_height_m=number(constants["emitter_height_m"], f"{path}.emitter_height_m"),
-            noise=NoiseSigmas(**sigmas),
+            noise=noise_at_cn0(plan),
             unknowns=unknowns,
             terrain=terrain,
             **truth,
