@@ -9,8 +9,9 @@ correlation loses ``sinc²(f T)`` of the burst's energy to the Doppler ``f`` and
 residual, so its SNR (and the variance written) would fall with the Doppler. With a Doppler
 search (``doppler_search_hz``) the first pass correlates against the chips on a grid of
 frequency cells (:func:`doppler_cells_hz`, :func:`searched_doppler_hz`) and starts from the cell
-and delay of the largest correlation. For a tone: the frequency only. The ToA is the window's time plus the burst centre's offset from the window's
-centre minus the schedule, ``τ̂_k = t_k + Δ̂_k − e_k``. :func:`measurement_set` (one trial)
+and delay of the largest correlation. For a tone: the frequency only. The ToA is the window's
+time plus the burst centre's offset from the window's centre minus the schedule,
+``τ̂_k = t_k + Δ̂_k − e_k``. :func:`measurement_set` (one trial)
 and :func:`measurement_batch` (many trials) put the measurements into the project's
 :class:`~scenarios.types.MeasurementSet` and :class:`~scenarios.types.MeasurementBatch` with the
 σ's of the bounds, which far above threshold are the errors' own.
@@ -41,8 +42,8 @@ SEARCH_UPSAMPLING = 2
 delay is then refined at the cell found by :func:`~estimators.frontend.burst_delay` on its
 quarter-sample grid (docs/math.md §20). Half the grid of the refinement, half its cost."""
 SEARCH_ELEMENTS = 1 << 21
-"""Most complex numbers the search holds at once (32 MB): the cells of a block of bursts are
-taken a few at a time, so that the memory does not grow with the span searched."""
+"""Most complex numbers the search holds at once (16 MB in single precision): the cells of a
+block of bursts are taken a few at a time, so that the memory does not grow with the span."""
 
 
 @dataclass(frozen=True)
@@ -154,23 +155,29 @@ def searched_doppler_hz(
     the chips, zero-padded between its positive and negative frequencies as in
     :func:`~estimators.frontend.delay.upsampled_correlation`, is inverse transformed for as
     many cells at a time as :data:`SEARCH_ELEMENTS` allows, in real arithmetic (the products'
-    bits do not depend on the neighbours, :func:`~estimators.frontend.peak.newton_to_peak`).
+    bits do not depend on the neighbours, :func:`~estimators.frontend.peak.newton_to_peak`)
+    and in single precision (half the time: only the choice of cell rests on it, and each
+    window's spectrum is scaled to a largest part of 1, far from overflow and underflow).
     """
     rows, n = windows.shape
     size, length = DOPPLER_CELLS_PER_BIN * n, SEARCH_UPSAMPLING * n
     spectrum = np.fft.fft(windows, size, axis=-1)
-    spectrum_re, spectrum_im = spectrum.real.copy(), spectrum.imag.copy()
-    reference_re, reference_im = reference_spectrum.real / n, reference_spectrum.imag / n
+    largest = np.maximum(np.abs(spectrum.real), np.abs(spectrum.imag)).max(axis=-1)
+    scale = 1.0 / np.where(largest > 0.0, largest, 1.0)[:, None]  # |C| in single precision
+    spectrum_re = (spectrum.real * scale).astype(np.float32)
+    spectrum_im = (spectrum.imag * scale).astype(np.float32)
+    reference_re = (reference_spectrum.real / n).astype(np.float32)
+    reference_im = (reference_spectrum.imag / n).astype(np.float32)
     cells = np.rint(cells_hz * size / rate_hz).astype(np.int64)
     index = (DOPPLER_CELLS_PER_BIN * np.arange(n) + cells[:, None]) % size  # (cells, N)
     positive = (n + 1) // 2
     at_once = max(1, SEARCH_ELEMENTS // (rows * length))
-    best = np.full(rows, -np.inf)
+    best = np.full(rows, -np.inf, dtype=np.float32)
     chosen = np.zeros(rows, dtype=np.int64)
     for first in range(0, len(cells), at_once):
         shifted = index[first : first + at_once]
         x_re, x_im = spectrum_re[:, shifted], spectrum_im[:, shifted]  # (rows, cells, N)
-        padded = np.zeros((*x_re.shape[:2], length), dtype=complex)
+        padded = np.zeros((*x_re.shape[:2], length), dtype=np.complex64)
         padded.real[..., :positive] = (x_re * reference_re + x_im * reference_im)[..., :positive]
         padded.imag[..., :positive] = (x_im * reference_re - x_re * reference_im)[..., :positive]
         padded.real[..., length - n + positive :] = (
@@ -261,8 +268,8 @@ def measure_bursts(
     of the burst's energy to that pass, 1 all of it; docs/math.md §20). With it, ``D ≥ 0`` Hz
     and at most ``f_s/2``, the pass searches the frequency cells of :func:`doppler_cells_hz`
     over ``[−D, D]`` (a Doppler within the span loses at most 5% of the energy) and the burst's
-    delay flag counts the ``M`` cells, ``SNR̂ < ln(N M / p_fa)``; ``D`` below an eighth of a
-    window bin is the one cell 0, the pass without a search. A tone is searched whole by its
+    delay flag counts the ``M`` cells, ``SNR̂ < ln(N M / p_fa)``; ``D ≤ f_s/(8N)`` is the one
+    cell 0, the pass without a search. A tone is searched whole by its
     periodogram: the option does not change a ``"cw"`` plan's measurements.
     """
     if not isinstance(plan, BurstPlan):
