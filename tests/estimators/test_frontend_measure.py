@@ -20,11 +20,13 @@ import numpy as np
 import pytest
 
 from estimators.frontend import (
+    FALSE_ALARM_PROBABILITY,
     measure_bursts,
     measurement_batch,
     measurement_set,
     outlier_rate,
 )
+from estimators.frontend.measure import doppler_cells_hz
 from estimators.registry import make_estimator
 from scenarios import get_scenario
 from scenarios.measurement_model import emitter_offsets_m
@@ -220,6 +222,54 @@ def test_a_doppler_search_measures_five_cycles_a_burst_at_the_bounds() -> None:
     far = np.abs(blind.doppler_hz - geometry.doppler_hz) > 1 / plan.burst_s
     far |= np.abs(blind.toa_s - geometry.toa_s) > 1 / plan.chip_rate_hz
     assert count == far.sum() and (far | blind.below_threshold).sum() >= 0.9 * total, count
+
+
+@pytest.mark.parametrize("search_hz", [0.0, 100.0, 1111.0, 1112.0, 25_000.0])
+def test_the_doppler_cells_put_every_doppler_of_the_span_within_half_a_cell(search_hz) -> None:
+    """The cells are ``f_s/(4N)`` apart (2,222 Hz for the 288-sample window), symmetric about
+    0, and the fewest that leave no Doppler of ``[−D, D]`` more than half a cell from one
+    (brute force on a fine grid of the span; one cell fewer on each side leaves the ends
+    out). ``D ≤ f_s/(8N)`` (1,111 Hz) is the one cell 0."""
+    plan = plan_of("bpsk")
+    spacing_hz = SAMPLE_RATE_HZ / (4 * plan.n_samples)
+    cells_hz = doppler_cells_hz(search_hz, plan)
+    np.testing.assert_allclose(np.diff(cells_hz), spacing_hz, rtol=1e-12)
+    np.testing.assert_array_equal(cells_hz, -cells_hz[::-1])
+    span_hz = np.linspace(-search_hz, search_hz, 10_001)
+    farthest_hz = np.max(np.min(np.abs(span_hz[:, None] - cells_hz), axis=-1))
+    assert farthest_hz <= spacing_hz / 2 * (1 + 1e-12)
+    assert (cells_hz.size == 1) == (search_hz <= spacing_hz / 2)
+    if cells_hz.size > 1:
+        assert search_hz - cells_hz[-2] > spacing_hz / 2  # one cell fewer would not do
+
+
+def test_a_search_of_zero_is_no_search_and_its_flag_counts_the_cells() -> None:
+    """Noise alone (C/N0 of 0 dB-Hz) in 200 windows: a search of 0 Hz is the pass without one,
+    to the bit; with ±1.2 kHz (3 cells) every burst whose final delay's SNR is below
+    ``ln(N M / p_fa)`` is flagged, among them some between ``ln(N / p_fa)`` and it."""
+    plan = plan_of("bpsk", cn0_dbhz=0.0)
+    geometry = noise_free(get_scenario("beacon-pass"))
+    received = received_bursts(geometry, plan, trial_seeds(2470, 5))
+
+    def measured(doppler_search_hz):
+        return measure_bursts(
+            received.samples,
+            plan,
+            time_s=geometry.time_s,
+            emission_time_s=received.emission_time_s,
+            doppler_search_hz=doppler_search_hz,
+        )
+
+    none, zero = measured(None), measured(0.0)
+    for field in dataclasses.fields(none):
+        assert np.array_equal(getattr(none, field.name), getattr(zero, field.name))
+    searched = measured(1200.0)
+    n, cells = plan.n_samples, doppler_cells_hz(1200.0, plan).size
+    assert cells == 3
+    low = searched.burst_snr < np.log(n * cells / FALSE_ALARM_PROBABILITY)
+    assert searched.below_threshold[low].all()
+    between = low & (searched.burst_snr >= np.log(n / FALSE_ALARM_PROBABILITY))
+    assert between.sum() > 0
 
 
 def test_below_threshold_the_outliers_are_counted_and_flagged() -> None:
