@@ -14,7 +14,11 @@ per-burst SNR of 20 dB, each made here with numpy (a tone at a random frequency;
 - ``measure_bursts``: the whole front end of docs/math.md §20 on BPSK windows of the signal
   model (:func:`scenarios.signal.received_bursts` on ``turn``, ``N`` samples at the same rate,
   4 samples a chip, the same SNR): the delay, the chips removed, the frequency, the delay again
-  and the ToA, per burst.
+  and the ToA, per burst;
+- ``search``: :func:`measure_bursts` on ``beacon-pass``'s bursts as ``simulate-iq`` draws them
+  by default (BPSK, 10 ms at 400 kHz, 100 kchip/s, ``N = 4000``, burst SNR 30 dB), without a
+  Doppler search and with one of ±1.2 kHz (97 cells, docs/math.md §20), and the ratio of the
+  two (``--search-bursts`` bursts, 80 by default).
 
 Times are CPU seconds of this process (``time.process_time``, the least of three runs,
 :func:`cpu_time.best_cpu_s`) with BLAS held to one thread; printed as bursts per second per
@@ -128,6 +132,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--bursts", type=int, default=2000)
     parser.add_argument("--samples", type=int, default=1024)
+    parser.add_argument("--search-bursts", type=int, default=80)
     arguments = parser.parse_args()
     count, n = arguments.bursts, arguments.samples
     tone_samples, delay_samples, reference = bursts(count, n, np.random.default_rng(24))
@@ -159,6 +164,12 @@ def main() -> None:
 
     measure_rate = measure_bursts_rate(count, n)
     print(f"{'measure':10s} {measure_rate:10.0f} b/s/c  (measure_bursts, bpsk: the whole §20)")
+    without, searched = search_rates(arguments.search_bursts, SEARCH_HZ)
+    print(
+        f"{'search':10s} {searched:10.1f} b/s/c against {without:.1f} without: "
+        f"{without / searched:.1f} times the time (beacon-pass, T = 10 ms, "
+        f"±{SEARCH_HZ:g} Hz)"
+    )
 
 
 def measure_bursts_rate(count: int, n: int) -> float:
@@ -180,6 +191,35 @@ def measure_bursts_rate(count: int, n: int) -> float:
         return measure_bursts(received.samples, plan, time_s=time_s, emission_time_s=emission_s)
 
     return received.samples.shape[0] * received.samples.shape[1] / best_cpu_s(run)
+
+
+SEARCH_HZ = 1200.0
+
+
+def search_rates(count: int, search_hz: float) -> tuple[float, float]:
+    """Bursts per second per core of :func:`measure_bursts` without a Doppler search and with
+    one of ``±search_hz``, on ``count`` of beacon-pass's bursts as simulate-iq draws them."""
+    plan = BurstPlan(
+        waveform="bpsk", burst_s=1e-2, sample_rate_hz=4e5, chip_rate_hz=1e5, cn0_dbhz=50.0
+    )
+    geometry = noise_free(get_scenario("beacon-pass"))
+    trials = -(-count // geometry.n_samples)
+    received = received_bursts(geometry, plan, trial_seeds(24, trials))
+    time_s, emission_s = geometry.time_s, received.emission_time_s
+    rates = []
+    for doppler_search_hz in (None, search_hz):
+
+        def run(doppler_search_hz=doppler_search_hz):
+            return measure_bursts(
+                received.samples,
+                plan,
+                time_s=time_s,
+                emission_time_s=emission_s,
+                doppler_search_hz=doppler_search_hz,
+            )
+
+        rates.append(received.samples[..., 0].size / best_cpu_s(run))
+    return rates[0], rates[1]
 
 
 if __name__ == "__main__":

@@ -36,6 +36,7 @@ from comparison.cli_support import (
     INTERRUPTED_STATUS,
     USAGE_ERROR_STATUS,
     CsvConstants,
+    DopplerSearchOption,
     OneLineErrors,
     Subcommand,
     blame,
@@ -228,6 +229,7 @@ def estimate_command(
             "bias that costs (MATH §15).",
         ),
     ] = False,
+    doppler_search_hz: DopplerSearchOption = None,
     as_json: JsonFlag = False,
     *,
     constants: CsvConstants,
@@ -243,7 +245,7 @@ def estimate_command(
 
     options = parse_estimator_options(option or [])
     chosen = make_estimator(estimator, **options)
-    data = load_measurements(file, constants)
+    data = load_measurements(file, constants, doppler_search_hz)
     if ignore_unknowns:
         data = data.assuming_known()
     used = capabilities_of(chosen).modalities & data.modalities
@@ -274,6 +276,7 @@ def crlb_command(
         tuple[float, float] | None,
         typer.Option("--at", metavar="X Y", help="Emitter position, m \\[the truth in the file]."),
     ] = None,
+    doppler_search_hz: DopplerSearchOption = None,
     as_json: JsonFlag = False,
     *,
     constants: CsvConstants,
@@ -287,7 +290,7 @@ def crlb_command(
     """
     from scenarios.types import MAX_COORDINATE_M
 
-    data = load_measurements(file, constants)
+    data = load_measurements(file, constants, doppler_search_hz)
     if at is not None:
         if not all(math.isfinite(v) and abs(v) <= MAX_COORDINATE_M for v in at):
             raise ValueError(
@@ -340,6 +343,7 @@ def fly_command(
             help="Estimator option, repeatable (as `estimate --option`).",
         ),
     ] = None,
+    doppler_search_hz: DopplerSearchOption = None,
     as_json: JsonFlag = False,
     *,
     constants: CsvConstants,
@@ -360,7 +364,7 @@ def fly_command(
     chosen_estimator = make_estimator(
         estimator, **parse_estimator_options(estimator_option or [], "--estimator-option")
     )
-    data = load_measurements(file, constants)
+    data = load_measurements(file, constants, doppler_search_hz)
     result = next_frame_plan(data, chosen_planner, chosen_estimator, rng=np.random.default_rng(0))
     if as_json:
         print_json(result)

@@ -13,11 +13,20 @@ from typing import Annotated, Any
 
 import typer
 
-from comparison.cli_support import flags_for, known_scenario, measured_recording
+from comparison.cli_support import (
+    DopplerSearchOption,
+    flags_for,
+    known_scenario,
+    measured_recording,
+)
 
 DOPPLER_CYCLES_PER_BURST = 0.1
-"""The most ``|f| T`` a BPSK burst of the front end is measured well at: its first delay pass
-correlates with the chips without the Doppler ``f``, and loses 3% of the energy at 0.1."""
+"""The most ``|f| T`` a BPSK burst is measured well at without a Doppler search: the front
+end's first delay pass then correlates with the chips at zero Doppler, and loses 3% of the
+energy at 0.1 (MATH §20)."""
+SEARCH_MARGIN = 1.1
+"""The Doppler search ``simulate-iq`` suggests: the bursts' largest ``|f|`` times this, rounded
+up to two significant digits."""
 IQ_SAMPLES = (20_000_000, "EMITTERBENCH_MAX_IQ_SAMPLES")
 """Most samples ``simulate-iq`` draws (bursts × window): 320 MB as complex128, about five
 times that while drawing; the file holds half the first (cf32_le)."""
@@ -83,14 +92,17 @@ def simulate_iq_command(
         received = received_bursts(chosen, plan, [seed])
         meta_path, data_path = write_recording(output, noise_free(chosen), plan, received)
     n_bursts = received.samples.shape[1]
-    cycles = float(np.max(np.abs(burst_doppler_hz(noise_free(chosen))))) * plan.burst_s
-    if plan.waveform == "bpsk" and cycles > DOPPLER_CYCLES_PER_BURST:
+    largest_hz = float(np.max(np.abs(burst_doppler_hz(noise_free(chosen)))))
+    cycles = largest_hz * plan.burst_s
+    unknown_offset = "carrier_offset_hz" in chosen.unknowns
+    if plan.waveform == "bpsk" and unknown_offset and cycles > DOPPLER_CYCLES_PER_BURST:
         shorter_s = plan.burst_s * DOPPLER_CYCLES_PER_BURST / cycles
-        digit = 10.0 ** math.floor(math.log10(shorter_s))
         typer.echo(
-            f"warning: the Doppler turns {cycles:.3g} cycles over a burst, and the front end "
-            f"measures a BPSK burst well below {DOPPLER_CYCLES_PER_BURST:g} only (shorten "
-            f"--burst-s to {math.floor(shorter_s / digit) * digit:.1g} s, or use --waveform cw)",
+            f"warning: the Doppler turns {cycles:.3g} cycles over a burst and the carrier "
+            f"offset is unknown: measure the recording with --doppler-search-hz "
+            f"{rounded_up(SEARCH_MARGIN * largest_hz):g} (its largest |Doppler|, "
+            f"{largest_hz:.4g} Hz, and a margin; MATH §20), or shorten --burst-s to "
+            f"{rounded_down(shorter_s):.1g} s, or use --waveform cw",
             err=True,
         )
     megabytes = data_path.stat().st_size / 1e6
@@ -99,6 +111,18 @@ def simulate_iq_command(
         f"of {plan.n_samples} samples ({megabytes:.3g} MB), C/N0 {cn0_dbhz:g} dB-Hz, burst SNR "
         f"{10 * math.log10(plan.burst_snr):.1f} dB, seed {seed}"
     )
+
+
+def rounded_up(value: float) -> float:
+    """``value`` > 0 rounded up to two significant digits."""
+    digit = 10.0 ** (math.floor(math.log10(value)) - 1)
+    return math.ceil(value / digit) * digit
+
+
+def rounded_down(value: float) -> float:
+    """``value`` > 0 rounded down to one significant digit."""
+    digit = 10.0 ** math.floor(math.log10(value))
+    return math.floor(value / digit) * digit
 
 
 def burst_doppler_hz(geometry: Any) -> Any:
@@ -123,6 +147,7 @@ def measure_command(
     output: Annotated[
         Path, typer.Option("--output", "-o", help="Measurement file to write (.json).")
     ],
+    doppler_search_hz: DopplerSearchOption = None,
 ) -> None:
     """Measure every burst of a recording (its Doppler; its ToA for BPSK) with the front end,
     reading a block of bursts at a time, and write the measurement file estimate reads."""
@@ -130,7 +155,7 @@ def measure_command(
 
     if output.suffix.lower() != ".json":
         raise ValueError(f"--output: {output} must end in .json")
-    data, line = measured_recording(recording)
+    data, line = measured_recording(recording, doppler_search_hz)
     with flags_for({"output": "--output"}):
         write_measurements(data, output)
     typer.echo(f"{line}; wrote {output}")

@@ -517,16 +517,37 @@ def known_scenario(name: str) -> str:
 RECORDING_SUFFIX = ".sigmf-meta"
 """A file named so is a SigMF recording of bursts (:mod:`scenarios.recording`)."""
 
+DopplerSearchOption = Annotated[
+    float | None,
+    typer.Option(
+        "--doppler-search-hz",
+        metavar="HZ",
+        help="A recording's BPSK bursts: search their first delay pass over the Doppler "
+        "within ±HZ (MATH §20; 0: no search) \\[γ·max|v| of the track when the carrier offset "
+        "is known; required when the recording declares it unknown: its bound plus γ·max|v|, "
+        "e.g. 1200 for beacon-pass's 1 kHz].",
+    ),
+]
+"""The ``--doppler-search-hz`` of the commands that measure a recording."""
 
-def load_measurements(file: Path, constants: CsvConstants) -> MeasurementSet:
+
+def load_measurements(
+    file: Path, constants: CsvConstants, doppler_search_hz: float | None = None
+) -> MeasurementSet:
     """Read a measurement file; a CSV one with the constants of the CSV options; a recording
-    (``.sigmf-meta``) measured by the front end, which says on stderr how many bursts it
-    flagged below threshold (:func:`measured_recording`).
+    (``.sigmf-meta``) measured by the front end with the Doppler search ``doppler_search_hz``
+    (:data:`DopplerSearchOption`), which says on stderr how many bursts it flagged below
+    threshold (:func:`measured_recording`).
 
     Errors about a CSV constant name the command-line option to fix (``--sigma-toa-s``).
     """
     from scenarios.files import read_measurements_with
 
+    if not file.name.lower().endswith(RECORDING_SUFFIX) and doppler_search_hz is not None:
+        raise ValueError(
+            f"--doppler-search-hz: only for a recording (.sigmf-meta); {file} holds "
+            "measurements already (drop the option)"
+        )
     if file.name.lower().endswith(RECORDING_SUFFIX):
         given = [field for field, value in constants.items() if value is not None]
         if given:
@@ -534,27 +555,38 @@ def load_measurements(file: Path, constants: CsvConstants) -> MeasurementSet:
                 f"{_OPTION_OF_FIELD[given[0]]}: only for CSV files; {file} carries its own "
                 "constants (drop the option)"
             )
-        data, line = measured_recording(file)
+        data, line = measured_recording(file, doppler_search_hz)
         typer.echo(line, err=True)
         return data
     return read_measurements_with(file, constants, names=_OPTION_OF_FIELD)
 
 
-def measured_recording(file: Path) -> tuple[MeasurementSet, str]:
+def measured_recording(
+    file: Path, doppler_search_hz: float | None = None
+) -> tuple[MeasurementSet, str]:
     """The measurements of the recording ``file`` by the front end, read from disk a block of
-    bursts at a time (:func:`estimators.frontend.recording.measure_recording`), and a line
-    saying what was measured and how many bursts were flagged below threshold."""
+    bursts at a time (:func:`estimators.frontend.recording.measure_recording`, the Doppler
+    search ``doppler_search_hz``, None: the track's), and a line saying what was measured, how
+    many bursts were flagged below threshold and, for BPSK, the Doppler searched."""
     import numpy as np
 
-    from estimators.frontend.recording import measure_recording
+    from estimators.frontend.measure import doppler_cells_hz
+    from estimators.frontend.recording import measure_recording, track_doppler_search_hz
     from scenarios.recording import open_recording
 
     recording = open_recording(file)
-    data, measured = measure_recording(recording)
+    with flags_for({"doppler_search_hz": "--doppler-search-hz"}):
+        data, measured = measure_recording(recording, doppler_search_hz=doppler_search_hz)
     flagged = int(np.count_nonzero(measured.below_threshold))
     line = (
         f"measured {file}: {recording.n_bursts} {recording.plan.waveform} bursts, {flagged} of "
         f"{recording.n_bursts} flagged below threshold (median burst SNR "
         f"{10 * np.log10(np.median(measured.burst_snr)):.1f} dB)"
     )
+    if recording.plan.waveform == "bpsk":
+        search_hz = doppler_search_hz
+        if search_hz is None:
+            search_hz = track_doppler_search_hz(recording)
+        cells = doppler_cells_hz(search_hz, recording.plan).size
+        line += f"; Doppler searched within ±{search_hz:.4g} Hz ({cells} cell{'s' * (cells > 1)})"
     return data, line

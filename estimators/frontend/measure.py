@@ -6,9 +6,12 @@ chips), then the chips removed (the reference delayed by the estimate, band-limi
 samples) and the tone's frequency (:func:`~estimators.frontend.tone_frequency`), then the delay
 again on the window with that tone removed, matched to the burst as received: the first
 correlation loses ``sinc²(f T)`` of the burst's energy to the Doppler ``f`` and leaves it in the
-residual, so its SNR (and the variance written) would fall with the Doppler. For a tone: the
-frequency only. The ToA is the window's time plus the burst centre's offset from the window's
-centre minus the schedule, ``τ̂_k = t_k + Δ̂_k − e_k``. :func:`measurement_set` (one trial)
+residual, so its SNR (and the variance written) would fall with the Doppler. With a Doppler
+search (``doppler_search_hz``) the first pass correlates against the chips on a grid of
+frequency cells (:func:`doppler_cells_hz`, :func:`searched_doppler_hz`) and starts from the cell
+and delay of the largest correlation. For a tone: the frequency only. The ToA is the window's
+time plus the burst centre's offset from the window's centre minus the schedule,
+``τ̂_k = t_k + Δ̂_k − e_k``. :func:`measurement_set` (one trial)
 and :func:`measurement_batch` (many trials) put the measurements into the project's
 :class:`~scenarios.types.MeasurementSet` and :class:`~scenarios.types.MeasurementBatch` with the
 σ's of the bounds, which far above threshold are the errors' own.
@@ -20,12 +23,27 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from estimators.frontend.bounds import below_threshold
 from estimators.frontend.delay import burst_delay
 from estimators.frontend.frequency import tone_frequency
 from estimators.frontend.peak import rotated
 from estimators.frontend.samples import burst_rows, by_blocks
+from scenarios.fields import bounded
 from scenarios.signal import BurstPlan, burst_envelope, window_offsets_s
 from scenarios.types import MeasurementBatch, MeasurementSet, NoiseSigmas
+
+DOPPLER_CELLS_PER_BIN = 4
+"""Frequency cells of the Doppler search per window bin ``f_s/N``: cells ``f_s/(4N)`` apart, at
+most ``1/(4T)``, so a Doppler half a cell from the nearest keeps at least ``sinc²(1/8) = 0.95``
+(−0.22 dB) of the burst's energy in the first pass (docs/math.md §20)."""
+SEARCH_UPSAMPLING = 2
+"""The search's delay grid, samples per sample: half a sample, a quarter at most from the peak
+(chips of ``L`` samples keep about ``(1 − 1/(4L))²`` of ``|C|²`` there, 0.88 for ``L = 4``); the
+delay is then refined at the cell found by :func:`~estimators.frontend.burst_delay` on its
+quarter-sample grid (docs/math.md §20). Half the grid of the refinement, half its cost."""
+SEARCH_ELEMENTS = 1 << 21
+"""Most complex numbers the search holds at once (16 MB in single precision): the cells of a
+block of bursts are taken a few at a time, so that the memory does not grow with the span."""
 
 
 @dataclass(frozen=True)
@@ -115,14 +133,82 @@ def burst_samples(windows: np.ndarray, plan: BurstPlan, offset_samples: np.ndarr
     return np.take_along_axis(windows, index, axis=1)
 
 
+def doppler_cells_hz(doppler_search_hz: float, plan: BurstPlan) -> np.ndarray:
+    """The Doppler search's frequency cells, ``c f_s / (4N)`` for ``c = −K … K`` (``N`` the
+    window's samples), ``K = ⌈4 N D / f_s − 1/2⌉`` the fewest that put every ``|f| ≤ D`` within
+    half a cell of one (docs/math.md §20); ``D = 0``: the one cell 0."""
+    spacing_hz = plan.sample_rate_hz / (DOPPLER_CELLS_PER_BIN * plan.n_samples)
+    half = max(0, int(np.ceil(doppler_search_hz / spacing_hz - 0.5)))
+    return spacing_hz * np.arange(-half, half + 1)
+
+
+def searched_doppler_hz(
+    windows: np.ndarray, reference_spectrum: np.ndarray, cells_hz: np.ndarray, rate_hz: float
+) -> np.ndarray:
+    """The cell of ``cells_hz`` (multiples of ``f_s/(4N)``) whose correlation with the chips,
+    the window's tone at that cell removed, has the largest ``|C|²`` over the delays of the
+    half-sample grid (:data:`SEARCH_UPSAMPLING`), per ``(n, N)`` window (docs/math.md §20).
+
+    Removing a tone of ``c f_s/(4N)`` shifts the spectrum by ``c`` bins of the window zero-padded
+    to ``4N``: the ``N``-point spectrum at cell ``c`` is ``X₄[(4k + c) mod 4N]`` (up to a phase
+    that ``|C|`` does not see), one FFT per window for all the cells. The cross-spectrum with
+    the chips, zero-padded between its positive and negative frequencies as in
+    :func:`~estimators.frontend.delay.upsampled_correlation`, is inverse transformed for as
+    many cells at a time as :data:`SEARCH_ELEMENTS` allows, in real arithmetic (the products'
+    bits do not depend on the neighbours, :func:`~estimators.frontend.peak.newton_to_peak`)
+    and in single precision (half the time: only the choice of cell rests on it, and each
+    window's spectrum is scaled to a largest part of 1, far from overflow and underflow).
+    """
+    rows, n = windows.shape
+    size, length = DOPPLER_CELLS_PER_BIN * n, SEARCH_UPSAMPLING * n
+    spectrum = np.fft.fft(windows, size, axis=-1)
+    largest = np.maximum(np.abs(spectrum.real), np.abs(spectrum.imag)).max(axis=-1)
+    scale = 1.0 / np.where(largest > 0.0, largest, 1.0)[:, None]  # |C| in single precision
+    spectrum_re = (spectrum.real * scale).astype(np.float32)
+    spectrum_im = (spectrum.imag * scale).astype(np.float32)
+    reference_re = (reference_spectrum.real / n).astype(np.float32)
+    reference_im = (reference_spectrum.imag / n).astype(np.float32)
+    cells = np.rint(cells_hz * size / rate_hz).astype(np.int64)
+    index = (DOPPLER_CELLS_PER_BIN * np.arange(n) + cells[:, None]) % size  # (cells, N)
+    positive = (n + 1) // 2
+    at_once = max(1, SEARCH_ELEMENTS // (rows * length))
+    best = np.full(rows, -np.inf, dtype=np.float32)
+    chosen = np.zeros(rows, dtype=np.int64)
+    for first in range(0, len(cells), at_once):
+        shifted = index[first : first + at_once]
+        x_re, x_im = spectrum_re[:, shifted], spectrum_im[:, shifted]  # (rows, cells, N)
+        padded = np.zeros((*x_re.shape[:2], length), dtype=np.complex64)
+        padded.real[..., :positive] = (x_re * reference_re + x_im * reference_im)[..., :positive]
+        padded.imag[..., :positive] = (x_im * reference_re - x_re * reference_im)[..., :positive]
+        padded.real[..., length - n + positive :] = (
+            x_re[..., positive:] * reference_re[positive:]
+            + x_im[..., positive:] * reference_im[positive:]
+        )
+        padded.imag[..., length - n + positive :] = (
+            x_im[..., positive:] * reference_re[positive:]
+            - x_re[..., positive:] * reference_im[positive:]
+        )
+        correlation = np.fft.ifft(padded, axis=-1)
+        power = correlation.real**2
+        power += correlation.imag**2
+        peak_power = power.max(axis=-1)  # (rows, cells)
+        cell = np.argmax(peak_power, axis=-1)
+        peak = peak_power[np.arange(rows), cell]
+        better = peak > best
+        best, chosen = np.where(better, peak, best), np.where(better, first + cell, chosen)
+    return cells_hz[chosen]
+
+
 def measure_rows(
-    windows: np.ndarray, plan: BurstPlan, reference: np.ndarray
+    windows: np.ndarray, plan: BurstPlan, reference: np.ndarray, cells_hz: np.ndarray | None
 ) -> tuple[np.ndarray, ...]:
     """The front end on ``(n, n_samples)`` windows: the Doppler, its variance, the burst
     centre's offset from the window's centre (s), its variance, the SNR and the flag
     (docs/math.md §20). ``"bpsk"``: the coarse delay against ``reference`` (the window's
-    sampled chips), the chips removed, the frequency, the delay of the window with the tone
-    removed; a burst is flagged if the frequency or the final delay is."""
+    sampled chips; with ``cells_hz``, of more than one cell, at the searched cell's Doppler
+    removed), the chips removed, the frequency, the delay of the window with the tone removed;
+    a burst is flagged if the frequency or the final delay is, the delay's threshold counting
+    the cells searched."""
     rate_hz, n = plan.sample_rate_hz, plan.n_samples
     rows = windows.shape[0]
     if plan.waveform == "cw":
@@ -136,23 +222,35 @@ def measure_rows(
             tone.burst_snr,
             tone.below_threshold,
         )
-    coarse = burst_delay(windows, reference, rate_hz)
+    searched = cells_hz is not None and cells_hz.size > 1
+    if searched:
+        reference_spectrum = np.fft.fft(reference, n)
+        cell_hz = searched_doppler_hz(windows, reference_spectrum, cells_hz, rate_hz)
+        coarse = burst_delay(tone_removed(windows, cell_hz / rate_hz), reference, rate_hz)
+    else:
+        coarse = burst_delay(windows, reference, rate_hz)
     coarse_samples = coarse.delay_s * rate_hz  # in [0, N): the reference's shift
     removed = chips_removed(windows, reference, coarse_samples)
     tone = tone_frequency(burst_samples(removed, plan, centred(coarse_samples, n)), rate_hz)
     delay = burst_delay(tone_removed(windows, tone.frequency_hz / rate_hz), reference, rate_hz)
+    delay_flag = below_threshold(delay.burst_snr, n * cells_hz.size) if searched else None
     return (
         tone.frequency_hz,
         tone.variance_hz2,
         centred(delay.delay_s * rate_hz, n) / rate_hz,
         delay.variance_s2,
         delay.burst_snr,
-        tone.below_threshold | delay.below_threshold,
+        tone.below_threshold | (delay.below_threshold if delay_flag is None else delay_flag),
     )
 
 
 def measure_bursts(
-    samples: object, plan: BurstPlan, *, time_s: object, emission_time_s: object
+    samples: object,
+    plan: BurstPlan,
+    *,
+    time_s: object,
+    emission_time_s: object,
+    doppler_search_hz: float | None = None,
 ) -> BurstMeasurements:
     """The Doppler and (``"bpsk"``) the ToA of every burst, with their variances and the flag
     (docs/math.md §20).
@@ -163,9 +261,16 @@ def measure_bursts(
     ``t_k + Δ̂_k − e_k``, ``Δ̂_k`` the burst centre's offset from the window's centre. A block of
     bursts is computed at a time and each burst's result does not depend on the others, so a
     caller may stream a recording in blocks of any size (with the matching slices of
-    ``time_s`` and ``emission_time_s``). The BPSK delay's first pass correlates against the
-    chips without the Doppler ``f``: it needs ``|f| T`` well below 1 (0.1 loses 3% of the
-    burst's energy to that pass, 1 all of it; docs/math.md §20).
+    ``time_s`` and ``emission_time_s``).
+
+    The BPSK delay's first pass correlates against the chips. Without ``doppler_search_hz``
+    (None) it does so without the Doppler ``f``: it needs ``|f| T`` well below 1 (0.1 loses 3%
+    of the burst's energy to that pass, 1 all of it; docs/math.md §20). With it, ``D ≥ 0`` Hz
+    and at most ``f_s/2``, the pass searches the frequency cells of :func:`doppler_cells_hz`
+    over ``[−D, D]`` (a Doppler within the span loses at most 5% of the energy) and the burst's
+    delay flag counts the ``M`` cells, ``SNR̂ < ln(N M / p_fa)``; ``D ≤ f_s/(8N)`` is the one
+    cell 0, the pass without a search. A tone is searched whole by its
+    periodogram: the option does not change a ``"cw"`` plan's measurements.
     """
     if not isinstance(plan, BurstPlan):
         raise ValueError(f"plan: expected a BurstPlan, got {type(plan).__name__}")
@@ -178,10 +283,22 @@ def measure_bursts(
         )
     time = schedule_times(time_s, "time_s", shape[-2])
     emission = schedule_times(emission_time_s, "emission_time_s", shape[-2])
+    cells_hz = None
+    if doppler_search_hz is not None:
+        half_rate_hz = 0.5 * plan.sample_rate_hz
+        search_hz = bounded(
+            doppler_search_hz,
+            "doppler_search_hz",
+            0.0,
+            half_rate_hz,
+            "Hz",
+            "give the largest |Doppler| expected, carrier offset included (None: no search)",
+        )
+        cells_hz = doppler_cells_hz(search_hz, plan)
     reference = burst_envelope(plan, window_offsets_s(plan))
     doppler, doppler_variance, offset_s, offset_variance, snr, flagged = (
         part.reshape(shape[:-1])
-        for part in by_blocks(windows, lambda block: measure_rows(block, plan, reference))
+        for part in by_blocks(windows, lambda block: measure_rows(block, plan, reference, cells_hz))
     )
     bpsk = plan.waveform == "bpsk"
     return BurstMeasurements(

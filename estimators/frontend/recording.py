@@ -1,5 +1,5 @@
 """The front end over a SigMF recording (:mod:`scenarios.recording`): every burst measured, the
-samples read from disk a block of bursts at a time (docs/math.md §18, §19)."""
+samples read from disk a block of bursts at a time (docs/math.md §18, §19, §20)."""
 
 from __future__ import annotations
 
@@ -12,14 +12,39 @@ from scenarios.recording import Recording
 from scenarios.types import MeasurementSet
 
 
+def track_doppler_search_hz(recording: Recording) -> float | None:
+    """The Doppler search a recording's track calls for (docs/math.md §20): ``γ max_k ‖v_k‖``,
+    the largest ``|γ vᵀu|`` any emitter can give, when the carrier offset is known (0); None
+    when the recording declares it unknown (MATH §15), which no track bounds."""
+    geometry = recording.geometry
+    if "carrier_offset_hz" in geometry.unknowns:
+        return None
+    speed_mps = np.linalg.norm(geometry.velocity_mps, axis=-1)
+    return float(geometry.gamma_per_m * np.max(speed_mps))
+
+
 def measure_recording(
-    recording: Recording, block: int = 64
+    recording: Recording, block: int = 64, *, doppler_search_hz: float | None = None
 ) -> tuple[MeasurementSet, BurstMeasurements]:
     """The recording's measurement set (its geometry with the measured Doppler and ToA and
     their σ's) and the per-burst measurements, ``block`` bursts read and measured at a time:
-    the memory held is a block's samples and a few numbers per burst."""
+    the memory held is a block's samples and a few numbers per burst.
+
+    ``doppler_search_hz``: the span ``±D`` of the BPSK first pass's Doppler search
+    (:func:`~estimators.frontend.measure_bursts`, docs/math.md §20), 0 for none; None takes
+    :func:`track_doppler_search_hz`, and is refused for BPSK bursts of an unknown carrier
+    offset, whose Doppler only the caller can bound. A tone ignores it.
+    """
     if not isinstance(recording, Recording):
         raise ValueError(f"recording: expected a Recording, got {type(recording).__name__}")
+    if doppler_search_hz is None and recording.plan.waveform == "bpsk":
+        doppler_search_hz = track_doppler_search_hz(recording)
+        if doppler_search_hz is None:
+            raise ValueError(
+                "doppler_search_hz: the recording's carrier offset is unknown, and with it the "
+                "Doppler of its bursts; give the largest |Doppler| expected, the offset's bound "
+                "plus γ·max|v| (0: no search)"
+            )
     geometry = recording.geometry
     parts = []
     for first, samples in recording.bursts(block):
@@ -30,6 +55,7 @@ def measure_recording(
                 recording.plan,
                 time_s=geometry.time_s[burst],
                 emission_time_s=recording.emission_time_s[burst],
+                doppler_search_hz=doppler_search_hz,
             )
         )
     joined = {
