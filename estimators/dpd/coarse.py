@@ -22,6 +22,7 @@ from scenarios import measurement_model as model
 from scenarios.geometry import cross_track_m
 from scenarios.signal import (
     BurstPlan,
+    burst_rms_bandwidth_hz,
     burst_shift_samples,
     chip_sequence,
     shifted_envelope,
@@ -39,9 +40,12 @@ lobes' half-widths (``1/T``, one chip): the best cell lies inside the global max
 ZOOM = 8
 """The local grid about each coarse maximum: ±ZOOM steps of 1/ZOOM of the spacing."""
 
-TABLE_FRACTION = 0.125
-"""The table's steps in frequency and delay, as a fraction of the same half-widths: linear
-interpolation of ``|A|²`` is then within about 1% of its peak."""
+TABLE_STEP = 0.25
+"""The table's steps as a fraction of the widths of the peak of ``|A|²``: near its peak
+``|A(f, D)|² ≈ |A|²_max (1 − (2πT_rms δf)² − (2πB_rms δD / f_s)²)``, ``T_rms = T/√12`` the
+burst's RMS duration and ``B_rms`` its RMS bandwidth (MATH §18), so with steps ``r`` times
+``1/(2πT_rms)`` and ``f_s/(2πB_rms)`` linear interpolation errs by at most ``r²/4`` of the
+peak along each axis (the curvature is largest at the peak): 1.6% each."""
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -149,18 +153,22 @@ def correlation_table(
     geometry: MeasurementSet, plan: BurstPlan, samples: ArrayLike
 ) -> CorrelationTable:
     """The table of every trial's bursts (docs/math.md §23): frequencies ``|f| ≤ γ max|v_k|``
-    plus one step, delays ``|D| ≤ G + 1/2``, steps ``TABLE_FRACTION`` of the lobes'
-    half-widths; ``A_k(f, D)`` is one product of the samples with the ``nd`` delayed bursts
+    plus one step, delays ``|D| ≤ G + 1/2``, steps ``TABLE_STEP`` of the widths of the peak
+    (a tone has no delay width: two delays); ``A_k(f, D)`` is one product of the samples with the ``nd`` delayed bursts
     (:func:`scenarios.signal.shifted_envelope`), then with the ``nf`` tones."""
     speed = np.linalg.norm(np.asarray(geometry.velocity_mps, dtype=float), axis=1)
-    step_hz = TABLE_FRACTION / plan.burst_s
+    step_hz = TABLE_STEP * np.sqrt(12.0) / (2.0 * np.pi * plan.burst_s)
     frequency = _axis(geometry.gamma_per_m * float(np.max(speed)) + step_hz, step_hz)
     if frequency[-1] >= plan.sample_rate_hz / 2.0:
         raise ValueError(
             f"sample_rate_hz: the Doppler reaches {frequency[-1]:.6g} Hz, beyond the receiver's "
             f"{plan.sample_rate_hz / 2.0:.6g} Hz; raise sample_rate_hz"
         )
-    shift = _axis(plan.n_guard_samples + 0.5, TABLE_FRACTION * delay_lobe_samples(plan))
+    bandwidth = burst_rms_bandwidth_hz(plan)
+    step_samples = (
+        TABLE_STEP * plan.sample_rate_hz / (2.0 * np.pi * bandwidth) if bandwidth else np.inf
+    )
+    shift = _axis(plan.n_guard_samples + 0.5, step_samples)
     envelope = shifted_envelope(plan, shift)  # (nd, N)
     energy = np.sum(envelope[0].real ** 2 + envelope[0].imag ** 2)
     tone = np.exp(2j * np.pi * np.outer(frequency, window_offsets_s(plan)))  # (nf, N)
