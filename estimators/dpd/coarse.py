@@ -43,9 +43,11 @@ ZOOM = 8
 TABLE_STEP = 0.25
 """The table's steps as a fraction of the widths of the peak of ``|A|²``: near its peak
 ``|A(f, D)|² ≈ |A|²_max (1 − (2πT_rms δf)² − (2πB_rms δD / f_s)²)``, ``T_rms = T/√12`` the
-burst's RMS duration and ``B_rms`` its RMS bandwidth (MATH §18), so with steps ``r`` times
-``1/(2πT_rms)`` and ``f_s/(2πB_rms)`` linear interpolation errs by at most ``r²/4`` of the
-peak along each axis (the curvature is largest at the peak): 1.6% each."""
+burst's RMS duration and ``B_rms`` its RMS bandwidth (MATH §18). With steps ``r`` times
+``1/(2πT_rms)`` and ``f_s/(2πB_rms)``, three-point interpolation reproduces that quadratic top
+and errs by at most ``max|g‴| h³/(9√3)``: for a burst's ``sinc²``, ``|g‴| ≤ 16/w³`` over its
+main lobe (``w`` the width), ``16 r³/(9√3)`` = 1.6% of the peak along each axis at
+``r = 1/4``."""
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -144,8 +146,9 @@ class CorrelationTable:
 
 
 def _axis(limit: float, step: float) -> FloatArray:
-    """``[−limit, limit]`` in at least two points at most ``step`` apart."""
-    count = max(2, int(np.ceil(2.0 * limit / step)) + 1)
+    """``[−limit, limit]`` in an odd number, at least three, of points at most ``step`` apart
+    (zero is one)."""
+    count = max(3, 2 * int(np.ceil(limit / step)) + 1)
     return np.linspace(-limit, limit, count)
 
 
@@ -154,7 +157,7 @@ def correlation_table(
 ) -> CorrelationTable:
     """The table of every trial's bursts (docs/math.md §23): frequencies ``|f| ≤ γ max|v_k|``
     plus one step, delays ``|D| ≤ G + 1/2``, steps ``TABLE_STEP`` of the widths of the peak
-    (a tone has no delay width: two delays); ``A_k(f, D)`` is one product of the samples with the ``nd`` delayed bursts
+    (a tone has no delay width: three delays); ``A_k(f, D)`` is one product of the samples with the ``nd`` delayed bursts
     (:func:`scenarios.signal.shifted_envelope`), then with the ``nf`` tones."""
     speed = np.linalg.norm(np.asarray(geometry.velocity_mps, dtype=float), axis=1)
     step_hz = TABLE_STEP * np.sqrt(12.0) / (2.0 * np.pi * plan.burst_s)
@@ -181,11 +184,13 @@ def correlation_table(
     )
 
 
-def _bilinear(values: FloatArray, axis: FloatArray) -> tuple[NDArray[np.int64], FloatArray]:
-    """The lower neighbour's index on evenly spaced ``axis`` and the weight of the upper one."""
+def _quadratic(values: FloatArray, axis: FloatArray) -> tuple[NDArray[np.int64], FloatArray]:
+    """The nearest inner node's index on evenly spaced ``axis`` (at least three nodes) and the
+    three-point Lagrange weights of it and its two neighbours, ``(..., 3)``."""
     position = (values - axis[0]) / (axis[1] - axis[0])
-    index = np.clip(np.floor(position).astype(np.int64), 0, len(axis) - 2)
-    return index, np.clip(position - index, 0.0, 1.0)
+    index = np.clip(np.rint(position).astype(np.int64), 1, len(axis) - 2)
+    t = np.clip(position - index, -1.0, 1.0)
+    return index, np.stack([0.5 * t * (t - 1.0), 1.0 - t * t, 0.5 * t * (t + 1.0)], axis=-1)
 
 
 def tabulated_log_likelihood(
@@ -193,18 +198,20 @@ def tabulated_log_likelihood(
 ) -> FloatArray:
     """The coarse ``L`` (docs/math.md §23) of hypotheses with per-burst Dopplers ``doppler_hz``
     and shifts ``shift_samples`` ``(n_trials or 1, P, n_bursts)``: each burst's table
-    interpolated bilinearly at its ``(f_k, D_k)``, summed over bursts; ``(n_trials, P)``."""
+    interpolated biquadratically (three nodes a side: a peak's quadratic top is reproduced, so
+    the maximum falls between nodes, not on them) at its ``(f_k, D_k)``, summed over bursts;
+    ``(n_trials, P)``."""
     n, n_bursts, nf, nd = table.power.shape
-    i_f, a_f = _bilinear(doppler_hz, table.frequency_hz)
-    i_d, a_d = _bilinear(shift_samples, table.shift_samples)
+    i_f, w_f = _quadratic(doppler_hz, table.frequency_hz)
+    i_d, w_d = _quadratic(shift_samples, table.shift_samples)
     base = (np.arange(n_bursts) * nf + i_f) * nd + i_d
     flat = table.power.reshape(n, 1, -1)
     total = np.zeros(np.broadcast_shapes((n, 1, 1), base.shape))
-    for df, wf in ((0, 1.0 - a_f), (1, a_f)):
-        for dd, wd in ((0, 1.0 - a_d), (1, a_d)):
+    for df in (-1, 0, 1):
+        for dd in (-1, 0, 1):
             index = np.broadcast_to(base + df * nd + dd, total.shape)
             picked = np.take_along_axis(flat, index.reshape(n, 1, -1), axis=-1)
-            total += wf * wd * picked.reshape(total.shape)
+            total += w_f[..., df + 1] * w_d[..., dd + 1] * picked.reshape(total.shape)
     return total.sum(axis=-1)
 
 

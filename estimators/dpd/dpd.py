@@ -61,8 +61,9 @@ XTOL_FRACTION = 1e-7
 MERGE_FRACTION = 1e-4
 """Refined maxima closer than this fraction of the grid's spacing are one (§23)."""
 
-CHUNK_VALUES = 1 << 21
-"""Complex model samples evaluated at once (memory: a few tens of MB)."""
+CHUNK_VALUES = 1 << 18
+"""Complex model samples evaluated at once (a few MB: larger blocks leave the cache and run
+slower per sample)."""
 
 NO_CONVERGENCE = (
     "dpd: the refinement converged from none of the coarse maxima within max_iterations; "
