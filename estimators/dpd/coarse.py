@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy import sparse
 
 from scenarios import measurement_model as model
 from scenarios.geometry import cross_track_m
@@ -51,11 +52,22 @@ main lobe (``w`` the width), ``16 r³/(9√3)`` = 1.6% of the peak along each ax
 
 
 @dataclass(frozen=True, slots=True, eq=False)
+class TableAxes:
+    """The per-burst table's evenly spaced axes (docs/math.md §23): ``frequency_hz`` ``(nf,)``
+    and ``shift_samples`` ``(nd,)``, each an odd number (at least three) of nodes."""
+
+    frequency_hz: FloatArray
+    shift_samples: FloatArray
+
+
+@dataclass(frozen=True, slots=True, eq=False)
 class SearchGrid:
     """The positions the coarse stage tries (docs/math.md §23): ``x_m`` ``(nx,)`` and ``y_m``
     ``(ny,)``, their points ``points_m`` ``(ny · nx, 2)`` row by row, ``inside`` the points
-    whose bursts all stay in their windows, ``spacing_m`` the step, and per point and burst
-    the Doppler ``doppler_hz`` and shift ``shift_samples`` ``(ny · nx, n_bursts)``."""
+    whose bursts all stay in their windows, ``spacing_m`` the step, per point and burst the
+    Doppler ``doppler_hz`` and shift ``shift_samples`` ``(ny · nx, n_bursts)``, the table's
+    ``axes`` and ``lookup``, the sparse ``(ny · nx, n_bursts · nf · nd)`` interpolation of a
+    trial's table at every point (the same for every trial: one sparse product serves them)."""
 
     x_m: FloatArray
     y_m: FloatArray
@@ -64,6 +76,8 @@ class SearchGrid:
     spacing_m: float
     doppler_hz: FloatArray
     shift_samples: FloatArray
+    axes: TableAxes
+    lookup: sparse.csr_matrix
 
 
 def delay_lobe_samples(plan: BurstPlan) -> float:
@@ -113,36 +127,34 @@ def search_grid(
     step_delay = LOBE_FRACTION * delay_lobe_samples(plan) * c / rate
     width = float(np.max(upper - lower))
     step = max(min(step_doppler, step_delay), width / (max_side - 1))
-    axes = [
+    x_m, y_m = (
         np.linspace(lo, hi, int(np.ceil((hi - lo) / step)) + 1 if hi > lo else 1)
         for lo, hi in zip(lower, upper, strict=True)
-    ]
-    grid_x, grid_y = np.meshgrid(*axes)
+    )
+    grid_x, grid_y = np.meshgrid(x_m, y_m)
     points = np.stack([grid_x.ravel(), grid_y.ravel()], axis=-1)
     shift = burst_shift_samples(geometry, plan, points, schedule_s)
     doppler = model.doppler_hz(
         position, velocity, points, geometry.gamma_per_m, geometry.emitter_height_m
     )
+    axes = table_axes(geometry, plan)
+    index, weight = interpolation(axes, doppler, shift)
+    rows = np.broadcast_to(np.arange(len(points))[:, None, None], index.shape)
+    n_columns = doppler.shape[1] * len(axes.frequency_hz) * len(axes.shift_samples)
+    lookup = sparse.csr_matrix(
+        (weight.ravel(), (rows.ravel(), index.ravel())), shape=(len(points), n_columns)
+    )
     return SearchGrid(
-        x_m=axes[0],
-        y_m=axes[1],
+        x_m=x_m,
+        y_m=y_m,
         points_m=points,
         inside=np.all(np.abs(shift) <= reach, axis=-1),
         spacing_m=step,
         doppler_hz=doppler,
         shift_samples=shift,
+        axes=axes,
+        lookup=lookup,
     )
-
-
-@dataclass(frozen=True, slots=True, eq=False)
-class CorrelationTable:
-    """Each trial's per-burst table (docs/math.md §23): ``power`` ``(n_trials, n_bursts, nf,
-    nd)``, ``|A_k(f, D)|² / ‖s̃‖²`` at the evenly spaced ``frequency_hz`` ``(nf,)`` and
-    ``shift_samples`` ``(nd,)``."""
-
-    power: FloatArray
-    frequency_hz: FloatArray
-    shift_samples: FloatArray
 
 
 def _axis(limit: float, step: float) -> FloatArray:
@@ -152,13 +164,11 @@ def _axis(limit: float, step: float) -> FloatArray:
     return np.linspace(-limit, limit, count)
 
 
-def correlation_table(
-    geometry: MeasurementSet, plan: BurstPlan, samples: ArrayLike
-) -> CorrelationTable:
-    """The table of every trial's bursts (docs/math.md §23): frequencies ``|f| ≤ γ max|v_k|``
-    plus one step, delays ``|D| ≤ G + 1/2``, steps ``TABLE_STEP`` of the widths of the peak
-    (a tone has no delay width: three delays); ``A_k(f, D)`` is one product of the samples with the ``nd`` delayed bursts
-    (:func:`scenarios.signal.shifted_envelope`), then with the ``nf`` tones."""
+def table_axes(geometry: MeasurementSet, plan: BurstPlan) -> TableAxes:
+    """The table's axes (docs/math.md §23): frequencies ``|f| ≤ γ max|v_k|`` plus one step,
+    delays ``|D| ≤ G + 1/2``, steps ``TABLE_STEP`` of the widths of the peak (a tone has no
+    delay width: three delays). Raises ``ValueError`` naming ``sample_rate_hz`` when the
+    Dopplers reach the receiver's band's edge."""
     speed = np.linalg.norm(np.asarray(geometry.velocity_mps, dtype=float), axis=1)
     step_hz = TABLE_STEP * np.sqrt(12.0) / (2.0 * np.pi * plan.burst_s)
     frequency = _axis(geometry.gamma_per_m * float(np.max(speed)) + step_hz, step_hz)
@@ -171,17 +181,23 @@ def correlation_table(
     step_samples = (
         TABLE_STEP * plan.sample_rate_hz / (2.0 * np.pi * bandwidth) if bandwidth else np.inf
     )
-    shift = _axis(plan.n_guard_samples + 0.5, step_samples)
-    envelope = shifted_envelope(plan, shift)  # (nd, N)
+    return TableAxes(
+        frequency_hz=frequency, shift_samples=_axis(plan.n_guard_samples + 0.5, step_samples)
+    )
+
+
+def correlation_table(plan: BurstPlan, samples: ArrayLike, axes: TableAxes) -> FloatArray:
+    """Every trial's table ``|A_k(f, D)|² / ‖s̃‖²`` (docs/math.md §23), ``(n_trials, n_bursts,
+    nf, nd)`` on ``axes``: one product of the samples with the ``nd`` delayed bursts
+    (:func:`scenarios.signal.shifted_envelope`), then with the ``nf`` tones."""
+    envelope = shifted_envelope(plan, axes.shift_samples)  # (nd, N)
     energy = np.sum(envelope[0].real ** 2 + envelope[0].imag ** 2)
-    tone = np.exp(2j * np.pi * np.outer(frequency, window_offsets_s(plan)))  # (nf, N)
+    tone = np.exp(2j * np.pi * np.outer(axes.frequency_hz, window_offsets_s(plan)))  # (nf, N)
     x = np.asarray(samples)
     removed = x[:, :, None, :] * np.conj(envelope)  # (n, K, nd, N)
     correlation = removed @ np.conj(tone).T  # (n, K, nd, nf)
     power = correlation.real**2 + correlation.imag**2
-    return CorrelationTable(
-        power=np.swapaxes(power, -1, -2) / energy, frequency_hz=frequency, shift_samples=shift
-    )
+    return np.swapaxes(power, -1, -2) / energy
 
 
 def _quadratic(values: FloatArray, axis: FloatArray) -> tuple[NDArray[np.int64], FloatArray]:
@@ -193,32 +209,42 @@ def _quadratic(values: FloatArray, axis: FloatArray) -> tuple[NDArray[np.int64],
     return index, np.stack([0.5 * t * (t - 1.0), 1.0 - t * t, 0.5 * t * (t + 1.0)], axis=-1)
 
 
+def interpolation(
+    axes: TableAxes, doppler_hz: FloatArray, shift_samples: FloatArray
+) -> tuple[NDArray[np.int64], FloatArray]:
+    """The biquadratic interpolation of the table (docs/math.md §23) at per-burst Dopplers
+    ``doppler_hz`` and shifts ``shift_samples`` ``(..., n_bursts)``: the nine nodes of each,
+    as indices into a trial's flattened table ``(n_bursts · nf · nd,)``, and their weights,
+    ``(..., n_bursts, 9)`` each. Three nodes a side reproduce a peak's quadratic top, so a
+    maximum falls between the nodes where it is, not on a node."""
+    nf, nd = len(axes.frequency_hz), len(axes.shift_samples)
+    i_f, w_f = _quadratic(doppler_hz, axes.frequency_hz)
+    i_d, w_d = _quadratic(shift_samples, axes.shift_samples)
+    base = (np.arange(doppler_hz.shape[-1]) * nf + i_f) * nd + i_d
+    step = np.add.outer(np.array([-nd, 0, nd]), np.array([-1, 0, 1])).ravel()
+    index = base[..., None] + step
+    weight = (w_f[..., :, None] * w_d[..., None, :]).reshape(*w_f.shape[:-1], 9)
+    return index, weight
+
+
 def tabulated_log_likelihood(
-    table: CorrelationTable, doppler_hz: FloatArray, shift_samples: FloatArray
+    power: FloatArray, axes: TableAxes, doppler_hz: FloatArray, shift_samples: FloatArray
 ) -> FloatArray:
-    """The coarse ``L`` (docs/math.md §23) of hypotheses with per-burst Dopplers ``doppler_hz``
-    and shifts ``shift_samples`` ``(n_trials or 1, P, n_bursts)``: each burst's table
-    interpolated biquadratically (three nodes a side: a peak's quadratic top is reproduced, so
-    the maximum falls between nodes, not on them) at its ``(f_k, D_k)``, summed over bursts;
-    ``(n_trials, P)``."""
-    n, n_bursts, nf, nd = table.power.shape
-    i_f, w_f = _quadratic(doppler_hz, table.frequency_hz)
-    i_d, w_d = _quadratic(shift_samples, table.shift_samples)
-    base = (np.arange(n_bursts) * nf + i_f) * nd + i_d
-    flat = table.power.reshape(n, 1, -1)
-    total = np.zeros(np.broadcast_shapes((n, 1, 1), base.shape))
-    for df in (-1, 0, 1):
-        for dd in (-1, 0, 1):
-            index = np.broadcast_to(base + df * nd + dd, total.shape)
-            picked = np.take_along_axis(flat, index.reshape(n, 1, -1), axis=-1)
-            total += w_f[..., df + 1] * w_d[..., dd + 1] * picked.reshape(total.shape)
-    return total.sum(axis=-1)
+    """The coarse ``L`` (docs/math.md §23) of each trial's hypotheses with per-burst Dopplers
+    ``doppler_hz`` and shifts ``shift_samples`` ``(n_trials, P, n_bursts)`` from the trials'
+    tables ``power``: each burst's table interpolated (:func:`interpolation`), summed over the
+    bursts; ``(n_trials, P)``."""
+    n = len(power)
+    index, weight = interpolation(axes, doppler_hz, shift_samples)
+    picked = np.take_along_axis(power.reshape(n, -1), index.reshape(n, -1), axis=1)
+    return np.sum(weight * picked.reshape(index.shape), axis=(-2, -1))
 
 
-def grid_log_likelihood(table: CorrelationTable, grid: SearchGrid) -> FloatArray:
-    """The coarse ``L`` at every grid point, ``(n_trials, n_points)``, ``−inf`` outside the
-    region (docs/math.md §23)."""
-    coarse = tabulated_log_likelihood(table, grid.doppler_hz[None], grid.shift_samples[None])
+def grid_log_likelihood(power: FloatArray, grid: SearchGrid) -> FloatArray:
+    """The coarse ``L`` at every grid point for each trial's table ``power``, ``(n_trials,
+    n_points)`` (one sparse product with ``grid.lookup``), ``−inf`` outside the region
+    (docs/math.md §23)."""
+    coarse = (grid.lookup @ power.reshape(len(power), -1).T).T
     return np.where(grid.inside, coarse, -np.inf)
 
 
@@ -255,17 +281,18 @@ def zoomed_starts(
     geometry: MeasurementSet,
     plan: BurstPlan,
     schedule_s: ArrayLike,
-    table: CorrelationTable,
+    power: FloatArray,
+    grid: SearchGrid,
     starts_m: FloatArray,
-    spacing_m: float,
     line: tuple[FloatArray, FloatArray] | None,
 ) -> FloatArray:
     """Each start ``(n_trials, m, 2)`` moved to the best point of the coarse ``L`` on a local
-    grid of ``ZOOM`` steps a spacing about it (docs/math.md §23): the tabulated likelihood is
+    grid of ``ZOOM`` steps a spacing about it, on the trials' tables ``power``
+    (docs/math.md §23): the tabulated likelihood is
     cheap, and the refinement then starts within a fraction of a spacing of its maximum. On a
     straight track the local grid keeps the left side and the start stays at least half a
     local step from the track, where the cross-track slope vanishes by symmetry."""
-    step = spacing_m / ZOOM
+    step = grid.spacing_m / ZOOM
     offsets = np.arange(-ZOOM, ZOOM + 1) * step
     local = np.stack(np.meshgrid(offsets, offsets), axis=-1).reshape(-1, 2)
     n, m, _ = starts_m.shape
@@ -278,7 +305,7 @@ def zoomed_starts(
         geometry.emitter_height_m,
     )
     shift = burst_shift_samples(geometry, plan, points, schedule_s)
-    values = tabulated_log_likelihood(table, doppler, shift)
+    values = tabulated_log_likelihood(power, grid.axes, doppler, shift)
     if line is not None:
         values = np.where(cross_track_m(points, *line) >= 0.0, values, -np.inf)
     best = np.argmax(values.reshape(n, m, -1), axis=-1)

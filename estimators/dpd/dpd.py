@@ -193,15 +193,13 @@ def direct_position(
     # track only), each moved to the best point of a local grid about it
     grid = search_grid(geometry, plan, schedule, max_side=max_grid_side)
     width = min(n_starts, len(grid.points_m))
-    per_trial = x.shape[1] * max(x.shape[2] * 16, len(grid.points_m))
+    per_trial = x.shape[1] * x.shape[2] * len(grid.axes.shift_samples)
     chunk = max(1, CHUNK_VALUES // per_trial)
-    starts = np.empty((n, width, 2))
-    found = np.zeros((n, width), dtype=bool)
-    for first in range(0, n, chunk):
-        part = slice(first, first + chunk)
-        table = correlation_table(geometry, plan, x[part])
-        best, found[part] = coarse_maxima(grid_log_likelihood(table, grid), grid, width, line)
-        starts[part] = zoomed_starts(geometry, plan, schedule, table, best, grid.spacing_m, line)
+    power = np.concatenate(
+        [correlation_table(plan, x[i : i + chunk], grid.axes) for i in range(0, n, chunk)]
+    )
+    best, found = coarse_maxima(grid_log_likelihood(power, grid), grid, width, line)
+    starts = zoomed_starts(geometry, plan, schedule, power, grid, best, line)
 
     # refine: the exact likelihood's Newton ascent from every start found, all trials at once
     trial_of, slot_of = np.nonzero(found)
@@ -237,6 +235,11 @@ def direct_position(
         right = cross_track_m(position, *line) < 0.0
         position[right] = mirror_across_line(position[right], *line)
         hessian[right] = _reflected(hessian[right], line[1])
+        # a maximum on the track (within the merge distance) is its own mirror image: one point
+        cross = cross_track_m(position, *line)
+        on = cross <= MERGE_FRACTION * grid.spacing_m
+        normal = np.array([-line[1][1], line[1][0]])
+        position[on] -= cross[on][:, None] * normal
     candidates, count, kept = _distinct(position, value, MERGE_FRACTION * grid.spacing_m)
 
     final = finalize_columns(

@@ -24,7 +24,12 @@ import numpy as np
 import pytest
 
 from estimators.dpd import DirectPosition, direct_position, profiled_log_likelihood, search_grid
-from estimators.dpd.coarse import TABLE_STEP, correlation_table, tabulated_log_likelihood
+from estimators.dpd.coarse import (
+    TABLE_STEP,
+    correlation_table,
+    grid_log_likelihood,
+    tabulated_log_likelihood,
+)
 from estimators.dpd.dpd import XTOL_FRACTION
 from scenarios import get_scenario
 from scenarios.fisher import fisher_information
@@ -126,10 +131,11 @@ def test_the_tabulated_likelihood_is_the_exact_one_to_its_interpolation() -> Non
     received = bursts("turn", plan, 1, 3, noise=True)
     grid = search_grid(geometry, plan, received.emission_time_s)
     near = np.argsort(np.linalg.norm(grid.points_m - geometry.truth_emitter_m, axis=1))[:40]
-    table = correlation_table(geometry, plan, received.samples)
+    power = correlation_table(plan, received.samples, grid.axes)
     coarse = tabulated_log_likelihood(
-        table, grid.doppler_hz[near][None], grid.shift_samples[near][None]
+        power, grid.axes, grid.doppler_hz[near][None], grid.shift_samples[near][None]
     )[0]
+    assert np.allclose(grid_log_likelihood(power, grid)[0, near], coarse)  # the sparse lookup
     exact = profiled_log_likelihood(
         geometry, plan, received.samples[0], received.emission_time_s, grid.points_m[near]
     )
