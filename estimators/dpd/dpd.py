@@ -31,6 +31,7 @@ from estimators.batch import BatchEstimates, check_rngs
 from estimators.closed_form.cls_batch import draw_tie_breaks
 from estimators.dpd.coarse import (
     ZOOM,
+    ZOOM_LEVELS,
     coarse_maxima,
     correlation_table,
     grid_log_likelihood,
@@ -167,10 +168,11 @@ def direct_position(
     :func:`estimators.dpd.coarse.search_grid`: the positions whose bursts all stay within
     their windows, the spacing a quarter of the likelihood's main lobe (``1/T`` in each burst's
     Doppler, a chip in its delay) mapped to metres by the largest gradients the geometry allows.
-    Each coarse maximum moves to the best point of a local grid of an eighth of the spacing
-    (:func:`estimators.dpd.coarse.zoomed_starts`); the refinement
-    (:func:`estimators.dpd.refine.newton_ascent`) starts there with a trust radius of that step, differences at :data:`DIFFERENCE_FRACTION` of it and stops at
-    :data:`XTOL_FRACTION`. A trial none of whose starts converges is a failed estimate.
+    Each coarse maximum moves to the best point of local grids of an eighth of the spacing,
+    then of a 64th (:func:`estimators.dpd.coarse.zoomed_starts`); the refinement
+    (:func:`estimators.dpd.refine.newton_ascent`) starts there with a trust radius of that
+    last step, differences at :data:`DIFFERENCE_FRACTION` of the spacing and stops at
+    :data:`XTOL_FRACTION` of it. A trial none of whose starts converges is a failed estimate.
     """
     x, schedule = check_iq(geometry, plan, samples, schedule_s)
     for name, value, least in (
@@ -218,7 +220,7 @@ def direct_position(
         objective,
         starts[trial_of, slot_of],
         difference_m=DIFFERENCE_FRACTION * grid.spacing_m,
-        radius_m=grid.spacing_m / ZOOM,
+        radius_m=grid.spacing_m / ZOOM**ZOOM_LEVELS,
         xtol_m=XTOL_FRACTION * grid.spacing_m,
         max_iterations=max_iterations,
     )
