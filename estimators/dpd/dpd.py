@@ -63,8 +63,8 @@ MERGE_FRACTION = 1e-4
 """Refined maxima closer than this fraction of the grid's spacing are one (§23)."""
 
 CHUNK_VALUES = 1 << 18
-"""Complex model samples evaluated at once (a few MB: larger blocks leave the cache and run
-slower per sample)."""
+"""Values computed at once (complex model samples, table look-ups): a few MB; larger blocks
+leave the cache and run slower per value."""
 
 NO_CONVERGENCE = (
     "dpd: the refinement converged from none of the coarse maxima within max_iterations; "
@@ -201,7 +201,16 @@ def direct_position(
         [correlation_table(plan, x[i : i + chunk], grid.axes) for i in range(0, n, chunk)]
     )
     best, found = coarse_maxima(grid_log_likelihood(power, grid), grid, width, line)
-    starts = zoomed_starts(geometry, plan, schedule, power, grid, best, line)
+    per_trial = width * (2 * ZOOM + 1) ** 2 * x.shape[1] * 9  # the local grids' look-ups
+    chunk = max(1, CHUNK_VALUES // per_trial)
+    starts = np.concatenate(
+        [
+            zoomed_starts(
+                geometry, plan, schedule, power[i : i + chunk], grid, best[i : i + chunk], line
+            )
+            for i in range(0, n, chunk)
+        ]
+    )
 
     # refine: the exact likelihood's Newton ascent from every start found, all trials at once
     trial_of, slot_of = np.nonzero(found)
