@@ -145,10 +145,15 @@ def search_grid(
     )
     axes = table_axes(geometry, plan)
     index, weight = interpolation(axes, doppler, shift)
-    rows = np.broadcast_to(np.arange(len(points))[:, None, None], index.shape)
     n_columns = doppler.shape[1] * len(axes.frequency_hz) * len(axes.shift_samples)
+    per_row = index.shape[1] * index.shape[2]  # every point reads 9 nodes of every burst
     lookup = sparse.csr_matrix(
-        (weight.ravel(), (rows.ravel(), index.ravel())), shape=(len(points), n_columns)
+        (
+            weight.reshape(len(points), per_row).ravel(),
+            index.reshape(len(points), per_row).ravel(),
+            np.arange(len(points) + 1) * per_row,
+        ),
+        shape=(len(points), n_columns),
     )
     return SearchGrid(
         x_m=x_m,
