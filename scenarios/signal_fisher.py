@@ -1,4 +1,4 @@
-r"""The signal-level bound (MATH §22): the Fisher information of the position in the samples.
+r"""The signal-level bound (MATH §21): the Fisher information of the position in the samples.
 
 Burst ``k``'s samples are ``x_kn = a e^{jθ_k} u_kn(ϑ) + w_kn``, ``u`` the one model of the
 bursts (:func:`scenarios.signal.burst_model`, unit amplitude, zero carrier phase), ``a = √C``,
@@ -48,7 +48,7 @@ ComplexArray = NDArray[np.complexfloating]
 
 def _envelope_and_slope(plan: BurstPlan, shift_samples: FloatArray) -> tuple[ComplexArray, ...]:
     """``s̃(n − D)`` and ``∂s̃(n − D)/∂D`` for shifts ``D`` ``(...)``, each ``(..., n_samples)``:
-    ``S_m e^{−j2π f_m D}`` and ``−j2π f_m`` times it, inverse transformed (MATH §18, §22). A
+    ``S_m e^{−j2π f_m D}`` and ``−j2π f_m`` times it, inverse transformed (MATH §18, §21). A
     burst constant over its window (a tone without guards) has no slope: exactly zero."""
     sampled = burst_envelope(plan, window_offsets_s(plan))
     spectrum = np.fft.fft(sampled)
@@ -112,7 +112,7 @@ def burst_model_jacobian(
     emission_time_s: ArrayLike = 0.0,
     unknowns: Iterable[str] = (),
 ) -> ComplexArray:
-    """``∂u/∂ϑ`` of :func:`scenarios.signal.burst_model` (MATH §18, §22), analytic, shape
+    """``∂u/∂ϑ`` of :func:`scenarios.signal.burst_model` (MATH §18, §21), analytic, shape
     ``(..., n_bursts, n_samples, p)`` for hypotheses ``emitter_m`` ``(..., d)``.
 
     The columns: the position's ``d`` coordinates, then, when named in ``unknowns``, the
@@ -145,7 +145,7 @@ def signal_fisher_information(
     *,
     unknowns: Iterable[str] = (),
 ) -> FloatArray:
-    """``J = (2C/(N0 f_s)) Σ_k Re(D_kᴴ P⊥_k D_k)`` at the truth of ``geometry`` (MATH §22),
+    """``J = (2C/(N0 f_s)) Σ_k Re(D_kᴴ P⊥_k D_k)`` at the truth of ``geometry`` (MATH §21),
     shape ``(p, p)``: the information of the bursts' samples on the position (``d`` coordinates,
     those of ``geometry.truth_emitter_m``) and the nuisances named in ``unknowns`` (δ, b;
     the columns of :func:`burst_model_jacobian`), each burst's complex amplitude (amplitude and
@@ -171,7 +171,7 @@ def signal_fisher_information(
 
 def position_information(information: ArrayLike, dimension: int) -> FloatArray:
     """The information left on the first ``dimension`` parameters once the others (nuisances)
-    are estimated too: the Schur complement ``J_ss − J_sn J_nn⁻¹ J_ns`` (MATH §15, §22), whose
+    are estimated too: the Schur complement ``J_ss − J_sn J_nn⁻¹ J_ns`` (MATH §15, §21), whose
     inverse is the position's block of ``J⁻¹``. A nuisance with no information (a zero
     diagonal: it does not enter the samples) is left out. Formed on the matrix scaled to unit
     diagonal, so that parameters in different units (m, Hz, s) do not spoil the solve; NaN
@@ -205,7 +205,7 @@ def signal_crlb_m2(
     unknowns: Iterable[str] = (),
 ) -> FloatArray:
     """The position's block of the inverse of :func:`signal_fisher_information`, m², shape
-    ``(d, d)`` (MATH §22): the signal-level CRLB, amplitude, phase and the named nuisances
+    ``(d, d)`` (MATH §21): the signal-level CRLB, amplitude, phase and the named nuisances
     eliminated. NaN where the information is singular."""
     information = signal_fisher_information(geometry, plan, schedule_s, unknowns=unknowns)
     dimension = np.asarray(geometry.truth_emitter_m).shape[-1]
@@ -229,7 +229,7 @@ def signal_crlb_at_plan_m2(
     unknowns: Iterable[str] | None = None,
 ) -> FloatArray:
     """The signal-level CRLB of the position, m², ``(d, d)``, for one (scenario, plan) point
-    (MATH §22): :func:`signal_crlb_m2` at the truth, the schedule that of
+    (MATH §21): :func:`signal_crlb_m2` at the truth, the schedule that of
     :func:`scenarios.signal.burst_truth`, ``unknowns`` the data's unless given. ``√trace`` is
     the RMSE bound the comparison draws beside the estimators from IQ."""
     geometry = _geometry_of(source)
@@ -247,7 +247,7 @@ def measurement_crlb_at_plan_m2(
     """The measurement-level CRLB of MATH §8 (and §15), m², ``(d, d)``, with the σ's of
     :func:`scenarios.signal.noise_at_cn0`: what a front end attaining its per-burst bounds gives the two-step
     estimators. Doppler and ToA for ``"bpsk"``, Doppler alone for ``"cw"``. Equal to
-    :func:`signal_crlb_at_plan_m2` above threshold, up to what MATH §22 lists."""
+    :func:`signal_crlb_at_plan_m2` above threshold, up to what MATH §21 lists."""
     geometry = _geometry_of(source)
     noise = noise_at_cn0(plan)
     modalities = "doppler" if noise.toa_s is None else "toa+doppler"

@@ -411,10 +411,11 @@ ESTIMATOR_CORE = frozenset(
 """The modules shared by every family, directly in ``estimators/`` (docs/architecture.md)."""
 
 ESTIMATOR_FAMILIES = frozenset(
-    {"baselines", "checks", "closed_form", "frontend", "ml", "sdp", "sequential"}
+    {"baselines", "checks", "closed_form", "dpd", "frontend", "ml", "sdp", "sequential"}
 )
-"""The folders of ``estimators/``: one per family of methods, the conformance suite, and the
-per-burst front end (samples to measurements)."""
+"""The folders of ``estimators/``: one per family of methods, the conformance suite, the
+per-burst front end (samples to measurements) and direct position determination (samples to a
+position)."""
 
 
 def test_estimators_are_a_core_and_a_folder_per_family() -> None:

@@ -1,4 +1,4 @@
-"""The signal-level bound (MATH §22): the analytic Jacobian of the burst model against finite
+"""The signal-level bound (MATH §21): the analytic Jacobian of the burst model against finite
 differences, the information symmetric positive definite and scaling with C/N0, and the bound
 equal to the measurement-level one (MATH §8, §15) at the σ's of the plan's bursts (MATH §18)."""
 
@@ -175,7 +175,7 @@ def test_signal_bound_is_the_measurement_bound_at_the_plans_sigmas(
     measured = measurement_crlb_at_plan_m2(scenario, plan, unknowns=unknowns)
     d = len(data.truth_emitter_m)
     assert signal.shape == measured.shape == (d, d)
-    # per burst the frequency and delay are sufficient locally and decouple (MATH §22); the
+    # per burst the frequency and delay are sufficient locally and decouple (MATH §21); the
     # Rife-Boorstyn bound is exact in N, so what differs is the Doppler's change within a
     # burst, information of relative size (|v| T / ρ)² (about 1e-7 here) of the cooperative
     # information; with δ and b unknown the bound grows by the price of the unknowns (its
@@ -192,7 +192,7 @@ def test_signal_bound_is_the_measurement_bound_at_the_plans_sigmas(
 def test_guards_add_the_bursts_edges_to_the_delay_information(name: str) -> None:
     """With guards the window holds the burst's start and end against silence: the plan's
     delay bound is that of the window's RMS bandwidth, larger than the burst's own samples'
-    (MATH §18), and the two bounds agree as without guards (MATH §22)."""
+    (MATH §18), and the two bounds agree as without guards (MATH §21)."""
     scenario = get_scenario(name)
     data = noise_free(scenario)
     signal = signal_crlb_at_plan_m2(scenario, GUARDED, unknowns=data.unknowns)
