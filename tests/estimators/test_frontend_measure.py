@@ -168,7 +168,8 @@ def test_near_threshold_the_doppler_search_s_band_has_fewer_frequency_outliers(
     (no search) the Doppler of ``whole_count`` is more than a bin ``1/T`` off (a noise peak
     among the 256 bins of the burst), within ±1.2 kHz (plus the bin's margin: 2.2 cells)
     ``band_count``; counts of about 300 and 3 (standard deviations about 16 and 2) differ far
-    beyond their sampling error. Every Doppler measured is within ``±(D + 1/T)``."""
+    beyond their sampling error: a ratio above 20 is asserted. Every Doppler measured is within
+    ``±(D + 1/T)``."""
     plan = plan_of(waveform, cn0_dbhz=50.0)
     geometry = noise_free(get_scenario("beacon-pass"))
     received = received_bursts(geometry, plan, trial_seeds(2480, 50))
@@ -182,7 +183,11 @@ def test_near_threshold_the_doppler_search_s_band_has_fewer_frequency_outliers(
             doppler_search_hz=doppler_search_hz,
         )
         counts.append(int(outlier_rate(measured, plan, geometry.doppler_hz)[0]))
-    assert counts == [whole_count, band_count]
+    # the counts, not asserted to the burst: a burst whose two highest peaks tie to rounding may
+    # go either way on another CPU's FFT
+    message = f"outliers {counts[0]} over the whole band, {counts[1]} within it"
+    assert counts[0] >= 0.8 * whole_count and counts[1] <= 5 * band_count + 5, message
+    assert 20 * counts[1] < counts[0], message
     assert np.all(np.abs(measured.doppler_hz) <= (1200.0 + 1 / plan.burst_s) * (1 + 1e-12))
 
 
