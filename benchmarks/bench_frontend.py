@@ -18,7 +18,12 @@ per-burst SNR of 20 dB, each made here with numpy (a tone at a random frequency;
 - ``search``: :func:`measure_bursts` on ``beacon-pass``'s bursts as ``simulate-iq`` draws them
   by default (BPSK, 10 ms at 400 kHz, 100 kchip/s, ``N = 4000``, burst SNR 30 dB), without a
   Doppler search and with one of ±1.2 kHz (97 cells, docs/math.md §20), and the ratio of the
-  two (``--search-bursts`` bursts, 80 by default).
+  two (``--search-bursts`` bursts, 80 by default);
+- ``band``: :func:`tone_frequency` on the same tones with the peak sought within ``±2`` bins
+  (``band_hz``, docs/math.md §19) against the whole band, and :func:`measure_bursts` on the
+  ``measure`` windows with ``doppler_search_hz`` ``f_s/(8N)`` (one Doppler cell, docs/math.md
+  §20: only the frequency's band, ±1.1 bins, differs) against None; each with the ratio of the
+  times.
 
 Times are CPU seconds of this process (``time.process_time``, the least of three runs,
 :func:`cpu_time.best_cpu_s`) with BLAS held to one thread; printed as bursts per second per
@@ -164,6 +169,21 @@ def main() -> None:
 
     measure_rate = measure_bursts_rate(count, n)
     print(f"{'measure':10s} {measure_rate:10.0f} b/s/c  (measure_bursts, bpsk: the whole §20)")
+    band_hz = 2 * SAMPLE_RATE_HZ / n
+    whole_rate = count / best_cpu_s(lambda: tone_frequency(tone_samples, SAMPLE_RATE_HZ))
+    band_rate = count / best_cpu_s(
+        lambda: tone_frequency(tone_samples, SAMPLE_RATE_HZ, band_hz=band_hz)
+    )
+    print(
+        f"{'band':10s} {band_rate:10.0f} b/s/c against {whole_rate:.0f} for the whole band: "
+        f"{whole_rate / band_rate:.2f} times the time (tone_frequency, ±{band_hz:g} Hz)"
+    )
+    one_cell_hz = SAMPLE_RATE_HZ / (8 * n)
+    band_measure = measure_bursts_rate(count, n, one_cell_hz)
+    print(
+        f"{'':10s} {band_measure:10.0f} b/s/c against {measure_rate:.0f} for the whole band: "
+        f"{measure_rate / band_measure:.2f} times the time (measure_bursts, ±{one_cell_hz:g} Hz)"
+    )
     without, searched = search_rates(arguments.search_bursts, SEARCH_HZ)
     print(
         f"{'search':10s} {searched:10.1f} b/s/c against {without:.1f} without: "
@@ -172,9 +192,9 @@ def main() -> None:
     )
 
 
-def measure_bursts_rate(count: int, n: int) -> float:
+def measure_bursts_rate(count: int, n: int, doppler_search_hz: float | None = None) -> float:
     """Bursts per second per core of :func:`measure_bursts` on ``count`` BPSK windows of ``n``
-    samples received on ``turn`` (whole trials of its 20 bursts)."""
+    samples received on ``turn`` (whole trials of its 20 bursts), with ``doppler_search_hz``."""
     burst_s = n / SAMPLE_RATE_HZ
     plan = BurstPlan(
         waveform="bpsk",
@@ -188,7 +208,13 @@ def measure_bursts_rate(count: int, n: int) -> float:
     time_s, emission_s = geometry.time_s, received.emission_time_s
 
     def run():
-        return measure_bursts(received.samples, plan, time_s=time_s, emission_time_s=emission_s)
+        return measure_bursts(
+            received.samples,
+            plan,
+            time_s=time_s,
+            emission_time_s=emission_s,
+            doppler_search_hz=doppler_search_hz,
+        )
 
     return received.samples.shape[0] * received.samples.shape[1] / best_cpu_s(run)
 

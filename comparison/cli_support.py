@@ -567,7 +567,8 @@ def measured_recording(
     """The measurements of the recording ``file`` by the front end, read from disk a block of
     bursts at a time (:func:`estimators.frontend.recording.measure_recording`, the Doppler
     search ``doppler_search_hz``, None: the track's), and a line saying what was measured, how
-    many bursts were flagged below threshold and, for BPSK, the Doppler searched."""
+    many bursts were flagged below threshold and the Doppler searched (BPSK: its cells; a
+    tone: its frequency's band)."""
     import numpy as np
 
     from estimators.frontend.measure import doppler_cells_hz
@@ -583,10 +584,12 @@ def measured_recording(
         f"{recording.n_bursts} flagged below threshold (median burst SNR "
         f"{10 * np.log10(np.median(measured.burst_snr)):.1f} dB)"
     )
+    search_hz = doppler_search_hz
+    if search_hz is None:
+        search_hz = track_doppler_search_hz(recording)
     if recording.plan.waveform == "bpsk":
-        search_hz = doppler_search_hz
-        if search_hz is None:
-            search_hz = track_doppler_search_hz(recording)
         cells = doppler_cells_hz(search_hz, recording.plan).size
         line += f"; Doppler searched within ±{search_hz:.4g} Hz ({cells} cell{'s' * (cells > 1)})"
+    elif search_hz:
+        line += f"; frequency searched within ±{search_hz:.4g} Hz"
     return data, line

@@ -200,7 +200,11 @@ def searched_doppler_hz(
 
 
 def measure_rows(
-    windows: np.ndarray, plan: BurstPlan, reference: np.ndarray, cells_hz: np.ndarray | None
+    windows: np.ndarray,
+    plan: BurstPlan,
+    reference: np.ndarray,
+    cells_hz: np.ndarray | None,
+    band_hz: float | None = None,
 ) -> tuple[np.ndarray, ...]:
     """The front end on ``(n, n_samples)`` windows: the Doppler, its variance, the burst
     centre's offset from the window's centre (s), its variance, the SNR and the flag
@@ -208,11 +212,13 @@ def measure_rows(
     sampled chips; with ``cells_hz``, of more than one cell, at the searched cell's Doppler
     removed), the chips removed, the frequency, the delay of the window with the tone removed;
     a burst is flagged if the frequency or the final delay is, the delay's threshold counting
-    the cells searched."""
+    the cells searched. The frequency is sought within ``±band_hz`` (None: the whole band)."""
     rate_hz, n = plan.sample_rate_hz, plan.n_samples
     rows = windows.shape[0]
     if plan.waveform == "cw":
-        tone = tone_frequency(burst_samples(windows, plan, np.zeros(rows)), rate_hz)
+        tone = tone_frequency(
+            burst_samples(windows, plan, np.zeros(rows)), rate_hz, band_hz=band_hz
+        )
         nothing = np.full(rows, np.nan)
         return (
             tone.frequency_hz,
@@ -231,7 +237,9 @@ def measure_rows(
         coarse = burst_delay(windows, reference, rate_hz)
     coarse_samples = coarse.delay_s * rate_hz  # in [0, N): the reference's shift
     removed = chips_removed(windows, reference, coarse_samples)
-    tone = tone_frequency(burst_samples(removed, plan, centred(coarse_samples, n)), rate_hz)
+    tone = tone_frequency(
+        burst_samples(removed, plan, centred(coarse_samples, n)), rate_hz, band_hz=band_hz
+    )
     delay = burst_delay(tone_removed(windows, tone.frequency_hz / rate_hz), reference, rate_hz)
     delay_flag = below_threshold(delay.burst_snr, n * cells_hz.size) if searched else None
     return (
@@ -269,8 +277,13 @@ def measure_bursts(
     and at most ``f_s/2``, the pass searches the frequency cells of :func:`doppler_cells_hz`
     over ``[−D, D]`` (a Doppler within the span loses at most 5% of the energy) and the burst's
     delay flag counts the ``M`` cells, ``SNR̂ < ln(N M / p_fa)``; ``D ≤ f_s/(8N)`` is the one
-    cell 0, the pass without a search. A tone is searched whole by its
-    periodogram: the option does not change a ``"cw"`` plan's measurements.
+    cell 0, the pass without a search.
+
+    The frequency (of the chips-removed burst, or of a ``"cw"`` tone, for which ``D`` is the
+    span of the frequency's search alone) is sought within ``±D`` too, plus a bin's margin
+    (:func:`~estimators.frontend.tone_frequency`'s ``band_hz``), and its flag counts the band's
+    cells, not the window's ``N``: a noise peak elsewhere in ``[−f_s/2, f_s/2)`` cannot win.
+    ``D = 0`` and None search no Doppler: the frequency is sought over the whole band.
     """
     if not isinstance(plan, BurstPlan):
         raise ValueError(f"plan: expected a BurstPlan, got {type(plan).__name__}")
@@ -283,7 +296,7 @@ def measure_bursts(
         )
     time = schedule_times(time_s, "time_s", shape[-2])
     emission = schedule_times(emission_time_s, "emission_time_s", shape[-2])
-    cells_hz = None
+    cells_hz, band_hz = None, None
     if doppler_search_hz is not None:
         half_rate_hz = 0.5 * plan.sample_rate_hz
         search_hz = bounded(
@@ -295,10 +308,13 @@ def measure_bursts(
             "give the largest |Doppler| expected, carrier offset included (None: no search)",
         )
         cells_hz = doppler_cells_hz(search_hz, plan)
+        band_hz = search_hz if search_hz > 0.0 else None
     reference = burst_envelope(plan, window_offsets_s(plan))
     doppler, doppler_variance, offset_s, offset_variance, snr, flagged = (
         part.reshape(shape[:-1])
-        for part in by_blocks(windows, lambda block: measure_rows(block, plan, reference, cells_hz))
+        for part in by_blocks(
+            windows, lambda block: measure_rows(block, plan, reference, cells_hz, band_hz)
+        )
     )
     bpsk = plan.waveform == "bpsk"
     return BurstMeasurements(

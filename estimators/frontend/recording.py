@@ -30,16 +30,17 @@ def measure_recording(
     their σ's) and the per-burst measurements, ``block`` bursts read and measured at a time:
     the memory held is a block's samples and a few numbers per burst.
 
-    ``doppler_search_hz``: the span ``±D`` of the BPSK first pass's Doppler search
-    (:func:`~estimators.frontend.measure_bursts`, docs/math.md §20), 0 for none; None takes
-    :func:`track_doppler_search_hz`, and is refused for BPSK bursts of an unknown carrier
-    offset, whose Doppler only the caller can bound. A tone ignores it.
+    ``doppler_search_hz``: the span ``±D`` of the Doppler searched
+    (:func:`~estimators.frontend.measure_bursts`, docs/math.md §19, §20: the BPSK first pass's
+    cells and the frequency's band; for a tone the band alone), 0 for none; None takes
+    :func:`track_doppler_search_hz`. A BPSK recording of an unknown carrier offset, whose
+    Doppler only the caller can bound, is then refused; a tone's is searched over the whole band.
     """
     if not isinstance(recording, Recording):
         raise ValueError(f"recording: expected a Recording, got {type(recording).__name__}")
-    if doppler_search_hz is None and recording.plan.waveform == "bpsk":
+    if doppler_search_hz is None:
         doppler_search_hz = track_doppler_search_hz(recording)
-        if doppler_search_hz is None:
+        if doppler_search_hz is None and recording.plan.waveform == "bpsk":
             raise ValueError(
                 "doppler_search_hz: the recording's carrier offset is unknown, and with it the "
                 "Doppler of its bursts; give the largest |Doppler| expected, the offset's bound "

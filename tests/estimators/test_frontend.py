@@ -217,6 +217,114 @@ def test_every_burst_at_once_is_one_at_a_time() -> None:
 
 
 # --------------------------------------------------------------------------------------------
+# a band: the tone sought within ±D only (docs/math.md §19)
+# --------------------------------------------------------------------------------------------
+
+BIN_HZ = SAMPLE_RATE_HZ / N
+BAND_HZ = 2 * BIN_HZ
+"""A band of ±2 bins: with its margin of a bin, ``|f| ≤ 3`` bins, 6 cells."""
+
+
+def band_tones(snr_db: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """:data:`BURSTS` tones uniform within ``±BAND_HZ``, random phases, complex white noise."""
+    rng = np.random.default_rng(np.random.SeedSequence(seed))
+    frequency_hz = rng.uniform(-BAND_HZ, BAND_HZ, BURSTS)
+    signal = tone(frequency_hz, rng.uniform(0, 2 * np.pi, BURSTS))
+    return noisy(signal, float(N), snr_db, rng), frequency_hz
+
+
+def test_a_noise_free_tone_within_the_band_is_found_as_without_it() -> None:
+    """On a bin, between bins and at the band's two ends: within ``10⁻⁹ f_s`` of the truth, as
+    the whole band's search finds it, and not flagged."""
+    frequency_hz = np.array([0.0, 0.3, -1.7, 2.0, -2.0]) * BIN_HZ
+    samples = tone(frequency_hz, np.linspace(0, 6, 5))
+    banded = tone_frequency(samples, SAMPLE_RATE_HZ, band_hz=BAND_HZ)
+    whole = tone_frequency(samples, SAMPLE_RATE_HZ)
+    for found in (banded, whole):
+        assert np.all(np.abs(found.frequency_hz - frequency_hz) < 1e-9 * SAMPLE_RATE_HZ)
+        assert not found.below_threshold.any()
+
+
+def test_a_tone_outside_the_band_is_not_found_and_is_flagged() -> None:
+    """Every estimate stays within ``±(D + f_s/N)``. Noise-free, a tone within the margin is
+    found (0.3 bin past ``D``); one whose peak is past the margin (1.2 and 1.5 bins past ``D``)
+    pulls the estimate onto the band's edge, which is flagged. With noise at 10 dB per burst,
+    tones 4 to 50 bins outside leave only their sidelobes (at most ``sinc²(3) = 1%`` of the
+    tone's power, 0.1 noise variances) in the band, and at least 99% of 500 are flagged (noise
+    alone passes 0.3%, the test below)."""
+    edge_hz = BAND_HZ + BIN_HZ
+    frequency_hz = BAND_HZ + np.array([0.3, 1.2, 1.5]) * BIN_HZ
+    found = tone_frequency(tone(frequency_hz, np.zeros(3)), SAMPLE_RATE_HZ, band_hz=BAND_HZ)
+    assert abs(found.frequency_hz[0] - frequency_hz[0]) < 1e-9 * SAMPLE_RATE_HZ
+    np.testing.assert_allclose(found.frequency_hz[1:], edge_hz, rtol=1e-12)
+    np.testing.assert_array_equal(found.below_threshold, [False, True, True])
+    rng = np.random.default_rng(np.random.SeedSequence(2412))
+    outside_hz = (edge_hz + rng.uniform(4, 50, 500) * BIN_HZ) * rng.choice([-1, 1], 500)
+    signal = tone(outside_hz, rng.uniform(0, 2 * np.pi, 500))
+    found = tone_frequency(noisy(signal, float(N), 10.0, rng), SAMPLE_RATE_HZ, band_hz=BAND_HZ)
+    assert np.all(np.abs(found.frequency_hz) <= edge_hz)
+    assert found.below_threshold.sum() >= 0.99 * 500, found.below_threshold.sum()
+
+
+def test_near_threshold_the_band_has_fewer_outliers() -> None:
+    """2,000 tones within ±2 bins at 10 dB per burst: searched over the whole band 571 are more
+    than a bin off (a noise peak anywhere in the 1,024 bins beats the tone), within the band 41
+    (in 6 cells); counts of 571 and 41 have standard deviations of about 20 and 6, so a ratio
+    above 4 (14 here) is far outside their sampling error. Every estimate of the band is within
+    it, and where both find the tone they find the same peak."""
+    samples, frequency_hz = band_tones(snr_db=10.0, seed=2413)
+    whole = tone_frequency(samples, SAMPLE_RATE_HZ)
+    banded = tone_frequency(samples, SAMPLE_RATE_HZ, band_hz=BAND_HZ)
+    whole_far = np.abs(whole.frequency_hz - frequency_hz) > BIN_HZ
+    band_far = np.abs(banded.frequency_hz - frequency_hz) > BIN_HZ
+    message = f"outliers: {whole_far.sum()} of {BURSTS} whole, {band_far.sum()} in the band"
+    assert whole_far.sum() > 4 * band_far.sum(), message
+    assert band_far.sum() < 0.05 * BURSTS, message
+    assert np.all(np.abs(banded.frequency_hz) <= BAND_HZ + BIN_HZ)
+    both = ~whole_far & ~band_far  # the same peak found: the same estimate
+    np.testing.assert_allclose(banded.frequency_hz[both], whole.frequency_hz[both], atol=1e-9)
+
+
+def test_noise_alone_passes_the_band_s_flag_at_the_rate_of_its_continuous_peak() -> None:
+    """20,000 windows of 256 samples of noise alone, a band of ±2 bins (``W = 6`` cells,
+    ``t = ln(W/p_fa) = 8.70``). The flag counts independent cells; the peak sought is the
+    continuous periodogram's over the band, which crosses ``t`` also between cells: Rice's
+    rate gives ``P ≈ (1 + W √(π t/3)) · (1 + t/(N−1))^{−(N−1)}`` (the second factor the
+    F-distribution of ``SNR̂`` with its estimated noise, docs/math.md §19): 3.7·10⁻³, 74 of
+    20,000, against ``p_fa``'s 20. 69 pass, within 4 standard deviations (34) of 74."""
+    n, windows = 256, 20_000
+    rate_hz = 2.0e6
+    band_hz = 2 * rate_hz / n
+    rng = np.random.default_rng(np.random.SeedSequence(2414))
+    noise = rng.standard_normal((windows, n)) + 1j * rng.standard_normal((windows, n))
+    found = tone_frequency(noise, rate_hz, band_hz=band_hz)
+    cells = 2 * (n * band_hz / rate_hz + 1)
+    t = np.log(cells / 1e-3)
+    rate = (1 + cells * np.sqrt(np.pi * t / 3)) * (1 + t / (n - 1)) ** (-(n - 1))
+    expected = rate * windows
+    passed = int((~found.below_threshold).sum())
+    assert abs(passed - expected) < 4 * np.sqrt(expected), (passed, expected)
+    assert passed > 2 * 1e-3 * windows, passed
+
+
+@pytest.mark.bits("the same functions on the same rows: a batch of bursts and each row alone")
+def test_with_a_band_every_burst_at_once_is_one_at_a_time() -> None:
+    """150 bursts near threshold, the last 50 with their tone 1.3 bins past the band, whose
+    estimates are put on its edge: each row against itself alone."""
+    samples, _ = band_tones(snr_db=8.0, seed=2415)
+    rng = np.random.default_rng(np.random.SeedSequence(2416))
+    past = tone(np.full(50, BAND_HZ + 1.3 * BIN_HZ), rng.uniform(0, 2 * np.pi, 50))
+    samples = np.concatenate([samples[:100], noisy(past, float(N), 20.0, rng)])
+    tones = tone_frequency(samples, SAMPLE_RATE_HZ, band_hz=BAND_HZ)
+    edge = np.flatnonzero(np.abs(tones.frequency_hz) >= (BAND_HZ + BIN_HZ) * (1 - 1e-12))
+    assert edge.size > 0
+    for i in (0, 63, 64, 100, 149, *edge[:3]):
+        one = tone_frequency(samples[i], SAMPLE_RATE_HZ, band_hz=BAND_HZ)
+        for field in tones.__dataclass_fields__:
+            assert np.array_equal(getattr(tones, field)[i], getattr(one, field)), field
+
+
+# --------------------------------------------------------------------------------------------
 # bad input: one line naming the argument
 # --------------------------------------------------------------------------------------------
 
@@ -227,6 +335,9 @@ def test_every_burst_at_once_is_one_at_a_time() -> None:
         (lambda: tone_frequency(np.ones(3), SAMPLE_RATE_HZ), "samples"),
         (lambda: tone_frequency(np.full(8, np.nan), SAMPLE_RATE_HZ), "samples"),
         (lambda: tone_frequency(np.ones(8), 0.0), "sample_rate_hz"),
+        (lambda: tone_frequency(np.ones(8), SAMPLE_RATE_HZ, band_hz=-1.0), "band_hz"),
+        (lambda: tone_frequency(np.ones(8), SAMPLE_RATE_HZ, band_hz=np.nan), "band_hz"),
+        (lambda: tone_frequency(np.ones(8), SAMPLE_RATE_HZ, band_hz="wide"), "band_hz"),
         (lambda: burst_delay(np.ones(8), np.ones(9), SAMPLE_RATE_HZ), "reference"),
         (lambda: burst_delay(np.ones(8), np.zeros(4), SAMPLE_RATE_HZ), "reference"),
         (lambda: burst_delay(np.ones(8), np.ones((2, 2)), SAMPLE_RATE_HZ), "reference"),

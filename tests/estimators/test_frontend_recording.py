@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from estimators.frontend.measure import measure_bursts
-from estimators.frontend.recording import measure_recording
+from estimators.frontend.recording import measure_recording, track_doppler_search_hz
 from scenarios.catalog import get_scenario
 from scenarios.recording import open_recording, write_recording
 from scenarios.signal import BurstPlan, received_bursts
@@ -56,3 +56,37 @@ def test_a_recording_streamed_in_any_block_is_measured_as_in_memory(tmp_path: Pa
 def test_a_recording_is_required() -> None:
     with pytest.raises(ValueError, match=r"^recording: expected a Recording, got str$"):
         measure_recording("rec.sigmf-meta")
+
+
+@pytest.mark.bits("measure_bursts on the same bursts' samples, read from the file or held")
+def test_a_tone_s_recording_is_sought_within_its_track_s_doppler(tmp_path: Path) -> None:
+    """A CW recording of turn (the carrier offset known) at 33 dB-Hz, bursts of 5 ms at
+    SNR_burst 10 dB: measured as in memory with the track's search ``γ max‖v‖`` (10 Hz) as the
+    frequency's band, every Doppler within it plus a bin's margin; over the whole band (a
+    search of 0) more bursts are flagged (16 of 20 against 4: the threshold counts 500 cells,
+    not 2.1)."""
+    scenario = get_scenario("turn")
+    geometry = noise_free(scenario)
+    plan = BurstPlan(waveform="cw", burst_s=5e-3, sample_rate_hz=1e5, cn0_dbhz=33.0)
+    received = received_bursts(scenario, plan, [12])
+    meta_path, _ = write_recording(tmp_path / "rec", geometry, plan, received)
+    recording = open_recording(meta_path)
+    search_hz = track_doppler_search_hz(recording)
+    assert np.abs(geometry.doppler_hz).max() <= search_hz < 20.0
+
+    def in_memory(doppler_search_hz):
+        return measure_bursts(
+            received.samples[0].astype(np.complex64).astype(np.complex128),
+            plan,
+            time_s=geometry.time_s,
+            emission_time_s=received.emission_time_s,
+            doppler_search_hz=doppler_search_hz,
+        )
+
+    _, measured = measure_recording(recording)
+    banded = in_memory(search_hz)
+    np.testing.assert_array_equal(measured.doppler_hz, banded.doppler_hz)
+    np.testing.assert_array_equal(measured.below_threshold, banded.below_threshold)
+    assert np.all(np.abs(measured.doppler_hz) <= (search_hz + 1 / plan.burst_s) * (1 + 1e-12))
+    _, whole = measure_recording(recording, doppler_search_hz=0.0)
+    assert whole.below_threshold.sum() > measured.below_threshold.sum()
