@@ -33,6 +33,7 @@ from comparison.trial_rows import (
 from estimators.base import Estimator, capabilities_of
 from scenarios.fisher import InformationStatistics, frame_statistics
 from scenarios.measurement_model import slant_range_m
+from scenarios.signal import BurstPlan
 from scenarios.simulate import noise_free
 from scenarios.types import MeasurementSet, Scenario
 
@@ -55,6 +56,8 @@ class PointInfo:
     snr_db: float
     settings: dict[str, float]
     information: dict[tuple[str, ...], Information | None]
+    plan: BurstPlan | None = None
+    """The bursts received at the point (the signal level), else None."""
     known_information: dict[tuple[str, ...], Information | None] = dataclasses.field(
         default_factory=dict
     )
@@ -219,6 +222,7 @@ def point_infos(
                 snr_db=snr_db,
                 settings=settings,
                 information=information_at_truth(data, truth, sorted(needed)),
+                plan=experiment.point_plan(p),
                 known_information=information_at_truth(data, truth, known, unknowns=())
                 if data.unknowns
                 else {},

@@ -39,8 +39,8 @@ from comparison.cli_support import (
     DopplerSearchOption,
     OneLineErrors,
     Subcommand,
-    blame,
     clean_errors,
+    estimate_of,
     fail,
     flags_for,
     known_scenario,
@@ -174,7 +174,7 @@ def simulate_command(
     ] = None,
 ) -> None:
     """Simulate one noisy trial of a named scenario and write it, truth included."""
-    from comparison.experiment import SNR_RANGE_DB
+    from comparison.sweep import SNR_RANGE_DB
     from scenarios.catalog import get_scenario
     from scenarios.files import write_measurements
     from scenarios.limits import FRAMES, SAMPLES, check_limit
@@ -235,28 +235,16 @@ def estimate_command(
     constants: CsvConstants,
 ) -> None:
     """Locate the emitter from a measurement file with one estimator (rng seeded with 0)."""
-    import numpy as np
-
-    from comparison.estimator_calls import kept_process
     from comparison.scoring import estimate_to_dict
-    from estimators.base import capabilities_of, unknowns_problem
+    from estimators.base import capabilities_of
     from estimators.goodness_of_fit import fit_warning
     from estimators.registry import make_estimator
 
     options = parse_estimator_options(option or [])
     chosen = make_estimator(estimator, **options)
-    data = load_measurements(file, constants, doppler_search_hz)
-    if ignore_unknowns:
-        data = data.assuming_known()
-    used = capabilities_of(chosen).modalities & data.modalities
-    problem = unknowns_problem(chosen, data.unknowns, used, ignore_hint="--ignore-unknowns")
-    if problem is not None:
-        raise ValueError(problem)
-    with (
-        blame("--estimator", f"{estimator} cannot estimate from {file}; try another estimator"),
-        kept_process(),  # the estimator's prints go to stderr: stdout carries only the result
-    ):
-        estimate = chosen.estimate(data.without_truth(), rng=np.random.default_rng(0))
+    estimate, data = estimate_of(
+        chosen, estimator, file, constants, doppler_search_hz, ignore_unknowns
+    )
     misfit = fit_warning(estimate.diagnostics)
     if misfit is not None:
         typer.echo(f"warning: {misfit}", err=True)

@@ -561,6 +561,69 @@ def load_measurements(
     return read_measurements_with(file, constants, names=_OPTION_OF_FIELD)
 
 
+def estimate_of(
+    estimator: Any,
+    name: str,
+    file: Path,
+    constants: CsvConstants,
+    doppler_search_hz: float | None = None,
+    ignore_unknowns: bool = False,
+) -> tuple[Any, MeasurementSet]:
+    """What ``emitterbench estimate`` computes: ``estimator``'s (given as ``name``) from ``file`` (ties
+    drawn from a generator seeded with 0, its prints sent to stderr) and the data it read. An
+    estimator of measurements reads them (:func:`load_measurements`; with ``ignore_unknowns``
+    the file's unknowns taken as known, MATH §15); one of the received samples reads the
+    recording's (:func:`estimate_from_samples`)."""
+    import numpy as np
+
+    from comparison.estimator_calls import kept_process
+    from estimators.base import capabilities_of, unknowns_problem
+    from estimators.registry import reads_samples
+
+    if reads_samples(estimator):  # from the recording's samples (MATH §22)
+        with kept_process():
+            return estimate_from_samples(file, estimator)
+    data = load_measurements(file, constants, doppler_search_hz)
+    if ignore_unknowns:
+        data = data.assuming_known()
+    used = capabilities_of(estimator).modalities & data.modalities
+    problem = unknowns_problem(estimator, data.unknowns, used, ignore_hint="--ignore-unknowns")
+    if problem is not None:
+        raise ValueError(problem)
+    with (
+        blame("--estimator", f"{name} cannot estimate from {file}; try another estimator"),
+        kept_process(),  # the estimator's prints go to stderr: stdout carries only the result
+    ):
+        return estimator.estimate(data.without_truth(), rng=np.random.default_rng(0)), data
+
+
+def estimate_from_samples(file: Path, estimator: Any) -> tuple[Any, MeasurementSet]:
+    """The estimate of an estimator of the received samples (``dpd``, docs/math.md §22) from
+    the recording ``file``, read a block of bursts at a time, its ties drawn from a generator
+    seeded with 0; and the recording's geometry (with its truth, when it holds one). A file
+    that is not a recording is one line naming ``--estimator``."""
+    import numpy as np
+
+    from scenarios.recording import open_recording
+
+    if not file.name.lower().endswith(RECORDING_SUFFIX):
+        raise ValueError(
+            f"--estimator: {estimator.name} locates from the received samples, which {file} "
+            "does not hold; give it a recording (.sigmf-meta, emitterbench simulate-iq)"
+        )
+    recording = open_recording(file)
+    samples = np.concatenate([block for _, block in recording.bursts()])
+    geometry = recording.geometry
+    estimate = estimator.estimate_iq(
+        geometry.without_truth(),
+        recording.plan,
+        samples,
+        recording.emission_time_s,
+        rng=np.random.default_rng(0),
+    )
+    return estimate, geometry
+
+
 def measured_recording(
     file: Path, doppler_search_hz: float | None = None
 ) -> tuple[MeasurementSet, str]:
@@ -571,8 +634,9 @@ def measured_recording(
     tone: its frequency's band)."""
     import numpy as np
 
+    from estimators.frontend import track_doppler_search_hz
     from estimators.frontend.measure import doppler_cells_hz
-    from estimators.frontend.recording import measure_recording, track_doppler_search_hz
+    from estimators.frontend.recording import measure_recording
     from scenarios.recording import open_recording
 
     recording = open_recording(file)
@@ -586,7 +650,7 @@ def measured_recording(
     )
     search_hz = doppler_search_hz
     if search_hz is None:
-        search_hz = track_doppler_search_hz(recording)
+        search_hz = track_doppler_search_hz(recording.geometry)
     if recording.plan.waveform == "bpsk":
         cells = doppler_cells_hz(search_hz, recording.plan).size
         line += f"; Doppler searched within ±{search_hz:.4g} Hz ({cells} cell{'s' * (cells > 1)})"

@@ -90,6 +90,7 @@ from contextlib import contextmanager
 from typing import Any, TextIO, TypeVar
 
 import numpy as np
+from numpy.typing import NDArray
 
 from estimators.base import Estimate, Estimator
 from estimators.batch import BatchEstimates
@@ -491,6 +492,37 @@ def call_columns(
     if len(columns) != batch.n_trials:
         return None
     return columns, runtime_s / batch.n_trials
+
+
+def call_samples(
+    estimator: Any,
+    geometry: MeasurementSet,
+    plan: Any,
+    samples: NDArray[np.complexfloating],
+    schedule_s: NDArray[np.float64],
+    rngs: list[np.random.Generator],
+) -> tuple[BatchEstimates, float]:
+    """An estimator of the received samples (``estimate_iq_batch``, docs/math.md §22) on a
+    private, read-only copy of ``samples`` ``(n_trials, n_bursts, n_samples)``, with one
+    generator of ties per trial (``rngs``), timed, with
+    each trial's share of the time; every row failed, with the fault's message, when it raised,
+    overran or returned something else than one row of :class:`BatchEstimates` per trial."""
+    n = len(samples)
+    given = samples.copy()
+    given.flags.writeable = False
+    schedule = np.array(schedule_s, dtype=float)
+    schedule.flags.writeable = False
+
+    def estimate() -> Any:
+        return estimator.estimate_iq_batch(private_copy(geometry), plan, given, schedule, rngs=rngs)
+
+    columns, fault, runtime_s = _guarded(estimate, (), {}, n, estimator)
+    if fault is not None:
+        return BatchEstimates.failed(n, fault_message(fault)), runtime_s / n
+    if not isinstance(columns, BatchEstimates) or len(columns) != n:
+        message = f"estimate_iq_batch returned {type(columns).__name__}, not {n} rows of columns"
+        return BatchEstimates.failed(n, message), runtime_s / n
+    return columns, runtime_s / n
 
 
 class Stream:

@@ -42,6 +42,27 @@ A complete example (every key; the optional ones show their defaults)::
 
 ``estimators = ["cls", "ml"]`` (plain names) is shorthand for tables with only ``name``.
 
+The signal level (docs/math.md §18-§20): with a ``[signal]`` table every trial receives the
+bursts of :class:`scenarios.signal.BurstPlan` (complex samples with white noise at a C/N0) and
+the per-burst front end measures them (:mod:`estimators.frontend`); the measurement-level
+estimators read what it measured, and an estimator of the samples (``dpd``) reads the samples.
+The axis is then the physical one, ``cn0_dbhz`` (swept or fixed; ``snr_db`` is refused), and
+the bound at each point is that of the σ's the bursts allow at that C/N0, the signal-level
+bound above the threshold (§21)::
+
+    [signal]                                # optional; the BurstPlan without its C/N0
+    waveform = "bpsk"                       # a known chip sequence (a tone gives no ToA)
+    burst_s = 0.01
+    sample_rate_hz = 102400.0
+    chip_rate_hz = 25600.0
+    guard_s = 0.0001                        # optional; chip_seed, received_power_w too
+    doppler_search_hz = 1200.0              # optional; the front end's Doppler search (±Hz);
+                                            #   default γ·max|v|, required with δ unknown
+
+    [sweep]
+    parameter = "cn0_dbhz"
+    values = [25, 30, 35, 40]
+
 Closed loop (trajectory design, MATH §12-§13): with one or more ``[[planners]]`` every trial
 flies ``frames`` frames, each planned from the estimate after the previous one
 (:mod:`comparison.closed_loop`); every estimator runs after every frame (``per_frame`` must be
@@ -66,7 +87,7 @@ are those of :data:`scenarios.parameters.SWEEPABLE`; :func:`scenarios.parameters
 applies them after ``frames``.
 
 Resource limits, checked at load: at most :data:`MAX_TRIALS` trials per point,
-:data:`MAX_POINTS` sweep points, :data:`MAX_ESTIMATES` estimates in all and, per trial, the
+:data:`~comparison.sweep.MAX_POINTS` sweep points, :data:`MAX_ESTIMATES` estimates in all and, per trial, the
 frames and samples of :mod:`scenarios.limits`; each error names the key and the environment
 variable that raises the limit (``EMITTERBENCH_MAX_TRIALS=N``).
 
@@ -84,6 +105,14 @@ from pathlib import Path
 from typing import Any
 
 from comparison.experiment_catalog import builtin_definition, experiment_definition
+from comparison.experiment_signal import (
+    SIGNAL_PARAMETER,
+    burst_plan,
+    check_doppler_search,
+    checked_signal,
+    doppler_search_of,
+    received_scenario,
+)
 from comparison.labels import check_label
 from comparison.metrics import METRIC_NAMES
 from comparison.specs import (
@@ -94,28 +123,18 @@ from comparison.specs import (
     check_keys,
     specs_from_list,
 )
-from estimators.registry import estimator_class
+from comparison.sweep import GRID_PARAMETER, POINTS_LIMIT, Sweep
+from estimators.registry import estimator_class, reads_samples
 from scenarios import fields
 from scenarios.catalog import CATALOG, get_scenario
-from scenarios.fields import FrozenDict
 from scenarios.limits import FRAMES, SAMPLES, LongInteger, check_limit, count_text, load_json
-from scenarios.parameters import SWEEPABLE, check_parameter_value, with_parameters
+from scenarios.parameters import with_parameters
 from scenarios.planners import planner_class
+from scenarios.signal import BurstPlan
 from scenarios.types import Scenario
-
-SNR_RANGE_DB = (-60.0, 100.0)
-"""The SNR values an experiment accepts, dB (inclusive)."""
-
-GRID_PARAMETER = "emitter_m"
-"""The 2-D sweep parameter: a grid of emitter positions given as ``x`` and ``y``."""
-
-GRID_COLUMNS = ("emitter_x_m", "emitter_y_m")
-"""The result columns of the ``emitter_m`` grid."""
 
 MAX_TRIALS = 1_000_000
 """Most trials per point (``EMITTERBENCH_MAX_TRIALS``); 500 bound an efficiency to about ±5%."""
-MAX_POINTS = 10_000
-"""Most sweep points, ``values`` or the ``x`` × ``y`` grid (``EMITTERBENCH_MAX_POINTS``)."""
 MAX_ESTIMATES = 100_000_000
 """Most estimates, i.e. result rows, of a run (``EMITTERBENCH_MAX_ESTIMATES``): some 30 GB."""
 MAX_CHUNK_SAMPLES = 5_000_000
@@ -125,7 +144,6 @@ AUTO_CHUNK_SIZE = "auto"
 """The ``chunk_size`` that sizes the tasks from the work (:func:`comparison.tasks.auto_chunk_size`)."""
 
 _TRIALS = (MAX_TRIALS, "EMITTERBENCH_MAX_TRIALS")
-_POINTS = (MAX_POINTS, "EMITTERBENCH_MAX_POINTS")
 _ESTIMATES = (MAX_ESTIMATES, "EMITTERBENCH_MAX_ESTIMATES")
 
 _EXPERIMENT_KEYS = (
@@ -144,9 +162,9 @@ _EXPERIMENT_KEYS = (
     "swept_columns",
     "planners",
     "steering_estimator",
+    "signal",
 )
 _REQUIRED_KEYS = ("name", "scenarios", "estimators", "trials", "seed")
-_SWEEP_KEYS = ("parameter", "values", "x", "y", "fixed")
 
 
 # --------------------------------------------------------------------------------------------
@@ -164,169 +182,9 @@ def _count(value: Any, path: str, *, minimum: int) -> int:
     return fields.whole(value, path, minimum=minimum)
 
 
-def _check_parameter(name: str, value: float, path: str) -> float:
-    """One sweep value: SNR range, the scenario parameter's own domain, the resource limits."""
-    if isinstance(value, LongInteger):
-        raise ValueError(f"{path}: {value!r} is too large for a float (above 1.8e308)")
-    number = fields.number(value, path)
-    if name == "snr_db":
-        low, high = SNR_RANGE_DB
-        if not low <= number <= high:
-            raise ValueError(f"{path}: snr_db must lie in [{low:g}, {high:g}] dB, got {value!r}")
-        return number
-    try:
-        number = check_parameter_value(name, number)
-    except ValueError as error:
-        raise ValueError(f"{path}: {error}") from None
-    if name == "frames":
-        check_limit(int(number), path, "frames", FRAMES, "fly fewer frames")
-    if name == "samples_per_frame":
-        check_limit(int(number), path, "samples per frame", SAMPLES, "take fewer samples")
-    return number
-
-
 # --------------------------------------------------------------------------------------------
 # the sweep and the experiment (the estimator and planner entries: comparison.specs)
 # --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Sweep:
-    """The points of an experiment: one swept parameter (or an emitter grid) and fixed values.
-
-    Parameters
-    ----------
-    parameter : str or None
-        ``"snr_db"``, a name of :data:`scenarios.parameters.SWEEPABLE`, ``"emitter_m"`` (a grid of
-        ``x_m`` × ``y_m``), or None for a single point made of the ``fixed`` values.
-    values : sequence of float
-        The values of ``parameter`` (not for ``emitter_m``); distinct.
-    x_m, y_m : sequence of float
-        The grid of ``emitter_m`` (TOML keys ``x`` and ``y``); point ``p`` is
-        ``(x_m[p // len(y_m)], y_m[p % len(y_m)])``.
-    fixed : mapping
-        Values of other parameters held at every point, e.g. ``{"snr_db": 10.0}``. ``snr_db``
-        is 0 dB unless swept or fixed.
-    """
-
-    parameter: str | None = None
-    values: tuple[float, ...] = ()
-    x_m: tuple[float, ...] = ()
-    y_m: tuple[float, ...] = ()
-    fixed: Mapping[str, float] = field(default_factory=FrozenDict)
-
-    def __post_init__(self) -> None:
-        known = ("snr_db", *SWEEPABLE, GRID_PARAMETER)
-        parameter = self.parameter
-        if parameter is not None and parameter not in known:
-            raise ValueError(f"parameter: unknown {parameter!r}; choose one of {', '.join(known)}")
-        grid = parameter == GRID_PARAMETER
-        values = self._sequence(self.values, "values", parameter if not grid else None)
-        x_m = self._sequence(self.x_m, "x", "emitter_x_m" if grid else None)
-        y_m = self._sequence(self.y_m, "y", "emitter_y_m" if grid else None)
-        if grid:
-            if values:
-                raise ValueError("values: the emitter_m grid takes x = [...] and y = [...]")
-            for name, sequence in (("x", x_m), ("y", y_m)):
-                if not sequence:
-                    raise ValueError(f"{name}: the emitter_m grid needs a non-empty list (metres)")
-        else:
-            if x_m or y_m:
-                raise ValueError(
-                    f"{'x' if x_m else 'y'}: only the emitter_m grid takes x and y; "
-                    "set parameter = 'emitter_m' or use values"
-                )
-            if parameter is not None and not values:
-                raise ValueError(f"values: give at least one value of {parameter}")
-            if parameter is None and values:
-                raise ValueError("parameter: values are given but no parameter to sweep")
-        if not isinstance(self.fixed, Mapping):
-            raise ValueError(f"fixed: expected a table, got {type(self.fixed).__name__}")
-        swept = set(GRID_COLUMNS) if grid else {parameter}
-        fixed = {}
-        for name, value in self.fixed.items():
-            if name not in ("snr_db", *SWEEPABLE):
-                raise ValueError(
-                    f"fixed.{name}: unknown parameter; choose one of snr_db, {', '.join(SWEEPABLE)}"
-                )
-            if name in swept:
-                raise ValueError(f"fixed.{name}: is also swept; remove it from one of the two")
-            fixed[name] = _check_parameter(name, value, f"fixed.{name}")
-        object.__setattr__(self, "values", values)
-        object.__setattr__(self, "x_m", x_m)
-        object.__setattr__(self, "y_m", y_m)
-        object.__setattr__(self, "fixed", FrozenDict(fixed))
-
-    @staticmethod
-    def _sequence(raw: Any, key: str, parameter: str | None) -> tuple[float, ...]:
-        raw = fields.number_list(raw, key)
-        check_limit(len(raw), key, "values", _POINTS, "sweep fewer values")
-        if parameter is None:
-            return tuple(fields.number(v, key) for v in raw)
-        values = tuple(_check_parameter(parameter, v, f"{key}[{i}]") for i, v in enumerate(raw))
-        first: dict[float, int] = {}
-        for index, value in enumerate(values):
-            if value in first:
-                raise ValueError(
-                    f"{key}[{index}]: {value:g} repeats {key}[{first[value]}]; give distinct values"
-                )
-            first[value] = index
-        return values
-
-    @property
-    def columns(self) -> tuple[str, ...]:
-        """The swept columns of the result rows other than ``snr_db``."""
-        if self.parameter == GRID_PARAMETER:
-            return GRID_COLUMNS
-        if self.parameter is None or self.parameter == "snr_db":
-            return ()
-        return (self.parameter,)
-
-    @property
-    def n_points(self) -> int:
-        if self.parameter == GRID_PARAMETER:
-            return len(self.x_m) * len(self.y_m)
-        return len(self.values) if self.parameter is not None else 1
-
-    def points(self) -> list[dict[str, float]]:
-        """Every point's settings: ``snr_db`` and each fixed or swept scenario parameter."""
-        return [self.point(index) for index in range(self.n_points)]
-
-    def point(self, index: int) -> dict[str, float]:
-        """Point ``index``'s settings (grid points x-major, as :meth:`points` lists them)."""
-        base = {"snr_db": 0.0, **self.fixed}
-        if self.parameter is None:
-            return base
-        if self.parameter == GRID_PARAMETER:
-            i, j = divmod(index, len(self.y_m))
-            return {**base, "emitter_x_m": self.x_m[i], "emitter_y_m": self.y_m[j]}
-        return {**base, self.parameter: self.values[index]}
-
-    def to_dict(self) -> dict[str, Any]:
-        raw: dict[str, Any] = {}
-        if self.parameter is not None:
-            raw["parameter"] = self.parameter
-        if self.parameter == GRID_PARAMETER:
-            raw["x"] = list(self.x_m)
-            raw["y"] = list(self.y_m)
-        elif self.parameter is not None:
-            raw["values"] = list(self.values)
-        raw["fixed"] = dict(self.fixed)
-        return raw
-
-    @classmethod
-    def from_dict(cls, raw: Mapping[str, Any], *, path: str = "sweep") -> Sweep:
-        check_keys(raw, _SWEEP_KEYS, path)
-        try:
-            return cls(
-                parameter=raw.get("parameter"),
-                values=raw.get("values", ()),
-                x_m=raw.get("x", ()),
-                y_m=raw.get("y", ()),
-                fixed=raw.get("fixed", {}),
-            )
-        except ValueError as error:
-            raise ValueError(f"{path}.{error}") from None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -369,6 +227,10 @@ class Experiment:
     steering_estimator : str or None
         The estimator label whose estimate steers the planners (default: the first
         estimator); a planner may name its own.
+    signal : mapping or None
+        The bursts and the receiver of a signal-level experiment (module text): the fields of
+        :class:`scenarios.signal.BurstPlan` but its C/N0, which is the point's ``cn0_dbhz``.
+        None: the measurement level, on the σ's of ``snr_db``.
 
     Raises
     ------
@@ -390,6 +252,7 @@ class Experiment:
     time_limit_s: float = 60.0
     planners: tuple[PlannerSpec, ...] = ()
     steering_estimator: str | None = None
+    signal: Mapping[str, Any] | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -411,13 +274,33 @@ class Experiment:
             raise ValueError(f"per_frame: expected true or false, got {self.per_frame!r}")
         if not isinstance(self.sweep, Sweep):
             raise ValueError(f"sweep: expected a Sweep, got {type(self.sweep).__name__}")
+        self._check_signal()
         most_frames, most_samples = self._check_scenarios()
+        if self.signal is not None:
+            check_doppler_search(self.signal, self.scenarios)
         self._check_metrics()
         self._check_estimators()
         self._check_planners()
         self._check_size(most_frames, most_samples)
 
     # -- validation ------------------------------------------------------------------------
+
+    def _check_signal(self) -> None:
+        """The ``[signal]`` table (:func:`comparison.experiment_signal.checked_signal`); the
+        ``cn0_dbhz`` axis only with it."""
+        sweep = self.sweep
+        swept = {sweep.parameter, *sweep.fixed}
+        if self.signal is None:
+            if SIGNAL_PARAMETER in swept:
+                raise ValueError(
+                    "sweep: cn0_dbhz is the axis of the signal level; add a [signal] table "
+                    "(the bursts and the receiver) or sweep snr_db"
+                )
+            return
+        if self.per_frame:
+            raise ValueError("per_frame: a [signal] experiment estimates once; set it false")
+        signal = checked_signal(self.signal, swept, sweep.points(), bool(self.planners))
+        object.__setattr__(self, "signal", signal)
 
     def _check_scenarios(self) -> tuple[int, int]:
         """Check the names and fly every point; the most frames and samples of a trial."""
@@ -435,7 +318,7 @@ class Experiment:
             if name in names[:index]:
                 raise ValueError(f"scenarios[{index}]: {name!r} is listed twice; list it once")
         object.__setattr__(self, "scenarios", names)
-        check_limit(self.sweep.n_points, "sweep", "points", _POINTS, "sweep fewer values")
+        check_limit(self.sweep.n_points, "sweep", "points", POINTS_LIMIT, "sweep fewer values")
         most_frames = most_samples = 0
         for index, name in enumerate(names):
             for point, settings in enumerate(self.sweep.points()):
@@ -456,6 +339,8 @@ class Experiment:
         fix = "fly fewer frames or samples per frame"
         check_limit(scenario.flight.n_samples, "samples", "samples per trial", SAMPLES, fix)
         scenario.noise.at_snr(settings.get("snr_db", 0.0))
+        if self.signal is not None:  # the Doppler within the band
+            received_scenario(scenario, burst_plan(self.signal, settings))
         return scenario.flight
 
     def _culprit(self, name: str, point: int) -> str:
@@ -524,6 +409,11 @@ class Experiment:
         for path, spec, estimator in built_specs(
             specs, "estimators", EstimatorSpec, estimator_class
         ):
+            if reads_samples(estimator) and self.signal is None:
+                raise ValueError(
+                    f"{path}: {spec.label!r} reads the received samples; add a [signal] "
+                    "table (the bursts and the receiver) or drop it"
+                )
             check_estimator_fits(path, spec, estimator, scenarios)
         object.__setattr__(self, "estimators", specs)
 
@@ -588,11 +478,25 @@ class Experiment:
         return self.sweep.columns
 
     def point_scenario(self, scenario_index: int, point: int) -> tuple[Scenario, float]:
-        """The scenario of ``(scenario_index, point)`` and its SNR in dB."""
+        """The scenario of ``(scenario_index, point)`` and its SNR in dB; at the signal level
+        the scenario's σ's are those the bursts allow at the point's C/N0 (the bounds of
+        MATH §18, :func:`received_scenario`), at 0 dB."""
         settings = self.sweep.point(point)
-        return build_scenario(self.scenarios[scenario_index], settings, frames=self.frames), (
-            settings["snr_db"]
-        )
+        scenario = build_scenario(self.scenarios[scenario_index], settings, frames=self.frames)
+        plan = self.point_plan(point)
+        if plan is not None:
+            return received_scenario(scenario, plan), 0.0
+        return scenario, settings["snr_db"]
+
+    def doppler_search_hz(self, scenario: Scenario) -> float | None:
+        """The front end's Doppler search at the signal level (MATH §20,
+        :func:`comparison.experiment_signal.doppler_search_of`); None at the measurement
+        level."""
+        return None if self.signal is None else doppler_search_of(self.signal, scenario)
+
+    def point_plan(self, point: int) -> BurstPlan | None:
+        """The bursts and the receiver at ``point`` (None at the measurement level)."""
+        return None if self.signal is None else burst_plan(self.signal, self.sweep.point(point))
 
     def with_trials(self, trials: int) -> Experiment:
         """This experiment with ``trials`` trials per point."""
@@ -602,21 +506,25 @@ class Experiment:
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON/TOML-ready dict; :meth:`from_dict` gives back an equal experiment."""
-        return {
-            "name": self.name,
-            "description": self.description,
-            "scenarios": list(self.scenarios),
-            "sweep": self.sweep.to_dict(),
-            "estimators": [spec.to_dict() for spec in self.estimators],
-            "trials": self.trials,
-            "seed": self.seed,
-            "frames": self.frames,
-            "per_frame": self.per_frame,
-            "metrics": None if self.metrics is None else list(self.metrics),
-            "chunk_size": self.chunk_size,
-            "time_limit_s": self.time_limit_s,
-            "swept_columns": list(self.swept_columns),
-        } | self._closed_loop_dict()
+        return (
+            {
+                "name": self.name,
+                "description": self.description,
+                "scenarios": list(self.scenarios),
+                "sweep": self.sweep.to_dict(),
+                "estimators": [spec.to_dict() for spec in self.estimators],
+                "trials": self.trials,
+                "seed": self.seed,
+                "frames": self.frames,
+                "per_frame": self.per_frame,
+                "metrics": None if self.metrics is None else list(self.metrics),
+                "chunk_size": self.chunk_size,
+                "time_limit_s": self.time_limit_s,
+                "swept_columns": list(self.swept_columns),
+            }
+            | self._closed_loop_dict()
+            | self._signal_dict()
+        )
 
     def _closed_loop_dict(self) -> dict[str, Any]:
         """The closed-loop keys, only when there are planners (open-loop JSON is unchanged)."""
@@ -626,6 +534,10 @@ class Experiment:
             "planners": [spec.to_dict() for spec in self.planners],
             "steering_estimator": self.steering_estimator,
         }
+
+    def _signal_dict(self) -> dict[str, Any]:
+        """The ``signal`` key, only at the signal level (other JSON is unchanged)."""
+        return {} if self.signal is None else {"signal": dict(self.signal)}
 
     def to_json(self) -> str:
         """The experiment as JSON text (floats written exactly)."""
@@ -661,6 +573,7 @@ class Experiment:
             time_limit_s=raw.get("time_limit_s", 60.0),
             planners=planners,
             steering_estimator=raw.get("steering_estimator"),
+            signal=raw.get("signal"),
         )
         if "swept_columns" in raw and list(raw["swept_columns"]) != list(sweep.columns):
             raise ValueError(
@@ -673,9 +586,11 @@ class Experiment:
 def build_scenario(
     name: str, settings: Mapping[str, float], *, frames: int | None = None
 ) -> Scenario:
-    """The catalog scenario ``name`` with ``frames`` frames and every setting but ``snr_db``."""
+    """The catalog scenario ``name`` with ``frames`` frames and every setting but ``snr_db``
+    and ``cn0_dbhz`` (which set the noise, not the scenario)."""
     scenario = get_scenario(name, frames=frames)
-    return with_parameters(scenario, {k: v for k, v in settings.items() if k != "snr_db"})
+    noise = ("snr_db", SIGNAL_PARAMETER)
+    return with_parameters(scenario, {k: v for k, v in settings.items() if k not in noise})
 
 
 # --------------------------------------------------------------------------------------------

@@ -23,7 +23,7 @@ from typing import Any
 
 MAX_EXPERIMENT_MB = 1
 """Largest experiment file read, MiB: an experiment is a few dozen lines, and a sweep of the
-largest number of points allowed (comparison.experiment.MAX_POINTS) fits in a tenth of it."""
+largest number of points allowed (comparison.sweep.MAX_POINTS) fits in a tenth of it."""
 
 CALIBRATION = "comparison.calibration:KnownEfficiency"
 """The estimator of known efficiency and bias the ``calibration`` experiment runs."""
@@ -145,6 +145,33 @@ BUILTIN_DEFINITIONS: dict[str, dict[str, Any]] = {
         "trials": 500,
         "seed": 20_240_607,
     },
+    "iq-threshold": {
+        "name": "iq-threshold",
+        "description": (
+            "from received samples to a position (MATH §18-§22): 100 ms BPSK bursts at "
+            "10.24 kHz from the emitter of the orbit, C/N0 swept through the front end's "
+            "threshold; two-step estimators (the front end's Doppler and ToA, then cls or ml; "
+            "ml-doppler from the Doppler alone) against direct position determination from the "
+            "samples (dpd), all against the signal-level bound"
+        ),
+        "scenarios": ["orbit"],
+        "signal": {
+            "waveform": "bpsk",
+            "burst_s": 0.1,
+            "sample_rate_hz": 10240.0,
+            "chip_rate_hz": 2560.0,
+            "guard_s": 4.0 / 10240.0,
+        },
+        "sweep": {"parameter": "cn0_dbhz", "values": [14, 18, 22, 26, 30, 34]},
+        "estimators": [
+            "cls",
+            "ml",
+            {"name": "ml", "label": "ml-doppler", "options": {"use_toa": False}},
+            "dpd",
+        ],
+        "trials": 200,
+        "seed": 20_261_205,
+    },
     "height": {
         "name": "height",
         "description": (
@@ -222,6 +249,9 @@ BUILTIN_EXPERIMENTS: dict[str, str] = {
     "height": (
         "an emitter of unknown height: hill, hill-climb, roof-beacon, hill-terrain against the "
         "3-D bound"
+    ),
+    "iq-threshold": (
+        "from IQ samples: the front end's threshold, two-step cls and ml against dpd, over C/N0"
     ),
     "calibration": "the verdicts checked: estimators of known efficiency and bias, 500 trials",
     "smoke": "2 SNR points, cls and cls-paper, 20 trials (for tests)",

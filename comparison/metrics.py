@@ -380,9 +380,12 @@ _UNITS = {"_db": "dB", "_m": "m", "_s": "s", "_hz": "Hz", "_mps": "m/s", "_m2": 
 
 
 def parameter_label(column: str) -> tuple[str, str]:
-    """Display name and unit of a swept column: ``snr_db`` → ``("SNR", "dB")``."""
+    """Display name and unit of a swept column: ``snr_db`` → ``("SNR", "dB")``, ``cn0_dbhz``
+    → ``("C/N0", "dB-Hz")``."""
     if column == "snr_db":
         return "SNR", "dB"
+    if column == "cn0_dbhz":
+        return "C/N0", "dB-Hz"
     for suffix in sorted(_UNITS, key=len, reverse=True):
         if column.endswith(suffix):
             return column, _UNITS[suffix]

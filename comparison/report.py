@@ -41,6 +41,7 @@ import numpy as np
 import pandas as pd
 
 from comparison import verdict_table
+from comparison.front_end_table import front_end_section_html
 from comparison.intervals import DEFAULT_N_BOOTSTRAP
 from comparison.labels import LABEL_COLUMNS, label_html, plain_label
 from comparison.metric_groups import summary_trial_columns
@@ -112,6 +113,16 @@ SNR_CAPTION = (
     "(σ_f for Doppler, σ_τ for ToA, σ_P for RSS) at 0 dB; at a given SNR every one of them is "
     "multiplied by 10^(−SNR/20). The SNR is therefore a common scale of all noise levels, not "
     "the signal-to-noise ratio of a receiver."
+)
+
+CN0_CAPTION = (
+    "C/N0 axis (MATH §18-§20): every trial receives the emitter's bursts as complex samples "
+    "with white noise at the carrier-to-noise density C/N0 (dB-Hz); a burst's SNR is C/N0 "
+    "times its length. The front end measures each burst's Doppler and ToA from them; the "
+    "estimators of measurements read those, outliers below its threshold included, and dpd "
+    "reads the samples. √CRLB is the bound of the σ's the bursts allow at the point's C/N0 "
+    "(Rife-Boorstyn for the frequency, the RMS-bandwidth bound for the delay), the "
+    "signal-level bound (MATH §21): it holds for every estimator of the samples."
 )
 
 MATH_CAPTION = (
@@ -491,13 +502,15 @@ def render_html(
     notes: list[str],
     experiment_text: str | None = None,
     file_notes: Sequence[str] = (),
+    bursts: pd.DataFrame | None = None,
 ) -> str:
     """The report page; ``figure_entries`` are ``(stem, caption, data URI)``, ``notes`` the
     XHTML sentences of :func:`comparison.verdict_table.first_screen_notes`.
 
     ``experiment_text`` is the text of experiment.json, shown verbatim (default: ``experiment``
     as JSON); ``file_notes`` are sentences about the files written, shown above the summary
-    tables (:func:`~comparison.trials_csv.trials_csv_note`).
+    tables (:func:`~comparison.trials_csv.trials_csv_note`); ``bursts`` the front end's rows
+    of a signal-level run (:func:`comparison.store.read_bursts`).
     """
     name = str(experiment.get("name", "experiment"))
     description = experiment.get("description", "")
@@ -531,8 +544,10 @@ def render_html(
         f"{verdict_table.verdict_table_html(summary)}"
         + (f'<ul class="notes">{statements}</ul>' if statements else "")
         + "</section>"
-        '<section id="reading"><h2>How to read this report</h2>'
-        f"<p>{_escape(SNR_CAPTION)}</p><p>{_escape(SIDE_CAPTION)}</p>"
+        + front_end_section_html(bursts, experiment)
+        + '<section id="reading"><h2>How to read this report</h2>'
+        f"<p>{_escape(CN0_CAPTION if experiment.get('signal') else SNR_CAPTION)}</p>"
+        f"<p>{_escape(SIDE_CAPTION)}</p>"
         f"<p>{_escape(MATH_CAPTION)}</p></section>"
         f"{_closed_loop_section(summary, experiment)}"
         f'<section id="figures"><h2>Figures</h2>{figures_html}</section>'
@@ -634,6 +649,12 @@ def write_report(
                     steering = first.get("label") or first.get("name")
                 else:
                     steering = str(first)
+        bursts = None
+        if experiment.get("signal") and (folder / "results.sqlite").is_file():
+            from comparison import store
+
+            bursts = store.read_bursts(folder)
+            write_csv(folder / "bursts.csv", bursts)
         if tracks_m is None and figures.is_geometry_sweep(summary):
             tracks_m = scenario_tracks_m(experiment)
 
@@ -672,6 +693,7 @@ def write_report(
         if definition_path.is_file()
         else None,
         file_notes=file_notes,
+        bursts=bursts,
     )
     path = folder / "report.html"
     write_atomic(path, page)

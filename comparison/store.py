@@ -54,6 +54,8 @@ from comparison.run_folder import (
 )
 from comparison.tasks import TaskResult
 from comparison.trial_rows import (
+    BURST_VALUE_COLUMNS,
+    BURSTS,
     FLIGHT_VALUE_COLUMNS,
     FLIGHTS,
     POINTS,
@@ -253,6 +255,7 @@ def create_tables(
             "first_trial INTEGER, n_trials INTEGER, elapsed_s REAL, finished_utc TEXT)"
         )
         _create(connection, FLIGHTS)
+        _create(connection, BURSTS)
         for table, names in _ADDED_LATER:
             present = {row[1] for row in connection.execute(f"PRAGMA table_info({table.name})")}
             types = dict(table.stored())
@@ -384,10 +387,23 @@ def write_task(
             **dict(zip(FLIGHT_VALUE_COLUMNS, flown.values, strict=True)),
         }
         flights.append(tuple(fields[c] for c in flight_columns))
+    burst_columns = [name for name, _ in BURSTS.stored()]
+    bursts = []
+    for trial, values in result.bursts:
+        fields = {
+            "scenario": scenario,
+            "point": result.point,
+            "trial": trial,
+            "scenario_index": result.scenario_index,
+            **dict(zip(BURST_VALUE_COLUMNS, values, strict=True)),
+        }
+        bursts.append(tuple(fields[c] for c in burst_columns))
     with connection:
         connection.executemany(_insert(table, trial_columns, replace=True), rows)
         if flights:
             connection.executemany(_insert(FLIGHTS, flight_columns, replace=True), flights)
+        if bursts:
+            connection.executemany(_insert(BURSTS, burst_columns, replace=True), bursts)
         connection.execute(
             "INSERT INTO tasks VALUES (?, ?, ?, ?, ?, ?)",
             (
@@ -633,6 +649,21 @@ def stored_dimension(connection: sqlite3.Connection) -> int:
     ``truth_z_m`` (a run with an emitter of unknown height), else 2."""
     present = {row[1] for row in connection.execute("PRAGMA table_info(points)")}
     return 3 if "truth_z_m" in present else SCORED_DIMENSION
+
+
+def read_bursts(out_dir: str | os.PathLike[str]) -> pd.DataFrame:
+    """What the front end made of each trial's bursts, one row per scenario × point × trial
+    (:data:`comparison.trial_rows.BURSTS`); empty (with those columns) for a run at the
+    measurement level."""
+    with _reading(Path(out_dir)) as connection:
+        tables = {row[0] for row in connection.execute("SELECT name FROM sqlite_master")}
+        if BURSTS.name not in tables:
+            return pd.DataFrame({column: [] for column in BURSTS.names()})
+        frame = pd.read_sql_query(
+            f"SELECT {_names(BURSTS.names())} FROM bursts ORDER BY {_order_by(BURSTS)}",
+            connection,
+        )
+    return frame.astype(BURSTS.dtypes()).reset_index(drop=True)
 
 
 def read_flights(out_dir: str | os.PathLike[str]) -> pd.DataFrame:

@@ -68,6 +68,7 @@ from comparison.estimator_calls import (
     call_columns,
     call_estimate,
     call_limits,
+    call_samples,
 )
 from comparison.scoring import (
     Outcomes,
@@ -85,10 +86,18 @@ from comparison.trial_rows import (
     estimate_columns_of,
     padded,
 )
-from estimators.base import Estimator, capabilities_of
+from estimators.base import Estimate, Estimator, capabilities_of
+from estimators.frontend import (
+    BurstMeasurements,
+    measure_bursts,
+    measurement_batch,
+    outlier_rate,
+)
+from estimators.registry import reads_samples
 from scenarios.nuisance import HEIGHT_UNKNOWN
 from scenarios.planners import Planner
-from scenarios.simulate import simulate_trials
+from scenarios.signal import BurstPlan, ReceivedBursts, burst_truth, received_bursts
+from scenarios.simulate import noise_free, simulate_trials
 from scenarios.types import MeasurementBatch, MeasurementSet, Scenario
 
 if TYPE_CHECKING:  # annotations only: workers need not import the experiment schema
@@ -133,6 +142,8 @@ class Task:
     steering: tuple[str, ...] = ()
     time_limit_s: float | None = None  # per estimator call (None: no limit)
     dimension: int = SCORED_DIMENSION  # the run's tables' coordinates (bounds.run_dimension)
+    signal: BurstPlan | None = None  # the bursts received at this point (the signal level)
+    doppler_search_hz: float | None = None  # the front end's Doppler search there (MATH §20)
 
     def scored_dimension(self, spec: EstimatorSpec) -> int:
         """The coordinates an estimator's answer is scored in: the scenario's (3 with the
@@ -176,6 +187,8 @@ class TaskResult:
     rows: list[ScoredRow]
     elapsed_s: float
     flights: list[FlightRow] = dataclasses.field(default_factory=list)
+    bursts: list[tuple[int, tuple[Any, ...]]] = dataclasses.field(default_factory=list)
+    """At the signal level: per trial, its :data:`~comparison.trial_rows.BURST_VALUE_COLUMNS`."""
 
 
 @functools.lru_cache(maxsize=128)
@@ -218,7 +231,10 @@ def auto_chunk_size(
     from comparison.experiment import MAX_CHUNK_SAMPLES  # main process only
 
     n_frames = max(info.n_frames for info in infos.values())
-    n_samples = max(info.scenario.flight.n_samples for info in infos.values())
+    n_samples = max(  # at the signal level, every burst's window of samples
+        info.scenario.flight.n_samples * (1 if info.plan is None else info.plan.n_samples)
+        for info in infos.values()
+    )
     return chunk_size_for(
         experiment.trials,
         points=len(infos),
@@ -280,6 +296,8 @@ def plan_tasks(
                         steering=steering,
                         time_limit_s=experiment.time_limit_s,
                         dimension=dimension,
+                        signal=info.plan,
+                        doppler_search_hz=experiment.doppler_search_hz(info.scenario),
                     )
                 )
     return tasks
@@ -310,39 +328,150 @@ def _run_open_loop_task(task: Task) -> TaskResult:
     """:func:`run_task` of an open-loop task (no planners)."""
     start = time.perf_counter()
     seeds = [trial_seed(task.seed, task.scenario_index, task.point, t) for t in task.trials]
-    simulated = simulate_trials(task.scenario, snr_db=task.snr_db, seeds=seeds)
+    received, bursts, refused = None, [], {}
+    if task.signal is None:
+        feeds = {"all": (task, simulate_trials(task.scenario, snr_db=task.snr_db, seeds=seeds))}
+    else:
+        received, measured = received_trials(
+            task.scenario, task.signal, seeds, task.doppler_search_hz
+        )
+        bursts = list(
+            zip(task.trials, burst_rows(task.scenario, task.signal, measured), strict=True)
+        )
+        feeds, refused = measured_feeds(task, measured)
     # estimators never see the truth
-    batch = dataclasses.replace(simulated, geometry=simulated.geometry.without_truth())
+    geometry = noise_free(task.scenario).without_truth()
     truth = task.scenario.truth_emitter_m
     names = estimate_columns_of(task.dimension)
-    frames = [int(f) for f in batch.geometry.frames]
+    frames = [int(f) for f in geometry.frames]
     eval_frames = frames if task.per_frame else frames[-1:]
-    tracks = {frame: frame_track(batch.geometry, frame) for frame in eval_frames}
-    data = _TaskData(batch)
-    # the same data with some unknowns taken as known (MATH §15, §8), by the unknowns assumed
-    assuming: dict[tuple[str, ...], _TaskData] = {(): data}
+    tracks = {frame: frame_track(geometry, frame) for frame in eval_frames}
+    # each feed with some unknowns taken as known (MATH §15, §8), by the unknowns assumed
+    data: dict[tuple[str, tuple[str, ...]], _TaskData] = {}
     rows: list[ScoredRow] = []
+
+    def add_rows(index: int, frame: int, trials: tuple[int, ...], outcomes: Outcomes) -> None:
+        scored = score_outcomes(outcomes, truth[:d], tracks[frame], names)
+        rows.extend(
+            ScoredRow(0, index, frame, trial, None, values)
+            for trial, values in zip(trials, scored, strict=True)
+        )
+
     for index, spec in enumerate(task.estimators):
         estimator = estimator_of(spec)
-        assumed = spec.assumed(batch.geometry.unknowns)
-        if assumed not in assuming:
-            geometry = batch.geometry.assuming_known(assumed)
-            assuming[assumed] = _TaskData(dataclasses.replace(batch, geometry=geometry))
-        fed = assuming[assumed]
         d = task.scored_dimension(spec)
-        for frame, outcomes in _run_estimator(estimator, spec.label, task, fed, eval_frames, d):
-            scored = score_outcomes(outcomes, truth[:d], tracks[frame], names)
-            rows.extend(
-                ScoredRow(0, index, frame, trial, None, values)
-                for trial, values in zip(task.trials, scored, strict=True)
+        if reads_samples(estimator):
+            assert received is not None and task.signal is not None  # checked at load
+            rngs = [
+                tie_rng(task.seed, task.scenario_index, task.point, trial, spec.label)
+                for trial in task.trials
+            ]
+            columns = call_samples(
+                estimator, geometry, task.signal, received.samples, received.emission_time_s, rngs
             )
+            add_rows(index, frames[-1], task.trials, Outcomes.of_columns(*columns, d))
+            continue
+        kind = "doppler" if "toa" not in capabilities_of(estimator).modalities else "toa"
+        kind = kind if kind in feeds else "all"
+        if kind == "toa":  # the trials whose ToAs were refused fail (measured_feeds)
+            for frame in eval_frames:
+                failed = [(Estimate.failed(spec.label, text), 0.0) for text in refused.values()]
+                add_rows(index, frame, tuple(refused), Outcomes.of_estimates(failed, d))
+        fed_task, batch = feeds[kind]
+        if batch is None:
+            continue
+        assumed = spec.assumed(batch.geometry.unknowns)
+        if (kind, assumed) not in data:
+            known = batch.geometry.without_truth().assuming_known(assumed)
+            data[kind, assumed] = _TaskData(dataclasses.replace(batch, geometry=known))
+        for frame, outcomes in _run_estimator(
+            estimator, spec.label, fed_task, data[kind, assumed], eval_frames, d
+        ):
+            add_rows(index, frame, fed_task.trials, outcomes)
     return TaskResult(
         scenario_index=task.scenario_index,
         point=task.point,
         trials=task.trials,
         rows=rows,
         elapsed_s=time.perf_counter() - start,
+        bursts=bursts,
     )
+
+
+def received_trials(
+    scenario: Scenario,
+    plan: BurstPlan,
+    seeds: list[np.random.SeedSequence],
+    doppler_search_hz: float | None = None,
+) -> tuple[ReceivedBursts, BurstMeasurements]:
+    """The bursts of ``seeds``' trials received (MATH §18) and what the front end measures of
+    them (§20), searching ``±doppler_search_hz``."""
+    received = received_bursts(scenario, plan, seeds)
+    measured = measure_bursts(
+        received.samples,
+        plan,
+        time_s=noise_free(scenario).time_s,
+        emission_time_s=received.emission_time_s,
+        doppler_search_hz=doppler_search_hz,
+    )
+    return received, measured
+
+
+def measured_feeds(
+    task: Task, measured: BurstMeasurements
+) -> tuple[dict[str, tuple[Task, MeasurementBatch | None]], dict[int, str]]:
+    """The front end's measurements of the task's trials as batches (MATH §20), with the σ's
+    of the scenario (the bounds at the plan's C/N0,
+    :func:`comparison.experiment_signal.received_scenario`), and, by trial, why its ToAs are refused.
+
+    Below threshold a ToA outlier can be shorter than the UAV's height, which the measurement
+    sets refuse (MATH §1): then ``"toa"`` is the batch of the trials whose data pass (None if
+    none does), for the estimators that read the ToA (the others fail), and ``"doppler"`` the
+    Doppler of every trial, for those that read it alone. Without a refusal: ``"all"``.
+    """
+    geometry, noise = noise_free(task.scenario), task.scenario.noise
+    try:
+        return {"all": (task, measurement_batch(geometry, measured, noise))}, {}
+    except ValueError:
+        pass
+    refused = {}
+    for position, trial in enumerate(task.trials):
+        try:
+            measurement_batch(geometry, measured.trial(np.array([position])), noise)
+        except ValueError as error:
+            refused[trial] = f"the front end's measurements are refused: {error}"
+    kept = [p for p, t in enumerate(task.trials) if t not in refused]
+    kept_task = dataclasses.replace(task, trials=tuple(task.trials[p] for p in kept))
+    doppler = dataclasses.replace(measured, toa_s=None, toa_variance_s2=None)
+    feeds = {
+        "toa": (
+            kept_task,
+            measurement_batch(geometry, measured.trial(np.array(kept)), noise) if kept else None,
+        ),
+        "doppler": (task, measurement_batch(geometry, doppler, noise)),
+    }
+    return feeds, refused
+
+
+def burst_rows(
+    scenario: Scenario, plan: BurstPlan, measured: BurstMeasurements
+) -> list[tuple[Any, ...]]:
+    """Per trial, :data:`~comparison.trial_rows.BURST_VALUE_COLUMNS`: its bursts, those the
+    front end flagged below threshold, its outliers (a Doppler a bin or a ToA a chip off the
+    truth, :func:`estimators.frontend.outlier_rate`) and those of them not flagged, and the
+    mean estimated burst SNR in dB."""
+    truth = burst_truth(scenario, plan)
+    rows = []
+    for position in range(len(measured.doppler_hz)):
+        trial = measured.trial(position)
+        outliers, n_bursts = outlier_rate(trial, plan, truth.doppler_hz, truth.toa_s)
+        missed, _ = outlier_rate(
+            trial, plan, truth.doppler_hz, truth.toa_s, among=~trial.below_threshold
+        )
+        snr_db = 10.0 * np.log10(np.mean(trial.burst_snr))
+        flagged = int(np.sum(trial.below_threshold))
+        rows.append((n_bursts, flagged, outliers, missed, float(snr_db)))
+    return rows
 
 
 class _TaskData:

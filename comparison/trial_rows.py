@@ -384,6 +384,31 @@ FLIGHTS = Table(
 """Closed loop only: frame ``frame``'s first and last samples and velocity, and the plan
 message that chose it (frame 0 is the scenario's own)."""
 
+BURSTS = Table(
+    "bursts",
+    (
+        Column("scenario", "TEXT", None, "key"),
+        Column("point", "INTEGER", "int64", "key"),
+        Column("trial", "INTEGER", "int64", "key"),
+        Column("n_bursts", "INTEGER", "int64"),
+        Column("flagged", "INTEGER", "int64"),
+        Column("outliers", "INTEGER", "int64"),
+        Column("unflagged_outliers", "INTEGER", "int64"),
+        Column("mean_burst_snr_db", "REAL"),
+    ),
+    indexes=(_SCENARIO_INDEX,),
+)
+"""The signal level only (docs/math.md §20): per trial, its bursts, how many the front end
+flagged below threshold, how many are outliers (a Doppler more than a bin ``1/T``, or a ToA
+more than a chip, off the truth: :func:`estimators.frontend.outlier_rate`) and how many of
+those it did not flag, and the mean estimated burst SNR."""
+
+BURST_COLUMNS: tuple[str, ...] = BURSTS.names()
+"""Columns of :func:`comparison.store.read_bursts`."""
+
+BURST_VALUE_COLUMNS: tuple[str, ...] = tuple(c.name for c in BURSTS.columns if c.source == "value")
+"""The columns computed from one trial's bursts (:func:`comparison.tasks.run_task`)."""
+
 FLIGHT_COLUMNS: tuple[str, ...] = FLIGHTS.names()
 """Columns of :func:`comparison.store.read_flights`."""
 

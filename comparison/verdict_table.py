@@ -3,7 +3,8 @@
 The table has a row per estimator (per planner and estimator in a closed loop) and a column
 per scenario. A cell of an SNR sweep holds the threshold SNR (the lowest SNR from which every
 higher point attains the CRLB, :func:`comparison.verdicts.threshold_snr`) and the judged
-efficiency at up to three SNRs, each coloured by its verdict; a cell of another sweep holds
+efficiency at up to three SNRs, each coloured by its verdict (a C/N0 sweep of the signal level,
+MATH §18, the same in dB-Hz); a cell of another sweep holds
 how many points attain and the range of the efficiency. Per-frame runs are judged at the last
 frame. The notes (:func:`first_screen_notes`) are computed from the summary and the points
 table: a modality that carries no information, verdicts that rest on too few trials or on a few
@@ -92,26 +93,50 @@ def judged_points(summary: pd.DataFrame) -> pd.DataFrame:
     return rows
 
 
-def _is_snr_sweep(rows: pd.DataFrame, swept: list[str]) -> bool:
-    return rows["snr_db"].nunique() > 1 and all(rows[c].nunique() <= 1 for c in swept)
+LEVEL_UNITS = {"snr_db": "dB", "cn0_dbhz": "dB-Hz"}
+"""The levels a threshold is found along, and their units: the SNR of MATH §2, and the C/N0
+of the signal level (MATH §18)."""
+
+
+def level_axis(rows: pd.DataFrame, swept: list[str]) -> str | None:
+    """The level the rows sweep alone (``snr_db``, or ``cn0_dbhz`` at the signal level),
+    every other swept column constant; None for any other sweep."""
+    for axis in LEVEL_UNITS:
+        if axis not in rows.columns or rows[axis].nunique() <= 1:
+            continue
+        others = [c for c in ("snr_db", *swept) if c != axis and c in rows.columns]
+        if all(rows[c].nunique() <= 1 for c in others):
+            return axis
+    return None
 
 
 def thresholds(summary: pd.DataFrame) -> pd.DataFrame:
-    """Threshold SNR per scenario and row (NaN threshold outside an SNR sweep).
+    """Threshold SNR per scenario and row (NaN threshold outside an SNR sweep); in a run
+    that sweeps C/N0 (MATH §18), ``threshold_cn0_dbhz`` beside it.
 
     Columns ``scenario``, ``planner`` (closed loop only), ``estimator``,
-    ``threshold_snr_db``, ``n_points``, ``n_attains``.
+    ``threshold_snr_db``, (``threshold_cn0_dbhz``), ``n_points``, ``n_attains``.
     """
     rows = judged_points(summary)
     swept = summary_swept_columns(summary)
     by = ["scenario", *(["planner"] if has_planners(summary) else []), "estimator"]
     parts = []
     for _, own in rows.groupby("scenario", sort=False):
-        table = threshold_snr(own, by)
-        if not _is_snr_sweep(own, swept):
+        axis = level_axis(own, swept)
+        table = threshold_snr(own, by, axis or "snr_db")
+        if axis is None:
             table["threshold_snr_db"] = math.nan
+        elif axis != "snr_db":
+            table.insert(len(by), "threshold_snr_db", math.nan)
         parts.append(table)
     return pd.concat(parts, ignore_index=True)
+
+
+def threshold_of(threshold: pd.DataFrame, match: pd.Series) -> np.ndarray:
+    """The thresholds of the ``match`` rows, along the run's level (C/N0 in a run that sweeps
+    it: every scenario of a signal-level run does)."""
+    column = "threshold_cn0_dbhz" if "threshold_cn0_dbhz" in threshold else "threshold_snr_db"
+    return threshold.loc[match, column].to_numpy(float)
 
 
 def _shown_snrs(values: np.ndarray) -> list[float]:
@@ -145,12 +170,14 @@ def verdict_table_html(summary: pd.DataFrame) -> str:
             if basis.any()
             else "efficiency"
         )
-        if _is_snr_sweep(own, swept):
-            shown[scenario] = _shown_snrs(own["snr_db"].to_numpy())
-            axis = " / ".join(f"{v:g}" for v in shown[scenario]) + " dB"
-            snrs = sorted(own["snr_db"].unique())
+        level = level_axis(own, swept)
+        if level is not None:
+            name, unit = parameter_label(level)[0], LEVEL_UNITS[level]
+            shown[scenario] = _shown_snrs(own[level].to_numpy())
+            axis = " / ".join(f"{v:g}" for v in shown[scenario]) + f" {unit}"
+            snrs = sorted(own[level].unique())
             sub = (
-                f"threshold; a square per SNR, {snrs[0]:g} to {snrs[-1]:g} dB;\n"
+                f"threshold; a square per {name}, {snrs[0]:g} to {snrs[-1]:g} {unit};\n"
                 f"{efficiency} at {axis}"
             )
         elif len(own.groupby(["snr_db", *swept])) == 1:
@@ -170,13 +197,14 @@ def verdict_table_html(summary: pd.DataFrame) -> str:
         cells = [f"<th>{row_html(rows[rows['row'] == label])}</th>"]
         for scenario in scenarios:
             own = rows[(rows["scenario"] == scenario) & (rows["row"] == label)]
-            cells.append(f"<td>{_cell(own, shown[scenario], threshold, scenario)}</td>")
+            level = level_axis(rows[rows["scenario"] == scenario], swept) or "snr_db"
+            cells.append(f"<td>{_cell(own, shown[scenario], threshold, scenario, level)}</td>")
         body.append("<tr>" + "".join(cells) + "</tr>")
     legend = " ".join(f'<span class="v v-{name}">{name}</span>' for name in VERDICT_COLOURS)
     threshold_text = (
-        "'from X dB': the bound is attained at every SNR from X dB up (the threshold SNR); "
-        "'never': not at the highest SNR; the squares beside it are the verdicts at every SNR "
-        "point, lowest first. "
+        "'from X dB': the bound is attained at every SNR from X dB up (the threshold SNR; "
+        "'from X dB-Hz' the same in C/N0); 'never': not at the highest SNR; the squares beside "
+        "it are the verdicts at every SNR point, lowest first. "
         if any(snrs is not None for snrs in shown.values())
         else ""
     )
@@ -199,7 +227,7 @@ def ranked_rows(rows: pd.DataFrame, threshold: pd.DataFrame) -> list[str]:
         match = threshold["estimator"] == own["estimator"].iloc[0]
         if "planner" in threshold.columns and "planner" in own.columns:
             match &= threshold["planner"] == own["planner"].iloc[0]
-        levels = threshold.loc[match, "threshold_snr_db"].to_numpy(float)
+        levels = threshold_of(threshold, match)
         level = float(np.mean(np.where(np.isnan(levels), np.inf, levels))) if levels.size else 0.0
         efficiency = own["efficiency_judged"].to_numpy(float)
         efficiency = efficiency[np.isfinite(efficiency) & (efficiency > 0)]
@@ -210,7 +238,11 @@ def ranked_rows(rows: pd.DataFrame, threshold: pd.DataFrame) -> list[str]:
 
 
 def _cell(
-    own: pd.DataFrame, snrs: list[float] | None, threshold: pd.DataFrame, scenario: str
+    own: pd.DataFrame,
+    snrs: list[float] | None,
+    threshold: pd.DataFrame,
+    scenario: str,
+    level: str = "snr_db",
 ) -> str:
     if own.empty:
         return ""
@@ -225,15 +257,17 @@ def _cell(
         match = (threshold["scenario"] == scenario) & (threshold["estimator"] == estimator)
         if "planner" in threshold.columns:
             match &= threshold["planner"] == own["planner"].iloc[0]
-        value = float(threshold.loc[match, "threshold_snr_db"].iloc[0])
-        head = "never" if math.isnan(value) else f"from {value:g} dB"
-        if not math.isnan(value) and value == own["snr_db"].min():
-            head = f"all (from {value:g} dB)"
+        value = float(threshold_of(threshold, match)[0])
+        unit = LEVEL_UNITS[level]
+        head = "never" if math.isnan(value) else f"from {value:g} {unit}"
+        if not math.isnan(value) and value == own[level].min():
+            head = f"all (from {value:g} {unit})"
         spans = []
         for snr in snrs:
-            row = own[own["snr_db"] == snr].iloc[0]
+            row = own[own[level] == snr].iloc[0]
             spans.append(_span(row["efficiency_judged"], row["verdict"], row["verdict_reason"]))
-        return f'<div class="threshold">{_escape(head + mark)}{_strip(own)}</div>' + "".join(spans)
+        strip = _strip(own, level)
+        return f'<div class="threshold">{_escape(head + mark)}{strip}</div>' + "".join(spans)
     if len(own) == 1:
         row = own.iloc[0]
         return _span(row["efficiency_judged"], row["verdict"], row["verdict_reason"])
@@ -249,25 +283,69 @@ def _cell(
     )
 
 
-def _strip(own: pd.DataFrame) -> str:
-    """One small square per SNR point, lowest first, coloured by its verdict, between the
-    lowest and highest SNR; each square's own SNR, verdict and reason on hover."""
-    ordered = own.sort_values("snr_db")
+def _strip(own: pd.DataFrame, level: str = "snr_db") -> str:
+    """One small square per point of the level (SNR, or C/N0), lowest first, coloured by its
+    verdict, between the lowest and highest; each square's own level, verdict and reason on
+    hover."""
+    unit = LEVEL_UNITS[level]
+    ordered = own.sort_values(level)
     squares = "".join(
         f'<span class="sq v-{_escape(row["verdict"])}" '
-        f'title="{row["snr_db"]:g} dB: {_escape(row["verdict"] + ", " + row["verdict_reason"])}">'
+        f'title="{row[level]:g} {unit}: '
+        f'{_escape(row["verdict"] + ", " + row["verdict_reason"])}">'
         "</span>"
         for _, row in ordered.iterrows()
     )
-    low, high = ordered["snr_db"].iloc[0], ordered["snr_db"].iloc[-1]
+    low, high = ordered[level].iloc[0], ordered[level].iloc[-1]
     return (
-        f'<span class="strip" title="every SNR point, lowest first">'
-        f'<span class="ends">{low:g}</span>{squares}<span class="ends">{high:g} dB</span></span>'
+        f'<span class="strip" title="every {parameter_label(level)[0]} point, lowest first">'
+        f'<span class="ends">{low:g}</span>{squares}<span class="ends">{high:g} {unit}</span>'
+        "</span>"
     )
 
 
 def _listing(values: list[float]) -> str:
     return ", ".join(f"{v:g}" for v in sorted(values))
+
+
+def _thresholds_compared(summary: pd.DataFrame) -> list[str]:
+    """In a C/N0 sweep (the signal level, MATH §18-§22), per scenario: each estimator's
+    threshold C/N0 (the lowest from which it attains the bound at every higher point), and how
+    far below the best of the others the lowest one holds; why one that never attains does
+    not is its highest point's verdict reason."""
+    threshold = thresholds(summary)
+    if "threshold_cn0_dbhz" not in threshold.columns:
+        return []
+    rows = judged_points(summary)
+    notes = []
+    for scenario, own in threshold.groupby("scenario", sort=False):
+        parts, levels = [], {}
+        for _, entry in own.iterrows():
+            label = entry["estimator"]
+            level = float(entry["threshold_cn0_dbhz"])
+            mine = rows[(rows["scenario"] == scenario) & (rows["estimator"] == label)]
+            if math.isnan(level):
+                top = mine.sort_values("cn0_dbhz").iloc[-1]
+                parts.append(
+                    f"{label_html(label)} never ({_escape(top['verdict'])} at "
+                    f"{top['cn0_dbhz']:g} dB-Hz: {_escape(top['verdict_reason'])})"
+                )
+            else:
+                levels[label] = level
+                parts.append(f"{label_html(label)} from {level:g} dB-Hz")
+        text = (
+            f"Threshold C/N0 on {_escape(scenario)} (the lowest C/N0 from which the bound is "
+            f"attained at every higher point): {'; '.join(parts)}."
+        )
+        if len(levels) >= 2:
+            best = min(levels, key=levels.get)
+            others = min(v for k, v in levels.items() if k != best)
+            text += (
+                f" {label_html(best)} holds the bound {others - levels[best]:g} dB lower than "
+                "the next best."
+            )
+        notes.append(text)
+    return notes
 
 
 def first_screen_notes(summary: pd.DataFrame, points: pd.DataFrame | None) -> list[str]:
@@ -276,6 +354,7 @@ def first_screen_notes(summary: pd.DataFrame, points: pd.DataFrame | None) -> li
     rows = judged_points(summary)
     swept = summary_swept_columns(summary)
     notes = _price_of_unknowns(points) + _uninformative_modalities(rows, points)
+    notes += _thresholds_compared(summary)
     few = rows[rows["verdict_reason"].str.startswith("too few trials")]
     if not few.empty:
         notes.append(

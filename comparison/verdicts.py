@@ -274,29 +274,32 @@ def verdict_criterion(band: tuple[float, float] = EFFICIENCY_BAND) -> str:
     )
 
 
-def threshold_snr(summary: pd.DataFrame, group_by: list[str]) -> pd.DataFrame:
-    """The lowest SNR from which every higher point of an SNR sweep attains the bound.
+def threshold_snr(summary: pd.DataFrame, group_by: list[str], axis: str = "snr_db") -> pd.DataFrame:
+    """The lowest SNR from which every higher point of an SNR sweep attains the bound (or the
+    lowest C/N0 of a sweep of ``axis = "cn0_dbhz"``, MATH §18).
 
     Parameters
     ----------
     summary : pandas.DataFrame
-        Rows with ``snr_db`` and ``verdict``, one per SNR point within each group (the caller
-        passes the last frame of each point, and only sweeps over SNR).
+        Rows with ``axis`` and ``verdict``, one per point within each group (the caller
+        passes the last frame of each point, and only sweeps over that axis).
     group_by : list of str
         The columns naming a curve, e.g. ``["scenario", "estimator"]``.
+    axis : ``"snr_db"`` or ``"cn0_dbhz"``
+        The swept level.
 
     Returns
     -------
     pandas.DataFrame
-        ``group_by`` columns, ``threshold_snr_db`` (NaN when the highest point does not
+        ``group_by`` columns, ``threshold_<axis>`` (NaN when the highest point does not
         attain), ``n_points`` and ``n_attains``, groups in order of first appearance.
     """
     rows = []
     for key, own in summary.groupby(group_by, sort=False):
         key = key if isinstance(key, tuple) else (key,)
-        ordered = own.sort_values("snr_db", ascending=False)
+        ordered = own.sort_values(axis, ascending=False)
         attains = ordered["verdict"].to_numpy() == "attains"
         run = int(np.argmin(attains)) if not attains.all() else len(attains)
-        threshold = float(ordered["snr_db"].iloc[run - 1]) if run > 0 else math.nan
+        threshold = float(ordered[axis].iloc[run - 1]) if run > 0 else math.nan
         rows.append((*key, threshold, len(own), int(attains.sum())))
-    return pd.DataFrame(rows, columns=[*group_by, "threshold_snr_db", "n_points", "n_attains"])
+    return pd.DataFrame(rows, columns=[*group_by, f"threshold_{axis}", "n_points", "n_attains"])

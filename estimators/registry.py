@@ -126,6 +126,28 @@ BUILTIN: dict[str, RegistryEntry] = {
 }
 
 
+SAMPLE_LEVEL: dict[str, RegistryEntry] = {
+    entry.name: entry
+    for entry in (
+        RegistryEntry(
+            "dpd",
+            "estimators.dpd:DirectPosition",
+            "direct position determination from the received samples (MATH §22; "
+            "[signal] experiments and recordings)",
+        ),
+    )
+}
+"""Estimators of the received samples, not of measurements (:func:`reads_samples`): they run
+in experiments with a ``[signal]`` table and on recordings, and are not in :data:`BUILTIN`
+(whose estimators all read measurement sets)."""
+
+
+def reads_samples(estimator: Any) -> bool:
+    """True for an estimator of the received samples: it has
+    ``estimate_iq_batch(geometry, plan, samples, schedule_s)`` (docs/math.md §22)."""
+    return callable(getattr(estimator, "estimate_iq_batch", None))
+
+
 ESTIMATOR_INTERFACE = (
     "a class with the class attributes name and requires and estimate(data, *, rng=None) "
     "(docs/writing-an-estimator.md)"
@@ -166,14 +188,16 @@ def plugin_entries() -> dict[str, RegistryEntry]:
 def all_entries() -> dict[str, RegistryEntry]:
     """Built-ins first, then plug-ins (a plug-in cannot shadow a built-in: it is warned of)."""
     entries = dict(plugin_entries())
-    for name in sorted(set(entries) & set(BUILTIN)):
+    for name in sorted(set(entries) & (BUILTIN.keys() | SAMPLE_LEVEL.keys())):
         warnings.warn(
             f"estimator: plug-in {entries[name].target!r} is registered as {name!r}, the name of "
             "a built-in, and is ignored; register it under another name",
             stacklevel=2,
         )
     entries.update(BUILTIN)
-    return dict(sorted(entries.items(), key=lambda item: (item[0] not in BUILTIN, item[0])))
+    entries.update(SAMPLE_LEVEL)
+    built_in = BUILTIN.keys() | SAMPLE_LEVEL.keys()
+    return dict(sorted(entries.items(), key=lambda item: (item[0] not in built_in, item[0])))
 
 
 def estimator_class(name: str) -> type:

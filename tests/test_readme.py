@@ -119,9 +119,10 @@ def applicable_checks() -> tuple[int, int]:
 
 def readme_claims() -> dict[str, object]:
     from comparison.crosscheck.instances import FAMILIES
-    from comparison.experiment import MAX_POINTS, MAX_TRIALS, Experiment
+    from comparison.experiment import MAX_TRIALS, Experiment
     from comparison.experiment_catalog import BUILTIN_DEFINITIONS
     from comparison.intervals import TAIL_FRACTION
+    from comparison.sweep import MAX_POINTS
     from comparison.verdicts import (
         BIAS_LIMIT,
         EFFICIENCY_BAND,

@@ -20,6 +20,7 @@ from comparison.figures.style import (
 from comparison.metrics import parameter_label, summary_swept_columns
 
 SNR_AXIS_LABEL = r"SNR (dB): every σ scaled by $10^{-\mathrm{SNR}/20}$ (MATH §2)"
+CN0_AXIS_LABEL = "C/N0 (dB-Hz): the bursts received with white noise (MATH §18)"
 """The x label of every figure against SNR."""
 
 BOUND_COLUMNS: dict[str, str] = {
@@ -106,9 +107,11 @@ def last_frame(frame: pd.DataFrame, columns: Sequence[str]) -> pd.DataFrame:
 
 
 def axis_label(column: str) -> str:
-    """Axis label with unit; the SNR axis carries its definition (MATH §2)."""
+    """Axis label with unit; the SNR and C/N0 axes carry their definitions (MATH §2, §18)."""
     if column == "snr_db":
         return SNR_AXIS_LABEL
+    if column == "cn0_dbhz":
+        return CN0_AXIS_LABEL
     name, unit = parameter_label(column)
     return f"{name} ({unit})" if unit else name
 

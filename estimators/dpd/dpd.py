@@ -40,6 +40,7 @@ from estimators.dpd.coarse import (
 )
 from estimators.dpd.likelihood import profiled_log_likelihood
 from estimators.dpd.refine import newton_ascent
+from estimators.interface import Capabilities
 from estimators.mirror_rule import finalize_columns
 from scenarios.geometry import TrackSoFar, cross_track_m, mirror_across_line
 from scenarios.signal import BurstPlan
@@ -367,6 +368,9 @@ class DirectPosition:
     """
 
     name: ClassVar[str] = NAME
+    requires: ClassVar[frozenset[str]] = frozenset({"doppler", "toa"})
+    """The bursts carry a Doppler and a delay each: the bound a DPD answer is held to is that
+    of both, at the σ's the bursts allow (the signal-level bound, §21)."""
 
     n_starts: int = 4
     max_grid_side: int = 256
@@ -385,6 +389,19 @@ class DirectPosition:
         if not isinstance(self.covariance, bool):
             raise ValueError(f"covariance: expected true or false, got {self.covariance!r}")
         check_side_prior(self.side_prior_m)
+
+    def capabilities(self) -> Capabilities:
+        """What it uses (MATH §8): every burst's Doppler and delay, from every frame."""
+        return Capabilities(modalities=self.requires, frames="all")
+
+    def estimate(self, data: MeasurementSet, *, rng: np.random.Generator | None = None) -> Estimate:
+        """Refused in one line: DPD reads the received samples, which a measurement set has
+        not (:meth:`estimate_iq`)."""
+        raise ValueError(
+            "estimator: dpd locates from the received samples, not from measurements; give it "
+            "a recording (emitterbench estimate REC.sigmf-meta --estimator dpd) or run it in "
+            "an experiment with a [signal] table"
+        )
 
     def estimate_iq_batch(
         self,

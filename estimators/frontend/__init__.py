@@ -34,6 +34,8 @@ from estimators.frontend.measure import (
     measurement_batch,
     measurement_set,
     outlier_rate,
+    search_cells_hz,
+    track_doppler_search_hz,
 )
 
 __all__ = [
@@ -51,5 +53,7 @@ __all__ = [
     "outlier_rate",
     "rife_boorstyn_variance_hz2",
     "rms_bandwidth_hz",
+    "search_cells_hz",
     "tone_frequency",
+    "track_doppler_search_hz",
 ]

@@ -252,6 +252,32 @@ def measure_rows(
     )
 
 
+def track_doppler_search_hz(geometry: MeasurementSet) -> float | None:
+    """The Doppler search a flight calls for (docs/math.md §20): ``γ max_k ‖v_k‖``, the
+    largest ``|γ vᵀu|`` any emitter can give, when the carrier offset is known (0); None when
+    the data declare it unknown (MATH §15), which no track bounds."""
+    if "carrier_offset_hz" in geometry.unknowns:
+        return None
+    speed_mps = np.linalg.norm(geometry.velocity_mps, axis=-1)
+    return float(geometry.gamma_per_m * np.max(speed_mps))
+
+
+def search_cells_hz(doppler_search_hz: float | None, plan: BurstPlan) -> np.ndarray | None:
+    """The cells of a Doppler search of ``±doppler_search_hz`` (:func:`doppler_cells_hz`),
+    None for no search; a span outside ``[0, f_s/2]`` is one line naming it."""
+    if doppler_search_hz is None:
+        return None
+    search_hz = bounded(
+        doppler_search_hz,
+        "doppler_search_hz",
+        0.0,
+        0.5 * plan.sample_rate_hz,
+        "Hz",
+        "give the largest |Doppler| expected, carrier offset included (None: no search)",
+    )
+    return doppler_cells_hz(search_hz, plan)
+
+
 def measure_bursts(
     samples: object,
     plan: BurstPlan,
@@ -296,19 +322,10 @@ def measure_bursts(
         )
     time = schedule_times(time_s, "time_s", shape[-2])
     emission = schedule_times(emission_time_s, "emission_time_s", shape[-2])
-    cells_hz, band_hz = None, None
-    if doppler_search_hz is not None:
-        half_rate_hz = 0.5 * plan.sample_rate_hz
-        search_hz = bounded(
-            doppler_search_hz,
-            "doppler_search_hz",
-            0.0,
-            half_rate_hz,
-            "Hz",
-            "give the largest |Doppler| expected, carrier offset included (None: no search)",
-        )
-        cells_hz = doppler_cells_hz(search_hz, plan)
-        band_hz = search_hz if search_hz > 0.0 else None
+    cells_hz = search_cells_hz(doppler_search_hz, plan)
+    band_hz = None
+    if cells_hz is not None and doppler_search_hz > 0.0:
+        band_hz = float(doppler_search_hz)
     reference = burst_envelope(plan, window_offsets_s(plan))
     doppler, doppler_variance, offset_s, offset_variance, snr, flagged = (
         part.reshape(shape[:-1])

@@ -7,20 +7,14 @@ from dataclasses import fields
 
 import numpy as np
 
-from estimators.frontend.measure import BurstMeasurements, measure_bursts, measurement_set
+from estimators.frontend.measure import (
+    BurstMeasurements,
+    measure_bursts,
+    measurement_set,
+    track_doppler_search_hz,
+)
 from scenarios.recording import Recording
 from scenarios.types import MeasurementSet
-
-
-def track_doppler_search_hz(recording: Recording) -> float | None:
-    """The Doppler search a recording's track calls for (docs/math.md §20): ``γ max_k ‖v_k‖``,
-    the largest ``|γ vᵀu|`` any emitter can give, when the carrier offset is known (0); None
-    when the recording declares it unknown (MATH §15), which no track bounds."""
-    geometry = recording.geometry
-    if "carrier_offset_hz" in geometry.unknowns:
-        return None
-    speed_mps = np.linalg.norm(geometry.velocity_mps, axis=-1)
-    return float(geometry.gamma_per_m * np.max(speed_mps))
 
 
 def measure_recording(
@@ -33,13 +27,14 @@ def measure_recording(
     ``doppler_search_hz``: the span ``±D`` of the Doppler searched
     (:func:`~estimators.frontend.measure_bursts`, docs/math.md §19, §20: the BPSK first pass's
     cells and the frequency's band; for a tone the band alone), 0 for none; None takes
-    :func:`track_doppler_search_hz`. A BPSK recording of an unknown carrier offset, whose
-    Doppler only the caller can bound, is then refused; a tone's is searched over the whole band.
+    :func:`~estimators.frontend.measure.track_doppler_search_hz` of its geometry. A BPSK
+    recording of an unknown carrier offset, whose Doppler only the caller can bound, is then
+    refused; a tone's is searched over the whole band.
     """
     if not isinstance(recording, Recording):
         raise ValueError(f"recording: expected a Recording, got {type(recording).__name__}")
     if doppler_search_hz is None:
-        doppler_search_hz = track_doppler_search_hz(recording)
+        doppler_search_hz = track_doppler_search_hz(recording.geometry)
         if doppler_search_hz is None and recording.plan.waveform == "bpsk":
             raise ValueError(
                 "doppler_search_hz: the recording's carrier offset is unknown, and with it the "

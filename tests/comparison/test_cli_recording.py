@@ -178,3 +178,36 @@ def test_csv_constants_are_refused_for_a_recording(tmp_path: Path) -> None:
 def test_measure_writes_json_only(tmp_path: Path) -> None:
     meta_path = simulated_iq(tmp_path)
     clean_error(invoke("measure", meta_path, "-o", tmp_path / "m.csv"), "--output: ")
+
+
+def test_dpd_estimates_from_the_recordings_samples_and_refuses_a_measurement_file(
+    tmp_path: Path,
+) -> None:
+    """`estimate REC --estimator dpd` reads the samples (MATH §22), the same answer as the
+    estimator called on them, within a few √CRLB of the truth; on a measurement file it is one
+    line naming --estimator."""
+    from estimators.dpd import DirectPosition
+
+    meta_path = simulated_iq(tmp_path)
+    result = invoke("estimate", meta_path, "--estimator", "dpd", "--json")
+    assert result.exit_code == 0, result.output
+    answer = json.loads(result.stdout)
+    recording = open_recording(meta_path)
+    samples = np.concatenate([block for _, block in recording.bursts()])
+    direct = DirectPosition().estimate_iq(
+        recording.geometry.without_truth(),
+        recording.plan,
+        samples,
+        recording.emission_time_s,
+        rng=np.random.default_rng(0),
+    )
+    np.testing.assert_array_equal(answer["position_m"], direct.position_m)
+    truth = get_scenario("turn").truth_emitter_m
+    noise = recording.geometry.noise
+    bound_m = rmse_bound_m(fisher_information(recording.geometry, truth, "toa+doppler"))
+    assert np.linalg.norm(np.asarray(answer["position_m"]) - truth) < 5.0 * bound_m, noise
+    measured_path = tmp_path / "m.json"
+    assert invoke("measure", meta_path, "-o", measured_path).exit_code == 0
+    refused = invoke("estimate", measured_path, "--estimator", "dpd")
+    clean_error(refused, "--estimator")
+    assert "locates from the received samples" in refused.stderr

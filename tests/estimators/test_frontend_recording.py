@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from estimators.frontend import track_doppler_search_hz
 from estimators.frontend.measure import measure_bursts
-from estimators.frontend.recording import measure_recording, track_doppler_search_hz
+from estimators.frontend.recording import measure_recording
 from scenarios.catalog import get_scenario
 from scenarios.recording import open_recording, write_recording
 from scenarios.signal import BurstPlan, received_bursts
@@ -71,7 +72,7 @@ def test_a_tone_s_recording_is_sought_within_its_track_s_doppler(tmp_path: Path)
     received = received_bursts(scenario, plan, [12])
     meta_path, _ = write_recording(tmp_path / "rec", geometry, plan, received)
     recording = open_recording(meta_path)
-    search_hz = track_doppler_search_hz(recording)
+    search_hz = track_doppler_search_hz(recording.geometry)
     assert np.abs(geometry.doppler_hz).max() <= search_hz < 20.0
 
     def in_memory(doppler_search_hz):
