@@ -9,7 +9,7 @@ files come from ``tests/corpus/generate.py``; ``valid/`` holds the files they de
 The fuzz test mutates the valid measurement file (values replaced by huge, negative,
 non-finite, textual or nested ones, keys dropped or added) and checks that only a
 ``ValueError`` whose message starts with a field ever leaves the reader, and that the command
-line exits 0, or 2 with one such line. It runs ``EMITTERBENCH_FUZZ_EXAMPLES`` examples (2,000
+line exits 0, or 2 with one such line. It runs ``EMITTERBENCH_FUZZ_EXAMPLES`` examples (1,000
 by default); ``test_fuzzed_measurement_files_long`` (marked slow) runs 10,000 when
 ``EMITTERBENCH_LONG_FUZZ=1``.
 """
@@ -512,7 +512,7 @@ def fuzz_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @settings(
-    max_examples=int(os.environ.get("EMITTERBENCH_FUZZ_EXAMPLES", "2000")),
+    max_examples=int(os.environ.get("EMITTERBENCH_FUZZ_EXAMPLES", "1000")),
     deadline=None,
     suppress_health_check=[HealthCheck.too_slow],
 )

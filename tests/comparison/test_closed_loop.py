@@ -243,10 +243,12 @@ def test_closed_loop_rows_do_not_depend_on_the_number_of_workers(closed_run, tmp
     pd.testing.assert_frame_equal(read_flights(two), read_flights(closed_run))
 
 
-@pytest.mark.slow  # about a minute on one core
+@pytest.mark.slow  # about half a minute on one core
 def test_acceptance_paper_fig3(tmp_path):
-    """Turning planners resolve the side; Fisher is no worse than the paper's rule."""
-    experiment = load_experiment("paper-fig3").with_trials(100)
+    """Turning planners resolve the side; Fisher is no worse than the paper's rule. 50 trials:
+    Fisher's final RMSE is 0.98 and 1.01 √CRLB (paper-1m, paper-10m), its ±10% sampling error
+    leaves the 1.25 bound 2.5 standard deviations away."""
+    experiment = load_experiment("paper-fig3").with_trials(50)
     trials = read_trials(run_experiment(experiment, tmp_path / "fig3", workers=1))
     summary = summarize(trials, n_bootstrap=400, seed=1)
     ml = summary[summary.estimator == "ml"].set_index(["scenario", "planner", "frame"]).sort_index()
