@@ -164,7 +164,7 @@ def search_grid(
         (
             weight.reshape(len(points), per_row).ravel(),
             index.reshape(len(points), per_row).ravel(),
-            np.arange(len(points) + 1) * per_row,
+            np.arange(len(points) + 1, dtype=index.dtype) * per_row,
         ),
         shape=(len(points), n_columns),
     )
@@ -236,17 +236,19 @@ def _quadratic(values: FloatArray, axis: FloatArray) -> tuple[NDArray[np.int64],
 
 def interpolation(
     axes: TableAxes, doppler_hz: FloatArray, shift_samples: FloatArray
-) -> tuple[NDArray[np.int64], FloatArray]:
+) -> tuple[NDArray[np.integer], FloatArray]:
     """The biquadratic interpolation of the table (docs/math.md §22) at per-burst Dopplers
     ``doppler_hz`` and shifts ``shift_samples`` ``(..., n_bursts)``: the nine nodes of each,
     as indices into a trial's flattened table ``(n_bursts · nf · nd,)``, and their weights,
-    ``(..., n_bursts, 9)`` each. Three nodes a side reproduce a peak's quadratic top, so a
-    maximum falls between the nodes where it is, not on a node."""
+    ``(..., n_bursts, 9)`` each (int32 indices where they fit). Three nodes a side reproduce a
+    peak's quadratic top, so a maximum falls between the nodes where it is, not on a node."""
     nf, nd = len(axes.frequency_hz), len(axes.shift_samples)
     i_f, w_f = _quadratic(doppler_hz, axes.frequency_hz)
     i_d, w_d = _quadratic(shift_samples, axes.shift_samples)
-    base = (np.arange(doppler_hz.shape[-1]) * nf + i_f) * nd + i_d
-    step = np.add.outer(np.array([-nd, 0, nd]), np.array([-1, 0, 1])).ravel()
+    # int32 where the table's columns fit (the sparse look-up's own index type): half the bytes
+    kind = np.int32 if doppler_hz.shape[-1] * nf * nd < 2**31 else np.int64
+    base = ((np.arange(doppler_hz.shape[-1]) * nf + i_f) * nd + i_d).astype(kind)
+    step = np.add.outer(np.array([-nd, 0, nd]), np.array([-1, 0, 1])).ravel().astype(kind)
     index = base[..., None] + step
     weight = (w_f[..., :, None] * w_d[..., None, :]).reshape(*w_f.shape[:-1], 9)
     return index, weight

@@ -104,26 +104,26 @@ def profiled_log_likelihood_derivatives(
     dt = window_offsets_s(plan)
     velocity = np.asarray(geometry.velocity_mps, dtype=float)
     unit = w[..., :2] / rho[..., None]  # ŵ_k (..., H, K, 2)
-    du = [(dt * velocity[:, i, None] - w[..., i, None] * relative) * inverse_range for i in (0, 1)]
-    products = [du[0] * du[0], du[0] * du[1], du[1] * du[1]]
-    weights = np.stack(
-        [
-            *du,
-            *products,
-            -relative * inverse_range,  # 1/ρ(t) − 1/ρ_k
-            *(d * inverse_range for d in du),
-            *(d * inverse_range for d in products),
-        ],
-        axis=-2,
-    )  # (..., H, K, 11, N)
+    weights = np.empty((*change.shape[:-1], 11, change.shape[-1]))  # (..., H, K, 11, N)
+    du = weights[..., 0:2, :]  # Δŵ_i
+    for i in (0, 1):
+        np.multiply(w[..., i, None], relative, out=du[..., i, :])
+        np.subtract(dt * velocity[:, i, None], du[..., i, :], out=du[..., i, :])
+        du[..., i, :] *= inverse_range
+    np.multiply(du[..., 0, :], du[..., 0, :], out=weights[..., 2, :])
+    np.multiply(du[..., 0, :], du[..., 1, :], out=weights[..., 3, :])
+    np.multiply(du[..., 1, :], du[..., 1, :], out=weights[..., 4, :])
+    np.multiply(relative, inverse_range, out=weights[..., 5, :])
+    weights[..., 5, :] *= -1.0  # 1/ρ(t) − 1/ρ_k
+    np.multiply(weights[..., :5, :], inverse_range[..., None, :], out=weights[..., 6:, :])
     y = np.conj(carrier) * x
     p = np.conj(model) * x
     q = np.conj(slope) * y
     r = np.sum(np.conj(curvature) * y, axis=-1)
-    pq = np.stack([p.real, p.imag, q.real, q.imag], axis=-1)  # (..., H, K, N, 4)
-    sums = weights @ pq  # (..., H, K, 11, 4)
-    ps = sums[..., 0] + 1j * sums[..., 1]  # Σ weight · P
-    qs = sums[..., :2, 2] + 1j * sums[..., :2, 3]  # Σ Δŵ_i Q
+    sums = weights @ p.view(float).reshape(*p.shape, 2)  # (..., H, K, 11, 2): Σ weight · P
+    ps = sums[..., 0] + 1j * sums[..., 1]
+    sums = du @ q.view(float).reshape(*q.shape, 2)
+    qs = sums[..., 0] + 1j * sums[..., 1]  # Σ Δŵ_i Q
     q_0 = np.sum(q, axis=-1)
 
     k = 2.0 * np.pi * geometry.gamma_per_m

@@ -6,7 +6,9 @@ The function gives its value, gradient and Hessian at a point together (for ``L`
 ``H`` is negative definite, else ``−(H − μI)⁻¹g`` with ``μ = λ_max(H) + |g|/r`` (a climb of the
 quadratic model at most the trust radius ``r`` long); it is clipped to the trust radius and
 taken when ``L`` does not fall (the radius doubles after a clipped step taken, and drops to a
-quarter of a step refused). A row converges when a step taken, or the radius, is below ``xtol``.
+quarter of a step refused). A row converges when a step taken, or the radius, is below ``xtol``,
+or when its next step is an unclipped Newton step below ``xtol`` (the maximum is then within
+``xtol``, and the row stays where it is).
 Each iteration evaluates the trial points of every active row, in one call of the function
 (its derivatives ready for the next step when taken): every row is vectorised with the
 others.
@@ -114,13 +116,23 @@ def newton_ascent(
     converged = np.zeros(m, dtype=bool)
     iterations = np.ones(m, dtype=np.int64)
     for _ in range(max_iterations):
+        if margin is not None and group is not None:
+            active &= ~_hopeless(value, gradient, hessian, group, margin)
         if not active.any():
             break
         live = np.flatnonzero(active)
         step = _ascent_step(gradient[live], hessian[live], radius[live])
+        length = np.hypot(step[:, 0], step[:, 1])
+        h = hessian[live]
+        newton = (h[:, 0, 0] < 0.0) & (h[:, 0, 0] * h[:, 1, 1] - h[:, 0, 1] * h[:, 1, 0] > 0.0)
+        settled = newton & (length <= xtol_m) & (length < radius[live])
+        converged[live[settled]] = True  # the maximum within xtol: no need to go there
+        active[live[settled]] = False
+        live, step, length = live[~settled], step[~settled], length[~settled]
+        if not len(live):
+            break
         trial, trial_gradient, trial_hessian = objective(live, position[live] + step)
         iterations[live] += 1
-        length = np.hypot(step[:, 0], step[:, 1])
         taken = trial >= value[live]
         clipped = length >= radius[live] * (1.0 - 1e-12)
         moved = live[taken]
@@ -137,8 +149,6 @@ def newton_ascent(
         done = (taken & (length <= xtol_m)) | (~taken & (radius[live] <= xtol_m))
         converged[live[done & ~broken]] = True
         active[live[done]] = False
-        if margin is not None and group is not None:
-            active &= ~_hopeless(value, gradient, hessian, group, margin)
     return Ascent(
         position_m=position,
         value=value,
