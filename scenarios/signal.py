@@ -233,16 +233,49 @@ def burst_shift_samples(
     return plan.sample_rate_hz * ((toa - window_s) + emission)
 
 
+def _delayed_spectrum(plan: BurstPlan, shift_samples: ArrayLike) -> tuple[ComplexArray, FloatArray]:
+    """``S_m e^{−j2π f_m D}`` for shifts ``D`` ``(...)``, ``(..., n_samples)``, and the bins'
+    ``f_m`` (MATH §18)."""
+    burst = np.fft.fft(burst_envelope(plan, window_offsets_s(plan)))
+    shift = np.asarray(shift_samples, dtype=float)[..., None]
+    frequency = np.fft.fftfreq(plan.n_samples)
+    return burst * np.exp(-2j * np.pi * frequency * shift), frequency
+
+
 def shifted_envelope(plan: BurstPlan, shift_samples: ArrayLike) -> ComplexArray:
     """The sampled burst delayed by ``shift_samples`` ``(...)`` in the frequency domain,
     ``(..., n_samples)`` (MATH §18): ``S_m e^{−j2π f_m D}``, ``f_m`` the bin frequencies of
     ``numpy.fft.fftfreq`` in cycles per sample, as the front end models a delay (§19). A
     band-limited delay modulo the window: valid while the burst stays inside its window
     (``|D|`` within the guard)."""
-    burst = np.fft.fft(burst_envelope(plan, window_offsets_s(plan)))
-    shift = np.asarray(shift_samples, dtype=float)[..., None]
-    frequency = np.fft.fftfreq(plan.n_samples)
-    return np.fft.ifft(burst * np.exp(-2j * np.pi * frequency * shift), axis=-1)
+    return np.fft.ifft(_delayed_spectrum(plan, shift_samples)[0], axis=-1)
+
+
+def shifted_envelope_derivatives(plan: BurstPlan, shift_samples: ArrayLike) -> ComplexArray:
+    """:func:`shifted_envelope` and its first two derivatives in the shift, ``s̃(n − D)``,
+    ``∂s̃/∂D`` and ``∂²s̃/∂D²``, stacked on a leading axis, ``(3, ..., n_samples)`` (MATH §18,
+    §22): the delayed spectrum times ``(−j2π f_m)`` to the power 0, 1, 2, inverse transformed
+    (the first the same numbers as :func:`shifted_envelope`)."""
+    delayed, frequency = _delayed_spectrum(plan, shift_samples)
+    factor = -2j * np.pi * frequency
+    return np.fft.ifft(np.stack([delayed, factor * delayed, factor * factor * delayed]), axis=-1)
+
+
+def burst_model_factors(
+    geometry: MeasurementSet,
+    plan: BurstPlan,
+    emitter_m: ArrayLike,
+    schedule_s: ArrayLike,
+    *,
+    carrier_offset_hz: ArrayLike = 0.0,
+    emission_time_s: ArrayLike = 0.0,
+) -> tuple[ComplexArray, FloatArray]:
+    """The two factors of :func:`burst_model`: the carrier ``e^{jφ(t)}`` ``(..., n_bursts,
+    n_samples)`` and the shifts ``D_k`` ``(..., n_bursts)`` at which the envelope is delayed
+    (MATH §18); the model is the carrier times :func:`shifted_envelope` at the shifts."""
+    phase = burst_phase_rad(geometry, plan, emitter_m, carrier_offset_hz)
+    shift = burst_shift_samples(geometry, plan, emitter_m, schedule_s, emission_time_s)
+    return np.exp(1j * phase), shift
 
 
 def burst_model(
@@ -266,9 +299,15 @@ def burst_model(
     hypotheses. The envelope is delayed by the burst centre's delay throughout the burst: its
     change within the burst, ``|v| T / 2c`` (10⁻⁴ samples), is neglected; the phase keeps it.
     """
-    phase = burst_phase_rad(geometry, plan, emitter_m, carrier_offset_hz)
-    shift = burst_shift_samples(geometry, plan, emitter_m, schedule_s, emission_time_s)
-    return np.exp(1j * phase) * shifted_envelope(plan, shift)
+    carrier, shift = burst_model_factors(
+        geometry,
+        plan,
+        emitter_m,
+        schedule_s,
+        carrier_offset_hz=carrier_offset_hz,
+        emission_time_s=emission_time_s,
+    )
+    return carrier * shifted_envelope(plan, shift)
 
 
 @dataclass(frozen=True, slots=True)

@@ -47,6 +47,16 @@ ZOOM_LEVELS = 2
 (about 1 m on ``turn``) for ``2 · 289`` look-ups a burst: the refinement then takes about one
 Newton iteration less (27 evaluations of the exact model a start instead of 31)."""
 
+LOBE_FLOOR = (
+    np.sinc(LOBE_FRACTION / np.sqrt(2.0)) ** 2 * (1.0 - LOBE_FRACTION / np.sqrt(2.0)) ** 2 - 0.032
+)
+"""On a grid of ``LOBE_FRACTION`` steps, every lobe's top is within half a diagonal step of a
+node, which moves each burst's frequency and delay by at most ``LOBE_FRACTION/√2`` of their
+half-widths: the node's coarse ``L`` is at least ``sinc²`` of that (the frequency) times the
+square of the BPSK correlation's triangle (the delay), less the interpolation's 3.2%, of the
+top's: 0.59 at ``LOBE_FRACTION = 1/4``. A coarse maximum below this fraction of the best one
+holds no lobe that can top the best's."""
+
 TABLE_STEP = 0.25
 """The table's steps as a fraction of the widths of the peak of ``|A|²``: near its peak
 ``|A(f, D)|² ≈ |A|²_max (1 − (2πT_rms δf)² − (2πB_rms δD / f_s)²)``, ``T_rms = T/√12`` the
@@ -73,7 +83,9 @@ class SearchGrid:
     whose bursts all stay in their windows, ``spacing_m`` the step, per point and burst the
     Doppler ``doppler_hz`` and shift ``shift_samples`` ``(ny · nx, n_bursts)``, the table's
     ``axes`` and ``lookup``, the sparse ``(ny · nx, n_bursts · nf · nd)`` interpolation of a
-    trial's table at every point (the same for every trial: one sparse product serves them)."""
+    trial's table at every point (the same for every trial: one sparse product serves them),
+    and ``resolved``, whether the spacing is the lobe's fraction (not coarsened to fit
+    ``max_side``)."""
 
     x_m: FloatArray
     y_m: FloatArray
@@ -84,6 +96,7 @@ class SearchGrid:
     shift_samples: FloatArray
     axes: TableAxes
     lookup: sparse.csr_matrix
+    resolved: bool
 
 
 def delay_lobe_samples(plan: BurstPlan) -> float:
@@ -151,7 +164,7 @@ def search_grid(
         (
             weight.reshape(len(points), per_row).ravel(),
             index.reshape(len(points), per_row).ravel(),
-            np.arange(len(points) + 1) * per_row,
+            np.arange(len(points) + 1, dtype=index.dtype) * per_row,
         ),
         shape=(len(points), n_columns),
     )
@@ -165,6 +178,7 @@ def search_grid(
         shift_samples=shift,
         axes=axes,
         lookup=lookup,
+        resolved=bool(step <= min(step_doppler, step_delay)),
     )
 
 
@@ -222,17 +236,19 @@ def _quadratic(values: FloatArray, axis: FloatArray) -> tuple[NDArray[np.int64],
 
 def interpolation(
     axes: TableAxes, doppler_hz: FloatArray, shift_samples: FloatArray
-) -> tuple[NDArray[np.int64], FloatArray]:
+) -> tuple[NDArray[np.integer], FloatArray]:
     """The biquadratic interpolation of the table (docs/math.md §22) at per-burst Dopplers
     ``doppler_hz`` and shifts ``shift_samples`` ``(..., n_bursts)``: the nine nodes of each,
     as indices into a trial's flattened table ``(n_bursts · nf · nd,)``, and their weights,
-    ``(..., n_bursts, 9)`` each. Three nodes a side reproduce a peak's quadratic top, so a
-    maximum falls between the nodes where it is, not on a node."""
+    ``(..., n_bursts, 9)`` each (int32 indices where they fit). Three nodes a side reproduce a
+    peak's quadratic top, so a maximum falls between the nodes where it is, not on a node."""
     nf, nd = len(axes.frequency_hz), len(axes.shift_samples)
     i_f, w_f = _quadratic(doppler_hz, axes.frequency_hz)
     i_d, w_d = _quadratic(shift_samples, axes.shift_samples)
-    base = (np.arange(doppler_hz.shape[-1]) * nf + i_f) * nd + i_d
-    step = np.add.outer(np.array([-nd, 0, nd]), np.array([-1, 0, 1])).ravel()
+    # int32 where the table's columns fit (the sparse look-up's own index type): half the bytes
+    kind = np.int32 if doppler_hz.shape[-1] * nf * nd < 2**31 else np.int64
+    base = ((np.arange(doppler_hz.shape[-1]) * nf + i_f) * nd + i_d).astype(kind)
+    step = np.add.outer(np.array([-nd, 0, nd]), np.array([-1, 0, 1])).ravel().astype(kind)
     index = base[..., None] + step
     weight = (w_f[..., :, None] * w_d[..., None, :]).reshape(*w_f.shape[:-1], 9)
     return index, weight
@@ -264,9 +280,10 @@ def coarse_maxima(
     grid: SearchGrid,
     n_starts: int,
     line: tuple[FloatArray, FloatArray] | None,
-) -> tuple[FloatArray, BoolArray]:
+) -> tuple[FloatArray, FloatArray, BoolArray]:
     """The ``n_starts`` best local maxima of each trial's coarse ``L`` (a point at least its
-    eight neighbours), ``(n_trials, n_starts, 2)`` and whether each is one (docs/math.md §22).
+    eight neighbours), ``(n_trials, n_starts, 2)``, their values and whether each is one
+    (docs/math.md §22).
     On a straight track (``line``) only the points on its left are searched: the likelihood is
     the same at the mirror image (§7), which the mirror rule adds back."""
     n = len(coarse)
@@ -284,8 +301,21 @@ def coarse_maxima(
                 peak &= image >= padded[:, 1 + dy : 1 + dy + ny, 1 + dx : 1 + dx + nx]
     ranked = np.where(peak.reshape(n, -1), values, -np.inf)
     order = np.argsort(-ranked, axis=1, kind="stable")[:, :n_starts]
-    found = np.isfinite(np.take_along_axis(ranked, order, axis=1))
-    return grid.points_m[order], found
+    values = np.take_along_axis(ranked, order, axis=1)
+    return grid.points_m[order], values, np.isfinite(values)
+
+
+def contending_maxima(
+    coarse_values: FloatArray, found: BoolArray, grid: SearchGrid, margin: FloatArray
+) -> BoolArray:
+    """The coarse maxima ``(n_trials, m)`` (their coarse ``L``, ``found`` those that are) whose
+    lobe can hold the global maximum (docs/math.md §22): on a resolved grid, at least
+    ``LOBE_FLOOR`` of the trial's best coarse value less ``margin`` ``(n_trials,)`` (the
+    values' noise); every one found on a coarsened grid."""
+    if not grid.resolved:
+        return found
+    best = np.max(np.where(found, coarse_values, -np.inf), axis=1)
+    return found & (coarse_values >= LOBE_FLOOR * best[:, None] - margin[:, None])
 
 
 def zoomed_starts(

@@ -33,12 +33,13 @@ from estimators.dpd.coarse import (
     ZOOM,
     ZOOM_LEVELS,
     coarse_maxima,
+    contending_maxima,
     correlation_table,
     grid_log_likelihood,
     search_grid,
     zoomed_starts,
 )
-from estimators.dpd.likelihood import profiled_log_likelihood
+from estimators.dpd.likelihood import profiled_log_likelihood_derivatives
 from estimators.dpd.refine import newton_ascent
 from estimators.interface import Capabilities
 from estimators.mirror_rule import finalize_columns
@@ -51,14 +52,13 @@ Rngs = Sequence[np.random.Generator | None] | None
 
 NAME = "dpd"
 
-DIFFERENCE_FRACTION = 1e-5
-"""The finite-difference step of the refinement, as a fraction of the grid's spacing (a
-quarter of the likelihood's main lobe ``w``): the central difference's truncation moves the
-maximum by about ``h²/ρ`` (the Dopplers bend on the scale of the range ρ) and rounding by
-``ε w²/h``; on ``turn`` (``h`` = 1.25 mm) both are near 10⁻⁸ m (§22)."""
-
 XTOL_FRACTION = 1e-7
 """The refinement stops at a step below this fraction of the grid's spacing (§22)."""
+
+ABANDON_SIGMAS = 10.0
+"""A start is abandoned when even its lobe's predicted top lies this many standard deviations
+of the likelihood's noise below the trial's best value so far: ``L`` at a point where the bursts
+explain the energy ``L`` carries a noise term of variance ``2 L σ²`` (§22)."""
 
 MERGE_FRACTION = 1e-4
 """Refined maxima closer than this fraction of the grid's spacing are one (§22)."""
@@ -172,7 +172,7 @@ def direct_position(
     Each coarse maximum moves to the best point of local grids of an eighth of the spacing,
     then of a 64th (:func:`estimators.dpd.coarse.zoomed_starts`); the refinement
     (:func:`estimators.dpd.refine.newton_ascent`) starts there with a trust radius of that
-    last step, differences at :data:`DIFFERENCE_FRACTION` of the spacing and stops at
+    last step, the analytic derivatives of ``L``, and stops at
     :data:`XTOL_FRACTION` of it. A trial none of whose starts converges is a failed estimate.
     """
     x, schedule = check_iq(geometry, plan, samples, schedule_s)
@@ -201,7 +201,23 @@ def direct_position(
     power = np.concatenate(
         [correlation_table(plan, x[i : i + chunk], grid.axes) for i in range(0, n, chunk)]
     )
-    best, found = coarse_maxima(grid_log_likelihood(power, grid), grid, width, line)
+    coarse = grid_log_likelihood(power, grid)
+    best, best_values, found = coarse_maxima(coarse, grid, width, line)
+    energy = np.sum(x.real**2 + x.imag**2, axis=(1, 2))
+    dof = x.shape[1] * (x.shape[2] - 1)
+
+    def margin(trials: NDArray[np.int64], best: FloatArray) -> FloatArray:
+        """``ABANDON_SIGMAS`` standard deviations of the noise in ``L`` at ``best``."""
+        noise_w = np.maximum(energy[trials] - best, 0.0) / dof
+        return ABANDON_SIGMAS * np.sqrt(2.0 * np.maximum(best, 0.0) * noise_w)
+
+    top = np.max(coarse, axis=1)
+    found = contending_maxima(
+        best_values,
+        found,
+        grid,
+        margin(np.arange(n), top),
+    )
     per_trial = width * (2 * ZOOM + 1) ** 2 * x.shape[1] * 9  # the local grids' look-ups
     chunk = max(1, CHUNK_VALUES // per_trial)
     starts = np.concatenate(
@@ -215,24 +231,32 @@ def direct_position(
 
     # refine: the exact likelihood's Newton ascent from every start found, all trials at once
     trial_of, slot_of = np.nonzero(found)
-    rows_per_call = max(1, CHUNK_VALUES // (6 * x.shape[1] * x.shape[2]))
+    rows_per_call = max(1, CHUNK_VALUES // (8 * x.shape[1] * x.shape[2]))
 
-    def objective(rows: NDArray[np.int64], points: FloatArray) -> FloatArray:
-        out = np.empty(points.shape[:2])
+    def objective(
+        rows: NDArray[np.int64], points: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        value, gradient, hessian = (
+            np.empty(len(rows)),
+            np.empty((len(rows), 2)),
+            np.empty((len(rows), 2, 2)),
+        )
         for first in range(0, len(rows), rows_per_call):
             part = slice(first, first + rows_per_call)
-            out[part] = profiled_log_likelihood(
-                geometry, plan, x[trial_of[rows[part]]], schedule, points[part]
+            v, g, h = profiled_log_likelihood_derivatives(
+                geometry, plan, x[trial_of[rows[part]]], schedule, points[part, None]
             )
-        return out
+            value[part], gradient[part], hessian[part] = v[:, 0], g[:, 0], h[:, 0]
+        return value, gradient, hessian
 
     ascent = newton_ascent(
         objective,
         starts[trial_of, slot_of],
-        difference_m=DIFFERENCE_FRACTION * grid.spacing_m,
         radius_m=grid.spacing_m / ZOOM**ZOOM_LEVELS,
         xtol_m=XTOL_FRACTION * grid.spacing_m,
         max_iterations=max_iterations,
+        group=trial_of,
+        margin=margin,
     )
     position = np.full((n, width, 2), np.nan)
     value = np.full((n, width), -np.inf)
@@ -272,7 +296,6 @@ def direct_position(
     source = final.source[rows, chosen]
     slot = np.take_along_axis(kept, np.maximum(source % max(width, 1), 0)[:, None], axis=1)[:, 0]
     best = value[rows, slot]
-    energy = np.sum(x.real**2 + x.imag**2, axis=(1, 2))
     noise_w = np.maximum(energy - best, 0.0) / (x.shape[1] * (x.shape[2] - 1))
     diagnostics: dict[str, Any] = {
         "profiled_log_likelihood": np.where(success, best, np.nan),

@@ -1,15 +1,17 @@
 r"""The local refinement of direct position determination (docs/math.md §22): a trust-region
 Newton ascent of a smooth function of a 2-D position, many rows at once.
 
-The derivatives are central differences of the function itself (a step ``h``): the gradient
-``(L(s + h e_i) − L(s − h e_i)) / 2h`` and the Hessian from the same four points, the centre
-and ``L(s + h e_x + h e_y)``: five new values a stencil. The step is Newton's, ``−H⁻¹g``, where
+The function gives its value, gradient and Hessian at a point together (for ``L``, analytic:
+:func:`estimators.dpd.likelihood.profiled_log_likelihood_derivatives`). The step is Newton's, ``−H⁻¹g``, where
 ``H`` is negative definite, else ``−(H − μI)⁻¹g`` with ``μ = λ_max(H) + |g|/r`` (a climb of the
 quadratic model at most the trust radius ``r`` long); it is clipped to the trust radius and
 taken when ``L`` does not fall (the radius doubles after a clipped step taken, and drops to a
-quarter of a step refused). A row converges when a step taken, or the radius, is below ``xtol``.
-Each iteration evaluates the stencils of the rows that moved and the trial points of every
-active row, in two calls of the function: every row is vectorised with the others.
+quarter of a step refused). A row converges when a step taken, or the radius, is below ``xtol``,
+or when its next step is an unclipped Newton step below ``xtol`` (the maximum is then within
+``xtol``, and the row stays where it is).
+Each iteration evaluates the trial points of every active row, in one call of the function
+(its derivatives ready for the next step when taken): every row is vectorised with the
+others.
 """
 
 from __future__ import annotations
@@ -24,37 +26,21 @@ FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 IntArray = NDArray[np.int64]
 
-Objective = Callable[[NDArray[np.int64], FloatArray], FloatArray]
-"""``objective(rows, points)``: the function of row ``rows[i]`` at ``points[i]`` ``(m, H, 2)``,
-``(m, H)``."""
-
-STENCIL = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0], [1.0, 1.0]])
-"""The stencil's offsets, in units of the difference step."""
+Objective = Callable[[NDArray[np.int64], FloatArray], tuple[FloatArray, FloatArray, FloatArray]]
+"""``objective(rows, points)``: the function of row ``rows[i]`` at ``points[i]`` ``(m, 2)``, its
+gradient and its Hessian: ``(m,)``, ``(m, 2)``, ``(m, 2, 2)``."""
 
 
 @dataclass(frozen=True, slots=True, eq=False)
 class Ascent:
-    """Each row's end: ``position_m`` ``(m, 2)``, ``value`` there, the finite-difference
-    ``hessian`` ``(m, 2, 2)`` of the last stencil (at the last point or within ``xtol`` of it),
-    ``converged`` and the stencils evaluated, ``iterations``."""
+    """Each row's end: ``position_m`` ``(m, 2)``, ``value`` and ``hessian`` ``(m, 2, 2)`` there,
+    ``converged`` and the function's evaluations, ``iterations``."""
 
     position_m: FloatArray
     value: FloatArray
     hessian: FloatArray
     converged: BoolArray
     iterations: IntArray
-
-
-def _derivatives(centre: FloatArray, values: FloatArray, h: float) -> tuple[FloatArray, FloatArray]:
-    """The gradient ``(m, 2)`` and Hessian ``(m, 2, 2)`` from the centre's value and the five
-    of :data:`STENCIL`."""
-    xp, xm, yp, ym, xy = values.T
-    gradient = np.stack([xp - xm, yp - ym], axis=-1) / (2.0 * h)
-    hxx = (xp - 2.0 * centre + xm) / h**2
-    hyy = (yp - 2.0 * centre + ym) / h**2
-    hxy = (xy - xp - yp + centre) / h**2
-    hessian = np.stack([np.stack([hxx, hxy], -1), np.stack([hxy, hyy], -1)], -2)
-    return gradient, hessian
 
 
 def _ascent_step(gradient: FloatArray, hessian: FloatArray, radius: FloatArray) -> FloatArray:
@@ -78,50 +64,90 @@ def _ascent_step(gradient: FloatArray, hessian: FloatArray, radius: FloatArray) 
     return step * scale[:, None]
 
 
+ABANDON_GAIN = 4.0
+"""A competing row is abandoned when its value plus this many times its quadratic model's rise
+is still below its group's best less the margin: the model's rise is the lobe's remaining
+height where the Hessian holds, and four times it leaves room for the lobe's departure from
+the quadratic."""
+
+
+def _hopeless(
+    value: FloatArray,
+    gradient: FloatArray,
+    hessian: FloatArray,
+    group: IntArray,
+    margin: Callable[[IntArray, FloatArray], FloatArray],
+) -> BoolArray:
+    """The rows that cannot reach their group's best (:func:`newton_ascent`)."""
+    finite = np.where(np.isfinite(value), value, -np.inf)
+    best = np.full(group.max() + 1, -np.inf)
+    np.maximum.at(best, group, finite)
+    hxx, hxy, hyy = hessian[:, 0, 0], hessian[:, 0, 1], hessian[:, 1, 1]
+    det = hxx * hyy - hxy * hxy
+    concave = (hxx < 0.0) & (det > 0.0)
+    gx, gy = gradient.T
+    safe = np.where(concave, det, 1.0)
+    rise = 0.5 * (-(hyy * gx * gx - 2.0 * hxy * gx * gy + hxx * gy * gy) / safe)
+    reach = value + ABANDON_GAIN * np.where(concave, rise, 0.0)
+    return reach < best[group] - margin(group, best[group])
+
+
 def newton_ascent(
     objective: Objective,
     start_m: FloatArray,
     *,
-    difference_m: float,
     radius_m: float,
     xtol_m: float,
     max_iterations: int,
+    group: IntArray | None = None,
+    margin: Callable[[IntArray, FloatArray], FloatArray] | None = None,
 ) -> Ascent:
-    """Maximise ``objective`` from each row's ``start_m`` ``(m, 2)`` (module text)."""
+    """Maximise ``objective`` from each row's ``start_m`` ``(m, 2)`` (module text). Rows of
+    one ``group`` compete: with ``margin(groups, best)`` (the level, per row, by which a row may
+    lie below its group's best value ``best`` and still matter), a row whose Hessian is negative
+    definite and whose value plus ``ABANDON_GAIN`` times its quadratic model's rise
+    ``½ gᵀ(−H)⁻¹g`` is below its group's best value less the margin, or whose Hessian is not
+    and whose value is, is abandoned (not converged)."""
     m = len(start_m)
-    rows = np.arange(m)
     position = np.array(start_m, dtype=float)
-    value = objective(rows, position[:, None])[:, 0]
+    value, gradient, hessian = objective(np.arange(m), position)
     radius = np.full(m, float(radius_m))
-    gradient, hessian = np.zeros((m, 2)), np.full((m, 2, 2), np.nan)
-    active = np.isfinite(value)
-    stale = active.copy()  # rows whose stencil is to be evaluated at their position
+    active = np.isfinite(value) & np.isfinite(gradient).all(axis=1)
     converged = np.zeros(m, dtype=bool)
-    iterations = np.zeros(m, dtype=np.int64)
+    iterations = np.ones(m, dtype=np.int64)
     for _ in range(max_iterations):
+        if margin is not None and group is not None:
+            active &= ~_hopeless(value, gradient, hessian, group, margin)
         if not active.any():
             break
-        moved = np.flatnonzero(stale & active)
-        if len(moved):
-            values = objective(moved, position[moved, None] + difference_m * STENCIL)
-            gradient[moved], hessian[moved] = _derivatives(value[moved], values, difference_m)
-            iterations[moved] += 1
-            broken = ~np.isfinite(values).all(axis=1)
-            active[moved[broken]] = False
         live = np.flatnonzero(active)
         step = _ascent_step(gradient[live], hessian[live], radius[live])
-        trial = objective(live, (position[live] + step)[:, None])[:, 0]
         length = np.hypot(step[:, 0], step[:, 1])
+        h = hessian[live]
+        newton = (h[:, 0, 0] < 0.0) & (h[:, 0, 0] * h[:, 1, 1] - h[:, 0, 1] * h[:, 1, 0] > 0.0)
+        settled = newton & (length <= xtol_m) & (length < radius[live])
+        converged[live[settled]] = True  # the maximum within xtol: no need to go there
+        active[live[settled]] = False
+        live, step, length = live[~settled], step[~settled], length[~settled]
+        if not len(live):
+            break
+        trial, trial_gradient, trial_hessian = objective(live, position[live] + step)
+        iterations[live] += 1
         taken = trial >= value[live]
         clipped = length >= radius[live] * (1.0 - 1e-12)
-        position[live[taken]] += step[taken]
-        value[live[taken]] = trial[taken]
+        moved = live[taken]
+        position[moved] += step[taken]
+        value[moved] = trial[taken]
+        gradient[moved], hessian[moved] = trial_gradient[taken], trial_hessian[taken]
         radius[live] = np.where(
             taken, np.where(clipped, 2.0 * radius[live], radius[live]), length / 4.0
         )
-        stale[live] = taken
+        broken = ~(
+            np.isfinite(gradient[live]).all(axis=1) & np.isfinite(hessian[live]).all(axis=(1, 2))
+        )
+        active[live[broken]] = False
         done = (taken & (length <= xtol_m)) | (~taken & (radius[live] <= xtol_m))
-        converged[live[done]] = True
+        converged[live[done & ~broken]] = True
         active[live[done]] = False
     return Ascent(
         position_m=position,

@@ -31,6 +31,7 @@ from estimators.dpd.coarse import (
     tabulated_log_likelihood,
 )
 from estimators.dpd.dpd import XTOL_FRACTION
+from estimators.dpd.likelihood import profiled_log_likelihood_derivatives
 from scenarios import get_scenario
 from scenarios.fisher import fisher_information
 from scenarios.geometry import mirror_across_line, straight_track_line
@@ -141,6 +142,36 @@ def test_the_tabulated_likelihood_is_the_exact_one_to_its_interpolation() -> Non
     )
     bound = 2 * 16 * TABLE_STEP**3 / (9 * np.sqrt(3))
     assert np.max(np.abs(coarse - exact)) <= bound * np.max(exact)
+
+
+def test_the_analytic_derivatives_are_the_likelihoods() -> None:
+    """``profiled_log_likelihood_derivatives``: ``L`` the likelihood's own (the same
+    expression), ``∇L`` the central differences of ``L`` and ``∇²L`` those of ``∇L`` at a step
+    of 1 mm, a millionth of the peak's width on ``turn`` (their truncation, ``h²/6`` of the
+    third derivative, is ~1e-7 of the values; their rounding ``ε L / h`` ~1e-7 of ``∇L``),
+    with a delay slope (a guard) and noise, at points a few widths off the truth."""
+    plan = plan_at(40.0)
+    geometry = geometry_of("turn")
+    received = bursts("turn", plan, 1, 6, noise=True)
+    x, schedule = received.samples[0], received.emission_time_s
+    points = geometry.truth_emitter_m + np.array([[3.0, -2.0], [-40.0, 25.0]])
+    value, gradient, hessian = profiled_log_likelihood_derivatives(
+        geometry, plan, x, schedule, points
+    )
+    np.testing.assert_allclose(
+        value, profiled_log_likelihood(geometry, plan, x, schedule, points), rtol=1e-12
+    )
+    h = 1e-3
+    for axis in range(2):
+        step = h * np.eye(2)[axis]
+        up = profiled_log_likelihood_derivatives(geometry, plan, x, schedule, points + step)
+        down = profiled_log_likelihood_derivatives(geometry, plan, x, schedule, points - step)
+        scale = np.abs(gradient).max(axis=1)
+        difference = (up[0] - down[0]) / (2 * h)
+        assert np.all(np.abs(difference - gradient[:, axis]) <= 1e-5 * scale)
+        curvature = (up[1] - down[1]) / (2 * h)
+        scale = np.abs(hessian).max(axis=(1, 2))[:, None]
+        assert np.all(np.abs(curvature - hessian[:, :, axis]) <= 1e-5 * scale)
 
 
 @cache
