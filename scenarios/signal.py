@@ -251,14 +251,17 @@ def shifted_envelope(plan: BurstPlan, shift_samples: ArrayLike) -> ComplexArray:
     return np.fft.ifft(_delayed_spectrum(plan, shift_samples)[0], axis=-1)
 
 
-def shifted_envelope_derivatives(plan: BurstPlan, shift_samples: ArrayLike) -> ComplexArray:
-    """:func:`shifted_envelope` and its first two derivatives in the shift, ``s̃(n − D)``,
-    ``∂s̃/∂D`` and ``∂²s̃/∂D²``, stacked on a leading axis, ``(3, ..., n_samples)`` (MATH §18,
-    §22): the delayed spectrum times ``(−j2π f_m)`` to the power 0, 1, 2, inverse transformed
-    (the first the same numbers as :func:`shifted_envelope`)."""
+def shifted_envelope_derivatives(
+    plan: BurstPlan, shift_samples: ArrayLike, order: int = 2
+) -> ComplexArray:
+    """:func:`shifted_envelope` and its derivatives in the shift up to ``order`` (1 or 2),
+    ``s̃(n − D)``, ``∂s̃/∂D`` (and ``∂²s̃/∂D²``), stacked on a leading axis, ``(order + 1, ...,
+    n_samples)`` (MATH §18, §21, §22): the delayed spectrum times ``(−j2π f_m)`` to the power
+    0, 1, 2, inverse transformed (the first the same numbers as :func:`shifted_envelope`)."""
     delayed, frequency = _delayed_spectrum(plan, shift_samples)
     factor = -2j * np.pi * frequency
-    return np.fft.ifft(np.stack([delayed, factor * delayed, factor * factor * delayed]), axis=-1)
+    spectra = [delayed, factor * delayed, factor * factor * delayed][: order + 1]
+    return np.fft.ifft(np.stack(spectra), axis=-1)
 
 
 def burst_model_factors(

@@ -37,6 +37,7 @@ from scenarios.signal import (
     burst_truth,
     noise_at_cn0,
     range_change_m,
+    shifted_envelope_derivatives,
     window_offsets_s,
 )
 from scenarios.simulate import noise_free
@@ -47,17 +48,14 @@ ComplexArray = NDArray[np.complexfloating]
 
 
 def _envelope_and_slope(plan: BurstPlan, shift_samples: FloatArray) -> tuple[ComplexArray, ...]:
-    """``s̃(n − D)`` and ``∂s̃(n − D)/∂D`` for shifts ``D`` ``(...)``, each ``(..., n_samples)``:
-    ``S_m e^{−j2π f_m D}`` and ``−j2π f_m`` times it, inverse transformed (MATH §18, §21). A
-    burst constant over its window (a tone without guards) has no slope: exactly zero."""
+    """``s̃(n − D)`` and ``∂s̃(n − D)/∂D`` for shifts ``D`` ``(...)``, each ``(..., n_samples)``
+    (:func:`scenarios.signal.shifted_envelope_derivatives`, MATH §18, §21). A burst constant
+    over its window (a tone without guards) has no slope: exactly zero."""
+    envelope, slope = shifted_envelope_derivatives(plan, shift_samples, order=1)
     sampled = burst_envelope(plan, window_offsets_s(plan))
-    spectrum = np.fft.fft(sampled)
-    frequency = np.fft.fftfreq(plan.n_samples)
-    delayed = spectrum * np.exp(-2j * np.pi * frequency * shift_samples[..., None])
-    envelope = np.fft.ifft(delayed, axis=-1)
     if np.all(sampled == sampled[0]):
         return envelope, np.zeros_like(envelope)
-    return envelope, np.fft.ifft(-2j * np.pi * frequency * delayed, axis=-1)
+    return envelope, slope
 
 
 def _model_and_jacobian(
