@@ -32,8 +32,7 @@ from scenarios.nuisance import nuisance_unknowns
 from scenarios.signal import (
     BurstPlan,
     burst_envelope,
-    burst_phase_rad,
-    burst_shift_samples,
+    burst_model_factors,
     burst_truth,
     noise_at_cn0,
     range_change_m,
@@ -71,8 +70,14 @@ def _model_and_jacobian(
     emitter = np.asarray(emitter_m, dtype=float)
     d = emitter.shape[-1]
     nuisances = nuisance_unknowns(unknowns)
-    carrier = np.exp(1j * burst_phase_rad(geometry, plan, emitter, carrier_offset_hz))
-    shift = burst_shift_samples(geometry, plan, emitter, schedule_s, emission_time_s)
+    carrier, shift = burst_model_factors(
+        geometry,
+        plan,
+        emitter,
+        schedule_s,
+        carrier_offset_hz=carrier_offset_hz,
+        emission_time_s=emission_time_s,
+    )
     envelope, slope = _envelope_and_slope(plan, shift)
     burst = carrier * envelope
     moved = carrier * slope  # ∂u/∂D_k
