@@ -149,12 +149,13 @@ BUILTIN_DEFINITIONS: dict[str, dict[str, Any]] = {
         "name": "iq-threshold",
         "description": (
             "from received samples to a position (MATH §18-§22): 100 ms BPSK bursts at "
-            "10.24 kHz from the emitter of the orbit, C/N0 swept through the front end's "
-            "threshold; two-step estimators (the front end's Doppler and ToA, then cls or ml; "
+            "10.24 kHz from the emitter of the orbit (its first 6 frames, 60 bursts), C/N0 "
+            "swept through the front end's threshold; two-step estimators (the front end's Doppler and ToA, then cls or ml; "
             "ml-doppler from the Doppler alone) against direct position determination from the "
             "samples (dpd), all against the signal-level bound"
         ),
         "scenarios": ["orbit"],
+        "frames": 6,
         "signal": {
             "waveform": "bpsk",
             "burst_s": 0.1,
@@ -162,14 +163,14 @@ BUILTIN_DEFINITIONS: dict[str, dict[str, Any]] = {
             "chip_rate_hz": 2560.0,
             "guard_s": 4.0 / 10240.0,
         },
-        "sweep": {"parameter": "cn0_dbhz", "values": [14, 18, 22, 26, 30, 34]},
+        "sweep": {"parameter": "cn0_dbhz", "values": [14, 18, 22, 26, 30]},
         "estimators": [
             "cls",
             "ml",
             {"name": "ml", "label": "ml-doppler", "options": {"use_toa": False}},
             "dpd",
         ],
-        "trials": 200,
+        "trials": 400,
         "seed": 20_261_205,
     },
     "height": {
