@@ -9,7 +9,9 @@ Processing 56(11), 2008), the bursts' complex amplitudes profiled out.
 - :func:`profiled_log_likelihood`: ``L(s)`` from :func:`scenarios.signal.burst_model`;
 - :func:`search_grid`: the coarse stage's region and spacing.
 
-It reads samples, not measurement sets: it is not in the measurement-level registry.
+It reads samples, not measurement sets: it is registered as ``dpd`` among the estimators of
+the samples (:data:`estimators.registry.SAMPLE_LEVEL`), which experiments with a ``[signal]``
+table and ``emitterbench estimate`` on a recording run; a measurement set is refused.
 """
 
 from estimators.dpd.coarse import SearchGrid, search_grid

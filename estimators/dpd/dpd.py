@@ -372,7 +372,8 @@ def _inverse_information(information: FloatArray) -> FloatArray:
 class DirectPosition:
     """Direct position determination from the bursts' samples (docs/math.md §22): the thin
     class around :func:`direct_position`, its options as fields. It reads samples, not
-    measurement sets, so it is not in the measurement-level registry.
+    measurement sets: registered among the estimators of the samples
+    (:data:`estimators.registry.SAMPLE_LEVEL`), its ``estimate`` refuses a measurement set.
 
     Parameters
     ----------
