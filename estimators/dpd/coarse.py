@@ -34,6 +34,10 @@ from scenarios.types import MeasurementSet
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
+SEARCH_EXTENTS = 10.0
+"""The default search radius, in the flight's horizontal extents about its centre
+(:func:`search_radius_of`)."""
+
 LOBE_FRACTION = 0.25
 """A grid step moves every burst's frequency and delay by at most this fraction of their main
 lobes' half-widths (``1/T``, one chip): the best cell lies inside the global maximum's lobe."""
@@ -105,8 +109,22 @@ def delay_lobe_samples(plan: BurstPlan) -> float:
     return plan.n_burst_samples / len(chip_sequence(plan))
 
 
+def search_radius_of(geometry: MeasurementSet) -> float:
+    """The default search radius about the track's centre (docs/math.md §22):
+    :data:`SEARCH_EXTENTS` times the flight's horizontal extent (its samples' largest distance
+    from their centre), at least a metre."""
+    horizontal = np.asarray(geometry.position_m, dtype=float)[:, :2]
+    extent = float(np.max(np.linalg.norm(horizontal - horizontal.mean(axis=0), axis=1)))
+    return max(SEARCH_EXTENTS * extent, 1.0)
+
+
 def search_grid(
-    geometry: MeasurementSet, plan: BurstPlan, schedule_s: ArrayLike, *, max_side: int = 256
+    geometry: MeasurementSet,
+    plan: BurstPlan,
+    schedule_s: ArrayLike,
+    *,
+    max_side: int = 256,
+    radius_m: float | None = None,
 ) -> SearchGrid:
     """The coarse grid of docs/math.md §22.
 
@@ -118,7 +136,11 @@ def search_grid(
     ``γ |v_k| / |Δz_k|`` per metre (the gradient of ``−γ vᵀu`` is at most ``γ|v|/ρ``) and its
     delay by ``f_s / c`` samples per metre, so the step is the smaller of
     ``LOBE_FRACTION · (1/T) · min_k |Δz_k| / (γ|v_k|)`` and
-    ``LOBE_FRACTION · chip · c / f_s``, but no finer than ``max_side`` points a side.
+    ``LOBE_FRACTION · chip · c / f_s``, but no finer than ``max_side`` points a side. The
+    region is cut to the square of half-side ``radius_m`` about the track's centre (default
+    :func:`search_radius_of`): one receiver's Doppler locates within a few track lengths, and
+    beyond them its likelihood flattens to a bearing, so a grid over a window kilometres wide
+    (a slow chip rate: the delay bounds little) would step over the peak near the track.
     Raises ``ValueError`` naming ``schedule_s`` when no position keeps every burst in its
     window."""
     c = geometry.speed_of_light_mps
@@ -132,6 +154,9 @@ def search_grid(
     radius2 = reach_m * reach_m - below_m * below_m
     lower = np.max(position[:, :2] - np.sqrt(np.maximum(radius2, 0.0))[:, None], axis=0)
     upper = np.min(position[:, :2] + np.sqrt(np.maximum(radius2, 0.0))[:, None], axis=0)
+    centre = position[:, :2].mean(axis=0)
+    radius = search_radius_of(geometry) if radius_m is None else float(radius_m)
+    lower, upper = np.maximum(lower, centre - radius), np.minimum(upper, centre + radius)
     if np.any(radius2 < 0.0) or np.any(lower > upper):
         raise ValueError(
             "schedule_s: no emitter position at the known height keeps every burst within its "

@@ -125,6 +125,21 @@ def check_iq(
     return x, schedule
 
 
+def check_search_radius(search_radius_m: object) -> None:
+    """``search_radius_m``: None or a positive finite number of metres, else one line."""
+    if search_radius_m is None:
+        return
+    if (
+        isinstance(search_radius_m, bool)
+        or not isinstance(search_radius_m, int | float)
+        or not 0.0 < search_radius_m < np.inf
+    ):
+        raise ValueError(
+            f"search_radius_m: expected a positive number of metres (the area of interest's "
+            f"half-side about the track's centre) or None, got {search_radius_m!r}"
+        )
+
+
 def direct_position(
     geometry: MeasurementSet,
     plan: BurstPlan,
@@ -137,6 +152,7 @@ def direct_position(
     cost_rtol: float = 1e-6,
     side_prior_m: ArrayLike | None = None,
     covariance: bool = True,
+    search_radius_m: float | None = None,
     rngs: Rngs = None,
 ) -> BatchEstimates:
     """The DPD estimate of every trial's emitter position (docs/math.md §22), estimator name
@@ -164,6 +180,10 @@ def direct_position(
     covariance : bool
         Report ``σ̂² (−∇²L)⁻¹`` at the estimate, the inverse observed information of the
         profiled likelihood (σ̂² the noise's power per sample from the residual).
+    search_radius_m : float or None
+        The half-side of the square searched about the track's centre, metres (the area of
+        interest); None: :func:`estimators.dpd.coarse.search_radius_of`, ten times the
+        flight's horizontal extent.
 
     The search region and the grid's spacing are those of
     :func:`estimators.dpd.coarse.search_grid`: the positions whose bursts all stay within
@@ -184,6 +204,7 @@ def direct_position(
         if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < least:
             raise ValueError(f"{name}: expected a whole number >= {least}, got {value!r}")
     check_side_prior(side_prior_m)
+    check_search_radius(search_radius_m)
     n = len(x)
     generators = check_rngs(rngs, n)
     hovering = hovering_problem(geometry)
@@ -194,7 +215,7 @@ def direct_position(
 
     # coarse: the tabulated likelihood on the grid, its best local maxima (left of a straight
     # track only), each moved to the best point of a local grid about it
-    grid = search_grid(geometry, plan, schedule, max_side=max_grid_side)
+    grid = search_grid(geometry, plan, schedule, max_side=max_grid_side, radius_m=search_radius_m)
     width = min(n_starts, len(grid.points_m))
     per_trial = x.shape[1] * x.shape[2] * len(grid.axes.shift_samples)
     chunk = max(1, CHUNK_VALUES // per_trial)
@@ -389,6 +410,9 @@ class DirectPosition:
         A rough emitter position; picks the nearer of equal-likelihood candidates (MATH §7).
     covariance : bool
         Report the inverse observed information at the estimate.
+    search_radius_m : float or None
+        The area of interest's half-side about the track's centre, metres; None: ten times the
+        flight's horizontal extent (:func:`estimators.dpd.coarse.search_radius_of`).
     """
 
     name: ClassVar[str] = NAME
@@ -402,6 +426,7 @@ class DirectPosition:
     cost_rtol: float = 1e-6
     side_prior_m: tuple[float, float] | None = None
     covariance: bool = True
+    search_radius_m: float | None = None
 
     def __post_init__(self) -> None:
         for option, least in (("n_starts", 1), ("max_grid_side", 3), ("max_iterations", 1)):
@@ -413,6 +438,7 @@ class DirectPosition:
         if not isinstance(self.covariance, bool):
             raise ValueError(f"covariance: expected true or false, got {self.covariance!r}")
         check_side_prior(self.side_prior_m)
+        check_search_radius(self.search_radius_m)
 
     def capabilities(self) -> Capabilities:
         """What it uses (MATH §8): every burst's Doppler and delay, from every frame."""
@@ -448,6 +474,7 @@ class DirectPosition:
             cost_rtol=self.cost_rtol,
             side_prior_m=self.side_prior_m,
             covariance=self.covariance,
+            search_radius_m=self.search_radius_m,
             rngs=rngs,
         )
 

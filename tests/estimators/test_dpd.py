@@ -42,7 +42,7 @@ from scenarios.signal import (
     frequency_bound_hz2,
     received_bursts,
 )
-from scenarios.simulate import noise_free
+from scenarios.simulate import noise_free, trial_seeds
 from scenarios.types import MeasurementSet, NoiseSigmas
 
 EPS = float(np.finfo(float).eps)
@@ -274,3 +274,39 @@ def test_bad_input_is_one_line_naming_the_field() -> None:
         assert "\n" not in str(raised.value)
     with pytest.raises(ValueError, match="n_starts"):
         DirectPosition(n_starts=0)
+
+
+def test_half_an_orbit_is_found_in_the_area_of_interest_and_the_radius_is_checked() -> None:
+    """Half an orbit at a slow chip rate (a chip is 117 km): the window allows ±132 km, where
+    a grid of 256 a side steps 1 km over the peak (it found the emitter 2 km off); the default
+    area of interest, ten flight extents about the track's centre, holds the truth and a grid
+    that resolves the Doppler's lobe (MATH §22)."""
+    plan = BurstPlan(
+        waveform="bpsk",
+        burst_s=0.1,
+        sample_rate_hz=10240.0,
+        chip_rate_hz=2560.0,
+        guard_s=4.0 / 10240.0,
+        cn0_dbhz=40.0,
+    )
+    scenario = get_scenario("orbit", frames=6)
+    received = received_bursts(scenario, plan, trial_seeds(3, 2))
+    geometry = noise_free(scenario)
+    found = direct_position(
+        geometry.without_truth(), plan, received.samples, received.emission_time_s
+    )
+    assert found.success.all()
+    assert found.diagnostics["grid_spacing_m"][0] < 20.0
+    # at 40 dB-Hz the bound is about 0.3 m: within 5 of it
+    assert np.all(np.linalg.norm(found.position_m - geometry.truth_emitter_m, axis=1) < 2.0)
+    far = direct_position(
+        geometry.without_truth(),
+        plan,
+        received.samples,
+        received.emission_time_s,
+        search_radius_m=2.0e5,
+    )
+    assert far.diagnostics["grid_spacing_m"][0] > 1000.0
+    for bad in (0.0, -1.0, float("nan"), "wide"):
+        with pytest.raises(ValueError, match="search_radius_m: expected a positive number"):
+            DirectPosition(search_radius_m=bad)
