@@ -120,9 +120,9 @@ CN0_CAPTION = (
     "with white noise at the carrier-to-noise density C/N0 (dB-Hz); a burst's SNR is C/N0 "
     "times its length. The front end measures each burst's Doppler and ToA from them; the "
     "estimators of measurements read those, outliers below its threshold included, and dpd "
-    "reads the samples. √CRLB is the bound of the σ's the bursts allow at the point's C/N0 "
-    "(Rife-Boorstyn for the frequency, the RMS-bandwidth bound for the delay), the "
-    "signal-level bound (MATH §21): it holds for every estimator of the samples."
+    "reads the samples; a two-step estimate's runtime holds its share of the front end's. "
+    "√CRLB is the bound of the σ's the bursts allow at the point's C/N0 (Rife-Boorstyn for "
+    "the frequency, the RMS-bandwidth bound for the delay), the signal-level bound (MATH §21)."
 )
 
 MATH_CAPTION = (
