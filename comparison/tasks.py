@@ -373,9 +373,11 @@ def _run_open_loop_task(task: Task) -> TaskResult:
             continue
         kind = "doppler" if "toa" not in capabilities_of(estimator).modalities else "toa"
         kind = kind if kind in feeds else "all"
-        if kind == "toa":  # the trials whose ToAs were refused fail (measured_feeds)
-            for frame in eval_frames:
-                failed = [(Estimate.failed(spec.label, text), 0.0) for text in refused.values()]
+        if kind == "toa":  # the trials whose ToAs were refused fail (measured_feeds), after
+            for frame in eval_frames:  # the front end's time
+                failed = [
+                    (Estimate.failed(spec.label, text), front_end_s) for text in refused.values()
+                ]
                 add_rows(index, frame, tuple(refused), Outcomes.of_estimates(failed, d))
         fed_task, batch = feeds[kind]
         if batch is None:
