@@ -101,6 +101,17 @@ def assert_the_geometry_s(geometry, measured, plan: BurstPlan) -> None:
     assert np.all(toa_error <= toa_tolerance_s + 1e-9 / rate_hz), toa_error.max()
 
 
+def measured_with_search(received, plan, geometry, doppler_search_hz):
+    """The front end on ``received``'s bursts, a Doppler search of ±``doppler_search_hz``."""
+    return measure_bursts(
+        received.samples,
+        plan,
+        time_s=geometry.time_s,
+        emission_time_s=received.emission_time_s,
+        doppler_search_hz=doppler_search_hz,
+    )
+
+
 @pytest.mark.parametrize("name", ["beacon-pass", "turn"])
 @pytest.mark.parametrize("waveform", ["bpsk", "cw"])
 def test_noise_free_the_measured_doppler_and_toa_are_the_geometry_s(name, waveform) -> None:
@@ -241,13 +252,7 @@ def test_a_doppler_search_measures_five_cycles_a_burst_at_the_bounds() -> None:
     received = received_bursts(geometry, plan, trial_seeds(2460, 25))
 
     def measured(doppler_search_hz):
-        return measure_bursts(
-            received.samples,
-            plan,
-            time_s=geometry.time_s,
-            emission_time_s=received.emission_time_s,
-            doppler_search_hz=doppler_search_hz,
-        )
+        return measured_with_search(received, plan, geometry, doppler_search_hz)
 
     searched = measured(1050.0)
     assert not searched.below_threshold.any()
@@ -300,13 +305,7 @@ def test_a_search_of_zero_is_no_search_and_its_flag_counts_the_cells() -> None:
     received = received_bursts(geometry, plan, trial_seeds(2470, 25))
 
     def measured(doppler_search_hz):
-        return measure_bursts(
-            received.samples,
-            plan,
-            time_s=geometry.time_s,
-            emission_time_s=received.emission_time_s,
-            doppler_search_hz=doppler_search_hz,
-        )
+        return measured_with_search(received, plan, geometry, doppler_search_hz)
 
     none, zero = measured(None), measured(0.0)
     for field in dataclasses.fields(none):

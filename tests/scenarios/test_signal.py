@@ -4,6 +4,8 @@ refused in one line."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -182,14 +184,7 @@ def test_chips_are_a_seeded_pm1_sequence_and_a_tone_is_constant() -> None:
     assert chips.shape == (50,)
     assert set(np.unique(chips)) == {-1.0, 1.0}
     np.testing.assert_array_equal(chips, chip_sequence(BPSK))
-    reseeded = BurstPlan(
-        waveform="bpsk",
-        burst_s=1e-3,
-        sample_rate_hz=2e5,
-        chip_rate_hz=5e4,
-        cn0_dbhz=60.0,
-        chip_seed=1,
-    )
+    reseeded = dataclasses.replace(BPSK, chip_seed=1)
     assert np.any(chip_sequence(reseeded) != chips)
     truth = burst_truth(get_scenario("turn"), CW)
     np.testing.assert_allclose(truth.envelope, 1.0, rtol=0.0, atol=1e-12)
