@@ -85,7 +85,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from typing import Any, TextIO, TypeVar
 
@@ -450,7 +450,7 @@ def call_estimate(
 
 
 def call_batch(
-    estimator: Estimator, batch: MeasurementBatch, rngs: list[np.random.Generator]
+    estimator: Estimator, batch: MeasurementBatch, rngs: Sequence[np.random.Generator]
 ) -> list[tuple[Estimate, float]] | None:
     """``estimate_batch`` on a private copy of ``batch``, timed and split evenly; None when it
     failed or overran; every estimate failed when it changed the copy."""
@@ -472,7 +472,7 @@ def call_batch(
 
 
 def call_columns(
-    estimator: Estimator, batch: MeasurementBatch, rngs: list[np.random.Generator]
+    estimator: Estimator, batch: MeasurementBatch, rngs: Sequence[np.random.Generator]
 ) -> tuple[BatchEstimates, float] | None:
     """``estimate_columns`` on a private copy of ``batch``, timed, with each trial's share of
     the time; None when it failed, overran, or returned something else than one row of
@@ -500,7 +500,7 @@ def call_samples(
     plan: Any,
     samples: NDArray[np.complexfloating],
     schedule_s: NDArray[np.float64],
-    rngs: list[np.random.Generator],
+    rngs: Sequence[np.random.Generator],
 ) -> tuple[BatchEstimates, float]:
     """An estimator of the received samples (``estimate_iq_batch``, docs/math.md §22) on a
     private, read-only copy of ``samples`` ``(n_trials, n_bursts, n_samples)``, with one

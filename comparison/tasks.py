@@ -87,6 +87,7 @@ from comparison.trial_rows import (
     padded,
 )
 from estimators.base import Estimate, Estimator, capabilities_of
+from estimators.batch import TrialGenerators
 from estimators.frontend import (
     BurstMeasurements,
     measure_bursts,
@@ -530,8 +531,8 @@ def _run_estimator(
     def rng(trial: int) -> np.random.Generator:
         return tie_rng(task.seed, task.scenario_index, task.point, trial, label)
 
-    def rngs() -> list[np.random.Generator]:
-        return [rng(trial) for trial in task.trials]
+    def rngs() -> TrialGenerators:  # each made when an estimator reads it (a tie to break)
+        return TrialGenerators(len(task.trials), lambda i: rng(task.trials[i]))
 
     capabilities = capabilities_of(estimator)
     if task.per_frame and capabilities.sequential:

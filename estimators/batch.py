@@ -10,9 +10,9 @@ The mirror rule applied to columns is :func:`estimators.mirror_rule.finalize_col
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 from numpy.typing import NDArray
@@ -317,10 +317,53 @@ def _python_scalar(value: Any) -> Any:
     return value.item() if isinstance(value, np.generic) else value
 
 
-def check_rngs(rngs: Sequence[np.random.Generator | None] | None, n: int) -> list[Any]:
-    """One generator (or None) per trial; ``None`` for all when ``rngs`` is None."""
+class TrialGenerators(Sequence[np.random.Generator]):
+    """One tie-breaking generator per trial, each made when it is first read.
+
+    What a run hands to a batch of ``n`` trials as ``rngs``: a sequence (``len``, indexing,
+    iteration) whose item ``i`` is ``make(i)``, made once and kept. A generator costs some
+    12 µs to seed (:class:`numpy.random.SeedSequence` and PCG64), more than a closed form's
+    estimate in batch, and most trials never draw (a draw breaks a tie of the mirror rule,
+    MATH §7): the generators of the trials that do not are never made. Trial ``i`` reads the
+    same generator, in the same state, as from a list made in advance."""
+
+    __slots__ = ("_made", "_make")
+
+    def __init__(self, n: int, make: Callable[[int], np.random.Generator]) -> None:
+        self._make = make
+        self._made: list[np.random.Generator | None] = [None] * n
+
+    def __len__(self) -> int:
+        return len(self._made)
+
+    @overload
+    def __getitem__(self, index: int) -> np.random.Generator: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> list[np.random.Generator]: ...
+
+    def __getitem__(self, index: int | slice) -> Any:
+        if isinstance(index, slice):
+            return [self[i] for i in range(len(self._made))[index]]
+        i = range(len(self._made))[index]  # an IndexError as a list's, negatives counted back
+        made = self._made[i]
+        if made is None:
+            made = self._made[i] = self._make(i)
+        return made
+
+
+def check_rngs(
+    rngs: Sequence[np.random.Generator | None] | None, n: int
+) -> Sequence[np.random.Generator | None]:
+    """One generator (or None) per trial; ``None`` for all when ``rngs`` is None. A
+    :class:`TrialGenerators` is taken as it is (its items are generators by construction),
+    so that the generators no trial reads are never made."""
     if rngs is None:
         return [None] * n
+    if isinstance(rngs, TrialGenerators):
+        if len(rngs) != n:
+            raise ValueError(f"rngs: expected one generator per trial ({n}), got {len(rngs)}")
+        return rngs
     if isinstance(rngs, np.random.Generator) or not isinstance(rngs, Sequence):
         raise TypeError(
             f"rngs: expected a list of numpy.random.Generator (one per trial) or None, got "

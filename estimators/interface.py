@@ -12,6 +12,7 @@ says in words what an object lacks. These names are also importable from
 from __future__ import annotations
 
 import inspect
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol, TypeVar, runtime_checkable
 
@@ -201,10 +202,14 @@ class BatchEstimator(Estimator, Protocol):
     ``estimate_columns(batch, *, rngs)`` returning :class:`estimators.batch.BatchEstimates`:
     the same results as columns (one array per field, diagnostics as arrays, messages as
     codes), with no object per trial; the engine stores those directly.
+
+    ``rngs`` is a sequence with one generator per trial (a run passes
+    :class:`estimators.batch.TrialGenerators`: indexed, iterated and measured as a list, each
+    generator made when first read).
     """
 
     def estimate_batch(
-        self, batch: MeasurementBatch, *, rngs: list[np.random.Generator] | None = None
+        self, batch: MeasurementBatch, *, rngs: Sequence[np.random.Generator] | None = None
     ) -> list[Estimate]: ...
 
 

@@ -400,7 +400,7 @@ def estimate_trial(
 
 
 def draw_tie_breaks(
-    generators: list[np.random.Generator | None],
+    generators: Sequence[np.random.Generator | None],
     draw: NDArray[np.bool_],
     n_kept: NDArray[np.int64],
     chosen: NDArray[np.int64],

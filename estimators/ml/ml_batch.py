@@ -649,7 +649,7 @@ def _covariances(
 
 
 def _assemble(
-    context: SharedContext, chunks: list[_Chunk], generators: list[Any]
+    context: SharedContext, chunks: list[_Chunk], generators: Sequence[Any]
 ) -> tuple[BatchEstimates, dict[int, Estimate]]:
     """The chunks' trials as columns, the draws made in trial order."""
     n = sum(len(chunk.n_kept) for chunk in chunks)

@@ -593,7 +593,7 @@ def _decide(
     shared: SharedGeometry,
     parts: list[_Solved],
     failures: dict[int, Estimate],
-    generators: list[np.random.Generator | None],
+    generators: Sequence[np.random.Generator | None],
 ) -> _Decided:
     """The mirror rule (:func:`~estimators.mirror_rule.finalize_columns`) for every trial that
     passed, and the tie-break draws in trial order."""
