@@ -24,7 +24,8 @@ Conventions shared by all figures:
 - a rate or a mean backed by fewer than :data:`MIN_COUNT_FOR_RATE` values is not drawn
   (:data:`WRONG_SIDE_COUNT_NOTE`, :data:`NEES_COUNT_NOTE`);
 - log axes label decades only (1-2-5 steps when the view spans less than two decades), as
-  plain numbers from 0.001 to 10000 and as powers of ten beyond; minor ticks are unlabelled;
+  plain numbers from 0.001 to 10000 and as powers of ten beyond; minor ticks are unlabelled,
+  and drawn only on axes of at most three decades (:data:`MAX_MINOR_TICK_DECADES`);
 - per-frame runs are drawn at their last frame except in the figures against the frame.
 
 The figures by family: :mod:`~comparison.figures.sweep` (against the swept parameter, the
@@ -83,6 +84,7 @@ from comparison.figures.style import (
     ESTIMATOR_MARKERS,
     LEGEND_WIDTH_IN,
     MAX_LOG_LABELS,
+    MAX_MINOR_TICK_DECADES,
     PANEL_SIZE_IN,
     PLAIN_NUMBER_RANGE,
     PlainLogFormatter,
@@ -112,6 +114,7 @@ __all__ = [
     "ESTIMATOR_MARKERS",
     "LEGEND_WIDTH_IN",
     "MAX_LOG_LABELS",
+    "MAX_MINOR_TICK_DECADES",
     "MAX_PANELS",
     "MIN_COUNT_FOR_RATE",
     "NEES_COUNT_NOTE",

@@ -36,6 +36,11 @@ ESTIMATOR_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">", "h")
 MAX_LOG_LABELS = 6
 """Most labelled ticks on a log axis (decades are thinned to every second, third, … one)."""
 
+MAX_MINOR_TICK_DECADES = 3.0
+"""Most decades a log axis spans and still has its minor ticks (and their faint grid lines):
+over more, eight unlabelled ticks a decade are a grey wash, and each costs a figure's drawing
+as much as a labelled one (the error CDFs' panels span up to 12 decades)."""
+
 PLAIN_NUMBER_RANGE = (1e-3, 1e5)
 """Log-axis labels are plain numbers when every labelled tick lies in this range, else powers
 of ten."""
@@ -247,12 +252,27 @@ class PlainLogFormatter(Formatter):
         return f"${mantissa:g}\\times10^{{{exponent}}}$"
 
 
+class SparseMinorLocator(LogLocator):
+    """Minor ticks of a log axis: matplotlib's (every mantissa 2…9 where they fit) on a view of
+    at most :data:`MAX_MINOR_TICK_DECADES` decades, none on a wider one."""
+
+    def __init__(self) -> None:
+        super().__init__(base=10.0, subs="auto", numticks=12)
+
+    def tick_values(self, vmin: float, vmax: float) -> np.ndarray:
+        low, high = sorted((float(vmin), float(vmax)))
+        if low > 0 and np.isfinite(high) and math.log10(high / low) > MAX_MINOR_TICK_DECADES:
+            return np.array([])
+        return super().tick_values(vmin, vmax)
+
+
 def plain_log_ticks(axis: Axis) -> None:
     """Label a log axis sparsely: :class:`SparseLogLocator` and :class:`PlainLogFormatter`
-    for the major ticks, unlabelled minor ticks (every mantissa 2…9 where they fit)."""
+    for the major ticks, unlabelled minor ticks on a view of a few decades
+    (:class:`SparseMinorLocator`)."""
     axis.set_major_locator(SparseLogLocator())
     axis.set_major_formatter(PlainLogFormatter())
-    axis.set_minor_locator(LogLocator(base=10.0, subs="auto", numticks=12))
+    axis.set_minor_locator(SparseMinorLocator())
     axis.set_minor_formatter(NullFormatter())
 
 

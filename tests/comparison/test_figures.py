@@ -430,6 +430,30 @@ def test_log_axes_label_few_major_ticks_and_no_minor_ones(low, high, expected):
     assert [t for t in rendered_labels(ax, minor=False) if t] == expected
 
 
+@pytest.mark.parametrize(
+    ("low", "high", "expected"),
+    [
+        (1.0, 500.0, [m * 10.0**e for e in range(3) for m in range(2, 10) if m * 10**e <= 500]),
+        (0.02, 20.0, [m * 10.0**e for e in range(-2, 1) for m in range(2, 10)] + [20.0]),
+        (1.0, 1.001e3, None),  # just over three decades: none
+        (1e-2, 1e12, None),
+    ],
+)
+def test_log_axes_have_minor_ticks_over_three_decades_at_most(low, high, expected):
+    figure = Figure(figsize=figures.PANEL_SIZE_IN)
+    ax = figure.subplots()
+    ax.plot([0, 1], [low, high])
+    ax.set_yscale("log")
+    figures.plain_log_ticks(ax.yaxis)
+    ax.set_ylim(low, high)
+    FigureCanvasAgg(figure).draw()
+    shown = [at for at in ax.yaxis.get_minorticklocs() if low <= at <= high]
+    if expected is None:
+        assert shown == []
+    else:
+        np.testing.assert_allclose(shown, expected, rtol=1e-12)
+
+
 @pytest.mark.parametrize("name", ["rmse", "rmse_vs_frame", "nees_vs_frame", "error_cdf"])
 def test_log_axes_of_the_figures_have_no_minor_tick_labels(name):
     figure = {
