@@ -27,10 +27,11 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import stats
+from scipy import special
 
 from comparison.scoring import distance_m
 from comparison.trial_rows import SCORED_DIMENSION
+from estimators.goodness_of_fit import chi2_quantile
 
 FloatArray = NDArray[np.float64]
 
@@ -424,7 +425,8 @@ def bias_intervals(
         largest = np.where(valid, largest_eigenvalue(np.where(valid[:, None, None], scatter, 0)), 0)
         t2 = np.where(
             valid,
-            p * (count - 1) / (count - p) * stats.f.ppf(confidence, p, np.maximum(count - p, 1)),
+            # the F(p, n − p) quantile, what scipy.stats.f.ppf computes (to the bit)
+            p * (count - 1) / (count - p) * special.fdtri(p, np.maximum(count - p, 1), confidence),
             np.nan,
         )
         reach = np.sqrt(t2 * np.maximum(largest, 0.0) / count)
@@ -520,6 +522,6 @@ def nees_band(
     alpha = 1.0 - confidence
     with np.errstate(divide="ignore", invalid="ignore"):
         total = np.where(count > 0, float(dof) * count, np.nan)
-        low = stats.chi2.ppf(alpha / 2, total) / count
-        high = stats.chi2.ppf(1 - alpha / 2, total) / count
+        low = chi2_quantile(alpha / 2, total) / count
+        high = chi2_quantile(1 - alpha / 2, total) / count
     return np.asarray(low, dtype=float), np.asarray(high, dtype=float)

@@ -20,6 +20,7 @@ from estimators import make_estimator
 from estimators.base import Estimate, capabilities_of
 from estimators.goodness_of_fit import (
     FIT_TEST_LEVEL,
+    chi2_quantile,
     fit_chi_square,
     fit_of,
     fit_p_value,
@@ -226,3 +227,13 @@ def test_the_fit_test_is_scipys_chi_square_quantile_and_tail():
     for v, d in zip(value[:500], dof[:500], strict=True):
         expected = stats.chi2.sf(v, d) if d >= 1 and np.isfinite(v) else np.nan
         np.testing.assert_allclose(fit_p_value(v, int(d)), expected, rtol=1e-12)
+
+
+def test_the_chi_square_quantile_is_scipys_to_the_bit():
+    """chi2_quantile is scipy.stats.chi2.ppf (the same special.gammaincinv on the same arrays)
+    over the quantiles and degrees of freedom of the fit test and the NEES bands; NaN for NaN
+    degrees of freedom (an empty group's band)."""
+    rng = np.random.default_rng(3)
+    q = rng.uniform(1e-6, 1.0 - 1e-6, 5000)
+    dof = np.concatenate([rng.integers(1, 100_000, 4999).astype(float), [np.nan]])
+    np.testing.assert_array_equal(chi2_quantile(q, dof), stats.chi2.ppf(q, dof))
