@@ -21,6 +21,7 @@ variable that raises it: ``--frames`` and the samples of a measurement set
 
 from __future__ import annotations
 
+import gc
 import math
 import os
 from collections.abc import Callable
@@ -679,8 +680,16 @@ def validate_command(
 
 
 def main() -> None:
-    """Console-script entry point ``emitterbench``."""
-    app(prog_name="emitterbench")
+    """Console-script entry point ``emitterbench``.
+
+    What the command made lives until the process ends, so the cyclic garbage collector is
+    told to leave it (``gc.freeze``) once the command is done: the interpreter's last
+    collection at exit over a run's objects (pandas, matplotlib, scipy) took 0.2-0.4 s after
+    the report was written. Files are closed by then (every one is written in a ``with``)."""
+    try:
+        app(prog_name="emitterbench")
+    finally:
+        gc.freeze()
 
 
 if __name__ == "__main__":
