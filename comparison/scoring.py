@@ -458,11 +458,52 @@ def _value_texts(column: NDArray[Any]) -> list[str]:
         return list(map(int.__repr__, column.tolist()))
     if kind == "f":
         return _float_texts(column.astype(float))
-    return [_SORTED_JSON.encode(jsonable(_scalar(value))) for value in column]
+    values = [_scalar(value) for value in column]
+    widths = {len(value) if _floats_only(value) else -1 for value in values}
+    if len(widths) == 1 and widths.pop() > 0:  # vectors of one length (a solver's eigenvalues)
+        return _vector_texts(np.array(values, dtype=float))
+    texts, known = [], {}
+    for value in values:  # labels and statuses repeat: each distinct one encoded once
+        key = _hashable_key(value)
+        text = known.get(key) if key is not None else None
+        if text is None:
+            text = _SORTED_JSON.encode(jsonable(value))
+            if key is not None:
+                known[key] = text
+        texts.append(text)
+    return texts
 
 
 def _scalar(value: Any) -> Any:
     return value.item() if isinstance(value, np.generic) else value
+
+
+def _floats_only(value: Any) -> bool:
+    """Whether ``value`` is a list, tuple or 1-D array of floats alone (no int, no bool)."""
+    if isinstance(value, np.ndarray):
+        return value.ndim == 1 and value.dtype.kind == "f"
+    return isinstance(value, list | tuple) and all(isinstance(x, float) for x in value)
+
+
+def _vector_texts(rows: NDArray[np.float64]) -> list[str]:
+    """The JSON text of each row of ``rows`` (n, width): ``[x, y, ...]``, each number as
+    :func:`_float_texts` writes it."""
+    width = rows.shape[1]
+    texts = _float_texts(rows.reshape(-1))
+    columns = (texts[c::width] for c in range(width))
+    return ["[" + ", ".join(row) + "]" for row in zip(*columns, strict=True)]
+
+
+def _hashable_key(value: Any) -> tuple[Any, ...] | None:
+    """A key telling apart the values :func:`jsonable` writes differently (``True`` and ``1``
+    too), for a text, number, or list or tuple of those; None for anything else."""
+    if value is None or isinstance(value, str | bool | int | float):
+        return (type(value), value)
+    if isinstance(value, list | tuple) and all(
+        x is None or isinstance(x, str | bool | int | float) for x in value
+    ):
+        return (list, tuple((type(x), x) for x in value))
+    return None
 
 
 def _diagnostics_texts(columns: BatchEstimates, success: NDArray[np.bool_]) -> list[str]:

@@ -254,6 +254,18 @@ def test_of_estimates_keeps_what_the_diagnostics_hold():
 # --------------------------------------------------------------------------------------------
 
 
+MIXED = ([1, 2.0], [True, 1], [1, True], [1.0, 2.0], "1", 1, True, 1.0)
+"""Values that compare equal but are written differently (``true`` and ``1``, ``1`` and
+``1.0``): a diagnostics column of them must keep each one's own text."""
+
+
+def object_column(values) -> np.ndarray:
+    """An object array holding each of ``values`` as it is (lists kept whole)."""
+    column = np.empty(len(values), dtype=object)
+    column[:] = values
+    return column
+
+
 def random_columns(rng, n, track):
     """BatchEstimates with NaN padding, failures, successes with a non-finite value or an
     invalid covariance (which the columns, as Estimate, turn into failures), covariances, and
@@ -275,6 +287,8 @@ def random_columns(rng, n, track):
         given = random_covariance(rng)
         if given is not None:
             covariance[i] = given
+    vectors = rng.normal(size=(n, 4)) * 10.0 ** rng.integers(-300, 300, size=(n, 1))
+    vectors.flat[rng.choice(4 * n, 12, replace=False)] = [np.nan, np.inf, -np.inf, -0.0] * 3
     floats = rng.normal(size=n) * 10.0 ** rng.integers(-300, 300, size=n)
     floats[rng.random(n) < 0.1] = np.nan
     floats[rng.random(n) < 0.1] = -np.inf
@@ -287,6 +301,10 @@ def random_columns(rng, n, track):
         "hard_case": rng.random(n) < 0.5,
         "note": np.array(["a", "é ☃", 'quo"te'] * n)[:n],
         "anything": np.array([None, 1.5, [1, np.nan], {"b": 1, "a": 2}] * n, dtype=object)[:n],
+        "eigenvalues": object_column([list(row) for row in vectors]),  # written together
+        "arrays": object_column(list(vectors[:, :2])),
+        "statuses": object_column([["optimal", "user_limit"][: 1 + i % 2] for i in range(n)]),
+        "mixed": object_column([MIXED[i % len(MIXED)] for i in range(n)]),
     }
     messages = ("", "hard case: mirror pair (MATH §5)", "RuntimeError: no")
     return BatchEstimates(
@@ -379,12 +397,20 @@ def test_the_json_text_is_that_of_json_dumps(values, flags):
         success=success,
         message_code=np.zeros(n, dtype=np.int64),
         messages=("",),
-        diagnostics={"f": floats, "b": flags, "i": np.arange(n) - 2**40},
+        diagnostics={
+            "f": floats,
+            "b": flags,
+            "i": np.arange(n) - 2**40,
+            "v": object_column([[x, -x] for x in floats.tolist()]),  # vectors of one length
+            "m": object_column([MIXED[i % len(MIXED)] for i in range(n)]),
+        },
     )
     rows = score_outcomes(Outcomes.of_columns(columns, 0.0), TRUTH, None)
     assert_same_rows(rows, reference_rows(columns.to_estimates(), [0.0] * n, TRUTH, None))
     for i, row in enumerate(rows):
-        expected = {"f": floats[i].item(), "b": bool(flags[i]), "i": i - 2**40}
+        x = floats[i].item()
+        m = MIXED[i % len(MIXED)]
+        expected = {"f": x, "b": bool(flags[i]), "i": i - 2**40, "v": [x, -x], "m": m}
         if success[i] and not refused[i]:
             assert row[COLUMN["diagnostics_json"]] == json.dumps(jsonable(expected), sort_keys=True)
         else:
