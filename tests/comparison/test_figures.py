@@ -408,6 +408,18 @@ def rendered_labels(ax, *, minor: bool, axis: str = "y") -> list[str]:
     ]
 
 
+def drawn_log_axis(low: float, high: float):
+    """A panel with a log y axis from ``low`` to ``high``, ticked as the figures tick it, drawn."""
+    figure = Figure(figsize=figures.PANEL_SIZE_IN)
+    ax = figure.subplots()
+    ax.plot([0, 1], [low, high])
+    ax.set_yscale("log")
+    figures.plain_log_ticks(ax.yaxis)
+    ax.set_ylim(low, high)
+    FigureCanvasAgg(figure).draw()
+    return ax
+
+
 @pytest.mark.parametrize(
     ("low", "high", "expected"),
     [
@@ -418,13 +430,7 @@ def rendered_labels(ax, *, minor: bool, axis: str = "y") -> list[str]:
     ],
 )
 def test_log_axes_label_few_major_ticks_and_no_minor_ones(low, high, expected):
-    figure = Figure(figsize=figures.PANEL_SIZE_IN)
-    ax = figure.subplots()
-    ax.plot([0, 1], [low, high])
-    ax.set_yscale("log")
-    figures.plain_log_ticks(ax.yaxis)
-    ax.set_ylim(low, high)
-    FigureCanvasAgg(figure).draw()
+    ax = drawn_log_axis(low, high)
     assert isinstance(ax.yaxis.get_minor_formatter(), NullFormatter)
     assert set(rendered_labels(ax, minor=True)) <= {""}
     assert [t for t in rendered_labels(ax, minor=False) if t] == expected
@@ -440,13 +446,7 @@ def test_log_axes_label_few_major_ticks_and_no_minor_ones(low, high, expected):
     ],
 )
 def test_log_axes_have_minor_ticks_over_three_decades_at_most(low, high, expected):
-    figure = Figure(figsize=figures.PANEL_SIZE_IN)
-    ax = figure.subplots()
-    ax.plot([0, 1], [low, high])
-    ax.set_yscale("log")
-    figures.plain_log_ticks(ax.yaxis)
-    ax.set_ylim(low, high)
-    FigureCanvasAgg(figure).draw()
+    ax = drawn_log_axis(low, high)
     shown = [at for at in ax.yaxis.get_minorticklocs() if low <= at <= high]
     if expected is None:
         assert shown == []
