@@ -496,11 +496,12 @@ def _vector_texts(rows: NDArray[np.float64]) -> list[str]:
 
 def _hashable_key(value: Any) -> tuple[Any, ...] | None:
     """A key telling apart the values :func:`jsonable` writes differently (``True`` and ``1``
-    too), for a text, number, or list or tuple of those; None for anything else."""
-    if value is None or isinstance(value, str | bool | int | float):
+    too), for a text, whole number, truth value or None, or a list or tuple of those; None for
+    anything else (a float: ``0.0`` and ``-0.0`` are equal keys but different texts)."""
+    if value is None or isinstance(value, str | bool | int):
         return (type(value), value)
     if isinstance(value, list | tuple) and all(
-        x is None or isinstance(x, str | bool | int | float) for x in value
+        x is None or isinstance(x, str | bool | int) for x in value
     ):
         return (list, tuple((type(x), x) for x in value))
     return None

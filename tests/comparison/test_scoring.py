@@ -254,9 +254,9 @@ def test_of_estimates_keeps_what_the_diagnostics_hold():
 # --------------------------------------------------------------------------------------------
 
 
-MIXED = ([1, 2.0], [True, 1], [1, True], [1.0, 2.0], "1", 1, True, 1.0)
+MIXED = ([1, 2.0], [True, 1], [1, True], [1.0, 2.0], "1", 1, True, 1.0, 0.0, -0.0, [0.0], [-0.0])
 """Values that compare equal but are written differently (``true`` and ``1``, ``1`` and
-``1.0``): a diagnostics column of them must keep each one's own text."""
+``1.0``, ``0.0`` and ``-0.0``): a diagnostics column of them must keep each one's own text."""
 
 
 def object_column(values) -> np.ndarray:
